@@ -1,0 +1,3 @@
+from planner_client.cli import app
+
+app(prog_name="m3p2i-planner")

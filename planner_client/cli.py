@@ -1,0 +1,59 @@
+"""``m3p2i-planner``: the planner process."""
+
+from __future__ import annotations
+
+import logging
+
+import typer
+
+from shared.cli_common import setup_logging
+from shared.config import ConfigError
+from shared.endpoints import DEFAULT_HOST, DEFAULT_PORT, Endpoints
+from shared.scenario import load_scenario
+
+app = typer.Typer(add_completion=False, help=(
+    "Run the planner: mirror the world server's state into batched MuJoCo rollouts, choose the "
+    "task's modes (fixed, or by active inference), run M3P2I and send commands back.\n\n"
+    "Start `m3p2i-server` with the same scenario first (either order works: the planner waits). "
+    "Exit code: 0 when the episode ends in success, 1 otherwise, 2 on a configuration error, "
+    "3 when the server refuses the handshake."))
+
+log = logging.getLogger("m3p2i.planner")
+
+
+@app.command()
+def main(
+    scenario: str = typer.Option(..., "--scenario", "-s",
+                                 help="Scenario name (configs/scenarios/NAME.yaml) or YAML path."),
+    host: str = typer.Option(DEFAULT_HOST, help="Server address."),
+    port: int = typer.Option(DEFAULT_PORT, help="Server's first port (control); diagnostics are "
+                             "published on port+3."),
+    threads: int = typer.Option(0, help="Rollout threads (0: the scenario's planner.threads, "
+                                "else one per core)."),
+    server_timeout: float = typer.Option(2.0, help="Seconds of silence before reconnecting."),
+    keep_running: bool = typer.Option(False, help="Keep planning across episodes instead of "
+                                      "exiting when the episode ends."),
+    verbose: bool = typer.Option(False, "--verbose", "-v"),
+) -> None:
+    setup_logging(verbose, "m3p2i.planner")
+    from planner_client.build import build_client
+    from planner_client.loop import HandshakeRefused
+    try:
+        sc = load_scenario(scenario)
+        client = build_client(sc, Endpoints(host, port), threads=threads,
+                              server_timeout=server_timeout, exit_on_done=not keep_running)
+    except ConfigError as exc:
+        typer.echo(f"error: {exc}", err=True)
+        raise typer.Exit(2)
+    try:
+        stats = client.run()
+    except HandshakeRefused as exc:
+        typer.echo(f"error: the server refused the handshake: {exc}", err=True)
+        raise typer.Exit(3)
+    except KeyboardInterrupt:
+        stats = client.stats
+    finally:
+        client.close()
+    typer.echo(f"planner: {stats.iterations} iterations, {stats.hz:.1f} Hz, "
+               f"episode {stats.final_status or 'not finished'}")
+    raise typer.Exit(0 if stats.final_status == "success" else 1)

@@ -1,0 +1,8 @@
+"""Cost terms (a registry YAML names them by) and objectives (weighted sums of terms)."""
+
+from planner_client.costs.base import TERMS, CostTerm, RolloutBatch, TermContext, register
+from planner_client.costs.objective import Objective, build_objective
+from planner_client.costs import terms as _terms  # noqa: F401  (registers the built-in terms)
+
+__all__ = ["TERMS", "CostTerm", "Objective", "RolloutBatch", "TermContext", "build_objective",
+           "register"]

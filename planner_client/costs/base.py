@@ -1,0 +1,80 @@
+"""The cost-term interface: a named, vectorised function of a rollout batch.
+
+A term is built once from its YAML parameters (validated then, errors naming file and key path),
+declares the sensors it reads, and maps a :class:`RolloutBatch` to per-step costs ``[S, T]``.
+Weights and running/terminal masks are applied by :class:`~planner_client.costs.Objective`.
+"""
+
+from __future__ import annotations
+
+from abc import ABC, abstractmethod
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import ClassVar
+
+import torch
+
+from shared.config import ConfigError, Section
+from shared.frames import FrameResolver
+from planner_client.sensors import SensorLayout, SensorRequest
+
+TERMS: dict[str, type[CostTerm]] = {}
+
+
+def register(name: str) -> Callable[[type], type]:
+    """Class decorator: make a term available to YAML as ``term: name``."""
+    def wrap(cls: type) -> type:
+        cls.name = name
+        TERMS[name] = cls
+        return cls
+    return wrap
+
+
+@dataclass
+class RolloutBatch:
+    """What terms read: ``sensordata [S, T, nsensordata]`` and ``controls [S, T, nu]``."""
+    sensordata: torch.Tensor
+    controls: torch.Tensor
+    layout: SensorLayout
+    dt: float
+
+    def get(self, req: SensorRequest) -> torch.Tensor:
+        """``[S, T, dim]`` values of one requested sensor."""
+        return self.layout.take(self.sensordata, req)
+
+
+@dataclass
+class TermContext:
+    """What a term may check its parameters against at load time."""
+    source: str
+    resolve: FrameResolver
+    obstacles: list[str]
+    actuators: list[str]
+
+    def frame(self, s: Section, key: str, default: str | None = None) -> str:
+        """A frame name parameter, checked to exist in the model."""
+        name = s.req(key, str) if default is None else s.opt(key, default, str)
+        try:
+            self.resolve(name)
+        except KeyError as exc:
+            raise ConfigError(s.source, s.key_path(key), str(exc.args[0]), name,
+                              f"one of: {', '.join(self.resolve.names())}") from None
+        return name
+
+
+class CostTerm(ABC):
+    """Base class of cost terms; subclasses are registered with :func:`register`."""
+    name: ClassVar[str]
+
+    @classmethod
+    @abstractmethod
+    def from_params(cls, s: Section, ctx: TermContext) -> CostTerm:
+        """Build from YAML parameters (``s`` holds them, minus term/weight/when)."""
+
+    @abstractmethod
+    def sensors(self) -> list[SensorRequest]:
+        """Sensor quantities this term reads from rollouts."""
+
+    @abstractmethod
+    def __call__(self, batch: RolloutBatch) -> torch.Tensor:
+        """Unweighted per-step cost ``[S, T]``."""

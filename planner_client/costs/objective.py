@@ -1,0 +1,70 @@
+"""Objectives: the plan interface's cost for one action, a weighted sum of named terms."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import torch
+
+from shared.config import Section, one_of
+from shared.scenario import ObjectiveConfig
+from planner_client.costs.base import TERMS, CostTerm, RolloutBatch, TermContext
+from planner_client.sensors import SensorRequest
+
+_WHEN = ("all", "running", "terminal")
+
+
+@dataclass
+class WeightedTerm:
+    term: CostTerm
+    weight: float
+    when: str   # all steps, running steps only (t < T-1), or the terminal step only (Eq. 4)
+
+
+@dataclass
+class Objective:
+    """``S(V)`` per step: Σ_terms weight · term, masked to running/terminal steps.
+
+    The last column of the result is the terminal cost φ of Eq. 4; the planner applies the
+    discount γ^t.
+    """
+    name: str
+    terms: list[WeightedTerm]
+    fixed: dict[int, float]         # control channel -> pinned value for this mode
+
+    def sensors(self) -> list[SensorRequest]:
+        return [r for wt in self.terms for r in wt.term.sensors()]
+
+    def __call__(self, batch: RolloutBatch) -> torch.Tensor:
+        out = None
+        for wt in self.terms:
+            c = wt.weight * wt.term(batch)
+            if wt.when == "running":
+                c = torch.cat([c[:, :-1], torch.zeros_like(c[:, -1:])], dim=1)
+            elif wt.when == "terminal":
+                c = torch.cat([torch.zeros_like(c[:, :-1]), c[:, -1:]], dim=1)
+            out = c if out is None else out + c
+        return out
+
+
+def build_objective(name: str, cfg: ObjectiveConfig, ctx: TermContext) -> Objective:
+    """Validate an objective's terms against the registry and the model; build it."""
+    terms = []
+    for tc in cfg.terms:
+        s = Section({"term": tc.term, "weight": tc.weight, **tc.params}, ctx.source, tc.path)
+        s.req("term", str)
+        s.opt("weight", 1.0)
+        if tc.term not in TERMS:
+            raise s.error("term", "unknown cost term", tc.term,
+                          f"one of: {', '.join(sorted(TERMS))}")
+        when = s.opt("when", "all", one_of(_WHEN))
+        term = TERMS[tc.term].from_params(s, ctx)
+        s.done()
+        terms.append(WeightedTerm(term, tc.weight, when))
+    fixed = {}
+    for act, value in cfg.fixed.items():
+        if act not in ctx.actuators:
+            s = Section(dict(cfg.fixed), ctx.source, f"objectives.{name}.fixed")
+            raise s.error(act, "unknown actuator", act, f"one of: {', '.join(ctx.actuators)}")
+        fixed[ctx.actuators.index(act)] = value
+    return Objective(name=name, terms=terms, fixed=fixed)

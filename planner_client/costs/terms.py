@@ -1,0 +1,118 @@
+"""Built-in cost terms. Each docstring cites the equation it implements; shapes are
+``[S, T]`` per step unless stated (S samples, T horizon steps)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import torch
+
+from shared.config import Section, non_negative, one_of, positive, string_list
+from planner_client.costs.base import CostTerm, RolloutBatch, TermContext, register
+from planner_client.sensors import SensorRequest
+
+
+def _axes(s: Section) -> str:
+    return s.opt("axes", "xyz", one_of(["xy", "xyz"]))
+
+
+def _planar(x: torch.Tensor, axes: str) -> torch.Tensor:
+    return x[..., :2] if axes == "xy" else x
+
+
+@register("distance")
+@dataclass
+class Distance(CostTerm):
+    """S_dist(a, b) = |x_a - x_b| (paper Eq. 14, thesis Eq. 4.5); ``axes: xy`` ignores height."""
+    a: str
+    b: str
+    axes: str
+
+    @classmethod
+    def from_params(cls, s, ctx):
+        return cls(a=ctx.frame(s, "a"), b=ctx.frame(s, "b"), axes=_axes(s))
+
+    def sensors(self):
+        return [SensorRequest("framepos", self.a), SensorRequest("framepos", self.b)]
+
+    def __call__(self, batch: RolloutBatch) -> torch.Tensor:
+        pa, pb = (batch.get(r) for r in self.sensors())
+        return torch.linalg.vector_norm(_planar(pa - pb, self.axes), dim=-1)
+
+
+@register("collision")
+@dataclass
+class Collision(CostTerm):
+    """Keep-out cost for frame ``a`` against obstacles (the role of thesis Eq. 4.7).
+
+    Eq. 4.7 sums contact forces with non-movable objects; here the signed geom distance d_i
+    (MuJoCo GEOMDIST sensors) gives a smooth penalty that also acts before contact:
+    Σ_i max(0, margin - d_i) / margin, which is 1 per obstacle at touching and grows with
+    penetration. ``obstacles`` defaults to the arena walls and every non-visual fixed object.
+    """
+    a: str
+    obstacles: tuple[str, ...]
+    margin: float
+
+    @classmethod
+    def from_params(cls, s, ctx):
+        a = ctx.frame(s, "a")
+        names = s.opt("obstacles", tuple(ctx.obstacles), string_list, "a list of body names")
+        for i, name in enumerate(names):
+            try:
+                ctx.resolve(name)
+            except KeyError as exc:
+                raise s.error("obstacles", str(exc.args[0]), name) from None
+        return cls(a=a, obstacles=tuple(n for n in names if n != a),
+                   margin=s.opt("margin", 0.1, positive, "metres > 0"))
+
+    def sensors(self):
+        return [SensorRequest("distance", self.a, o, cutoff=self.margin) for o in self.obstacles]
+
+    def __call__(self, batch):
+        if not self.obstacles:
+            return torch.zeros(batch.controls.shape[:2], dtype=batch.sensordata.dtype)
+        d = torch.cat([batch.get(r) for r in self.sensors()], dim=-1)       # [S, T, n_obstacles]
+        return torch.clamp(self.margin - d, min=0.0).sum(-1) / self.margin
+
+
+@register("control_effort")
+@dataclass
+class ControlEffort(CostTerm):
+    """Σ_j u_j² over the control channels listed (all by default): a smoothness regulariser."""
+    channels: tuple[int, ...] | None
+
+    @classmethod
+    def from_params(cls, s, ctx):
+        names = s.opt("actuators", None, string_list, "a list of actuator names")
+        if names is None:
+            return cls(channels=None)
+        for n in names:
+            if n not in ctx.actuators:
+                raise s.error("actuators", "unknown actuator", n, f"one of: {', '.join(ctx.actuators)}")
+        return cls(channels=tuple(ctx.actuators.index(n) for n in names))
+
+    def sensors(self):
+        return []
+
+    def __call__(self, batch):
+        u = batch.controls if self.channels is None else batch.controls[..., list(self.channels)]
+        return (u * u).sum(-1)
+
+
+@register("velocity")
+@dataclass
+class Velocity(CostTerm):
+    """|v_a|: linear speed of frame ``a`` (a velocity regulariser, e.g. to arrive at rest)."""
+    a: str
+    axes: str
+
+    @classmethod
+    def from_params(cls, s, ctx):
+        return cls(a=ctx.frame(s, "a"), axes=_axes(s))
+
+    def sensors(self):
+        return [SensorRequest("framelinvel", self.a)]
+
+    def __call__(self, batch):
+        return torch.linalg.vector_norm(_planar(batch.get(self.sensors()[0]), self.axes), dim=-1)

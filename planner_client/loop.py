@@ -1,0 +1,171 @@
+"""The planner client's loop (paper Alg. 1): state in -> task layer -> M3P2I -> command out.
+
+Connection handling: the handshake is retried until a server answers (a refusal, e.g. another
+scenario, is fatal with the server's reason); a server that goes silent for ``server_timeout``
+seconds, or comes back with a new session, is handshaken again, so the planner outlives server
+restarts. Each received state is answered with one command that echoes its ``seq``.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+import numpy as np
+import zmq
+
+from shared import protocol as P
+from shared.endpoints import Endpoints, socket
+from planner_client.motion import MotionPlanner
+from planner_client.problem import Mirror
+from planner_client.task import TaskLayer
+
+log = logging.getLogger("m3p2i.planner")
+
+
+class HandshakeRefused(RuntimeError):
+    """The server refused us (scenario or protocol mismatch); retrying cannot help."""
+
+
+@dataclass
+class LoopStats:
+    iterations: int = 0
+    plan_times: list[float] = field(default_factory=list)
+    action_changes: list[tuple[float, str, tuple[str, ...]]] = field(default_factory=list)
+    final_status: str = ""
+
+    @property
+    def hz(self) -> float:
+        return 1.0 / float(np.mean(self.plan_times)) if self.plan_times else 0.0
+
+
+class PlannerClient:
+    def __init__(self, planner: MotionPlanner, task: TaskLayer, endpoints: Endpoints,
+                 scenario_name: str, scenario_hash: str, server_timeout: float = 2.0,
+                 exit_on_done: bool = True, diagnostics: bool = True):
+        self.planner = planner
+        self.task = task
+        self.endpoints = endpoints
+        self.hello = P.Hello(scenario=scenario_name, scenario_hash=scenario_hash)
+        self.server_timeout = server_timeout
+        self.exit_on_done = exit_on_done
+        self.mirror = Mirror(planner.problem.model)
+        self.ctx = zmq.Context()
+        self.sub = socket(self.ctx, zmq.SUB, conflate=True)   # only the newest state matters
+        self.sub.setsockopt(zmq.SUBSCRIBE, b"")
+        self.sub.connect(endpoints.state)
+        self.push = socket(self.ctx, zmq.PUSH, conflate=True)  # never queue stale commands
+        self.push.connect(endpoints.command)
+        self.diag = None
+        if diagnostics:
+            self.diag = socket(self.ctx, zmq.PUB)
+            self.diag.bind(endpoints.diagnostics)
+        self.welcome: P.Welcome | None = None
+        self.stats = LoopStats()
+        self._action: tuple[str, tuple[str, ...]] | None = None
+
+    # ------------------------------------------------------------------ handshake
+
+    def handshake(self, retry: float = 1.0, give_up: float | None = None) -> P.Welcome:
+        """Send hello until a server answers; raise HandshakeRefused on an error reply."""
+        start = time.monotonic()
+        warned = False
+        while True:
+            req = socket(self.ctx, zmq.REQ)
+            req.connect(self.endpoints.control)
+            req.send(P.encode(self.hello))
+            if req.poll(int(retry * 1000)):
+                frame = req.recv()
+                req.close(0)
+                try:
+                    reply = P.decode(frame, expect=("welcome", "error"))
+                except P.ProtocolError as exc:
+                    raise HandshakeRefused(f"server sent an invalid reply: {exc}") from None
+                if isinstance(reply, P.Error):
+                    raise HandshakeRefused(reply.reason)
+                if reply.nu != self.planner.problem.model.nu:
+                    raise HandshakeRefused(f"server model has nu={reply.nu}, planner model has "
+                                           f"nu={self.planner.problem.model.nu}")
+                log.info("connected: %s, %s mode, dt %.3f s, session %s", reply.scenario,
+                         reply.mode, reply.dt, reply.session)
+                self.welcome = reply
+                return reply
+            req.close(0)   # a REQ that got no reply cannot send again: make a fresh one
+            if not warned:
+                log.info("waiting for a server at %s ...", self.endpoints.control)
+                warned = True
+            if give_up is not None and time.monotonic() - start > give_up:
+                raise TimeoutError(f"no server answered at {self.endpoints.control} "
+                                   f"within {give_up:.0f} s")
+
+    # ------------------------------------------------------------------ loop
+
+    def run(self, max_iterations: int | None = None,
+            on_plan: Callable[[P.State, object], None] | None = None) -> LoopStats:
+        """Plan until the episode ends (or forever with ``exit_on_done=False``)."""
+        self.handshake()
+        last_state_at = time.monotonic()
+        while max_iterations is None or self.stats.iterations < max_iterations:
+            if not self.sub.poll(200):
+                if time.monotonic() - last_state_at > self.server_timeout:
+                    log.warning("server silent for %.1f s; reconnecting", self.server_timeout)
+                    self.handshake()
+                    last_state_at = time.monotonic()
+                continue
+            try:
+                state = P.decode(self.sub.recv(), expect="state")
+            except P.ProtocolError as exc:
+                log.warning("dropped a bad state message: %s", exc)
+                continue
+            last_state_at = time.monotonic()
+            if state.session != self.welcome.session:
+                log.info("server restarted (new session %s); handshaking again", state.session)
+                self.handshake()
+                continue
+            if state.status != "running":
+                self.stats.final_status = state.status
+                log.info("episode over: %s at t=%.2f s", state.status, state.time)
+                if self.exit_on_done:
+                    break
+                continue
+            self._step(state, on_plan)
+        return self.stats
+
+    def _step(self, state: P.State, on_plan) -> None:
+        t0 = time.perf_counter()
+        try:
+            x0 = self.mirror.apply(state)
+        except ValueError as exc:
+            log.error("state does not fit the planner's model: %s", exc)
+            return
+        decision = self.task.decide(self.mirror.data, state.extras, state.time)
+        self.planner.set_modes(decision.modes)
+        plan = self.planner.plan(x0)
+        ctrl = decision.override if decision.override is not None else plan.result.u0.numpy()
+        plan_time = time.perf_counter() - t0
+        self.push.send(P.encode(P.Command(session=state.session, seq=state.seq, ctrl=ctrl,
+                                          plan_time=plan_time, action=decision.action)))
+        self.stats.iterations += 1
+        self.stats.plan_times.append(plan_time)
+        key = (decision.action, tuple(decision.modes))
+        if key != self._action:
+            self._action = key
+            self.stats.action_changes.append((state.time, decision.action, tuple(decision.modes)))
+            log.info("t=%.2f s: action %s, modes %s", state.time, decision.action, list(decision.modes))
+        if self.diag is not None:
+            r = plan.result
+            self.diag.send(P.encode(P.Diagnostics(
+                seq=state.seq, action=decision.action, alternatives=list(decision.alternatives),
+                mode_names=plan.modes, mode_weights=r.mode_weights.numpy(),
+                top=plan.top, plan_time=plan_time)))
+        if on_plan is not None:
+            on_plan(state, plan)
+
+    def close(self) -> None:
+        self.planner.close()
+        for s in (self.sub, self.push, self.diag):
+            if s is not None:
+                s.close(0)
+        self.ctx.term()

@@ -1,0 +1,68 @@
+"""One planner iteration: sample (M3P2I) -> batched MuJoCo rollout -> per-mode costs -> update.
+
+This is the hot loop. Per iteration it does one ``mujoco.rollout`` of all ``[S, T, nu]``
+samples, one objective evaluation per mode on that mode's rows of ``sensordata [S, T, ·]``
+(tensor views, no copies), and the M3P2I update; no Python loop over samples or time steps.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+
+from planner_client.costs import RolloutBatch
+from planner_client.mppi import M3P2I, MPPIConfig, ModeSpec, PlanResult
+from planner_client.problem import PlanningProblem
+from planner_client.rollout import RolloutEngine
+
+
+@dataclass
+class Plan:
+    result: PlanResult
+    modes: list[str]
+    top: np.ndarray            # [M, T, 3] robot-frame positions of the lowest-cost samples
+
+
+class MotionPlanner:
+    """M3P2I over the problem's objectives; the active modes are objective names."""
+
+    def __init__(self, problem: PlanningProblem, cfg: MPPIConfig, samples: int,
+                 modes: list[str], nthread: int = 0, top_k: int = 5):
+        self.problem = problem
+        self.cfg = cfg
+        self.samples = samples
+        self.top_k = top_k
+        self.engine = RolloutEngine(problem.model, nthread)
+        self.mppi = M3P2I(cfg, [self._mode(m) for m in modes], dtype=torch.float64)
+        self.modes = list(modes)
+        self._step_costs: torch.Tensor | None = None
+
+    def _mode(self, name: str) -> ModeSpec:
+        return ModeSpec(name=name, samples=self.samples, fixed=self.problem.objectives[name].fixed)
+
+    def set_modes(self, modes: list[str]) -> None:
+        """Change the alternatives (e.g. a new AIP plan); means of kept modes survive."""
+        if list(modes) != self.modes:
+            self.mppi.set_modes([self._mode(m) for m in modes])
+            self.modes = list(modes)
+
+    def plan(self, x0: np.ndarray) -> Plan:
+        """One iteration from the full physics state ``x0 [nstate]``."""
+        V = self.mppi.sample()                                    # [S, T, nu]
+        _, sensordata = self.engine.run(x0, V.numpy())
+        sd = torch.from_numpy(sensordata)                         # [S, T, nsensordata], no copy
+        S, T = V.shape[:2]
+        if self._step_costs is None or self._step_costs.shape != (S, T):
+            self._step_costs = torch.empty(S, T, dtype=V.dtype)
+        for name, rows in zip(self.modes, self.mppi.mode_slices):
+            batch = RolloutBatch(sd[rows], V[rows], self.problem.layout, self.problem.model.opt.timestep)
+            self._step_costs[rows] = self.problem.objectives[name](batch)
+        result = self.mppi.update(self._step_costs)
+        best = torch.topk(result.weights, min(self.top_k, S)).indices
+        top = self.problem.layout.take(sd[best], self.problem.robot_pos).numpy().copy()
+        return Plan(result=result, modes=list(self.modes), top=top)
+
+    def close(self) -> None:
+        self.engine.close()

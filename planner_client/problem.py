@@ -1,0 +1,100 @@
+"""The planner's model of the scenario: compiled MuJoCo model with sensors, objectives, mirror.
+
+Built once at start-up from the same YAML as the server's world: objectives are validated
+against the term registry and the model, every sensor they need is added to the spec, and the
+result is compiled. :class:`Mirror` copies each received state into this model.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from dataclasses import dataclass
+
+import mujoco
+import numpy as np
+
+from shared.config import ConfigError, Section
+from shared.frames import FrameResolver
+from shared.protocol import State
+from shared.robots import RobotSpec, get_robot
+from shared.scenario import Scenario
+from shared.scene import build_spec, compile_model, get_full_state, obstacle_names
+from planner_client.costs import Objective, TermContext, build_objective
+from planner_client.mppi import MPPIConfig
+from planner_client.sensors import SensorLayout, SensorRequest, add_sensors
+
+
+@dataclass
+class PlanningProblem:
+    scenario: Scenario
+    robot: RobotSpec
+    model: mujoco.MjModel              # with the sensors of every objective
+    objectives: dict[str, Objective]
+    layout: SensorLayout
+    robot_pos: SensorRequest           # the robot frame's position, for diagnostics
+    actuators: list[str]
+    resolve: FrameResolver
+
+
+def build_problem(scenario: Scenario, extra_sensors: list[SensorRequest] = ()) -> PlanningProblem:
+    robot = get_robot(scenario.robot.model)
+    spec = build_spec(scenario)
+    base = compile_model(scenario, spec.copy())
+    resolve = FrameResolver(base, robot.frame)
+    actuators = [base.actuator(i).name for i in range(base.nu)]
+    ctx = TermContext(scenario.source, resolve, obstacle_names(scenario), actuators)
+    objectives = {name: build_objective(name, cfg, ctx) for name, cfg in scenario.objectives.items()}
+    robot_pos = SensorRequest("framepos", "robot")
+    requests = [robot_pos, *extra_sensors] + [r for o in objectives.values() for r in o.sensors()]
+    add_sensors(spec, requests, resolve)
+    model = compile_model(scenario, spec)
+    return PlanningProblem(scenario, robot, model, objectives, SensorLayout(model, requests),
+                           robot_pos, actuators, FrameResolver(model, robot.frame))
+
+
+def mppi_config(problem: PlanningProblem) -> MPPIConfig:
+    """MPPIConfig from ``planner.mppi`` of the scenario, defaults filled from the model.
+
+    Defaults: bounds = the actuators' ctrlrange, noise_sigma = a quarter of each range.
+    """
+    sc = problem.scenario
+    m = problem.model
+    lo, hi = m.actuator_ctrlrange.T
+    limited = m.actuator_ctrllimited.astype(bool)
+    u_min = tuple(float(v) if lim else -math.inf for v, lim in zip(lo, limited))
+    u_max = tuple(float(v) if lim else math.inf for v, lim in zip(hi, limited))
+    sigma = tuple(float((b - a) / 4) if lim else 1.0 for a, b, lim in zip(lo, hi, limited))
+    values = dict(horizon=sc.planner.horizon, nu=m.nu, noise_sigma=sigma, u_min=u_min, u_max=u_max)
+    s = Section(sc.planner.mppi, sc.source, "planner.mppi")
+    names = {f.name for f in dataclasses.fields(MPPIConfig)} - {"horizon", "nu"}
+    for key, value in sc.planner.mppi.items():
+        if key not in names:
+            raise s.error(key, "unknown planner parameter", value, f"one of: {', '.join(sorted(names))}")
+        values[key] = tuple(value) if isinstance(value, list) else value
+    try:
+        return MPPIConfig(**values)
+    except (ValueError, TypeError) as exc:
+        raise ConfigError(sc.source, "planner.mppi", str(exc)) from None
+
+
+class Mirror:
+    """The planner's MjData, overwritten by each received state (full physics state)."""
+
+    def __init__(self, model: mujoco.MjModel):
+        self.model = model
+        self.data = mujoco.MjData(model)
+        self.x0 = np.zeros(mujoco.mj_stateSize(model, mujoco.mjtState.mjSTATE_FULLPHYSICS))
+
+    def apply(self, state: State) -> np.ndarray:
+        """Copy ``state`` in, recompute kinematics, return the rollout initial state [nstate]."""
+        m, d = self.model, self.data
+        for name, value, size in (("qpos", state.qpos, m.nq), ("qvel", state.qvel, m.nv),
+                                  ("act", state.act, m.na), ("mocap_pos", state.mocap_pos, m.nmocap * 3),
+                                  ("mocap_quat", state.mocap_quat, m.nmocap * 4)):
+            if value.size != size:
+                raise ValueError(f"state.{name} has {value.size} values, the model needs {size}")
+            getattr(d, name).flat[:] = value.ravel()
+        d.time = state.time
+        mujoco.mj_forward(m, d)
+        return get_full_state(m, d, self.x0)

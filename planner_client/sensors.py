@@ -1,0 +1,74 @@
+"""What costs and observers read from rollouts, added to the rollout model as MuJoCo sensors.
+
+Cost terms declare :class:`SensorRequest` s; :func:`add_sensors` adds each distinct request once
+to the planner's ``MjSpec`` before compiling, and :class:`SensorLayout` maps a request to its
+columns of ``sensordata``. Rollouts then return every needed quantity for all samples and steps in
+one array ``[S, T, nsensordata]``, so costs are pure tensor maths with no per-sample Python.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import mujoco
+import torch
+
+from shared.frames import FrameResolver
+
+_KINDS: dict[str, tuple[int, int]] = {
+    "framepos": (mujoco.mjtSensor.mjSENS_FRAMEPOS, 3),
+    "framequat": (mujoco.mjtSensor.mjSENS_FRAMEQUAT, 4),
+    "framexaxis": (mujoco.mjtSensor.mjSENS_FRAMEXAXIS, 3),
+    "frameyaxis": (mujoco.mjtSensor.mjSENS_FRAMEYAXIS, 3),
+    "framezaxis": (mujoco.mjtSensor.mjSENS_FRAMEZAXIS, 3),
+    "framelinvel": (mujoco.mjtSensor.mjSENS_FRAMELINVEL, 3),
+    "distance": (mujoco.mjtSensor.mjSENS_GEOMDIST, 1),
+}
+
+
+@dataclass(frozen=True)
+class SensorRequest:
+    """One quantity per rollout step: ``kind`` of frame ``obj`` (YAML frame names).
+
+    ``distance`` is the signed distance between the geoms of bodies ``obj`` and ``ref``, reported
+    as ``cutoff`` when farther apart (MuJoCo's GEOMDIST sensor).
+    """
+    kind: str
+    obj: str
+    ref: str = ""
+    cutoff: float = 0.0
+
+    @property
+    def name(self) -> str:
+        tail = f"__{self.ref}__{self.cutoff:g}" if self.kind == "distance" else ""
+        return f"m3p2i__{self.kind}__{self.obj}{tail}"
+
+    @property
+    def dim(self) -> int:
+        return _KINDS[self.kind][1]
+
+
+def add_sensors(spec: mujoco.MjSpec, requests: list[SensorRequest], resolve: FrameResolver) -> None:
+    """Add each distinct request to ``spec`` (before compiling the rollout model)."""
+    for req in dict.fromkeys(requests):
+        stype, _ = _KINDS[req.kind]
+        objtype, objname = resolve.mujoco_ref(req.obj)
+        sensor = spec.add_sensor(name=req.name, type=stype, objtype=objtype, objname=objname)
+        if req.kind == "distance":
+            reftype, refname = resolve.mujoco_ref(req.ref)
+            sensor.reftype, sensor.refname = reftype, refname
+            sensor.cutoff = req.cutoff
+
+
+class SensorLayout:
+    """Columns of ``sensordata`` for each request, looked up in the compiled model."""
+
+    def __init__(self, model: mujoco.MjModel, requests: list[SensorRequest]):
+        self.columns: dict[SensorRequest, slice] = {}
+        for req in dict.fromkeys(requests):
+            s = model.sensor(req.name)
+            self.columns[req] = slice(int(s.adr[0]), int(s.adr[0]) + int(s.dim[0]))
+
+    def take(self, sensordata: torch.Tensor, req: SensorRequest) -> torch.Tensor:
+        """``sensordata [..., nsensordata]`` -> ``[..., dim]`` for one request."""
+        return sensordata[..., self.columns[req]]

@@ -1,0 +1,66 @@
+"""``m3p2i-server``: the world process."""
+
+from __future__ import annotations
+
+import logging
+import os
+from pathlib import Path
+from typing import Optional
+
+import typer
+
+from shared.cli_common import default_run_dir, setup_logging, summary_line
+from shared.config import ConfigError
+from shared.endpoints import DEFAULT_HOST, DEFAULT_PORT, Endpoints
+from shared.scenario import load_scenario
+from server.app import ServerOptions, WorldServer
+
+app = typer.Typer(add_completion=False, help=(
+    "Run the world: a MuJoCo simulation of a scenario that publishes its state over ZeroMQ and "
+    "applies the planner's commands.\n\n"
+    "Start it, then start `m3p2i-planner` with the same scenario in a second terminal. "
+    "Exit code: 0 on success, 1 on time-out or stop, 2 on a configuration error."))
+
+log = logging.getLogger("m3p2i.server")
+
+
+@app.command()
+def main(
+    scenario: str = typer.Option(..., "--scenario", "-s",
+                                 help="Scenario name (configs/scenarios/NAME.yaml) or YAML path."),
+    mode: str = typer.Option("lockstep", help="lockstep: step only when the command for the "
+                             "latest state arrives (deterministic). realtime: step on the wall "
+                             "clock, holding the latest command."),
+    host: str = typer.Option(DEFAULT_HOST, help="Address to bind (loopback by default)."),
+    port: int = typer.Option(DEFAULT_PORT, help="First of three ports: control, state, command."),
+    log_file: Optional[Path] = typer.Option(None, "--log", help="Episode log (JSON lines). "
+                                            "Default: runs/<scenario>-<time>/episode.jsonl"),
+    command_timeout: float = typer.Option(0.5, help="realtime: seconds after which a missing "
+                                          "command makes the robot hold still."),
+    realtime_factor: float = typer.Option(1.0, help="realtime: simulated seconds per wall second."),
+    viewer: bool = typer.Option(False, help="Open MuJoCo's passive viewer (needs a display)."),
+    verbose: bool = typer.Option(False, "--verbose", "-v"),
+) -> None:
+    setup_logging(verbose, "m3p2i.server")
+    if mode not in ("lockstep", "realtime"):
+        raise typer.BadParameter("must be 'lockstep' or 'realtime'", param_hint="--mode")
+    try:
+        sc = load_scenario(scenario)
+    except ConfigError as exc:
+        typer.echo(f"error: {exc}", err=True)
+        raise typer.Exit(2)
+    log_file = log_file or default_run_dir(sc.name) / "episode.jsonl"
+    opts = ServerOptions(mode=mode, command_timeout=command_timeout, realtime_factor=realtime_factor)
+    server = WorldServer(sc, Endpoints(host, port), log_file, opts)
+    if viewer:
+        if os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY"):
+            import mujoco.viewer
+            server.viewer = mujoco.viewer.launch_passive(server.world.model, server.world.data)
+        else:
+            log.warning("no display found: running without the viewer")
+    outcome = server.run()
+    if server.viewer is not None:
+        server.viewer.close()
+    typer.echo(summary_line(outcome.status, outcome.time, outcome.measures))
+    typer.echo(f"episode log: {log_file}")
+    raise typer.Exit(0 if outcome.status == "success" else 1)

@@ -1,0 +1,57 @@
+"""Episode log: one JSON object per line, flushed as it is written.
+
+Line-buffered JSONL survives Ctrl-C, a planner crash or a server crash: everything up to the last
+complete line is on disk. Record kinds (``kind`` field): ``header``, ``step``, ``event``,
+``summary``. ``scripts/`` and ``m3p2i bench`` read it back with :func:`read_log`.
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+
+def _plain(value: Any) -> Any:
+    if isinstance(value, np.ndarray):
+        return value.tolist()
+    if isinstance(value, (np.floating, np.integer)):
+        return value.item()
+    raise TypeError(f"cannot log {type(value).__name__}")
+
+
+class EpisodeLog:
+    def __init__(self, path: Path):
+        self.path = Path(path)
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        self._f = self.path.open("w", buffering=1)   # line-buffered: each record hits the OS
+        self._closed = False
+
+    def write(self, kind: str, **fields: Any) -> None:
+        if self._closed:
+            return
+        record = {"kind": kind, "wall": time.time(), **fields}
+        self._f.write(json.dumps(record, default=_plain) + "\n")
+
+    def event(self, what: str, **fields: Any) -> None:
+        self.write("event", what=what, **fields)
+
+    def close(self) -> None:
+        if not self._closed:
+            self._closed = True
+            self._f.close()
+
+
+def read_log(path: str | Path) -> list[dict]:
+    """All complete records of a log (a torn last line from a crash is skipped)."""
+    records = []
+    with Path(path).open() as f:
+        for line in f:
+            try:
+                records.append(json.loads(line))
+            except json.JSONDecodeError:
+                break
+    return records

@@ -1,0 +1,82 @@
+"""The simulated world: the scenario's MuJoCo model stepped under the latest command.
+
+This is the piece a hardware bridge replaces: something that applies a control vector, advances
+(or waits for) the world, and reports the full state. Everything network-facing lives in
+:mod:`server.app`; the success test and time-out live here, with the physics.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import mujoco
+import numpy as np
+
+from shared.frames import FrameResolver
+from shared.predicates import WorldView
+from shared.protocol import State
+from shared.robots import get_robot
+from shared.scenario import Scenario
+from shared.scene import compile_model
+
+
+@dataclass
+class Outcome:
+    status: str               # running | success | timeout | stopped
+    time: float               # simulated seconds
+    measures: dict[str, float]
+
+
+class SimWorld:
+    """Owns MjModel/MjData of the scenario; one :meth:`step` per command."""
+
+    def __init__(self, scenario: Scenario):
+        self.scenario = scenario
+        self.model = compile_model(scenario)
+        self.data = mujoco.MjData(self.model)
+        self.robot = get_robot(scenario.robot.model)
+        self.safe_ctrl = np.array(self.robot.safe_ctrl, dtype=float)
+        resolve = FrameResolver(self.model, self.robot.frame)
+        self.success = [p.bind(resolve) for p in scenario.episode.success]
+        self.extras: dict[str, float] = {}
+        self.status = "running"
+        self.reset()
+
+    @property
+    def dt(self) -> float:
+        return float(self.model.opt.timestep)
+
+    def reset(self) -> None:
+        mujoco.mj_resetData(self.model, self.data)
+        mujoco.mj_forward(self.model, self.data)
+        self.status = "running"
+
+    def step(self, ctrl: np.ndarray) -> None:
+        """Advance one timestep holding ``ctrl`` (clipped to the actuators' ranges)."""
+        lo, hi = self.model.actuator_ctrlrange.T
+        np.clip(ctrl, lo, hi, out=self.data.ctrl)
+        mujoco.mj_step(self.model, self.data)
+        self._check_episode()
+
+    def _check_episode(self) -> None:
+        if self.status != "running":
+            return
+        view = WorldView(self.data, self.extras)
+        if all(p(view) for p in self.success):
+            self.status = "success"
+        elif self.data.time >= self.scenario.episode.max_time - 1e-9:
+            self.status = "timeout"
+
+    def state(self, session: str, seq: int) -> State:
+        d = self.data
+        return State(session=session, seq=seq, time=float(d.time), qpos=d.qpos.copy(),
+                     qvel=d.qvel.copy(), act=d.act.copy(), mocap_pos=d.mocap_pos.copy(),
+                     mocap_quat=d.mocap_quat.copy(), status=self.status, extras=dict(self.extras))
+
+    def outcome(self) -> Outcome:
+        """Status and the success predicates' measures (e.g. final distance to the goal)."""
+        view = WorldView(self.data, self.extras)
+        measures = {}
+        for p in self.success:
+            measures.update(p.measures(view))
+        return Outcome(self.status, float(self.data.time), measures)

@@ -1,0 +1,33 @@
+"""Small helpers shared by the three command-line programs."""
+
+from __future__ import annotations
+
+import logging
+import time
+from pathlib import Path
+
+from rich.logging import RichHandler
+
+
+def setup_logging(verbose: bool, name: str) -> None:
+    logging.basicConfig(level=logging.DEBUG if verbose else logging.INFO, format="%(message)s",
+                        datefmt="[%X]", handlers=[RichHandler(show_path=False, markup=False)])
+    logging.getLogger(name).setLevel(logging.DEBUG if verbose else logging.INFO)
+
+
+def default_run_dir(scenario: str) -> Path:
+    """``runs/<scenario>-<YYYYmmdd-HHMMSS>`` under the current directory."""
+    return Path("runs") / f"{scenario}-{time.strftime('%Y%m%d-%H%M%S')}"
+
+
+def summary_line(status: str, sim_time: float, measures: dict[str, float]) -> str:
+    """One line for the end of an episode: outcome, simulated time, measures, planner Hz."""
+    parts = [f"{status}", f"time {sim_time:.2f} s"]
+    for k, v in measures.items():
+        if k == "planner_hz":
+            continue
+        unit = " m" if k.startswith("distance") else ""
+        parts.append(f"final {k} {v:.3f}{unit}")
+    if "planner_hz" in measures:
+        parts.append(f"planner {measures['planner_hz']:.1f} Hz")
+    return ", ".join(parts)

@@ -1,0 +1,283 @@
+"""Wire protocol between the world server (or a hardware bridge) and the planner client.
+
+Every message is one ZeroMQ frame holding one msgpack map with at least ``type`` (str) and ``v``
+(the protocol version, int). Arrays travel as plain maps ``{"nd": true, "dtype": "<f8",
+"shape": [..], "data": <bytes>}`` — never pickle: decoding only ever builds dicts, lists,
+numbers, strings and numpy arrays from raw bytes. The full specification, written for someone
+implementing a bridge in another language, is ``docs/protocol.md``.
+
+Decoding is strict: any malformed message raises :class:`ProtocolError` with the reason, and the
+caller logs and drops it.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any
+
+import msgpack
+import numpy as np
+
+PROTOCOL_VERSION = 1
+MAX_MESSAGE_BYTES = 8 * 1024 * 1024
+"""Frames above this are refused before decoding (ZMQ_MAXMSGSIZE is set to the same value)."""
+
+_DTYPES = {"<f8", "<f4", "<i4", "<i8", "|u1", "|b1"}
+_MAX_ARRAY_ELEMENTS = 4_000_000
+_MAX_ARRAY_DIMS = 4
+
+
+class ProtocolError(ValueError):
+    """A message that cannot be accepted; the text says why."""
+
+
+# ---------------------------------------------------------------- arrays
+
+def encode_array(a: np.ndarray) -> dict:
+    """Array -> plain msgpack map (little-endian, C order)."""
+    a = np.ascontiguousarray(a)
+    if a.dtype.kind == "f":
+        a = a.astype("<f8" if a.dtype.itemsize == 8 else "<f4", copy=False)
+    elif a.dtype.kind in "iu" and a.dtype.itemsize > 1:
+        a = a.astype("<i8" if a.dtype.itemsize == 8 else "<i4", copy=False)
+    dtype = a.dtype.str
+    if dtype not in _DTYPES:
+        raise ProtocolError(f"cannot send arrays of dtype {a.dtype}")
+    return {"nd": True, "dtype": dtype, "shape": list(a.shape), "data": a.tobytes()}
+
+
+def decode_array(obj: Any, what: str) -> np.ndarray:
+    """Plain map -> read-only numpy array, checking dtype, shape and byte count."""
+    if not isinstance(obj, dict) or obj.get("nd") is not True:
+        raise ProtocolError(f"{what}: expected an array map {{nd, dtype, shape, data}}")
+    dtype, shape, data = obj.get("dtype"), obj.get("shape"), obj.get("data")
+    if dtype not in _DTYPES:
+        raise ProtocolError(f"{what}: unsupported dtype {dtype!r} (expected one of {sorted(_DTYPES)})")
+    if (not isinstance(shape, list) or len(shape) > _MAX_ARRAY_DIMS
+            or not all(isinstance(n, int) and not isinstance(n, bool) and n >= 0 for n in shape)):
+        raise ProtocolError(f"{what}: bad shape {shape!r}")
+    count = int(np.prod(shape)) if shape else 1
+    if count > _MAX_ARRAY_ELEMENTS:
+        raise ProtocolError(f"{what}: {count} elements is over the limit {_MAX_ARRAY_ELEMENTS}")
+    if not isinstance(data, bytes) or len(data) != count * np.dtype(dtype).itemsize:
+        size = len(data) if isinstance(data, bytes) else type(data).__name__
+        raise ProtocolError(f"{what}: data has {size} bytes, shape {shape} of {dtype} needs "
+                            f"{count * np.dtype(dtype).itemsize}")
+    arr = np.frombuffer(data, dtype=dtype).reshape(shape)
+    if arr.dtype.kind == "f" and not np.all(np.isfinite(arr)):
+        raise ProtocolError(f"{what}: contains NaN or inf")
+    return arr
+
+
+# ---------------------------------------------------------------- messages
+
+@dataclass
+class Hello:
+    """Planner -> server (control socket, request): who I am and what I loaded."""
+    scenario: str
+    scenario_hash: str
+    client: str = "m3p2i-planner"
+    type = "hello"
+
+
+@dataclass
+class Welcome:
+    """Server -> planner (control reply): handshake accepted, and how the world runs."""
+    scenario: str
+    scenario_hash: str
+    mode: str                 # "lockstep" | "realtime"
+    dt: float                 # seconds of simulated time per world step
+    nu: int                   # length of Command.ctrl
+    session: str              # changes when the server restarts; commands echo it
+    type = "welcome"
+
+
+@dataclass
+class State:
+    """Server -> planner (PUB): the full physics state after world step ``seq``.
+
+    ``qpos``/``qvel`` in MuJoCo's generalised coordinates of the scenario's model; ``act`` and
+    ``mocap_*`` may be empty when the model has none. ``extras`` holds named scalars the world
+    simulates beside the physics (e.g. ``battery`` in percent). ``status`` is "running" until the
+    episode ends ("success", "timeout", "stopped").
+    """
+    session: str
+    seq: int
+    time: float
+    qpos: np.ndarray
+    qvel: np.ndarray
+    act: np.ndarray
+    mocap_pos: np.ndarray
+    mocap_quat: np.ndarray
+    status: str = "running"
+    extras: dict[str, float] = field(default_factory=dict)
+    type = "state"
+
+
+@dataclass
+class Command:
+    """Planner -> server (PUSH): the control to hold, answering state ``seq`` of ``session``."""
+    session: str
+    seq: int
+    ctrl: np.ndarray
+    plan_time: float = 0.0    # seconds the planner spent on this command (for Hz statistics)
+    action: str = ""          # the task-level action being executed, for the episode log
+    type = "command"
+
+
+@dataclass
+class Diagnostics:
+    """Planner -> viewers (PUB): what the planner is thinking, for viewers and recorders.
+
+    ``top`` are the positions ([M, T, 3]) of the best sampled trajectories' robot frame.
+    """
+    seq: int
+    action: str
+    alternatives: list[str]
+    mode_names: list[str]
+    mode_weights: np.ndarray
+    top: np.ndarray
+    plan_time: float
+    type = "diagnostics"
+
+
+@dataclass
+class Error:
+    """Either side: a refusal (e.g. handshake mismatch) with a human-readable reason."""
+    reason: str
+    type = "error"
+
+
+@dataclass
+class Control:
+    """Launcher/tools -> server (control socket): ``reset`` the episode or ``shutdown``."""
+    op: str
+    type = "control"
+
+
+MESSAGES = {cls.type: cls for cls in (Hello, Welcome, State, Command, Diagnostics, Error, Control)}
+
+# field name -> (kind, required); kinds: str, int, float, array, strlist, floatmap
+_SCHEMA: dict[str, dict[str, tuple[str, bool]]] = {
+    "hello": {"scenario": ("str", True), "scenario_hash": ("str", True), "client": ("str", False)},
+    "welcome": {"scenario": ("str", True), "scenario_hash": ("str", True), "mode": ("str", True),
+                "dt": ("float", True), "nu": ("int", True), "session": ("str", True)},
+    "state": {"session": ("str", True), "seq": ("int", True), "time": ("float", True),
+              "qpos": ("array", True), "qvel": ("array", True), "act": ("array", True),
+              "mocap_pos": ("array", True), "mocap_quat": ("array", True),
+              "status": ("str", False), "extras": ("floatmap", False)},
+    "command": {"session": ("str", True), "seq": ("int", True), "ctrl": ("array", True),
+                "plan_time": ("float", False), "action": ("str", False)},
+    "diagnostics": {"seq": ("int", True), "action": ("str", True), "alternatives": ("strlist", True),
+                    "mode_names": ("strlist", True), "mode_weights": ("array", True),
+                    "top": ("array", True), "plan_time": ("float", True)},
+    "error": {"reason": ("str", True)},
+    "control": {"op": ("str", True)},
+}
+_STATUSES = {"running", "success", "timeout", "stopped"}
+_MODES = {"lockstep", "realtime"}
+_OPS = {"reset", "shutdown"}
+
+
+def encode(msg: Any) -> bytes:
+    """Message dataclass -> one msgpack frame."""
+    out: dict[str, Any] = {"type": msg.type, "v": PROTOCOL_VERSION}
+    for name, (kind, _) in _SCHEMA[msg.type].items():
+        value = getattr(msg, name)
+        if kind == "array":
+            value = encode_array(np.asarray(value))
+        elif kind == "floatmap":
+            value = {str(k): float(v) for k, v in value.items()}
+        elif kind == "strlist":
+            value = [str(v) for v in value]
+        out[name] = value
+    frame = msgpack.packb(out, use_bin_type=True)
+    if len(frame) > MAX_MESSAGE_BYTES:
+        raise ProtocolError(f"{msg.type} message of {len(frame)} bytes is over the limit "
+                            f"{MAX_MESSAGE_BYTES}")
+    return frame
+
+
+def decode(frame: bytes, expect: str | tuple[str, ...] | None = None) -> Any:
+    """One frame -> message dataclass; raises :class:`ProtocolError` for anything malformed.
+
+    Args:
+        frame: the raw bytes received.
+        expect: message type(s) acceptable on this socket; others are refused.
+    """
+    if not isinstance(frame, (bytes, bytearray, memoryview)):
+        raise ProtocolError("frame is not bytes")
+    if len(frame) > MAX_MESSAGE_BYTES:
+        raise ProtocolError(f"message of {len(frame)} bytes is over the limit {MAX_MESSAGE_BYTES}")
+    try:
+        obj = msgpack.unpackb(bytes(frame), raw=False, strict_map_key=True,
+                              max_buffer_size=MAX_MESSAGE_BYTES)
+    except Exception as exc:  # msgpack raises several unrelated types for garbage
+        raise ProtocolError(f"not a msgpack message: {type(exc).__name__}: {exc}") from None
+    if not isinstance(obj, dict):
+        raise ProtocolError(f"message must be a map, got {type(obj).__name__}")
+    kind = obj.get("type")
+    if kind not in _SCHEMA:
+        raise ProtocolError(f"unknown message type {kind!r} (expected one of {sorted(_SCHEMA)})")
+    if expect is not None and kind not in ((expect,) if isinstance(expect, str) else expect):
+        raise ProtocolError(f"unexpected message type {kind!r} here (expected {expect})")
+    version = obj.get("v")
+    if version != PROTOCOL_VERSION:
+        raise ProtocolError(f"protocol version {version!r} not supported "
+                            f"(this side speaks version {PROTOCOL_VERSION})")
+    schema = _SCHEMA[kind]
+    unknown = set(obj) - set(schema) - {"type", "v"}
+    if unknown:
+        raise ProtocolError(f"{kind}: unknown field(s) {sorted(map(str, unknown))}")
+    fields = {}
+    for name, (ftype, required) in schema.items():
+        if name not in obj:
+            if required:
+                raise ProtocolError(f"{kind}: missing field {name!r}")
+            continue
+        fields[name] = _check_field(kind, name, ftype, obj[name])
+    msg = MESSAGES[kind](**fields)
+    _check_values(msg)
+    return msg
+
+
+def _check_field(kind: str, name: str, ftype: str, value: Any) -> Any:
+    what = f"{kind}.{name}"
+    if ftype == "str":
+        if not isinstance(value, str) or len(value) > 4096:
+            raise ProtocolError(f"{what}: expected a string")
+        return value
+    if ftype == "int":
+        if isinstance(value, bool) or not isinstance(value, int):
+            raise ProtocolError(f"{what}: expected an integer, got {type(value).__name__}")
+        return value
+    if ftype == "float":
+        if isinstance(value, bool) or not isinstance(value, (int, float)) or not np.isfinite(value):
+            raise ProtocolError(f"{what}: expected a finite number")
+        return float(value)
+    if ftype == "array":
+        return decode_array(value, what)
+    if ftype == "strlist":
+        if not isinstance(value, list) or not all(isinstance(v, str) for v in value):
+            raise ProtocolError(f"{what}: expected a list of strings")
+        return value
+    if ftype == "floatmap":
+        if not isinstance(value, dict) or not all(
+                isinstance(k, str) and isinstance(v, (int, float)) and not isinstance(v, bool)
+                for k, v in value.items()):
+            raise ProtocolError(f"{what}: expected a map of names to numbers")
+        return {k: float(v) for k, v in value.items()}
+    raise AssertionError(ftype)
+
+
+def _check_values(msg: Any) -> None:
+    if isinstance(msg, State) and msg.status not in _STATUSES:
+        raise ProtocolError(f"state.status: {msg.status!r} (expected one of {sorted(_STATUSES)})")
+    if isinstance(msg, Welcome) and msg.mode not in _MODES:
+        raise ProtocolError(f"welcome.mode: {msg.mode!r} (expected one of {sorted(_MODES)})")
+    if isinstance(msg, Control) and msg.op not in _OPS:
+        raise ProtocolError(f"control.op: {msg.op!r} (expected one of {sorted(_OPS)})")
+    if isinstance(msg, (State, Command)) and msg.seq < 0:
+        raise ProtocolError(f"{msg.type}.seq must be >= 0")
+    if isinstance(msg, Command) and msg.ctrl.ndim != 1:
+        raise ProtocolError(f"command.ctrl: expected shape [nu], got {list(msg.ctrl.shape)}")

@@ -1,0 +1,245 @@
+"""Scenario files: one YAML per scenario under ``configs/scenarios/``, parsed into typed dataclasses
+and validated once, at load. Both processes load the same file; its hash is checked in the
+handshake so that they can never silently plan for different worlds.
+
+The schema, key by key, is documented in ``docs/scenarios.md``.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from shared.config import (ConfigError, Section, load_yaml, non_negative, number, one_of,
+                           positive, positive_int, string_list, vector)
+from shared.predicates import Predicate, parse_predicate
+from shared.robots import ROBOTS, get_robot
+
+PROJECT_ROOT = Path(__file__).resolve().parent.parent
+SCENARIO_DIR = PROJECT_ROOT / "configs" / "scenarios"
+
+SHAPES = ("box", "cylinder", "sphere")
+_SIZE_LEN = {"box": 3, "cylinder": 2, "sphere": 1}
+
+
+@dataclass(frozen=True)
+class RobotConfig:
+    model: str
+    qpos: tuple[float, ...] | None = None   # initial joint positions; None = the model's default
+
+
+@dataclass(frozen=True)
+class ObjectConfig:
+    """A body added to the world. ``size`` uses MuJoCo's half-size convention per shape."""
+    name: str
+    shape: str
+    size: tuple[float, ...]
+    pos: tuple[float, float, float]
+    yaw: float = 0.0                       # degrees about z
+    fixed: bool = True                     # False: a free body that can be pushed
+    mass: float = 1.0
+    friction: float = 0.5
+    rgba: tuple[float, float, float, float] = (0.6, 0.6, 0.6, 1.0)
+    visual: bool = False                   # a marker: drawn, never collides
+    obstacle: bool = True                  # counted by collision cost terms (non-visual only)
+
+
+@dataclass(frozen=True)
+class ArenaConfig:
+    """Walls of a square arena at ±half_size around the origin (thesis code: 4 m)."""
+    half_size: float = 4.0
+    wall_height: float = 0.3
+    wall_thickness: float = 0.1
+
+
+@dataclass(frozen=True)
+class WorldConfig:
+    timestep: float
+    objects: tuple[ObjectConfig, ...] = ()
+    arena: ArenaConfig | None = None
+
+
+@dataclass(frozen=True)
+class EpisodeConfig:
+    max_time: float
+    success: tuple[Predicate, ...]
+
+
+@dataclass(frozen=True)
+class TermConfig:
+    """One cost term of an objective as written in YAML; the planner validates ``params``."""
+    term: str
+    weight: float
+    params: dict[str, Any]
+    path: str                              # key path, for the planner's error messages
+
+
+@dataclass(frozen=True)
+class ObjectiveConfig:
+    terms: tuple[TermConfig, ...]
+    fixed: dict[str, float] = field(default_factory=dict)   # actuator name -> pinned control
+
+
+@dataclass(frozen=True)
+class PlannerConfig:
+    """Motion-planner parameters; ``mppi`` keys are checked by the planner against MPPIConfig."""
+    samples: int = 200
+    horizon: int = 15
+    mppi: dict[str, Any] = field(default_factory=dict)
+    threads: int = 0                       # rollout threads; 0 = one per core
+
+
+@dataclass(frozen=True)
+class Scenario:
+    name: str
+    description: str
+    source: str
+    hash: str
+    robot: RobotConfig
+    world: WorldConfig
+    episode: EpisodeConfig
+    planner: PlannerConfig
+    objectives: dict[str, ObjectiveConfig]
+    modes: tuple[str, ...]
+    raw: dict = field(repr=False, default_factory=dict)
+
+
+def find_scenario(name_or_path: str | os.PathLike) -> Path:
+    """A path as given, else ``configs/scenarios/NAME.yaml`` (cwd first, then the project)."""
+    p = Path(name_or_path)
+    if p.is_file():
+        return p
+    candidates = [Path.cwd() / "configs" / "scenarios" / f"{p.name}.yaml", SCENARIO_DIR / f"{p.name}.yaml"]
+    for c in candidates:
+        if c.is_file():
+            return c
+    known = ", ".join(sorted(x.stem for x in SCENARIO_DIR.glob("*.yaml")))
+    raise ConfigError(str(name_or_path), "", "no such scenario file or name",
+                      expected=f"a YAML path or one of: {known}")
+
+
+def load_scenario(name_or_path: str | os.PathLike) -> Scenario:
+    """Load and validate a scenario; raises :class:`ConfigError` naming file, key, value."""
+    path = find_scenario(name_or_path)
+    raw = load_yaml(path)
+    return parse_scenario(raw, str(path))
+
+
+def scenario_hash(raw: dict) -> str:
+    """Hash of the scenario's content and of the robot model file it names."""
+    h = hashlib.sha256(json.dumps(raw, sort_keys=True, default=str).encode())
+    robot = raw.get("robot", {}).get("model") if isinstance(raw.get("robot"), dict) else None
+    if robot in ROBOTS:
+        h.update(ROBOTS[robot].path.read_bytes())
+    return h.hexdigest()[:16]
+
+
+def parse_scenario(raw: dict, source: str) -> Scenario:
+    top = Section(raw, source)
+    name = top.req("name", str)
+    description = top.opt("description", "", str)
+    robot = _robot(top.section("robot"))
+    world = _world(top.section("world"))
+    episode = _episode(top.section("episode"))
+    planner = _planner(top.section("planner", required=False))
+    objectives = _objectives(top.section("objectives"))
+    modes = top.req("modes", string_list, "a list of objective names")
+    for i, m in enumerate(modes):
+        if m not in objectives:
+            raise ConfigError(source, f"modes[{i}]", "not an objective of this scenario", m,
+                              f"one of: {', '.join(objectives)}")
+    top.done()
+    return Scenario(name=name, description=description, source=source, hash=scenario_hash(raw),
+                    robot=robot, world=world, episode=episode, planner=planner,
+                    objectives=objectives, modes=modes, raw=raw)
+
+
+def _robot(s: Section) -> RobotConfig:
+    model = s.req("model", str)
+    if model not in ROBOTS:
+        raise s.error("model", "unknown robot", model, f"one of: {', '.join(sorted(ROBOTS))}")
+    qpos = s.opt("qpos", None, vector(), "a list of numbers")
+    s.done()
+    get_robot(model)
+    return RobotConfig(model=model, qpos=qpos)
+
+
+def _world(s: Section) -> WorldConfig:
+    timestep = s.req("timestep", positive, "seconds > 0")
+    arena = None
+    if s.has("arena"):
+        a = s.section("arena")
+        arena = ArenaConfig(half_size=a.opt("half_size", 4.0, positive),
+                            wall_height=a.opt("wall_height", 0.3, positive),
+                            wall_thickness=a.opt("wall_thickness", 0.1, positive))
+        a.done()
+    objects = []
+    names: set[str] = set()
+    for o in s.items("objects"):
+        obj = _object(o)
+        if obj.name in names or obj.name == "robot":
+            raise o.error("name", "duplicate or reserved object name", obj.name, "a unique name")
+        names.add(obj.name)
+        objects.append(obj)
+    s.done()
+    return WorldConfig(timestep=timestep, objects=tuple(objects), arena=arena)
+
+
+def _object(s: Section) -> ObjectConfig:
+    name = s.req("name", str)
+    shape = s.req("shape", one_of(SHAPES))
+    size = s.req("size", vector(_SIZE_LEN[shape]), f"{_SIZE_LEN[shape]} half-sizes for a {shape}")
+    if not all(v > 0 for v in size):
+        raise s.error("size", "sizes must be > 0", list(size))
+    visual = s.opt("visual", False, bool)
+    obj = ObjectConfig(
+        name=name, shape=shape, size=size, pos=s.req("pos", vector(3), "[x, y, z] in metres"),
+        yaw=s.opt("yaw", 0.0, number), fixed=s.opt("fixed", True, bool),
+        mass=s.opt("mass", 1.0, positive), friction=s.opt("friction", 0.5, non_negative),
+        rgba=s.opt("rgba", (0.6, 0.6, 0.6, 1.0), vector(4), "[r, g, b, a] in 0..1"),
+        visual=visual, obstacle=s.opt("obstacle", not visual, bool))
+    s.done()
+    return obj
+
+
+def _episode(s: Section) -> EpisodeConfig:
+    max_time = s.req("max_time", positive, "seconds of simulated time")
+    success = tuple(parse_predicate(p) for p in s.items("success", required=True))
+    if not success:
+        raise s.error("success", "needs at least one predicate", [])
+    s.done()
+    return EpisodeConfig(max_time=max_time, success=success)
+
+
+def _planner(s: Section) -> PlannerConfig:
+    cfg = PlannerConfig(samples=s.opt("samples", 200, positive_int),
+                        horizon=s.opt("horizon", 15, positive_int),
+                        mppi=dict(s.section("mppi", required=False).data),
+                        threads=s.opt("threads", 0, int))
+    s.done()
+    return cfg
+
+
+def _objectives(s: Section) -> dict[str, ObjectiveConfig]:
+    out = {}
+    for name in s.data:
+        o = s.section(name)
+        terms = []
+        for t in o.items("terms", required=True):
+            term = t.req("term", str)
+            weight = t.opt("weight", 1.0, number)
+            params = {k: v for k, v in t.data.items() if k not in ("term", "weight")}
+            terms.append(TermConfig(term=term, weight=weight, params=params, path=t.path))
+        fixed = o.opt("fixed", {}, dict, "a mapping actuator -> value")
+        for k, v in fixed.items():
+            if isinstance(v, bool) or not isinstance(v, (int, float)):
+                raise ConfigError(s.source, f"{o.path}.fixed.{k}", "must be a number", v)
+        o.done()
+        out[name] = ObjectiveConfig(terms=tuple(terms), fixed={k: float(v) for k, v in fixed.items()})
+    if not out:
+        raise ConfigError(s.source, s.path, "needs at least one objective", {})
+    return out

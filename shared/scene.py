@@ -1,0 +1,105 @@
+"""Build a scenario's MuJoCo model with ``mujoco.MjSpec``.
+
+The server and the planner call the same builder on the same YAML, so they compile the same
+world. The planner then adds sensors to its own copy of the spec (what its costs need) before
+compiling; sensors do not change the dynamics, so the mirrored state stays valid.
+"""
+
+from __future__ import annotations
+
+import math
+
+import mujoco
+import numpy as np
+
+from shared.robots import get_robot
+from shared.scenario import ObjectConfig, Scenario
+
+_GEOM = {"box": mujoco.mjtGeom.mjGEOM_BOX, "cylinder": mujoco.mjtGeom.mjGEOM_CYLINDER,
+         "sphere": mujoco.mjtGeom.mjGEOM_SPHERE}
+WALL_NAMES = ("wall_north", "wall_south", "wall_east", "wall_west")
+
+
+def build_spec(scenario: Scenario) -> mujoco.MjSpec:
+    """The scenario's world as an uncompiled spec: robot model + floor + arena + objects."""
+    robot = get_robot(scenario.robot.model)
+    spec = mujoco.MjSpec.from_file(str(robot.path))
+    spec.modelname = scenario.name
+    spec.option.timestep = scenario.world.timestep
+    world = spec.worldbody
+    extent = scenario.world.arena.half_size + 1.0 if scenario.world.arena else 5.0
+    world.add_geom(name="floor", type=mujoco.mjtGeom.mjGEOM_PLANE, size=[extent, extent, 0.1],
+                   rgba=[0.85, 0.85, 0.8, 1.0])
+    world.add_light(name="sun", pos=[0, 0, 6], dir=[0, 0, -1], type=mujoco.mjtLightType.mjLIGHT_DIRECTIONAL)
+    if scenario.world.arena:
+        _add_arena(world, scenario.world.arena)
+    for obj in scenario.world.objects:
+        _add_object(world, obj)
+    return spec
+
+
+def compile_model(scenario: Scenario, spec: mujoco.MjSpec | None = None) -> mujoco.MjModel:
+    """Compile (a possibly extended copy of) the scenario spec and set the initial configuration."""
+    spec = spec or build_spec(scenario)
+    model = spec.compile()
+    if scenario.robot.qpos is not None:
+        robot = get_robot(scenario.robot.model)
+        n = len(scenario.robot.qpos)
+        if n > model.nq:
+            raise ValueError(f"{scenario.source}: robot.qpos has {n} values; "
+                             f"the {robot.name} model has nq={model.nq}")
+        model.qpos0[:n] = scenario.robot.qpos
+    return model
+
+
+def initial_data(model: mujoco.MjModel) -> mujoco.MjData:
+    """MjData at the model's initial configuration, kinematics computed."""
+    data = mujoco.MjData(model)
+    mujoco.mj_forward(model, data)
+    return data
+
+
+def _add_arena(world, arena) -> None:
+    h, t, z = arena.half_size, arena.wall_thickness, arena.wall_height
+    halves = {"wall_north": ([0, h + t, z], [h + 2 * t, t, z]),
+              "wall_south": ([0, -h - t, z], [h + 2 * t, t, z]),
+              "wall_east": ([h + t, 0, z], [t, h, z]),
+              "wall_west": ([-h - t, 0, z], [t, h, z])}
+    for name, (pos, size) in halves.items():
+        body = world.add_body(name=name, pos=pos)
+        body.add_geom(name=name, type=mujoco.mjtGeom.mjGEOM_BOX, size=size,
+                      rgba=[0.45, 0.45, 0.5, 1.0])
+
+
+def _add_object(world, obj: ObjectConfig) -> None:
+    yaw = math.radians(obj.yaw)
+    quat = [math.cos(yaw / 2), 0.0, 0.0, math.sin(yaw / 2)]
+    body = world.add_body(name=obj.name, pos=list(obj.pos), quat=quat)
+    if not obj.fixed:
+        body.add_freejoint(name=f"{obj.name}_free")
+    size = list(obj.size) + [0.0] * (3 - len(obj.size))
+    geom = body.add_geom(name=obj.name, type=_GEOM[obj.shape], size=size, rgba=list(obj.rgba),
+                         friction=[obj.friction, 0.005, 0.0001])
+    if obj.visual:
+        geom.contype, geom.conaffinity = 0, 0
+        geom.group = 2
+    if not obj.fixed:
+        geom.mass = obj.mass
+
+
+def obstacle_names(scenario: Scenario) -> list[str]:
+    """Bodies a collision cost should keep the robot away from: walls and non-visual obstacles."""
+    names = list(WALL_NAMES) if scenario.world.arena else []
+    names += [o.name for o in scenario.world.objects if o.obstacle and not o.visual]
+    return names
+
+
+def state_size(model: mujoco.MjModel) -> int:
+    return mujoco.mj_stateSize(model, mujoco.mjtState.mjSTATE_FULLPHYSICS)
+
+
+def get_full_state(model: mujoco.MjModel, data: mujoco.MjData, out: np.ndarray | None = None) -> np.ndarray:
+    """The full physics state vector [nstate] (mjSTATE_FULLPHYSICS), as mujoco.rollout expects."""
+    out = np.empty(state_size(model)) if out is None else out
+    mujoco.mj_getState(model, data, out, mujoco.mjtState.mjSTATE_FULLPHYSICS)
+    return out
