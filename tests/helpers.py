@@ -1,0 +1,81 @@
+"""Test helpers: start the two processes on free loopback ports and watch the world's state."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import zmq
+
+from shared import protocol as P
+from shared.cli import free_port_block
+from shared.endpoints import Endpoints
+
+ENV = {**os.environ, "PYTHONUNBUFFERED": "1"}
+
+
+def start_server(scenario: str, port: int, log: Path, *extra: str) -> subprocess.Popen:
+    return subprocess.Popen([sys.executable, "-m", "server", "--scenario", scenario, "--port",
+                             str(port), "--log", str(log), *extra],
+                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, env=ENV)
+
+
+def start_planner(scenario: str, port: int, *extra: str) -> subprocess.Popen:
+    return subprocess.Popen([sys.executable, "-m", "planner_client", "--scenario", scenario,
+                             "--port", str(port), *extra],
+                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, env=ENV)
+
+
+def stop(*procs: subprocess.Popen) -> None:
+    for p in procs:
+        if p.poll() is None:
+            p.terminate()
+    for p in procs:
+        try:
+            p.wait(5)
+        except subprocess.TimeoutExpired:
+            p.kill()
+            p.wait()
+
+
+class StateWatcher:
+    """Subscribes to the world's state stream like a planner would (without commanding)."""
+
+    def __init__(self, port: int):
+        self.ctx = zmq.Context()
+        self.sub = self.ctx.socket(zmq.SUB)
+        self.sub.setsockopt(zmq.SUBSCRIBE, b"")
+        self.sub.setsockopt(zmq.CONFLATE, 1)
+        self.sub.connect(Endpoints(port=port).state)
+
+    def latest(self, timeout: float = 5.0) -> P.State:
+        if not self.sub.poll(int(timeout * 1000)):
+            raise TimeoutError("no state received")
+        return P.decode(self.sub.recv(), expect="state")
+
+    def control(self, port: int, op: str) -> None:
+        req = self.ctx.socket(zmq.REQ)
+        req.setsockopt(zmq.LINGER, 0)
+        req.connect(Endpoints(port=port).control)
+        req.send(P.encode(P.Control(op=op)))
+        req.poll(2000)
+        req.close()
+
+    def close(self) -> None:
+        self.sub.close(0)
+        self.ctx.term()
+
+
+def wait_until(predicate, timeout: float, period: float = 0.05) -> bool:
+    end = time.monotonic() + timeout
+    while time.monotonic() < end:
+        if predicate():
+            return True
+        time.sleep(period)
+    return False
+
+
+__all__ = ["StateWatcher", "free_port_block", "start_planner", "start_server", "stop", "wait_until"]

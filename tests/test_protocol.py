@@ -1,0 +1,101 @@
+"""Wire protocol: round trips, and every kind of bad message is refused with a reason."""
+
+import msgpack
+import numpy as np
+import pytest
+
+from shared import protocol as P
+
+
+def _state(**kw):
+    base = dict(session="abcd", seq=3, time=0.15, qpos=np.arange(4.0), qvel=np.zeros(4),
+                act=np.zeros(0), mocap_pos=np.zeros((0, 3)), mocap_quat=np.zeros((0, 4)),
+                extras={"battery": 87.5})
+    base.update(kw)
+    return P.State(**base)
+
+
+def test_state_round_trip_keeps_arrays_and_fields():
+    msg = _state()
+    back = P.decode(P.encode(msg))
+    assert isinstance(back, P.State)
+    assert back.seq == 3 and back.session == "abcd" and back.extras == {"battery": 87.5}
+    np.testing.assert_array_equal(back.qpos, msg.qpos)
+    assert back.mocap_pos.shape == (0, 3)
+    assert back.status == "running"
+
+
+@pytest.mark.parametrize("msg", [
+    P.Hello(scenario="nav", scenario_hash="00ff"),
+    P.Welcome(scenario="nav", scenario_hash="00ff", mode="lockstep", dt=0.05, nu=2, session="s"),
+    P.Command(session="s", seq=7, ctrl=np.array([0.5, -0.5]), plan_time=0.02, action="move"),
+    P.Diagnostics(seq=1, action="push", alternatives=["push", "pull"], mode_names=["push", "pull"],
+                  mode_weights=np.array([0.7, 0.3]), top=np.zeros((5, 15, 3)), plan_time=0.01),
+    P.Error(reason="nope"),
+    P.Control(op="reset"),
+])
+def test_every_message_type_round_trips(msg):
+    back = P.decode(P.encode(msg))
+    assert type(back) is type(msg)
+    for name in P._SCHEMA[msg.type]:
+        a, b = getattr(msg, name), getattr(back, name)
+        if isinstance(a, np.ndarray):
+            np.testing.assert_array_equal(a, b)
+        else:
+            assert a == b
+
+
+def _raw(**fields):
+    return msgpack.packb(fields, use_bin_type=True)
+
+
+def _arr(a):
+    return P.encode_array(np.asarray(a, dtype=float))
+
+
+@pytest.mark.parametrize("frame, reason", [
+    (b"\xc1\xff\x00garbage", "not a msgpack message"),
+    (msgpack.packb([1, 2, 3]), "must be a map"),
+    (_raw(type="teleport", v=1), "unknown message type"),
+    (_raw(type="error", v=99, reason="x"), "protocol version 99 not supported"),
+    (_raw(type="error", reason="x"), "protocol version None"),
+    (_raw(type="command", v=1, session="s", seq=1), "missing field 'ctrl'"),
+    (_raw(type="command", v=1, session="s", seq="1", ctrl=_arr([0, 0])), "expected an integer"),
+    (_raw(type="command", v=1, session="s", seq=1, ctrl=[0.0, 0.0]), "expected an array map"),
+    (_raw(type="command", v=1, session="s", seq=1, ctrl=_arr([[0, 0]])), "expected shape [nu]"),
+    (_raw(type="command", v=1, session="s", seq=1, ctrl=_arr([np.nan, 0])), "NaN or inf"),
+    (_raw(type="command", v=1, session="s", seq=1, ctrl=_arr([0, 0]), evil=1), "unknown field"),
+    (_raw(type="command", v=1, session="s", seq=1,
+          ctrl={"nd": True, "dtype": "<f8", "shape": [3], "data": b"\x00" * 8}), "needs 24"),
+    (_raw(type="command", v=1, session="s", seq=1,
+          ctrl={"nd": True, "dtype": "|O", "shape": [1], "data": b"\x00" * 8}), "unsupported dtype"),
+    (_raw(type="command", v=1, session="s", seq=-4, ctrl=_arr([0, 0])), "seq must be >= 0"),
+    (_raw(type="control", v=1, op="rm -rf"), "control.op"),
+])
+def test_malformed_messages_are_refused_with_a_reason(frame, reason):
+    with pytest.raises(P.ProtocolError, match=None) as info:
+        P.decode(frame)
+    assert reason in str(info.value)
+
+
+def test_oversize_message_is_refused_before_decoding():
+    with pytest.raises(P.ProtocolError, match="over the limit"):
+        P.decode(b"\x00" * (P.MAX_MESSAGE_BYTES + 1))
+
+
+def test_oversize_array_is_refused():
+    big = {"nd": True, "dtype": "<f8", "shape": [10**7], "data": b""}
+    with pytest.raises(P.ProtocolError, match="over the limit"):
+        P.decode(_raw(type="command", v=1, session="s", seq=1, ctrl=big))
+
+
+def test_unexpected_type_on_a_socket_is_refused():
+    with pytest.raises(P.ProtocolError, match="unexpected message type 'error'"):
+        P.decode(P.encode(P.Error(reason="x")), expect="command")
+
+
+def test_no_pickle_extension_types_are_accepted():
+    # msgpack ext types (what some libraries use for custom objects) are not part of the protocol
+    frame = msgpack.packb({"type": "error", "v": 1, "reason": msgpack.ExtType(1, b"\x80\x04")})
+    with pytest.raises(P.ProtocolError):
+        P.decode(frame)
