@@ -210,8 +210,7 @@ def decode(frame: bytes, expect: str | tuple[str, ...] | None = None) -> Any:
     if len(frame) > MAX_MESSAGE_BYTES:
         raise ProtocolError(f"message of {len(frame)} bytes is over the limit {MAX_MESSAGE_BYTES}")
     try:
-        obj = msgpack.unpackb(bytes(frame), raw=False, strict_map_key=True,
-                              max_buffer_size=MAX_MESSAGE_BYTES)
+        obj = msgpack.unpackb(bytes(frame), raw=False, strict_map_key=True)
     except Exception as exc:  # msgpack raises several unrelated types for garbage
         raise ProtocolError(f"not a msgpack message: {type(exc).__name__}: {exc}") from None
     if not isinstance(obj, dict):
