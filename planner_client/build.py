@@ -2,14 +2,18 @@
 
 from __future__ import annotations
 
+import numpy as np
 import torch
 
 from shared.endpoints import Endpoints
+from shared.predicates import check_frames
 from shared.scenario import Scenario
 from planner_client.loop import PlannerClient
 from planner_client.motion import MotionPlanner
 from planner_client.problem import build_problem, mppi_config
-from planner_client.task import FixedModes
+from planner_client.aip import ActiveInferencePlanner
+from planner_client.observers import SymbolicObserver
+from planner_client.task import ActiveInferenceTask, FixedModes, TaskLayer
 
 
 def build_motion_planner(scenario: Scenario, threads: int = 0) -> MotionPlanner:
@@ -18,12 +22,27 @@ def build_motion_planner(scenario: Scenario, threads: int = 0) -> MotionPlanner:
     # 12.5 ms -> 7.6 ms per navigation iteration on 2 cores).
     torch.set_num_threads(1)
     problem = build_problem(scenario)
-    return MotionPlanner(problem, mppi_config(problem), scenario.planner.samples,
-                         list(scenario.modes), nthread=threads or scenario.planner.threads)
+    modes = list(scenario.modes) or [next(iter(scenario.plan.values()))]
+    return MotionPlanner(problem, mppi_config(problem), scenario.planner.samples, modes,
+                         nthread=threads or scenario.planner.threads)
+
+
+def build_task(scenario: Scenario, planner: MotionPlanner) -> TaskLayer:
+    """Fixed modes, or active inference when the scenario has a task template."""
+    if scenario.task is None:
+        return FixedModes(scenario.modes)
+    problem = planner.problem
+    for factor, cfg in scenario.observers.items():
+        for i, (_, pred) in enumerate(cfg.rules):
+            check_frames(pred, problem.resolve, scenario.source, f"observers.{factor}")
+    return ActiveInferenceTask(ActiveInferencePlanner(scenario.task),
+                               SymbolicObserver(scenario.observers, problem.resolve),
+                               scenario.plan, scenario.planner.aip_period,
+                               np.array(problem.robot.safe_ctrl, dtype=float))
 
 
 def build_client(scenario: Scenario, endpoints: Endpoints, threads: int = 0,
                  **options) -> PlannerClient:
     planner = build_motion_planner(scenario, threads)
-    task = FixedModes(scenario.modes)
+    task = build_task(scenario, planner)
     return PlannerClient(planner, task, endpoints, scenario.name, scenario.hash, **options)

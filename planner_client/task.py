@@ -10,8 +10,15 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Protocol
 
+import logging
+
 import mujoco
 import numpy as np
+
+from planner_client.aip import ActiveInferencePlanner
+from planner_client.observers import SymbolicObserver
+
+log = logging.getLogger("m3p2i.planner")
 
 
 @dataclass(frozen=True)
@@ -35,4 +42,42 @@ class FixedModes:
                                      alternatives=tuple(modes))
 
     def decide(self, data, extras, time) -> TaskDecision:
+        return self.decision
+
+
+class ActiveInferenceTask:
+    """Observers -> active inference -> alternatives -> objectives (paper Alg. 1, lines 5-9).
+
+    The AIP ticks every ``period`` seconds of simulated time (slower than the motion planner);
+    between ticks the last decision stands. Each admissible alternative action becomes one M3P2I
+    mode through the plan interface (action -> objective). On success or failure the robot is
+    held with ``safe_ctrl``.
+    """
+
+    def __init__(self, aip: ActiveInferencePlanner, observer: SymbolicObserver,
+                 plan: dict[str, str], period: float, safe_ctrl: np.ndarray):
+        self.aip, self.observer, self.plan = aip, observer, plan
+        self.period = period
+        self.safe_ctrl = safe_ctrl
+        self._next = -np.inf
+        self.decision: TaskDecision | None = None
+        self.last_observation: dict[str, str] = {}
+
+    def decide(self, data, extras, time) -> TaskDecision:
+        if self.decision is not None and time < self._next:
+            return self.decision
+        self._next = time + self.period
+        self.last_observation = self.observer(data, extras)
+        d = self.aip.step(self.last_observation)
+        previous = self.decision
+        if d.status == "running":
+            modes = tuple(dict.fromkeys(self.plan[a] for a in d.alternatives))
+            self.decision = TaskDecision(d.action, modes, d.alternatives)
+        else:
+            keep = previous.modes if previous else ()
+            if d.status == "failure" and (previous is None or previous.action != "failure"):
+                log.error("task planner failed: %s", d.reason)
+            self.decision = TaskDecision("idle" if d.status == "success" else "failure",
+                                         keep or (next(iter(self.plan.values())),),
+                                         (), override=self.safe_ctrl)
         return self.decision

@@ -58,6 +58,8 @@ class WorldServer:
         self.poller.register(self.rep, zmq.POLLIN)
         self.poller.register(self.pull, zmq.POLLIN)
         self._plan_times: list[float] = []
+        self._action = ""
+        self.action_changes: list[tuple[float, str]] = []
         self._rejected = 0
         self._stop = False
         self.log.write("header", scenario=scenario.name, scenario_hash=scenario.hash,
@@ -84,7 +86,7 @@ class WorldServer:
             hz = 1.0 / np.mean(self._plan_times) if self._plan_times else 0.0
             self.log.write("summary", status=outcome.status, time=outcome.time,
                            measures=outcome.measures, planner_hz=hz, steps=self.seq,
-                           rejected=self._rejected)
+                           rejected=self._rejected, actions=self.action_changes)
             self.log.close()
             self.close()
         outcome.measures["planner_hz"] = hz
@@ -149,6 +151,10 @@ class WorldServer:
         self.seq += 1
         if cmd is not None and cmd.plan_time > 0:
             self._plan_times.append(cmd.plan_time)
+        if cmd is not None and cmd.action != self._action:
+            self._action = cmd.action
+            self.action_changes.append((float(self.world.data.time), cmd.action))
+            self.log.event("action", time=float(self.world.data.time), action=cmd.action)
         d = self.world.data
         self.log.write("step", seq=self.seq, time=float(d.time), qpos=d.qpos, qvel=d.qvel,
                        ctrl=d.ctrl, action=cmd.action if cmd else "", safe=cmd is None,

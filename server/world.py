@@ -38,6 +38,10 @@ class SimWorld:
         self.safe_ctrl = np.array(self.robot.safe_ctrl, dtype=float)
         resolve = FrameResolver(self.model, self.robot.frame)
         self.success = [p.bind(resolve) for p in scenario.episode.success]
+        self.battery = scenario.world.battery
+        if self.battery:
+            self._robot_frame = resolve("robot")
+            self._charger = resolve(self.battery.charger)
         self.extras: dict[str, float] = {}
         self.status = "running"
         self.reset()
@@ -50,13 +54,24 @@ class SimWorld:
         mujoco.mj_resetData(self.model, self.data)
         mujoco.mj_forward(self.model, self.data)
         self.status = "running"
+        if self.battery:
+            self.extras["battery"] = self.battery.initial
 
     def step(self, ctrl: np.ndarray) -> None:
         """Advance one timestep holding ``ctrl`` (clipped to the actuators' ranges)."""
         lo, hi = self.model.actuator_ctrlrange.T
         np.clip(ctrl, lo, hi, out=self.data.ctrl)
         mujoco.mj_step(self.model, self.data)
+        if self.battery:
+            self._step_battery()
         self._check_episode()
+
+    def _step_battery(self) -> None:
+        """Thesis Eq. 4.1, per second of simulated time: charge near the charger, else drain."""
+        d = self._robot_frame.pos(self.data)[:2] - self._charger.pos(self.data)[:2]
+        sign = 1.0 if np.linalg.norm(d) <= self.battery.radius else -1.0
+        level = self.extras["battery"] + sign * self.battery.rate * self.dt
+        self.extras["battery"] = float(np.clip(level, 0.0, 100.0))
 
     def _check_episode(self) -> None:
         if self.status != "running":

@@ -169,3 +169,34 @@ def check_frames(pred: Predicate, resolve: FrameResolver, source: str, path: str
         except KeyError as exc:
             raise ConfigError(source, f"{path}.{pred.kind}.{key}", str(exc.args[0]), name,
                               f"one of: {', '.join(resolve.names())}") from None
+
+
+@register("battery_enough")
+@dataclass(frozen=True)
+class BatteryEnough(Predicate):
+    """Enough battery to reach ``goal`` (thesis Eq. 4.3):
+    |x_a - x_goal| · α_dist · α_batt / (s_batt - reserve) < 1 and s_batt > reserve."""
+    a: str
+    goal: str
+    alpha_dist: float
+    alpha_batt: float
+    reserve: float = 60.0
+    extra: str = "battery"
+    frame_keys: ClassVar[tuple[str, ...]] = ("a", "goal")
+
+    @classmethod
+    def from_section(cls, s: Section) -> BatteryEnough:
+        return cls(a=s.req("a", str), goal=s.req("goal", str),
+                   alpha_dist=s.req("alpha_dist", non_negative),
+                   alpha_batt=s.req("alpha_batt", non_negative),
+                   reserve=s.opt("reserve", 60.0, number), extra=s.opt("extra", "battery", str))
+
+    def holds(self, view, frames):
+        level = view.extras.get(self.extra, 0.0)
+        if level <= self.reserve:
+            return False
+        d = _distance(frames["a"].pos(view.data), frames["goal"].pos(view.data), "xy")
+        return d * self.alpha_dist * self.alpha_batt / (level - self.reserve) < 1.0
+
+    def measure(self, view, frames):
+        return {self.extra: view.extras.get(self.extra, float("nan"))}

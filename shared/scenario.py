@@ -18,6 +18,7 @@ from shared.config import (ConfigError, Section, load_yaml, non_negative, number
                            positive, positive_int, string_list, vector)
 from shared.predicates import Predicate, parse_predicate
 from shared.robots import ROBOTS, get_robot
+from shared.task_template import TaskTemplate, parse_task
 
 PROJECT_ROOT = Path(__file__).resolve().parent.parent
 SCENARIO_DIR = PROJECT_ROOT / "configs" / "scenarios"
@@ -57,10 +58,29 @@ class ArenaConfig:
 
 
 @dataclass(frozen=True)
+class BatteryConfig:
+    """Simulated battery (thesis Eq. 4.1): +rate %/s within ``radius`` of ``charger``, else
+    -rate %/s, bounded to [0, 100]; published as the state extra ``battery``."""
+    charger: str
+    rate: float
+    radius: float = 0.5
+    initial: float = 100.0
+
+
+@dataclass(frozen=True)
 class WorldConfig:
     timestep: float
     objects: tuple[ObjectConfig, ...] = ()
     arena: ArenaConfig | None = None
+    battery: BatteryConfig | None = None
+
+
+@dataclass(frozen=True)
+class ObserverConfig:
+    """Symbolic observer of one task factor: the first rule whose predicate holds gives the
+    observed state; ``default`` when none holds."""
+    rules: tuple[tuple[str, Predicate], ...]
+    default: str
 
 
 @dataclass(frozen=True)
@@ -91,6 +111,7 @@ class PlannerConfig:
     horizon: int = 15
     mppi: dict[str, Any] = field(default_factory=dict)
     threads: int = 0                       # rollout threads; 0 = one per core
+    aip_period: float = 0.2                # simulated seconds between active-inference ticks
 
 
 @dataclass(frozen=True)
@@ -104,7 +125,10 @@ class Scenario:
     episode: EpisodeConfig
     planner: PlannerConfig
     objectives: dict[str, ObjectiveConfig]
-    modes: tuple[str, ...]
+    modes: tuple[str, ...]                 # fixed modes (when there is no task template)
+    task: TaskTemplate | None = None
+    observers: dict[str, ObserverConfig] = field(default_factory=dict)
+    plan: dict[str, str] = field(default_factory=dict)   # action -> objective (plan interface)
     raw: dict = field(repr=False, default_factory=dict)
 
 
@@ -147,7 +171,14 @@ def parse_scenario(raw: dict, source: str) -> Scenario:
     episode = _episode(top.section("episode"))
     planner = _planner(top.section("planner", required=False))
     objectives = _objectives(top.section("objectives"))
-    modes = top.req("modes", string_list, "a list of objective names")
+    task = parse_task(top.section("task")) if top.has("task") else None
+    if task is None:
+        modes = top.req("modes", string_list, "a list of objective names (or a task: template)")
+        observers, plan = {}, {}
+    else:
+        modes = top.opt("modes", (), string_list, "a list of objective names")
+        observers = _observers(top.section("observers"), task)
+        plan = _plan(top.section("plan"), task, objectives)
     for i, m in enumerate(modes):
         if m not in objectives:
             raise ConfigError(source, f"modes[{i}]", "not an objective of this scenario", m,
@@ -155,7 +186,53 @@ def parse_scenario(raw: dict, source: str) -> Scenario:
     top.done()
     return Scenario(name=name, description=description, source=source, hash=scenario_hash(raw),
                     robot=robot, world=world, episode=episode, planner=planner,
-                    objectives=objectives, modes=modes, raw=raw)
+                    objectives=objectives, modes=modes, task=task, observers=observers,
+                    plan=plan, raw=raw)
+
+
+def _observers(s: Section, task: TaskTemplate) -> dict[str, ObserverConfig]:
+    """``factor: {predicate: {...}}`` (true -> first state, false -> second), or
+    ``factor: [{state: s, when: {predicate: {...}}}, ..., {default: s}]``."""
+    out = {}
+    for factor in task.factors:
+        if not s.has(factor.name):
+            raise s.error(factor.name, "missing observer for task factor", expected="a predicate "
+                          "or a list of {state, when} rules ending with {default: state}")
+        value = s.data[factor.name]
+        states = factor.states
+        if isinstance(value, dict):
+            if len(states) != 2:
+                raise s.error(factor.name, "the one-predicate form needs a two-state factor",
+                              list(states), "a list of {state, when} rules")
+            out[factor.name] = ObserverConfig(((states[0], parse_predicate(s.section(factor.name))),),
+                                              states[1])
+            continue
+        rules, default = [], None
+        for i, rule in enumerate(s.items(factor.name, required=True)):
+            if rule.has("default"):
+                default = rule.req("default", one_of(states))
+                rule.done()
+                if i != len(s.data[factor.name]) - 1:
+                    raise rule.error("default", "must be the last rule")
+                continue
+            state = rule.req("state", one_of(states))
+            rules.append((state, parse_predicate(rule.section("when"))))
+            rule.done()
+        if default is None:
+            raise s.error(factor.name, "the rule list needs a final {default: state}")
+        out[factor.name] = ObserverConfig(tuple(rules), default)
+    s.done()
+    return out
+
+
+def _plan(s: Section, task: TaskTemplate, objectives: dict) -> dict[str, str]:
+    """The plan interface (paper II.D): every task action -> the objective that executes it."""
+    out = {}
+    for action in task.actions():
+        out[action.name] = s.req(action.name, one_of(objectives),
+                                 f"an objective: {', '.join(objectives)}")
+    s.done()
+    return out
 
 
 def _robot(s: Section) -> RobotConfig:
@@ -177,6 +254,13 @@ def _world(s: Section) -> WorldConfig:
                             wall_height=a.opt("wall_height", 0.3, positive),
                             wall_thickness=a.opt("wall_thickness", 0.1, positive))
         a.done()
+    battery = None
+    if s.has("battery"):
+        b = s.section("battery")
+        battery = BatteryConfig(charger=b.req("charger", str), rate=b.req("rate", positive, "%/s"),
+                                radius=b.opt("radius", 0.5, positive),
+                                initial=b.opt("initial", 100.0, non_negative))
+        b.done()
     objects = []
     names: set[str] = set()
     for o in s.items("objects"):
@@ -185,8 +269,11 @@ def _world(s: Section) -> WorldConfig:
             raise o.error("name", "duplicate or reserved object name", obj.name, "a unique name")
         names.add(obj.name)
         objects.append(obj)
+    if battery and battery.charger not in names:
+        raise ConfigError(s.source, f"{s.path}.battery.charger", "not an object of this world",
+                          battery.charger, f"one of: {', '.join(sorted(names))}")
     s.done()
-    return WorldConfig(timestep=timestep, objects=tuple(objects), arena=arena)
+    return WorldConfig(timestep=timestep, objects=tuple(objects), arena=arena, battery=battery)
 
 
 def _object(s: Section) -> ObjectConfig:
@@ -219,7 +306,8 @@ def _planner(s: Section) -> PlannerConfig:
     cfg = PlannerConfig(samples=s.opt("samples", 200, positive_int),
                         horizon=s.opt("horizon", 15, positive_int),
                         mppi=dict(s.section("mppi", required=False).data),
-                        threads=s.opt("threads", 0, int))
+                        threads=s.opt("threads", 0, int),
+                        aip_period=s.opt("aip_period", 0.2, positive, "simulated seconds"))
     s.done()
     return cfg
 
