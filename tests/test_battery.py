@@ -35,7 +35,8 @@ def _charger_distance(steps):
 def test_enough_battery_goes_straight_to_the_goal(tmp_path):
     summary, steps, actions = _run("battery_enough", tmp_path)
     assert summary["status"] == "success"
-    assert [a for _, a in actions] == ["move_to", "idle"]
+    # the world's success test may end the episode before the next AIP tick reports idle
+    assert [a for _, a in actions] in (["move_to"], ["move_to", "idle"])
     assert _charger_distance(steps).min() > 1.0, "visited the charger without need"
 
 
@@ -43,7 +44,7 @@ def test_low_battery_recharges_first_then_reaches_the_goal(tmp_path):
     summary, steps, actions = _run("battery_recharge", tmp_path)
     assert summary["status"] == "success"
     names = [a for _, a in actions]
-    assert names[:2] == ["go_recharge", "move_to"] and names[-1] == "idle"
+    assert names[:2] == ["go_recharge", "move_to"] and set(names[2:]) <= {"idle"}
     switch = actions[1][0]
     battery = np.array([s["extras"]["battery"] for s in steps])
     times = np.array([s["time"] for s in steps])

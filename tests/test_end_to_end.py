@@ -107,6 +107,9 @@ def test_world_survives_garbage_and_logs_the_rejections(tmp_path):
         reply = P.decode(req.recv())
         assert isinstance(reply, P.Error) and "scenario mismatch" in reply.reason
         assert server.poll() is None, "the world crashed"
+        assert wait_until(lambda: sum(r.get("what") == "rejected" for r in read_log(log)) >= 4,
+                          timeout=10), "bad commands were not all logged as rejected"
+        assert server.poll() is None, "the world crashed"
         req.send(P.encode(P.Control(op="shutdown")))
         assert req.poll(5000)
         req.recv()
