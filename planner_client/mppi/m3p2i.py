@@ -1,0 +1,448 @@
+"""MPPI (thesis Alg. 2) and Multi-Modal MPPI, M3P2I (paper Alg. 3-4, Eqs. 4-12).
+
+The planners never see states or dynamics: each iteration the caller takes the sampled control
+sequences ``V: [S, T, nu]`` from :meth:`sample`, rolls them out (batched MuJoCo, or any model), and
+hands back per-step costs ``[S, T]`` to :meth:`update`. :meth:`command` does the three in one call.
+
+Shapes: S samples in all (M3P2I: Σ_i K_i, grouped by mode), T horizon, nu controls, N modes.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+
+import torch
+from torch import Tensor
+
+from .config import MPPIConfig, ModeSpec
+from .sampling import make_noise
+from .smoothing import savgol_matrix, smooth
+from .temperature import adapt_temperature, softmin_weights
+
+
+@dataclass(frozen=True)
+class PlanResult:
+    """Outcome of one planner iteration (before the warm-start shift).
+
+    Attributes:
+        u0: ``[nu]`` control to apply now (``U[0]``).
+        U: ``[T, nu]`` fused, smoothed, bounded control sequence (Eq. 12).
+        mode_weights: ``[N]`` fused weight mass of each mode's samples (sums to 1); the
+            dominant mode decides discrete choices such as suction on/off.
+        mode_costs: ``[N]`` lowest total cost among each mode's samples (β_i, Eq. 7).
+        etas: ``[N]`` per-mode normalisers η_i (Eq. 6), roughly the number of samples that count.
+        lambdas: ``[N]`` per-mode temperatures λ_i used this iteration.
+        best: ``[N, T, nu]`` lowest-cost sample sequence of each mode.
+        weights: ``[S]`` fused sample weights ω̃ (Eq. 9).
+        fused_eta: ``[]`` normaliser η of the fused weights (Eq. 10).
+        fused_lambda: ``[]`` temperature λ of the fused weights.
+    """
+
+    u0: Tensor
+    U: Tensor
+    mode_weights: Tensor
+    mode_costs: Tensor
+    etas: Tensor
+    lambdas: Tensor
+    best: Tensor
+    weights: Tensor
+    fused_eta: Tensor
+    fused_lambda: Tensor
+
+
+def trajectory_costs(step_costs: Tensor, discount: Tensor) -> Tensor:
+    """S_k = Σ_t γ^t c_{k,t} (Eq. 4; the caller puts the terminal cost φ in the last column).
+
+    Args:
+        step_costs: ``[S, T]`` per-step costs.
+        discount: ``[T]`` powers γ^t.
+
+    Returns:
+        ``[S]`` total costs.
+    """
+    return step_costs @ discount
+
+
+def control_costs(mean: Tensor, eps: Tensor, inv_var: Tensor, coef: Tensor | float) -> Tensor:
+    """Importance-sampling control cost  coef · Σ_t (u_tᵀΣ⁻¹u_t + 2u_tᵀΣ⁻¹ε_t)  (Alg. 2 line 18,
+    Eq. 2.46) with coef = λ/2 · scale and diagonal Σ.
+
+    Args:
+        mean: ``[S, T, nu]`` or ``[T, nu]`` sampling mean u of each sample.
+        eps: ``[S, T, nu]`` noise ε = v - u actually applied (after bounds).
+        inv_var: ``[nu]`` 1/σ².
+        coef: scalar or ``[S]``.
+
+    Returns:
+        ``[S]`` costs.
+    """
+    return coef * (mean * (mean + 2.0 * eps) * inv_var).sum(dim=(-2, -1))
+
+
+def finite_costs(costs: Tensor) -> Tensor:
+    """Maps NaN and ±inf costs (diverged rollouts) to ±max float so they get zero weight
+    instead of poisoning the min-shift and the normaliser."""
+    big = torch.finfo(costs.dtype).max
+    return torch.nan_to_num(costs, nan=big, posinf=big, neginf=-big)
+
+
+def shift(seq: Tensor) -> Tensor:
+    """Warm start: drops step 0 and repeats the last step, ``[..., T, nu] -> [..., T, nu]``.
+
+    Repeating (as the thesis code does) keeps a constant command going at the end of the
+    horizon; a zero would brake velocity-controlled robots in every fresh plan tail.
+    """
+    return torch.cat((seq[..., 1:, :], seq[..., -1:, :]), dim=-2)
+
+
+class _Box:
+    """Control bounds of a config: sample bounding (clamp or squash) and projection."""
+
+    def __init__(self, cfg: MPPIConfig, dtype: torch.dtype, device: torch.device):
+        self.active = cfg.u_min is not None
+        self.squash = cfg.bound == "squash"
+        if self.active:
+            self.lo = torch.tensor(cfg.u_min, dtype=dtype, device=device)
+            self.hi = torch.tensor(cfg.u_max, dtype=dtype, device=device)
+            self.mid = 0.5 * (self.hi + self.lo)
+            self.half = 0.5 * (self.hi - self.lo)
+
+    def bound(self, v: Tensor) -> Tensor:
+        """Brings samples ``[..., nu]`` into the box, in place."""
+        if not self.active:
+            return v
+        if self.squash:
+            return v.sub_(self.mid).div_(self.half).tanh_().mul_(self.half).add_(self.mid)
+        return torch.clamp(v, self.lo, self.hi, out=v)
+
+    def project(self, v: Tensor) -> Tensor:
+        """Clamps means ``[..., nu]`` (smoothing can overshoot a bound)."""
+        return torch.clamp(v, self.lo, self.hi) if self.active else v
+
+
+class _Common:
+    """What MPPI and M3P2I build identically from a config."""
+
+    def __init__(self, cfg: MPPIConfig, samples: int, dtype: torch.dtype, device):
+        self.cfg = cfg
+        self.dtype = dtype
+        self.device = torch.device(device)
+        t = cfg.horizon
+        self.sigma = torch.tensor(cfg.noise_sigma, dtype=dtype, device=self.device)
+        self.inv_var = self.sigma.pow(-2)
+        self.discount = cfg.gamma ** torch.arange(t, dtype=dtype, device=self.device)
+        self.box = _Box(cfg, dtype, self.device)
+        # λ/2 of Alg. 2 line 18 with the *initial* λ: the adapted λ_i would scale the control cost
+        # with the temperature meant to temper it, and the gaps (hence λ_i) would grow without end.
+        self.control_coef = cfg.lambda_init * (0.5 * cfg.control_cost)
+        self.savgol = (torch.as_tensor(savgol_matrix(t, cfg.savgol_window, cfg.savgol_order),
+                                       dtype=dtype, device=self.device)
+                       if cfg.savgol_window else None)
+        self.make_noise(samples)
+
+    def make_noise(self, samples: int) -> None:
+        self.noise = make_noise(self.cfg, samples, self.dtype, self.device)
+
+    def zeros(self, *lead: int) -> Tensor:
+        return torch.zeros(*lead, self.cfg.horizon, self.cfg.nu, dtype=self.dtype,
+                           device=self.device)
+
+    def finish_mean(self, u: Tensor) -> Tensor:
+        """SGF then projection onto the bounds, ``[..., T, nu]``."""
+        if self.savgol is not None:
+            u = smooth(self.savgol, u)
+        return self.box.project(u)
+
+    def check_costs(self, step_costs: Tensor, samples: int) -> Tensor:
+        shape = (samples, self.cfg.horizon)
+        if tuple(step_costs.shape) != shape:
+            raise ValueError(f"step_costs must have shape {shape} [S, T], got {tuple(step_costs.shape)}")
+        return step_costs.to(dtype=self.dtype, device=self.device)
+
+
+class MPPI:
+    """Plain MPPI, thesis Alg. 2, as a reference and baseline.
+
+    Per iteration: v = g(U + ε) (ε Gaussian or Halton-spline, g = bounds), S_k from the per-step
+    costs (Eq. 4, plus the control cost of line 18 if enabled), ω = softmin(S, λ) with the
+    min-cost shift (lines 25-29), U ← SGF(U + Σ_k ω_k ε_k) with ε the bounded noise (line 33),
+    then the shift (lines 36-39). The optional null-action and kept-best samples are the same
+    extra rows as in :class:`M3P2I`; disable both for the literal algorithm.
+
+    Args:
+        cfg: parameters; ``eta_bounds`` and ``alpha_u`` must be the identity choices
+            (``None``, 1.0) since Alg. 2 has neither.
+        samples: K.
+    """
+
+    def __init__(self, cfg: MPPIConfig, samples: int, dtype: torch.dtype = torch.float64,
+                 device: str | torch.device = "cpu"):
+        if cfg.eta_bounds is not None or cfg.alpha_u != 1.0:
+            raise ValueError("MPPI (Alg. 2) has a fixed temperature and full steps: "
+                             "use eta_bounds=None, alpha_u=1.0, or M3P2I")
+        if samples < 1 + cfg.null_action + cfg.keep_best:
+            raise ValueError(f"MPPI needs more than {cfg.null_action + cfg.keep_best} samples")
+        self.num_samples = samples
+        self._c = _Common(cfg, samples, dtype, device)
+        self.reset()
+
+    def reset(self) -> None:
+        """Zero control sequence (clamped into the bounds), fresh random stream."""
+        c = self._c
+        self._null = c.box.project(c.zeros())    # [T, nu]
+        self.U = self._null.clone()              # [T, nu]
+        self._best = self._null.clone()          # [T, nu]
+        self._v: Tensor | None = None
+        c.noise.reset()
+
+    def sample(self) -> Tensor:
+        """Returns ``V = g(U + σ·ε)``, ``[K, T, nu]``."""
+        c = self._c
+        v = c.box.bound(self.U + c.noise.draw() * c.sigma)
+        if c.cfg.keep_best:
+            v[0] = self._best
+        if c.cfg.null_action:
+            v[-1] = self._null
+        self._v = v
+        return v
+
+    def update(self, step_costs: Tensor) -> PlanResult:
+        """Weights the last :meth:`sample` by ``step_costs: [K, T]``; returns the plan, then shifts."""
+        c, v = self._c, self._take_samples()
+        lam = c.cfg.lambda_init
+        costs = trajectory_costs(c.check_costs(step_costs, self.num_samples), c.discount)
+        eps = v - self.U
+        if c.cfg.control_cost:
+            costs = costs + control_costs(self.U, eps, c.inv_var, c.control_coef)
+        costs = finite_costs(costs)
+        w, eta, rho = softmin_weights(costs, lam)
+        u = c.finish_mean(self.U + (w[:, None, None] * eps).sum(dim=0))
+        best = v[costs.argmin()]
+        one = torch.ones(1, dtype=c.dtype, device=c.device)
+        result = PlanResult(u0=u[0], U=u, mode_weights=one, mode_costs=rho.reshape(1),
+                            etas=eta.reshape(1), lambdas=one * lam, best=best[None], weights=w,
+                            fused_eta=eta, fused_lambda=one[0] * lam)
+        self.U, self._best = shift(u), shift(best)
+        return result
+
+    def command(self, evaluate: Callable[[Tensor], Tensor]) -> PlanResult:
+        """sample -> ``evaluate(V) -> [K, T]`` step costs -> update."""
+        return self.update(evaluate(self.sample()))
+
+    def _take_samples(self) -> Tensor:
+        if self._v is None:
+            raise RuntimeError("update() needs a sample() first")
+        v, self._v = self._v, None
+        return v
+
+
+@dataclass(frozen=True)
+class _Layout:
+    """Index tensors that place N modes' samples in rows of ``[S]`` and of a padded table.
+
+    ``table`` is ``[N + 1, W]`` flat sample indices: row i < N lists mode i's rows then padding,
+    row N lists all S rows (the fused problem); ``pad`` marks padding. Padded entries point at
+    row 0 and get +inf cost, so they carry zero weight.
+    """
+
+    row_mode: Tensor    # [S] mode of each sample row
+    table: Tensor       # [N + 1, W]
+    pad: Tensor         # [N + 1, W] bool
+    first: Tensor       # [N] first row of each mode
+    last: Tensor        # [N] last row of each mode
+    k_max: int
+
+    @staticmethod
+    def build(counts: Sequence[int], device: torch.device) -> _Layout:
+        n, total, k_max = len(counts), sum(counts), max(counts)
+        starts = torch.tensor([0, *counts], device=device).cumsum(0)[:-1]
+        k = torch.tensor(counts, device=device)
+        col = torch.arange(total, device=device)
+        table = torch.zeros(n + 1, total, dtype=torch.long, device=device)
+        pad = torch.ones(n + 1, total, dtype=torch.bool, device=device)
+        in_mode = col[None, :] < k[:, None]
+        table[:n] = torch.where(in_mode, starts[:, None] + col[None, :], 0)
+        pad[:n] = ~in_mode
+        table[n], pad[n] = col, False
+        return _Layout(row_mode=torch.repeat_interleave(torch.arange(n, device=device), k),
+                       table=table, pad=pad, first=starts, last=starts + k - 1, k_max=k_max)
+
+
+class M3P2I:
+    """Multi-Modal MPPI (paper Alg. 4) over N modes with their own means, temperatures and costs.
+
+    Per iteration:
+      1. :meth:`sample`: mode i draws ``V = g(μ_i + σ·ε)`` for its rows (Halton-spline or Gaussian
+         ε), row 0 is its previous best sequence (shifted), its last row the null action, and its
+         fixed channels are pinned. Rows are grouped by mode (:attr:`mode_slices`).
+      2. :meth:`update` with per-step costs ``[S, T]``: S_k (Eq. 4 + optional control cost);
+         per mode β_i, η_i, λ_i (Eqs. 5-7, Alg. 3) and μ_i ← Σ ω_i V (Eq. 8); fused weights over
+         all S samples (Eqs. 9-11, their λ adapted to the same η window); u ← (1-α_u)u + α_u Σ ω̃ V
+         (Eq. 12); Savitzky-Golay smoothing of u and μ_i; projection onto the bounds; shift.
+
+    With one mode, α_u = 1 and no temperature adaptation this is exactly :class:`MPPI` (bit for
+    bit, same seed): μ_1 and u then follow the same recursion. Eq. 8 and Eq. 12 are evaluated as
+    ``m + Σ_k ω_k (V_k - m)``, equal to ``Σ_k ω_k V_k`` since Σ ω = 1 and Alg. 2's form of it.
+
+    Fixed channels are pinned in every sample of a mode, so μ_i keeps them; the fused u blends the
+    modes' values by weight, and the caller takes discrete decisions from ``mode_weights``.
+
+    Args:
+        cfg: shared parameters.
+        modes: at least one mode; names must be unique.
+        dtype, device: of every tensor the planner makes and returns.
+    """
+
+    def __init__(self, cfg: MPPIConfig, modes: Sequence[ModeSpec],
+                 dtype: torch.dtype = torch.float64, device: str | torch.device = "cpu"):
+        self._c = _Common(cfg, sum(m.samples for m in modes), dtype, device)
+        self._set_layout(modes)
+        self.reset()
+
+    @property
+    def modes(self) -> tuple[ModeSpec, ...]:
+        return self._modes
+
+    @property
+    def num_samples(self) -> int:
+        """S = Σ_i K_i."""
+        return self._s
+
+    @property
+    def mode_slices(self) -> list[slice]:
+        """Rows of ``V`` (and of the step costs) owned by each mode, in mode order."""
+        return self._slices
+
+    @property
+    def means(self) -> Tensor:
+        """``[N, T, nu]`` per-mode means μ_i the next :meth:`sample` draws around (already shifted)."""
+        return self._mu
+
+    @property
+    def plan(self) -> Tensor:
+        """``[T, nu]`` fused plan u carried into the next iteration (already shifted)."""
+        return self._u
+
+    def reset(self) -> None:
+        """Zero means and plans (clamped into the bounds), initial temperatures, fresh random
+        stream."""
+        c, n = self._c, len(self._modes)
+        self._u = c.box.project(c.zeros())                      # [T, nu]
+        self._mu = self._u.expand(n, -1, -1).clone()            # [N, T, nu]
+        self._best = self._mu.clone()                           # [N, T, nu]
+        self._lam = torch.full((n + 1,), c.cfg.lambda_init, dtype=c.dtype, device=c.device)
+        self._v: Tensor | None = None
+        c.noise.reset()
+
+    def set_modes(self, modes: Sequence[ModeSpec]) -> None:
+        """Changes the set of modes between iterations.
+
+        A mode whose name persists keeps its mean, best sequence and temperature (its sample
+        count and fixed channels may change); a new mode starts from the fused plan u, with
+        ``lambda_init``. The fused plan and temperature are kept.
+        """
+        c = self._c
+        old = {m.name: i for i, m in enumerate(self._modes)}
+        keep = [old.get(m.name) for m in modes]
+        lam0 = torch.tensor(c.cfg.lambda_init, dtype=c.dtype, device=c.device)
+        mu = [self._mu[i] if i is not None else self._u for i in keep]
+        best = [self._best[i] if i is not None else self._u for i in keep]
+        lam = [self._lam[i] if i is not None else lam0 for i in keep] + [self._lam[-1]]
+        previous = self._s
+        self._set_layout(modes)          # validates before anything changes
+        self._mu, self._best, self._lam = torch.stack(mu), torch.stack(best), torch.stack(lam)
+        if self._s != previous:
+            c.make_noise(self._s)
+        self._v = None
+
+    def sample(self) -> Tensor:
+        """Returns the control sequences to roll out, ``[S, T, nu]``."""
+        c, lay = self._c, self._layout
+        v = c.box.bound(self._mu.index_select(0, lay.row_mode) + c.noise.draw() * c.sigma)
+        if c.cfg.keep_best:
+            v.index_copy_(0, lay.first, self._best)
+        if c.cfg.null_action:
+            v.index_copy_(0, lay.last, self._null)
+        if self._pin_keep is not None:
+            v.mul_(self._pin_keep).add_(self._pin_value)
+        self._v = v
+        return v
+
+    def update(self, step_costs: Tensor) -> PlanResult:
+        """Weights the last :meth:`sample` by ``step_costs: [S, T]``; returns the plan, then shifts."""
+        c, lay, n = self._c, self._layout, len(self._modes)
+        if self._v is None:
+            raise RuntimeError("update() needs a sample() first")
+        v, self._v = self._v, None
+        costs = trajectory_costs(c.check_costs(step_costs, self._s), c.discount)
+        if c.cfg.control_cost:
+            mu_rows = self._mu.index_select(0, lay.row_mode)
+            costs = costs + control_costs(mu_rows, v - mu_rows, c.inv_var, c.control_coef)
+        costs = finite_costs(costs)
+
+        table = costs[lay.table].masked_fill_(lay.pad, math.inf)      # [N + 1, W]
+        if c.cfg.eta_bounds is not None:
+            gaps = table - table.amin(dim=-1, keepdim=True)
+            self._lam = adapt_temperature(gaps, self._lam, c.cfg.eta_bounds, c.cfg.adapt_iters)
+        lam = self._lam
+
+        # Per-mode distributions (Eqs. 5-8).
+        mode_idx = lay.table[:n, :lay.k_max]
+        w_mode, eta_mode, beta_mode = softmin_weights(table[:n, :lay.k_max], lam[:n, None])
+        v_mode = v[mode_idx]                                           # [N, K_max, T, nu]
+        mu = self._mu + (w_mode[..., None, None] * (v_mode - self._mu[:, None])).sum(dim=1)
+
+        # Fused distribution over all samples (Eqs. 9-12).
+        w, eta, _ = softmin_weights(costs, lam[n])
+        u = self._u + c.cfg.alpha_u * (w[:, None, None] * (v - self._u)).sum(dim=0)
+
+        mu, u = c.finish_mean(mu), c.finish_mean(u)
+        best_col = table[:n, :lay.k_max].argmin(dim=-1, keepdim=True)
+        best = v[mode_idx.gather(1, best_col).squeeze(1)]
+        mode_weights = torch.zeros(n, dtype=c.dtype, device=c.device).index_add_(0, lay.row_mode, w)
+        result = PlanResult(u0=u[0], U=u, mode_weights=mode_weights, mode_costs=beta_mode,
+                            etas=eta_mode, lambdas=lam[:n].clone(), best=best, weights=w,
+                            fused_eta=eta, fused_lambda=lam[n].clone())
+        self._mu, self._u, self._best = shift(mu), shift(u), shift(best)
+        return result
+
+    def command(self, evaluate: Callable[[Tensor], Tensor]) -> PlanResult:
+        """sample -> ``evaluate(V) -> [S, T]`` step costs -> update."""
+        return self.update(evaluate(self.sample()))
+
+    def _set_layout(self, modes: Sequence[ModeSpec]) -> None:
+        """Validates ``modes`` and builds their row layout, pins and null actions."""
+        c = self._c
+        cfg = c.cfg
+        modes = tuple(modes)
+        if not modes:
+            raise ValueError("M3P2I needs at least one mode")
+        if len({m.name for m in modes}) != len(modes):
+            raise ValueError(f"mode names must be unique, got {[m.name for m in modes]}")
+        extra = cfg.null_action + cfg.keep_best
+        for m in modes:
+            if m.samples < 1 + extra:
+                raise ValueError(f"mode {m.name!r}: needs more than {extra} samples, got {m.samples}")
+            bad = [ch for ch in m.fixed if not 0 <= ch < cfg.nu]
+            if bad:
+                raise ValueError(f"mode {m.name!r}: fixed channels {bad} outside 0..{cfg.nu - 1}")
+        self._modes = modes
+        self._s = sum(m.samples for m in modes)
+        self._layout = _Layout.build([m.samples for m in modes], c.device)
+        starts = self._layout.first.tolist()
+        self._slices = [slice(s, s + m.samples) for s, m in zip(starts, modes)]
+
+        # Pinning as v·keep + value (keep 0 on pinned channels), exact for finite v; and each
+        # mode's null action: zero, inside the bounds, pinned.
+        keep = torch.ones(self._s, 1, cfg.nu, dtype=c.dtype, device=c.device)
+        value = torch.zeros_like(keep)
+        for m, rows in zip(modes, self._slices):
+            for ch, val in m.fixed.items():
+                keep[rows, :, ch] = 0.0
+                value[rows, :, ch] = val
+        last = self._layout.last
+        self._null = c.box.project(c.zeros(len(modes))) * keep[last] + value[last]
+        self._pin_keep = keep if bool((keep == 0).any()) else None
+        self._pin_value = value

@@ -1,0 +1,38 @@
+"""Savitzky-Golay smoothing of control sequences over the horizon (thesis Alg. 2 line 33, "SGF").
+
+The filter is linear, so it is a precomputed ``[T, T]`` matrix: interior rows hold the centred
+window coefficients; the first and last half-window rows evaluate the polynomial fitted to the
+first / last full window at their own position (``scipy.signal.savgol_filter(mode="interp")``),
+which keeps the ends unbiased instead of padding them with invented values.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import torch
+from scipy.signal import savgol_coeffs
+from torch import Tensor
+
+
+def savgol_matrix(horizon: int, window: int, order: int) -> np.ndarray:
+    """``[T, T]`` matrix M with ``smoothed = M @ U`` for ``U`` of shape ``[T, nu]``."""
+    m = np.zeros((horizon, horizon))
+    half = window // 2
+    for t in range(horizon):
+        start = min(max(t - half, 0), horizon - window)
+        m[t, start:start + window] = savgol_coeffs(window, order, pos=t - start, use="dot")
+    return m
+
+
+def smooth(matrix: Tensor, u: Tensor) -> Tensor:
+    """Applies a ``[T, T]`` smoothing matrix to ``[..., T, nu]`` sequences along T.
+
+    Leading dimensions are folded into columns so the work is one 2-D matmul; a single
+    ``[T, nu]`` sequence goes through exactly the same ``mm`` call whatever the batch, which keeps
+    one-mode M3P2I bit-identical to MPPI.
+    """
+    if u.dim() == 2:
+        return matrix @ u
+    t, nu = u.shape[-2:]
+    cols = u.movedim(-2, 0).reshape(t, -1)
+    return (matrix @ cols).reshape(t, *u.shape[:-2], nu).movedim(0, -2)

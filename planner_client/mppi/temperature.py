@@ -1,0 +1,109 @@
+"""Importance weights (thesis Alg. 2 lines 25-29; paper Eqs. 5-7, 9-11) and the temperature
+adaptation of paper Alg. 3.
+
+Rows are independent weighting problems (one per mode, plus the fused one), so everything here
+works on ``[..., K]`` costs and reduces over the last dimension.
+"""
+
+from __future__ import annotations
+
+import math
+
+import torch
+from torch import Tensor
+
+# Bracket of log λ around the cost gaps d: at λ = d_min⁺/55 every non-minimal sample has weight
+# ≤ e^{-55} relative to the best (η = number of ties), at λ = 50·d_max every sample has ≥ e^{-0.02}
+# (η ≈ number of samples), so any reachable η lies inside.
+_LOG_LO_MARGIN = math.log(55.0)
+_LOG_HI_MARGIN = math.log(50.0)
+
+
+def softmin_weights(costs: Tensor, lam: Tensor | float) -> tuple[Tensor, Tensor, Tensor]:
+    """Exponentiated-cost weights with the min-cost shift.
+
+    ω_k = exp(-(S_k - β)/λ) / η,  η = Σ_k exp(-(S_k - β)/λ),  β = min_k S_k   (Eqs. 5-7 / 9-11).
+
+    Args:
+        costs: ``[..., K]`` total costs S_k; ``+inf`` entries get zero weight (padding).
+        lam: temperature λ, a float or ``[..., 1]`` tensor.
+
+    Returns:
+        weights ``[..., K]`` (sum 1 per row), η ``[...]``, β ``[...]``.
+    """
+    beta = costs.amin(dim=-1, keepdim=True)
+    e = torch.exp(-(costs - beta) / lam)
+    eta = e.sum(dim=-1, keepdim=True)
+    return e / eta, eta.squeeze(-1), beta.squeeze(-1)
+
+
+def adapt_temperature(gaps: Tensor, lam: Tensor, eta_bounds: tuple[float, float],
+                      max_iters: int) -> Tensor:
+    """Re-tune λ per row until η(λ) = Σ_k exp(-d_k/λ) lies in ``[η_l, η_u]`` (paper Alg. 3).
+
+    Alg. 3 multiplies λ by 0.9 or 1.2 until η is in the window, which needs tens to hundreds of steps
+    when the cost scale changes by orders of magnitude and never ends when the window is unreachable.
+    Here a row whose current λ already gives η in the window keeps it (temporal consistency);
+    otherwise a safeguarded Newton iteration on log η(log λ) aims at the window's geometric centre
+    inside a bracket derived from the gaps (Newton steps that leave the bracket become bisection
+    steps). The start is clamped into the bracket, so the step count does not depend on how far
+    the old λ was off: 1-5 steps for cost spreads from 1e-3 to 1e6 and windows (1.5, 2) to
+    (10, 30), where the 0.9/1.2 rule needs ~80 from λ = 1 to λ = 1e6. ``max_iters`` caps it.
+    A window outside the reachable range (η runs from the number of tied minima to the number of
+    finite samples) gives the bracket end closest to it.
+
+    Args:
+        gaps: ``[G, K]`` cost gaps d = S - β ≥ 0 per row; ``+inf`` marks padding.
+        lam: ``[G]`` current temperatures (warm start).
+        eta_bounds: ``(η_l, η_u)``.
+        max_iters: cap on root-finding steps, shared by all rows.
+
+    Returns:
+        ``[G]`` new temperatures.
+    """
+    eta_l, eta_u = eta_bounds
+    e = torch.exp(-gaps / lam.unsqueeze(-1))
+    eta = e.sum(dim=-1)
+    done = (eta >= eta_l) & (eta <= eta_u)
+    if bool(done.all()):
+        return lam
+
+    target = 0.5 * (math.log(eta_l) + math.log(eta_u))
+    finite = torch.isfinite(gaps)
+    positive = finite & (gaps > 0)
+    inf = torch.full_like(gaps, math.inf)
+    d_min = torch.where(positive, gaps, inf).amin(dim=-1)
+    d_max = torch.where(finite, gaps, -inf).amax(dim=-1)
+    n_ties = (gaps == 0).sum(dim=-1)
+    n_finite = finite.sum(dim=-1)
+    lo = torch.log(d_min) - _LOG_LO_MARGIN
+    hi = torch.log(d_max) + _LOG_HI_MARGIN
+    x = torch.log(lam)
+
+    # Rows with no spread cannot be tuned; rows whose window is out of reach go to the nearest end.
+    flat = torch.isinf(d_min)
+    too_many_ties = ~flat & (n_ties > eta_u)
+    too_few_samples = ~flat & ~too_many_ties & (n_finite < eta_l)
+    x = torch.where(too_many_ties, lo, torch.where(too_few_samples, hi, x))
+    unreachable = flat | too_many_ties | too_few_samples
+    done = done | unreachable
+    x = torch.where(done, x, x.clamp(min=lo, max=hi))
+
+    for _ in range(max_iters):
+        lam_x = torch.exp(x).unsqueeze(-1)
+        scaled = gaps / lam_x
+        e = torch.exp(-scaled)
+        eta = e.sum(dim=-1)
+        done = unreachable | ((eta >= eta_l) & (eta <= eta_u))
+        if bool(done.all()):
+            break
+        f = torch.log(eta) - target
+        lo = torch.where(f < 0, x, lo)
+        hi = torch.where(f > 0, x, hi)
+        # d log η / d log λ = Σ (d/λ) e^{-d/λ} / η; padding gives inf·0, which contributes nothing.
+        slope = (scaled * e).nan_to_num_(nan=0.0).sum(dim=-1) / eta
+        newton = x - f / slope
+        inside = torch.isfinite(newton) & (newton > lo) & (newton < hi)
+        step = torch.where(inside, newton, 0.5 * (lo + hi))
+        x = torch.where(done, x, step)
+    return torch.exp(x)
