@@ -23,7 +23,12 @@ _KINDS: dict[str, tuple[int, int]] = {
     "framezaxis": (mujoco.mjtSensor.mjSENS_FRAMEZAXIS, 3),
     "framelinvel": (mujoco.mjtSensor.mjSENS_FRAMELINVEL, 3),
     "distance": (mujoco.mjtSensor.mjSENS_GEOMDIST, 1),
+    "contactforce": (mujoco.mjtSensor.mjSENS_CONTACT, 3),
 }
+
+# CONTACT sensor settings (intprm = data fields, reduction, slots): only the force field, all
+# matching contacts summed into one net force ("netforce" is reduction 3), hence one slot of dim 3.
+_CONTACT_INTPRM = (1 << int(mujoco.mjtConDataField.mjCONDATA_FORCE), 3, 1)
 
 
 @dataclass(frozen=True)
@@ -31,7 +36,9 @@ class SensorRequest:
     """One quantity per rollout step: ``kind`` of frame ``obj`` (YAML frame names).
 
     ``distance`` is the signed distance between the geoms of bodies ``obj`` and ``ref``, reported
-    as ``cutoff`` when farther apart (MuJoCo's GEOMDIST sensor).
+    as ``cutoff`` when farther apart (MuJoCo's GEOMDIST sensor). ``contactforce`` is the net
+    contact force [3] between the subtree of body ``obj`` (a robot with all its links) and the
+    geoms of body ``ref`` (MuJoCo's CONTACT sensor, zero when they do not touch).
     """
     kind: str
     obj: str
@@ -40,7 +47,11 @@ class SensorRequest:
 
     @property
     def name(self) -> str:
-        tail = f"__{self.ref}__{self.cutoff:g}" if self.kind == "distance" else ""
+        tail = ""
+        if self.kind == "distance":
+            tail = f"__{self.ref}__{self.cutoff:g}"
+        elif self.kind == "contactforce":
+            tail = f"__{self.ref}"
         return f"m3p2i__{self.kind}__{self.obj}{tail}"
 
     @property
@@ -58,6 +69,10 @@ def add_sensors(spec: mujoco.MjSpec, requests: list[SensorRequest], resolve: Fra
             reftype, refname = resolve.mujoco_ref(req.ref)
             sensor.reftype, sensor.refname = reftype, refname
             sensor.cutoff = req.cutoff
+        elif req.kind == "contactforce":
+            sensor.objtype = mujoco.mjtObj.mjOBJ_XBODY     # XBODY selects the body's subtree
+            sensor.reftype, sensor.refname = resolve.mujoco_ref(req.ref)
+            sensor.intprm[:3] = _CONTACT_INTPRM
 
 
 class SensorLayout:

@@ -3,6 +3,7 @@
 from planner_client.costs.base import TERMS, CostTerm, RolloutBatch, TermContext, register
 from planner_client.costs.objective import Objective, build_objective
 from planner_client.costs import terms as _terms  # noqa: F401  (registers the built-in terms)
+from planner_client.costs import manipulation as _manipulation  # noqa: F401  (Sec. III.A terms)
 
 __all__ = ["TERMS", "CostTerm", "Objective", "RolloutBatch", "TermContext", "build_objective",
            "register"]

@@ -1,0 +1,75 @@
+"""Rotation utilities shared by costs, observers and success tests.
+
+Everything is batched over leading dimensions and runs in torch, so the planner can apply it to
+rollout sensor data ``[samples, horizon, ...]`` without Python loops. NumPy arrays are accepted
+and converted with ``torch.as_tensor`` (float64 stays float64, on the CPU); the result is always a
+tensor. Quaternions are in MuJoCo order ``(w, x, y, z)``; rotation matrices have the frame's axes
+as columns, as MuJoCo's ``xmat`` reshaped to ``[3, 3]``.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import torch
+
+ArrayLike = torch.Tensor | np.ndarray
+
+
+def _tensors(*xs: ArrayLike) -> list[torch.Tensor]:
+    """Inputs as tensors on the device of the first tensor given, in one common floating dtype."""
+    ts = [torch.as_tensor(x) for x in xs]
+    device = next((x.device for x in xs if isinstance(x, torch.Tensor)), ts[0].device)
+    dtype = ts[0].dtype
+    for t in ts[1:]:
+        dtype = torch.promote_types(dtype, t.dtype)
+    if not dtype.is_floating_point:
+        dtype = torch.get_default_dtype()
+    return [t.to(device=device, dtype=dtype) for t in ts]
+
+
+def quat_to_rotmat(quat: ArrayLike) -> torch.Tensor:
+    """``[..., 4]`` quaternions (w, x, y, z) -> ``[..., 3, 3]`` rotation matrices.
+
+    The quaternion is normalised first, so slightly drifted inputs (float32 sensor data) still
+    give a proper rotation; its sign does not matter.
+    """
+    (q,) = _tensors(quat)
+    q = q / q.norm(dim=-1, keepdim=True)
+    w, x, y, z = q.unbind(-1)
+    rows = (
+        1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y),
+        2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x),
+        2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y),
+    )
+    return torch.stack(rows, dim=-1).reshape(*q.shape[:-1], 3, 3)
+
+
+def symmetric_orientation_error(rot_u: ArrayLike, rot_v: ArrayLike) -> torch.Tensor:
+    """Orientation distance between two frames of a fully symmetric object (thesis Eq. 33).
+
+    ``phi(S_u, S_v) = min_{i,j in 1..3} 2 - |u1 . v_i| - |u2 . v_j|``, where ``u1, u2`` are the
+    first two axes of frame u and ``v_i`` any axis of frame v. The two minimisations are
+    independent, as in Eq. 33, so ``phi = 2 - max_i |u1 . v_i| - max_j |u2 . v_j|``. It is 0
+    exactly when the frames are in "general equivalence" (Definition 1: every axis of one is
+    collinear with an axis of the other): for orthonormal u1, u2 both maxima can reach 1 only on
+    different axes of v (Proposition 1 / Theorem 1). Any of the 24 rotations of a cube onto
+    itself, including flips, therefore costs nothing. Always 0 <= phi <= 2 - 2/sqrt(3).
+
+    Args:
+        rot_u, rot_v: rotation matrices ``[..., 3, 3]`` (axes as columns); leading dimensions
+            broadcast, e.g. rollout orientations ``[S, T, 3, 3]`` against one goal ``[3, 3]``.
+
+    Returns:
+        ``[...]`` tensor of phi values (broadcast leading shape).
+    """
+    u, v = _tensors(rot_u, rot_v)
+    # cos[..., a, i] = u_a . v_i for a in (1, 2)
+    cos = torch.matmul(u[..., :, :2].transpose(-1, -2), v).abs()
+    return (2.0 - cos.amax(dim=-1).sum(dim=-1)).clamp_min(0.0)
+
+
+def symmetric_orientation_error_quat(quat_u: ArrayLike, quat_v: ArrayLike) -> torch.Tensor:
+    """:func:`symmetric_orientation_error` for quaternions ``[..., 4]`` (w, x, y, z), e.g. the
+    ``framequat`` sensors of an object and of its goal."""
+    qu, qv = _tensors(quat_u, quat_v)
+    return symmetric_orientation_error(quat_to_rotmat(qu), quat_to_rotmat(qv))

@@ -1,0 +1,483 @@
+"""Cost terms on hand-made states with known values, and the YAML errors of objectives.
+
+Most tests fill a :class:`RolloutBatch` directly (a layout over hand-written sensor columns), so
+each expected number follows from the equation alone. The rest compile a small model with the
+terms' sensors and set its state by hand, to pin what MuJoCo's sensors deliver to the terms.
+"""
+
+from __future__ import annotations
+
+import math
+
+import mujoco
+import numpy as np
+import pytest
+import torch
+from mujoco import rollout as mj_rollout
+
+from shared.config import ConfigError, Section
+from shared.frames import FrameResolver
+from shared.scenario import ObjectiveConfig, TermConfig
+from planner_client.costs import TERMS, RolloutBatch, TermContext, build_objective
+from planner_client.sensors import SensorLayout, SensorRequest, add_sensors
+
+F64 = torch.float64
+SRC = "test.yaml"
+
+# A robot "base" (slide x/y, motor forces ux/uy) with a bumper in front and a hand with two
+# fingertip sites above, a fixed wall and pillar, a free box, a goal marker and a jointed obstacle
+# moving on its own slide joint.
+MJCF = """
+<mujoco>
+  <option timestep="0.01" gravity="0 0 0"/>
+  <worldbody>
+    <body name="base" pos="0 0 0.1">
+      <joint name="x" type="slide" axis="1 0 0"/>
+      <joint name="y" type="slide" axis="0 1 0"/>
+      <geom name="base" type="sphere" size="0.1" mass="1"/>
+      <body name="bumper" pos="0.15 0 0"><geom type="sphere" size="0.05" mass="0.1"/></body>
+      <body name="hand" pos="0 0 0.3">
+        <geom type="box" size="0.02 0.05 0.02" mass="0.1" contype="0" conaffinity="0"/>
+        <site name="left" pos="0 0.03 0"/>
+        <site name="right" pos="0 -0.03 0"/>
+      </body>
+    </body>
+    <body name="wall" pos="1 0 0.1"><geom type="box" size="0.1 1 0.1"/></body>
+    <body name="pillar" pos="-1 -1 0.1"><geom type="cylinder" size="0.1 0.1"/></body>
+    <body name="box" pos="0 -0.5 0.1">
+      <freejoint/><geom type="box" size="0.1 0.1 0.1" mass="1"/>
+    </body>
+    <body name="goal" pos="2 2 0">
+      <geom type="sphere" size="0.05" contype="0" conaffinity="0"/>
+    </body>
+    <body name="mover" pos="-2 2 0.1">
+      <joint name="mover_x" type="slide" axis="1 0 0"/>
+      <geom type="sphere" size="0.1" mass="1" contype="0" conaffinity="0"/>
+    </body>
+  </worldbody>
+  <actuator><motor name="ux" joint="x"/><motor name="uy" joint="y"/></actuator>
+</mujoco>
+"""
+
+
+@pytest.fixture(scope="module")
+def model() -> mujoco.MjModel:
+    return mujoco.MjModel.from_xml_string(MJCF)
+
+
+@pytest.fixture(scope="module")
+def ctx(model) -> TermContext:
+    return TermContext(SRC, FrameResolver(model, "base"), obstacles=["wall", "pillar"],
+                       actuators=["ux", "uy"])
+
+
+def make(ctx: TermContext, name: str, **params):
+    s = Section(params, SRC, "objectives.o.terms[0]")
+    term = TERMS[name].from_params(s, ctx)
+    s.done()
+    return term
+
+
+class _Layout(SensorLayout):
+    """Columns laid out by hand instead of looked up in a compiled model."""
+
+    def __init__(self, columns: dict[SensorRequest, slice]):
+        self.columns = columns
+
+
+def batch_of(values: dict[SensorRequest, list], controls=None, dt: float = 0.1) -> RolloutBatch:
+    """A batch from values ``[S, T, dim]`` per request (nested lists), controls ``[S, T, nu]``."""
+    columns, blocks, start = {}, [], 0
+    for req, v in values.items():
+        t = torch.as_tensor(v, dtype=F64)
+        columns[req] = slice(start, start + t.shape[-1])
+        start += t.shape[-1]
+        blocks.append(t)
+    sensordata = torch.cat(blocks, dim=-1)
+    if controls is None:
+        controls = torch.zeros(*sensordata.shape[:2], 2, dtype=F64)
+    return RolloutBatch(sensordata, torch.as_tensor(controls, dtype=F64), _Layout(columns), dt)
+
+
+def pos(frame: str) -> SensorRequest:
+    return SensorRequest("framepos", frame)
+
+
+def one_step(*xs) -> list:
+    """S samples of one step each: ``[S, 1, dim]`` from S vectors."""
+    return [[list(x)] for x in xs]
+
+
+def close(actual: torch.Tensor, expected) -> None:
+    torch.testing.assert_close(actual, torch.as_tensor(expected, dtype=F64), rtol=1e-12, atol=1e-12)
+
+
+def set_qpos(start: int, values):
+    """A state setup for :func:`sensed`: ``qpos[start:]`` = values (box: qpos[2:9], free joint)."""
+    def setup(d):
+        d.qpos[start:start + len(values)] = values
+    return setup
+
+
+def sensed(model: mujoco.MjModel, ctx: TermContext, term, setup, steps: int = 0) -> RolloutBatch:
+    """A one-step batch from the real sensors of ``term`` after ``setup(data)`` (and ``steps``)."""
+    spec = mujoco.MjSpec.from_string(MJCF)
+    add_sensors(spec, term.sensors(), ctx.resolve)
+    m = spec.compile()
+    d = mujoco.MjData(m)
+    setup(d)
+    for _ in range(steps):
+        mujoco.mj_step(m, d)
+    mujoco.mj_forward(m, d)
+    sd = torch.as_tensor(d.sensordata.copy(), dtype=F64).reshape(1, 1, -1)
+    ctrl = torch.as_tensor(d.ctrl.copy(), dtype=F64).reshape(1, 1, -1)
+    return RolloutBatch(sd, ctrl, SensorLayout(m, term.sensors()), m.opt.timestep)
+
+
+# --- distance, velocity (Eq. 14) -----------------------------------------------------------------
+
+def test_distance_in_3d_and_in_the_plane(ctx):
+    b = batch_of({pos("robot"): one_step((0, 0, 0), (1, 1, 1)),
+                  pos("goal"): one_step((3, 4, 12), (1, 1, 1))})
+    close(make(ctx, "distance", a="robot", b="goal")(b), [[13.0], [0.0]])
+    close(make(ctx, "distance", a="robot", b="goal", axes="xy")(b), [[5.0], [0.0]])
+
+
+def test_distance_reads_the_real_frame_positions(model, ctx):
+    term = make(ctx, "distance", a="robot", b="goal")
+    b = sensed(model, ctx, term, set_qpos(0, [2.0, -1.0]))
+    close(term(b), [[math.sqrt(0 ** 2 + 3 ** 2 + 0.1 ** 2)]])
+
+
+def test_velocity_is_the_speed_of_the_frame(ctx):
+    b = batch_of({SensorRequest("framelinvel", "box"): one_step((3, 4, 12), (0, 0, 0))})
+    close(make(ctx, "velocity", a="box")(b), [[13.0], [0.0]])
+    close(make(ctx, "velocity", a="box", axes="xy")(b), [[5.0], [0.0]])
+
+
+# --- collision, contact_force (Eq. 4.7) ----------------------------------------------------------
+
+def test_collision_is_zero_outside_the_margin_one_at_touching_and_sums_obstacles(ctx):
+    term = make(ctx, "collision", a="robot", margin=0.1)
+    assert term.obstacles == ("wall", "pillar")
+    wall, pillar = term.sensors()
+    # GEOMDIST reports the cutoff (= margin) when farther apart
+    b = batch_of({wall: [[[0.1], [0.05], [0.0], [-0.02]]], pillar: [[[0.1], [0.1], [0.0], [0.1]]]})
+    close(term(b), [[0.0, 0.5, 2.0, 1.2]])
+
+
+def test_collision_excludes_its_own_frame_and_allows_no_obstacles(ctx):
+    term = make(ctx, "collision", a="wall", obstacles=["wall"])
+    assert term.obstacles == ()
+    close(term(batch_of({pos("box"): [[[0, 0, 0]] * 3] * 2})), torch.zeros(2, 3))
+
+
+def test_contact_force_is_the_net_force_against_each_fixed_obstacle(model, ctx):
+    term = make(ctx, "contact_force", a="robot")
+    assert term.obstacles == ("wall", "pillar")
+
+    def press_on_wall(d):
+        d.qpos[:2] = [0.69, 0.0]            # only the bumper, a child body, reaches the wall
+        d.ctrl[:] = [5.0, 0.0]
+
+    b = sensed(model, ctx, term, press_on_wall, steps=300)
+    # at rest against the wall, the wall holds the 5 N motor force, all of it through the bumper:
+    # the robot's contacts are those of its whole subtree
+    assert abs(float(term(b)) - 5.0) < 1e-3
+    close(torch.linalg.vector_norm(b.get(term.sensors()[1])), 0.0)
+
+
+def test_contact_force_ignores_movable_objects_and_free_space(model, ctx):
+    def push_box(d):
+        d.qpos[:2] = [0.0, -0.3]            # touching the free box, far from wall and pillar
+        d.ctrl[:] = [0.0, -5.0]
+
+    fixed_only = make(ctx, "contact_force", a="robot")
+    close(fixed_only(sensed(model, ctx, fixed_only, push_box, steps=3)), [[0.0]])
+    # the push is real: named as an obstacle, the box reports its contact force
+    with_box = make(ctx, "contact_force", a="robot", obstacles=["box"])
+    assert float(with_box(sensed(model, ctx, with_box, push_box, steps=3))) > 0.1
+
+
+def test_contact_force_rejects_sites(ctx):
+    with pytest.raises(ConfigError, match=r"o\.terms\[0\]\.a: contact forces need a body"):
+        make(ctx, "contact_force", a="site:left")
+    with pytest.raises(ConfigError, match=r"terms\[0\]\.obstacles: no body named 'shelf'"):
+        make(ctx, "contact_force", a="robot", obstacles=["wall", "shelf"])
+
+
+# --- control_effort ------------------------------------------------------------------------------
+
+def test_control_effort_over_all_or_named_channels(ctx):
+    b = batch_of({pos("robot"): [[[0, 0, 0]] * 2]}, controls=[[[3.0, 4.0], [0.0, -1.0]]])
+    close(make(ctx, "control_effort")(b), [[25.0, 1.0]])
+    close(make(ctx, "control_effort", actuators=["uy"])(b), [[16.0, 1.0]])
+    with pytest.raises(ConfigError, match=r"terms\[0\]\.actuators: unknown actuator.*'uz'"):
+        make(ctx, "control_effort", actuators=["uz"])
+
+
+# --- orientation (Eqs. 15, 33) -------------------------------------------------------------------
+
+def _yaw(deg: float) -> tuple[float, float, float, float]:
+    h = math.radians(deg) / 2
+    return (math.cos(h), 0.0, 0.0, math.sin(h))
+
+
+def test_orientation_ignores_the_symmetries_of_a_cube(ctx):
+    term = make(ctx, "orientation", a="box", b="goal")
+    qa, qb = term.sensors()
+    h = math.sqrt(0.5)
+    rotations = [_yaw(0), _yaw(90), _yaw(-180), (0.0, 1.0, 0.0, 0.0), (h, h, 0.0, 0.0), _yaw(45)]
+    b = batch_of({qa: one_step(*rotations), qb: one_step(*[(1, 0, 0, 0)] * len(rotations))})
+    close(term(b), [[0.0]] * 5 + [[2.0 - math.sqrt(2.0)]])
+
+
+def test_orientation_reads_the_real_frame_quaternions(model, ctx):
+    term = make(ctx, "orientation", a="box", b="goal")
+    b = sensed(model, ctx, term, set_qpos(5, _yaw(45)))
+    torch.testing.assert_close(term(b), torch.tensor([[2.0 - math.sqrt(2.0)]], dtype=F64))
+
+
+# --- push_align, pull_align (Eqs. 16-18, 20) -----------------------------------------------------
+
+# object at the origin, goal 2 m ahead on x; robots: behind, between, beside, diagonally in
+# front, diagonally behind, on the object
+ROBOTS = [(-1, 0, 0), (1, 0, 0), (0, 1, 0), (1, 1, 0), (-1, 1, 0), (0, 0, 0)]
+
+
+def _align_batch(robots=ROBOTS) -> RolloutBatch:
+    n = len(robots)
+    return batch_of({pos("robot"): one_step(*robots), pos("box"): one_step(*[(0, 0, 0)] * n),
+                     pos("goal"): one_step(*[(2, 0, 0)] * n)})
+
+
+def test_push_align_is_zero_behind_the_object_and_one_between_object_and_goal(ctx):
+    term = make(ctx, "push_align", a="robot", obj="box", goal="goal")
+    close(term(_align_batch()), [[0.0], [1.0], [0.0], [math.sqrt(0.5)], [0.0], [0.0]])
+
+
+def test_pull_align_is_the_mirror_of_push_align(ctx):
+    term = make(ctx, "pull_align", a="robot", obj="box", goal="goal")
+    close(term(_align_batch()), [[1.0], [0.0], [0.0], [0.0], [math.sqrt(0.5)], [0.0]])
+
+
+def test_align_uses_the_planar_angle_unless_asked_for_3d(ctx):
+    b = _align_batch([(1, 0, 5)])
+    close(make(ctx, "push_align", a="robot", obj="box", goal="goal")(b), [[1.0]])
+    close(make(ctx, "push_align", a="robot", obj="box", goal="goal", axes="xyz")(b),
+          [[1 / math.sqrt(26)]])
+
+
+def test_align_with_the_object_on_the_goal_costs_nothing(ctx):
+    b = batch_of({pos("robot"): one_step((1, 0, 0)), pos("box"): one_step((2, 0, 0)),
+                  pos("goal"): one_step((2, 0, 0))})
+    for name in ("push_align", "pull_align"):
+        close(make(ctx, name, a="robot", obj="box", goal="goal")(b), [[0.0]])
+
+
+# --- pull_direction (Eq. 21) ---------------------------------------------------------------------
+
+def test_pull_direction_penalises_controls_towards_the_object(ctx):
+    # object 1 m along +x; actuators listed as (x, y) velocity although the channels are swapped
+    term = make(ctx, "pull_direction", a="robot", obj="box", actuators=["uy", "ux"])
+    assert term.channels == (1, 0)
+    u_xy = [(1, 0), (-1, 0), (0, 1), (1, 1), (1, -1), (0, 0), (1e-9, 0)]
+    controls = [[[uy, ux] for ux, uy in u_xy]]
+    b = batch_of({pos("robot"): [[[0, 0, 0.3]] * 7], pos("box"): [[[1, 0, 0.1]] * 7]},
+                 controls=controls)
+    h = math.sqrt(0.5)
+    close(term(b), [[1.0, 0.0, 0.0, h, h, 0.0, 1.0]])
+
+
+def test_pull_direction_needs_one_actuator_per_axis(ctx):
+    with pytest.raises(ConfigError, match=r"terms\[0\]\.actuators: needs one velocity actuator"):
+        make(ctx, "pull_direction", a="robot", obj="box", actuators=["ux"])
+    with pytest.raises(ConfigError, match=r"terms\[0\]\.actuators: missing required key"):
+        make(ctx, "pull_direction", a="robot", obj="box")
+    with pytest.raises(ConfigError, match=r"terms\[0\]\.actuators: unknown actuator"):
+        make(ctx, "pull_direction", a="robot", obj="box", actuators=["ux", "vel_y"])
+
+
+# --- dynamic_obstacle (Eq. 22) -------------------------------------------------------------------
+
+def test_dynamic_obstacle_predicts_at_constant_velocity_from_the_first_step(ctx):
+    term = make(ctx, "dynamic_obstacle", a="robot", obstacle="mover")
+    r, p, v = term.sensors()
+    dt, T = 0.5, 4
+    # the obstacle is frozen in the rollout (its later sensor values say it never moves): only
+    # its position (1, 0, 0) and velocity (2, 0, 0) at t = 0 may count
+    frozen = [[[1, 0, 0]] * T] * 2
+    velocity = [[[2, 0, 0]] + [[0, 0, 0]] * (T - 1)] * 2
+    riding = [[1 + 2 * t * dt, 0, 0] for t in range(T)]          # exactly on the prediction
+    waiting = [[0, 0, 0]] * T
+    b = batch_of({r: [riding, waiting], p: frozen, v: velocity}, dt=dt)
+    close(term(b), [[1.0] * T, [math.exp(-(1 + 2 * t * dt)) for t in range(T)]])
+
+
+def test_dynamic_obstacle_prediction_matches_a_real_rollout(model, ctx):
+    # a jointed obstacle coasting without friction moves exactly as predicted; this pins that
+    # rollout step 0 reports the initial state (sensors are computed before integration)
+    term = make(ctx, "dynamic_obstacle", a="robot", obstacle="mover", axes="xy")
+    spec = mujoco.MjSpec.from_string(MJCF)
+    add_sensors(spec, term.sensors(), ctx.resolve)
+    m = spec.compile()
+    d = mujoco.MjData(m)
+    d.qvel[m.joint("mover_x").dofadr[0]] = 3.0
+    mujoco.mj_forward(m, d)
+    x0 = np.zeros(mujoco.mj_stateSize(m, mujoco.mjtState.mjSTATE_FULLPHYSICS))
+    mujoco.mj_getState(m, d, x0, mujoco.mjtState.mjSTATE_FULLPHYSICS)
+    T = 5
+    _, sd = mj_rollout.rollout(m, d, x0[None], np.zeros((1, T, m.nu)), nstep=T)
+    b = RolloutBatch(torch.as_tensor(sd), torch.zeros(1, T, m.nu, dtype=F64),
+                     SensorLayout(m, term.sensors()), m.opt.timestep)
+    gap = [math.hypot(-2 + 3 * t * m.opt.timestep, 2) for t in range(T)]
+    torch.testing.assert_close(term(b), torch.tensor([[math.exp(-g) for g in gap]], dtype=F64))
+
+
+# --- reach (Eq. 27) ------------------------------------------------------------------------------
+
+def _reach_batch(term, z_ee: list) -> RolloutBatch:
+    n = len(z_ee)
+    ee, obj, zee, zobj = term.sensors()
+    return batch_of({ee: one_step(*[(0, 0, 0.3)] * n), obj: one_step(*[(0, 0, 0)] * n),
+                     zee: one_step(*z_ee), zobj: one_step(*[(0, 0, 1)] * n)})
+
+
+def test_reach_is_distance_plus_tilt_residual(ctx):
+    term = make(ctx, "reach", ee="site:left", obj="box", theta=-1.0)
+    # gripper pointing down on the box (also unnormalised), horizontal, pointing up
+    close(term(_reach_batch(term, [(0, 0, -1), (0, 0, -2), (1, 0, 0), (0, 0, 1)])),
+          [[0.3], [0.3], [1.3], [2.3]])
+    weighted = make(ctx, "reach", ee="site:left", obj="box", theta=0, tilt_weight=2.0)
+    close(weighted(_reach_batch(weighted, [(0, 0, -1), (1, 0, 0)])), [[2.3], [0.3]])
+
+
+def test_reach_tilt_is_minimal_at_theta(ctx):
+    theta = -0.5
+    term = make(ctx, "reach", ee="site:left", obj="box", theta=theta)
+    angles = torch.linspace(0, math.pi, 181, dtype=F64)
+    z_ee = torch.stack([torch.sin(angles), torch.zeros_like(angles), torch.cos(angles)], -1)
+    cost = term(_reach_batch(term, z_ee.tolist()))[:, 0]
+    best = int(cost.argmin())
+    assert math.isclose(math.cos(float(angles[best])), theta, abs_tol=1e-12)
+    close(cost[best], 0.3)
+
+
+def test_reach_reads_the_real_z_axes(model, ctx):
+    term = make(ctx, "reach", ee="hand", obj="box", theta=0.0)
+    # the box tipped 90 degrees about x: its z axis lies horizontal, the hand's points up
+    h = math.sqrt(0.5)
+    b = sensed(model, ctx, term, set_qpos(2, [0, -0.5, 0.1, h, h, 0, 0]))
+    torch.testing.assert_close(term(b), torch.tensor([[math.hypot(0.5, 0.3)]], dtype=F64))
+
+
+def test_reach_theta_must_be_a_cosine(ctx):
+    with pytest.raises(ConfigError, match=r"terms\[0\]\.theta: must be in \[-1, 1\].*1.5"):
+        make(ctx, "reach", ee="hand", obj="box", theta=1.5)
+    with pytest.raises(ConfigError, match=r"terms\[0\]\.theta: missing required key"):
+        make(ctx, "reach", ee="hand", obj="box")
+
+
+# --- gripper_width (Eqs. 28, 30) -----------------------------------------------------------------
+
+def test_gripper_width_closed_open_and_value(ctx):
+    b = batch_of({pos("site:left"): one_step((0, 0.03, 1), (0, 0, 1)),
+                  pos("site:right"): one_step((0, -0.03, 1), (0, 0, 1))})
+    pair = dict(left="site:left", right="site:right")
+    close(make(ctx, "gripper_width", target="closed", **pair)(b), [[0.06], [0.0]])
+    close(make(ctx, "gripper_width", target="open", **pair)(b), [[0.94], [1.0]])
+    close(make(ctx, "gripper_width", value=0.05, **pair)(b), [[0.01], [0.05]])
+
+
+def test_gripper_width_reads_real_sites(model, ctx):
+    term = make(ctx, "gripper_width", left="site:left", right="site:right", target="closed")
+    torch.testing.assert_close(term(sensed(model, ctx, term, lambda d: None)),
+                               torch.tensor([[0.06]], dtype=F64))
+
+
+def test_gripper_width_needs_exactly_one_target(ctx):
+    pair = dict(left="site:left", right="site:right")
+    for params in ({}, {"target": "closed", "value": 0.05}):
+        with pytest.raises(ConfigError, match=r"terms\[0\]\.target: give exactly one of"):
+            make(ctx, "gripper_width", **pair, **params)
+    with pytest.raises(ConfigError, match=r"terms\[0\]\.target: must be one of: closed, open"):
+        make(ctx, "gripper_width", target="shut", **pair)
+
+
+# --- every term: sensors compile into a model ----------------------------------------------------
+
+EXAMPLES = {
+    "distance": dict(a="robot", b="goal"),
+    "collision": dict(a="robot"),
+    "control_effort": dict(),
+    "velocity": dict(a="box"),
+    "orientation": dict(a="box", b="goal"),
+    "push_align": dict(a="robot", obj="box", goal="goal"),
+    "pull_align": dict(a="robot", obj="box", goal="goal"),
+    "pull_direction": dict(a="robot", obj="box", actuators=["ux", "uy"]),
+    "dynamic_obstacle": dict(a="robot", obstacle="mover"),
+    "reach": dict(ee="site:left", obj="box", theta=-1.0),
+    "gripper_width": dict(left="site:left", right="site:right", target="open"),
+    "contact_force": dict(a="robot"),
+}
+
+
+def test_every_registered_term_has_an_example():
+    assert set(EXAMPLES) == set(TERMS)
+
+
+def test_all_terms_together_compile_and_give_finite_costs_at_rest(model, ctx):
+    terms = [make(ctx, name, **params) for name, params in EXAMPLES.items()]
+    requests = [r for t in terms for r in t.sensors()]
+    spec = mujoco.MjSpec.from_string(MJCF)
+    add_sensors(spec, requests, ctx.resolve)
+    m = spec.compile()
+    d = mujoco.MjData(m)
+    mujoco.mj_forward(m, d)
+    sd = torch.as_tensor(np.tile(d.sensordata, (3, 4, 1)))
+    b = RolloutBatch(sd, torch.zeros(3, 4, m.nu, dtype=F64), SensorLayout(m, requests), 0.01)
+    for term in terms:
+        cost = term(b)
+        assert cost.shape == (3, 4) and torch.isfinite(cost).all(), term.name
+
+
+# --- objectives: weights, when, YAML errors ------------------------------------------------------
+
+def _objective(ctx, *terms: dict):
+    cfgs = []
+    for i, t in enumerate(terms):
+        params = {k: v for k, v in t.items() if k not in ("term", "weight")}
+        cfgs.append(TermConfig(term=t["term"], weight=t.get("weight", 1.0), params=params,
+                               path=f"objectives.push.terms[{i}]"))
+    return build_objective("push", ObjectiveConfig(terms=tuple(cfgs)), ctx)
+
+
+def test_objective_weights_and_running_terminal_masks(ctx):
+    dist = {"term": "distance", "a": "robot", "b": "goal"}
+    obj = _objective(ctx, {**dist, "weight": 2.0}, {**dist, "weight": 10.0, "when": "terminal"},
+                     {"term": "velocity", "a": "robot", "when": "running"})
+    b = batch_of({pos("robot"): [[[0, 0, 0]] * 3], pos("goal"): [[[3, 4, 0]] * 3],
+                  SensorRequest("framelinvel", "robot"): [[[1, 0, 0]] * 3]})
+    close(obj(b), [[11.0, 11.0, 60.0]])
+
+
+@pytest.mark.parametrize("term, message", [
+    ({"term": "push_allign", "a": "robot"},
+     r"test\.yaml: objectives\.push\.terms\[1\]\.term: unknown cost term \(got 'push_allign'; "
+     r"expected one of: .*push_align"),
+    ({"term": "push_align", "a": "robot", "obj": "box", "goal": "goal", "gaol": "goal"},
+     r"test\.yaml: objectives\.push\.terms\[1\]\.gaol: unknown key \(expected one of: .*goal"),
+    ({"term": "push_align", "a": "robot", "obj": "crate", "goal": "goal"},
+     r"test\.yaml: objectives\.push\.terms\[1\]\.obj: no body named 'crate'.*expected one of: "
+     r"robot, base, bumper, hand, wall, .*site:left"),
+    ({"term": "orientation", "a": "box", "b": "site:tip"},
+     r"test\.yaml: objectives\.push\.terms\[1\]\.b: no site named 'tip'"),
+    ({"term": "distance", "a": "robot", "b": "goal", "when": "final"},
+     r"test\.yaml: objectives\.push\.terms\[1\]\.when: must be one of: all, running, terminal "
+     r"\(got 'final'\)"),
+    ({"term": "gripper_width", "left": "site:left", "right": "site:right", "value": -0.1},
+     r"test\.yaml: objectives\.push\.terms\[1\]\.value: must be >= 0"),
+])
+def test_yaml_errors_name_the_key_path(ctx, term, message):
+    with pytest.raises(ConfigError, match=message):
+        _objective(ctx, {"term": "distance", "a": "robot", "b": "goal"}, term)
