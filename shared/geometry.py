@@ -2,9 +2,10 @@
 
 Everything is batched over leading dimensions and runs in torch, so the planner can apply it to
 rollout sensor data ``[samples, horizon, ...]`` without Python loops. NumPy arrays are accepted
-and converted with ``torch.as_tensor`` (float64 stays float64, on the CPU); the result is always a
-tensor. Quaternions are in MuJoCo order ``(w, x, y, z)``; rotation matrices have the frame's axes
-as columns, as MuJoCo's ``xmat`` reshaped to ``[3, 3]``.
+and converted with ``torch.as_tensor``: alone they keep their dtype (float64 stays float64, on the
+CPU); next to a tensor argument they take its dtype and device. The result is always a tensor.
+Quaternions are in MuJoCo order ``(w, x, y, z)``; rotation matrices have the frame's axes as
+columns, as MuJoCo's ``xmat`` reshaped to ``[3, 3]``.
 """
 
 from __future__ import annotations
@@ -16,14 +17,17 @@ ArrayLike = torch.Tensor | np.ndarray
 
 
 def _tensors(*xs: ArrayLike) -> list[torch.Tensor]:
-    """Inputs as tensors on the device of the first tensor given, in one common floating dtype."""
+    """Inputs as tensors of one floating dtype on one device. NumPy inputs join the tensor
+    inputs (dtype and device of the tensors, e.g. a float64 goal against float32 rollouts);
+    with NumPy inputs only, their promoted dtype on the CPU."""
+    given = [x for x in xs if isinstance(x, torch.Tensor)]
     ts = [torch.as_tensor(x) for x in xs]
-    device = next((x.device for x in xs if isinstance(x, torch.Tensor)), ts[0].device)
-    dtype = ts[0].dtype
-    for t in ts[1:]:
+    dtype = (given or ts)[0].dtype
+    for t in (given or ts)[1:]:
         dtype = torch.promote_types(dtype, t.dtype)
     if not dtype.is_floating_point:
         dtype = torch.get_default_dtype()
+    device = given[0].device if given else ts[0].device
     return [t.to(device=device, dtype=dtype) for t in ts]
 
 
@@ -54,6 +58,11 @@ def symmetric_orientation_error(rot_u: ArrayLike, rot_v: ArrayLike) -> torch.Ten
     collinear with an axis of the other): for orthonormal u1, u2 both maxima can reach 1 only on
     different axes of v (Proposition 1 / Theorem 1). Any of the 24 rotations of a cube onto
     itself, including flips, therefore costs nothing. Always 0 <= phi <= 2 - 2/sqrt(3).
+
+    Away from zero phi is not symmetric in its arguments, because only u's first two axes are
+    matched (random pairs differ by up to about 0.3 when swapped); it is when the relative
+    rotation is about u's third axis, e.g. a cube and its goal both lying on a table. Pass the
+    frames in the same order everywhere (costs, observers, success tests) so they agree.
 
     Args:
         rot_u, rot_v: rotation matrices ``[..., 3, 3]`` (axes as columns); leading dimensions

@@ -1,0 +1,103 @@
+"""Robot models (MJCF shipped in this package) and the registry that scenarios name them by.
+
+A robot MJCF is a complete model with the robot in its worldbody; the scene builder
+(:mod:`shared.scene`) loads it as the base of the scenario's `mujoco.MjSpec` and adds the world.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+
+ROBOT_DIR = Path(__file__).parent
+
+
+@dataclass(frozen=True)
+class RobotSpec:
+    """What the rest of the system needs to know about a robot model.
+
+    Attributes:
+        name: registry key, used as ``robot.model`` in scenario YAML.
+        mjcf: MJCF file name inside ``shared/robots``.
+        frame: body (or site, prefixed ``site:``) whose pose is "the robot" for costs/observers.
+        description: one line for ``--help`` and error messages.
+        ctrl_names: actuator names in control-vector order (checked against the MJCF).
+        safe_ctrl: the control that holds the robot still (zero velocity for velocity actuators);
+            applied by the server when commands go stale.
+        radius: planar footprint radius in metres (mobile bases), used by observers' thresholds.
+    """
+
+    name: str
+    mjcf: str
+    frame: str
+    description: str
+    ctrl_names: tuple[str, ...]
+    safe_ctrl: tuple[float, ...]
+    radius: float = 0.0
+    extras: dict = field(default_factory=dict)
+
+    @property
+    def path(self) -> Path:
+        return ROBOT_DIR / self.mjcf
+
+
+ROBOTS: dict[str, RobotSpec] = {}
+
+
+def register(spec: RobotSpec) -> RobotSpec:
+    if spec.name in ROBOTS:
+        raise ValueError(f"robot {spec.name!r} registered twice")
+    ROBOTS[spec.name] = spec
+    return spec
+
+
+def get_robot(name: str) -> RobotSpec:
+    try:
+        return ROBOTS[name]
+    except KeyError:
+        raise KeyError(f"unknown robot {name!r}; registered: {', '.join(sorted(ROBOTS))}") from None
+
+
+register(RobotSpec(
+    name="point_robot",
+    mjcf="point_robot.xml",
+    frame="robot",
+    description="omnidirectional point robot: velocity actuators on x and y (thesis code)",
+    ctrl_names=("vel_x", "vel_y"),
+    safe_ctrl=(0.0, 0.0),
+    radius=0.2,
+))
+
+register(RobotSpec(
+    name="point_robot_suction",
+    mjcf="point_robot_suction.xml",
+    frame="robot",
+    description="point robot with the pull suction: world velocities vel_x, vel_y (m/s) and "
+                "suction in [0, 1] (adhesion actuator, 250 N at 1)",
+    ctrl_names=("vel_x", "vel_y", "suction"),
+    safe_ctrl=(0.0, 0.0, 0.0),
+    radius=0.2,
+))
+
+register(RobotSpec(
+    name="diff_drive",
+    mjcf="diff_drive.xml",
+    frame="robot",
+    description="non-holonomic differential drive: body-frame forward speed (m/s) and yaw rate "
+                "(rad/s); lateral_grip is the passive tyre grip, its control value is ignored",
+    ctrl_names=("forward", "yaw_rate", "lateral_grip"),
+    safe_ctrl=(0.0, 0.0, 0.0),
+    radius=0.2,
+    extras={"ignored_ctrl": ("lateral_grip",)},
+))
+
+register(RobotSpec(
+    name="panda",
+    mjcf="panda.xml",
+    frame="site:grasp",
+    description="Franka Emika Panda on the table: joint velocities j1..j7 (rad/s) and gripper "
+                "opening width (m, 0 closed .. 0.08 open)",
+    ctrl_names=("j1", "j2", "j3", "j4", "j5", "j6", "j7", "gripper"),
+    safe_ctrl=(0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0),
+    extras={"keyframe": "home", "finger_sites": ("finger_left", "finger_right")},
+))

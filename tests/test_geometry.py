@@ -1,0 +1,173 @@
+"""Rotation utilities and the orientation metric for fully symmetric objects (thesis Eq. 33)."""
+
+from __future__ import annotations
+
+import itertools
+import math
+
+import mujoco
+import numpy as np
+import pytest
+import torch
+from scipy.spatial.transform import Rotation
+
+from shared.geometry import (quat_to_rotmat, symmetric_orientation_error,
+                             symmetric_orientation_error_quat)
+
+
+def rot(axis, degrees) -> np.ndarray:
+    return Rotation.from_rotvec(np.radians(degrees) * np.asarray(axis, float)
+                                / np.linalg.norm(axis)).as_matrix()
+
+
+def random_rotations(n: int, seed: int) -> np.ndarray:
+    return Rotation.random(n, random_state=seed).as_matrix()
+
+
+def cube_symmetries() -> list[np.ndarray]:
+    """The 24 proper rotations mapping a cube onto itself: signed permutations with det +1."""
+    out = []
+    for perm in itertools.permutations(range(3)):
+        for signs in itertools.product((-1, 1), repeat=3):
+            m = np.zeros((3, 3))
+            m[range(3), perm] = signs
+            if np.linalg.det(m) > 0:
+                out.append(m)
+    return out
+
+
+# ---------------------------------------------------------------- quat_to_rotmat ---------------
+
+def test_quat_to_rotmat_matches_mujoco():
+    rng = np.random.default_rng(0)
+    quats = rng.normal(size=(50, 4))
+    quats /= np.linalg.norm(quats, axis=1, keepdims=True)
+    ours = quat_to_rotmat(quats).numpy()
+    for q, m in zip(quats, ours):
+        expected = np.zeros(9)
+        mujoco.mju_quat2Mat(expected, q)
+        np.testing.assert_allclose(m, expected.reshape(3, 3), atol=1e-12)
+
+
+def test_quat_to_rotmat_batches_normalises_and_keeps_dtype():
+    q = torch.tensor([[2.0, 0.0, 0.0, 0.0], [0.0, 0.0, 0.0, -3.0]], dtype=torch.float32)
+    m = quat_to_rotmat(q.expand(4, 5, 2, 4))
+    assert m.shape == (4, 5, 2, 3, 3) and m.dtype == torch.float32
+    torch.testing.assert_close(m[0, 0, 0], torch.eye(3))
+    torch.testing.assert_close(m[0, 0, 1], torch.diag(torch.tensor([-1.0, -1.0, 1.0])))
+    assert quat_to_rotmat(np.array([1.0, 0, 0, 0])).dtype == torch.float64
+
+
+# ---------------------------------------------------------------- phi (Eq. 33) -----------------
+
+def test_identical_frames_give_zero():
+    frames = random_rotations(20, seed=1)
+    torch.testing.assert_close(symmetric_orientation_error(frames, frames),
+                               torch.zeros(20, dtype=torch.float64), atol=1e-12, rtol=0)
+
+
+@pytest.mark.parametrize("axis", [(1, 0, 0), (0, 1, 0), (0, 0, 1)])
+@pytest.mark.parametrize("degrees", [90, 180, 270, -90])
+def test_quarter_turns_about_any_axis_give_zero(axis, degrees):
+    base = random_rotations(1, seed=2)[0]
+    turned = base @ rot(axis, degrees)      # turned about the object's own axis
+    assert float(symmetric_orientation_error(base, turned)) == pytest.approx(0.0, abs=1e-12)
+    assert float(symmetric_orientation_error(turned, base)) == pytest.approx(0.0, abs=1e-12)
+
+
+def test_all_24_cube_symmetries_including_flips_give_zero():
+    base = random_rotations(1, seed=3)[0]
+    flipped = np.stack([base @ s for s in cube_symmetries()])
+    assert len(flipped) == 24
+    # e.g. a cube flipped upside down about a face diagonal: x -> y, y -> x, z -> -z
+    assert any(np.allclose(s, rot((1, 1, 0), 180)) for s in cube_symmetries())
+    phi = symmetric_orientation_error(base, flipped)
+    torch.testing.assert_close(phi, torch.zeros(24, dtype=torch.float64), atol=1e-12, rtol=0)
+
+
+def test_45_degree_yaw_by_hand():
+    # u = identity: u1 = (1, 0, 0), u2 = (0, 1, 0). v = yaw by 45 deg, c = s = 1/sqrt(2):
+    #   v1 = (c, s, 0), v2 = (-s, c, 0), v3 = (0, 0, 1)
+    #   |u1 . v_i| = (c, s, 0)  -> max 1/sqrt(2)
+    #   |u2 . v_j| = (s, c, 0)  -> max 1/sqrt(2)
+    #   phi = min_{i,j} 2 - |u1 . v_i| - |u2 . v_j| = 2 - 2/sqrt(2) = 2 - sqrt(2) = 0.5858
+    # 45 deg is the farthest a yaw can get from a cube's symmetry, so this is the largest
+    # error a cube lying on a table can show.
+    phi = symmetric_orientation_error(np.eye(3), rot((0, 0, 1), 45))
+    assert float(phi) == pytest.approx(2 - math.sqrt(2), abs=1e-12)
+
+
+@pytest.mark.parametrize("degrees", np.linspace(-180, 180, 37))
+def test_yaw_error_is_periodic_in_quarter_turns(degrees):
+    # phi = 2 - 2 max(|cos a|, |sin a|): 0 at multiples of 90 deg, largest at 45 deg
+    a = math.radians(degrees)
+    expected = 2 - 2 * max(abs(math.cos(a)), abs(math.sin(a)))
+    phi = symmetric_orientation_error(np.eye(3), rot((0, 0, 1), degrees))
+    assert float(phi) == pytest.approx(expected, abs=1e-12)
+
+
+def test_zero_only_for_general_equivalence():
+    # any rotation that is not a cube symmetry leaves some axis misaligned
+    frames = random_rotations(500, seed=4)
+    assert float(symmetric_orientation_error(np.eye(3), frames).min()) > 1e-4
+
+
+def test_invariances():
+    u, v = random_rotations(200, seed=5), random_rotations(200, seed=6)
+    phi = symmetric_orientation_error(u, v)
+    world = random_rotations(1, seed=7)[0]
+    # the same rotation of both frames (a change of world frame) changes nothing
+    torch.testing.assert_close(symmetric_orientation_error(world @ u, world @ v), phi)
+    # relabelling or flipping the axes of v (a cube symmetry of the target) changes nothing
+    for sym in cube_symmetries():
+        torch.testing.assert_close(symmetric_orientation_error(u, v @ sym), phi)
+    # the metric stays in its bounds
+    assert float(phi.min()) >= 0.0 and float(phi.max()) <= 2 - 2 / math.sqrt(3)
+
+
+def test_symmetric_in_its_arguments_for_rotations_about_the_first_frames_third_axis():
+    # phi(u, v) reads rows 1-2 of u^T v, phi(v, u) columns 1-2; they agree when the relative
+    # rotation is about u's third axis -- e.g. a cube lying on a table and its goal, both yawed
+    u = random_rotations(50, seed=8)
+    yaws = np.stack([rot((0, 0, 1), d) for d in np.linspace(-170, 170, 50)])
+    v = u @ yaws
+    torch.testing.assert_close(symmetric_orientation_error(u, v), symmetric_orientation_error(v, u))
+
+
+def test_not_symmetric_for_general_pairs_as_eq_33_is_written():
+    # Eq. 33 matches only u's first two axes, so swapping the frames can change phi (by up to
+    # ~0.3 for random pairs). Guard against a silent "fix": this is the thesis' metric.
+    u, v = random_rotations(200, seed=9), random_rotations(200, seed=10)
+    difference = (symmetric_orientation_error(u, v) - symmetric_orientation_error(v, u)).abs()
+    assert float(difference.max()) > 0.05
+    # but it is symmetric where it matters most: at zero (general equivalence is symmetric)
+    w = u[0] @ cube_symmetries()[5]
+    assert float(symmetric_orientation_error(w, u[0])) == pytest.approx(0.0, abs=1e-12)
+
+
+def test_batched_shapes_broadcast_against_one_goal():
+    samples = torch.as_tensor(random_rotations(6 * 4, seed=11)).reshape(6, 4, 3, 3)
+    goal = rot((1, 2, 3), 40)
+    phi = symmetric_orientation_error(samples, goal)
+    assert phi.shape == (6, 4)
+    for s, t in itertools.product(range(6), range(4)):
+        assert float(phi[s, t]) == pytest.approx(
+            float(symmetric_orientation_error(samples[s, t], goal)), abs=1e-12)
+
+
+def test_mixed_inputs_follow_the_tensor_argument():
+    u = torch.as_tensor(random_rotations(3, seed=12), dtype=torch.float32)
+    phi = symmetric_orientation_error(u, np.eye(3))
+    assert phi.dtype == torch.float32 and phi.device == u.device and phi.shape == (3,)
+
+
+def test_quaternion_version_matches_rotation_matrices():
+    rotations = Rotation.random(30, random_state=13)
+    quats = rotations.as_quat(scalar_first=True)
+    goal = Rotation.from_euler("xyz", [10, -20, 30], degrees=True)
+    expected = symmetric_orientation_error(rotations.as_matrix(), goal.as_matrix())
+    got = symmetric_orientation_error_quat(quats, goal.as_quat(scalar_first=True))
+    torch.testing.assert_close(got, expected)
+    # quaternion sign does not matter
+    torch.testing.assert_close(symmetric_orientation_error_quat(-quats, goal.as_quat(scalar_first=True)),
+                               expected)
