@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import torch
 
@@ -16,14 +18,18 @@ from planner_client.observers import SymbolicObserver
 from planner_client.task import ActiveInferenceTask, FixedModes, TaskLayer
 
 
-def build_motion_planner(scenario: Scenario, threads: int = 0) -> MotionPlanner:
+def build_motion_planner(scenario: Scenario, threads: int = 0,
+                         seed: int | None = None) -> MotionPlanner:
     # The planner's tensors are small ([S, T, ·] with S·T ~ 3000): torch's intra-op threads gain
     # nothing there, and their spinning steals the cores mujoco.rollout's pool needs (measured:
     # 12.5 ms -> 7.6 ms per navigation iteration on 2 cores).
     torch.set_num_threads(1)
     problem = build_problem(scenario)
     modes = list(scenario.modes) or [next(iter(scenario.plan.values()))]
-    return MotionPlanner(problem, mppi_config(problem), scenario.planner.samples, modes,
+    cfg = mppi_config(problem)
+    if seed is not None:
+        cfg = dataclasses.replace(cfg, seed=seed)
+    return MotionPlanner(problem, cfg, scenario.planner.samples, modes,
                          nthread=threads or scenario.planner.threads)
 
 
@@ -42,7 +48,7 @@ def build_task(scenario: Scenario, planner: MotionPlanner) -> TaskLayer:
 
 
 def build_client(scenario: Scenario, endpoints: Endpoints, threads: int = 0,
-                 **options) -> PlannerClient:
-    planner = build_motion_planner(scenario, threads)
+                 seed: int | None = None, **options) -> PlannerClient:
+    planner = build_motion_planner(scenario, threads, seed)
     task = build_task(scenario, planner)
     return PlannerClient(planner, task, endpoints, scenario.name, scenario.hash, **options)

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import logging
+from typing import Optional
 
 import typer
 
@@ -33,6 +34,8 @@ def main(
     server_timeout: float = typer.Option(2.0, help="Seconds of silence before reconnecting."),
     keep_running: bool = typer.Option(False, help="Keep planning across episodes instead of "
                                       "exiting when the episode ends."),
+    seed: Optional[int] = typer.Option(None, help="Sampling seed (default: planner.mppi.seed of "
+                                       "the scenario)."),
     verbose: bool = typer.Option(False, "--verbose", "-v"),
 ) -> None:
     setup_logging(verbose, "m3p2i.planner")
@@ -40,7 +43,7 @@ def main(
     from planner_client.loop import HandshakeRefused
     try:
         sc = load_scenario(scenario)
-        client = build_client(sc, Endpoints(host, port), threads=threads,
+        client = build_client(sc, Endpoints(host, port), threads=threads, seed=seed,
                               server_timeout=server_timeout, exit_on_done=not keep_running)
     except ConfigError as exc:
         typer.echo(f"error: {exc}", err=True)

@@ -38,6 +38,7 @@ class MotionPlanner:
         self.mppi = M3P2I(cfg, [self._mode(m) for m in modes], dtype=torch.float64)
         self.modes = list(modes)
         self._step_costs: torch.Tensor | None = None
+        self.last_samples: np.ndarray | None = None     # [S, T, nu] of the last plan()
 
     def _mode(self, name: str) -> ModeSpec:
         return ModeSpec(name=name, samples=self.samples, fixed=self.problem.objectives[name].fixed)
@@ -51,7 +52,8 @@ class MotionPlanner:
     def plan(self, x0: np.ndarray) -> Plan:
         """One iteration from the full physics state ``x0 [nstate]``."""
         V = self.mppi.sample()                                    # [S, T, nu]
-        _, sensordata = self.engine.run(x0, V.numpy())
+        self.last_samples = V.numpy()
+        _, sensordata = self.engine.run(x0, self.last_samples)
         sd = torch.from_numpy(sensordata)                         # [S, T, nsensordata], no copy
         S, T = V.shape[:2]
         if self._step_costs is None or self._step_costs.shape != (S, T):

@@ -87,3 +87,11 @@ class SensorLayout:
     def take(self, sensordata: torch.Tensor, req: SensorRequest) -> torch.Tensor:
         """``sensordata [..., nsensordata]`` -> ``[..., dim]`` for one request."""
         return sensordata[..., self.columns[req]]
+
+    def take_all(self, sensordata: torch.Tensor, reqs: list[SensorRequest]) -> torch.Tensor:
+        """``[..., Σ dim]`` for several requests: a view when their columns are adjacent (as
+        :func:`add_sensors` lays out one term's requests), else a concatenated copy."""
+        cols = [self.columns[r] for r in reqs]
+        if all(a.stop == b.start for a, b in zip(cols, cols[1:])):
+            return sensordata[..., cols[0].start:cols[-1].stop]
+        return torch.cat([sensordata[..., c] for c in cols], dim=-1)

@@ -39,10 +39,10 @@ class ServerOptions:
 
 class WorldServer:
     def __init__(self, scenario: Scenario, endpoints: Endpoints, log_path: Path,
-                 options: ServerOptions | None = None, viewer=None):
+                 options: ServerOptions | None = None, viewer=None, seed: int = 0):
         self.scenario = scenario
         self.opt = options or ServerOptions()
-        self.world = SimWorld(scenario)
+        self.world = SimWorld(scenario, seed)
         self.session = secrets.token_hex(4)
         self.seq = 0
         self.viewer = viewer
@@ -64,7 +64,8 @@ class WorldServer:
         self._stop = False
         self.log.write("header", scenario=scenario.name, scenario_hash=scenario.hash,
                        source=scenario.source, mode=self.opt.mode, dt=self.world.dt,
-                       session=self.session, nq=self.world.model.nq, nu=self.world.model.nu)
+                       session=self.session, nq=self.world.model.nq, nu=self.world.model.nu,
+                       seed=seed, initial=self.world.initial)
 
     # ------------------------------------------------------------------ loop
 
@@ -148,6 +149,10 @@ class WorldServer:
     def _apply(self, cmd: P.Command | None) -> None:
         ctrl = self.world.safe_ctrl if cmd is None else cmd.ctrl
         self.world.step(ctrl)
+        for event in self.world.events:
+            log.info("disturbance: %s moved at t=%.2f s", event["object"], event["time"])
+            self.log.event("disturbance", **event)
+        self.world.events.clear()
         self.seq += 1
         if cmd is not None and cmd.plan_time > 0:
             self._plan_times.append(cmd.plan_time)

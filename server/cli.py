@@ -39,6 +39,7 @@ def main(
                                           "command makes the robot hold still."),
     realtime_factor: float = typer.Option(1.0, help="realtime: simulated seconds per wall second."),
     viewer: bool = typer.Option(False, help="Open MuJoCo's passive viewer (needs a display)."),
+    seed: int = typer.Option(0, help="Seed of the scenario's randomised start (world.randomize)."),
     verbose: bool = typer.Option(False, "--verbose", "-v"),
 ) -> None:
     setup_logging(verbose, "m3p2i.server")
@@ -51,7 +52,7 @@ def main(
         raise typer.Exit(2)
     log_file = log_file or default_run_dir(sc.name) / "episode.jsonl"
     opts = ServerOptions(mode=mode, command_timeout=command_timeout, realtime_factor=realtime_factor)
-    server = WorldServer(sc, Endpoints(host, port), log_file, opts)
+    server = WorldServer(sc, Endpoints(host, port), log_file, opts, seed=seed)
     if viewer:
         if os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY"):
             import mujoco.viewer

@@ -18,6 +18,7 @@ from shared.protocol import State
 from shared.robots import get_robot
 from shared.scenario import Scenario
 from shared.scene import compile_model
+from server.disturbances import Disturbances
 
 
 @dataclass
@@ -30,7 +31,7 @@ class Outcome:
 class SimWorld:
     """Owns MjModel/MjData of the scenario; one :meth:`step` per command."""
 
-    def __init__(self, scenario: Scenario):
+    def __init__(self, scenario: Scenario, seed: int = 0):
         self.scenario = scenario
         self.model = compile_model(scenario)
         self.data = mujoco.MjData(self.model)
@@ -42,6 +43,10 @@ class SimWorld:
         if self.battery:
             self._robot_frame = resolve("robot")
             self._charger = resolve(self.battery.charger)
+        self.disturbances = Disturbances(self.model, resolve, scenario.world.randomize,
+                                         scenario.world.disturbances)
+        self.seed = seed
+        self.events: list[dict] = []     # disturbances fired since the caller last cleared them
         self.extras: dict[str, float] = {}
         self.status = "running"
         self.reset()
@@ -51,7 +56,9 @@ class SimWorld:
         return float(self.model.opt.timestep)
 
     def reset(self) -> None:
+        """Start pose (randomised from ``seed`` where the scenario says), status running."""
         mujoco.mj_resetData(self.model, self.data)
+        self.initial = self.disturbances.reset(self.data, np.random.default_rng(self.seed))
         mujoco.mj_forward(self.model, self.data)
         self.status = "running"
         if self.battery:
@@ -61,6 +68,7 @@ class SimWorld:
         """Advance one timestep holding ``ctrl`` (clipped to the actuators' ranges)."""
         lo, hi = self.model.actuator_ctrlrange.T
         np.clip(ctrl, lo, hi, out=self.data.ctrl)
+        self.events += self.disturbances.apply(self.data, self.extras)
         mujoco.mj_step(self.model, self.data)
         if self.battery:
             self._step_battery()

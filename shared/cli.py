@@ -70,6 +70,7 @@ def run(
     run_dir: Optional[Path] = typer.Option(None, help="Where logs go (default runs/<scenario>-<time>)."),
     timeout: float = typer.Option(900.0, help="Wall-clock seconds before the run is abandoned."),
     viewer: bool = typer.Option(False, help="Open the MuJoCo viewer on the server."),
+    seed: int = typer.Option(0, help="Seed of the randomised start and of the planner's sampling."),
     verbose: bool = typer.Option(False, "--verbose", "-v", help="Show both processes' output."),
 ) -> None:
     """Run one episode of SCENARIO with server and planner; exit 0 on success."""
@@ -82,7 +83,7 @@ def run(
     run_dir.mkdir(parents=True, exist_ok=True)
     port = port or free_port_block()
     log_path = run_dir / "episode.jsonl"
-    common = ["--scenario", sc.source, "--port", str(port)]
+    common = ["--scenario", sc.source, "--port", str(port), "--seed", str(seed)]
     server_cmd = [sys.executable, "-m", "server", *common, "--mode", mode, "--log", str(log_path)]
     planner_cmd = [sys.executable, "-m", "planner_client", *common]
     if viewer:

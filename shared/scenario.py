@@ -51,7 +51,8 @@ class ObjectConfig:
 
 @dataclass(frozen=True)
 class ArenaConfig:
-    """Walls of a square arena at ±half_size around the origin (thesis code: 4 m)."""
+    """Walls of a square arena at ±half_size around the origin (thesis code: 4 m); drawn
+    ``wall_height`` high. ``wall_thickness`` is kept for YAML compatibility: walls are planes."""
     half_size: float = 4.0
     wall_height: float = 0.3
     wall_thickness: float = 0.1
@@ -68,11 +69,44 @@ class BatteryConfig:
 
 
 @dataclass(frozen=True)
+class RandomizeConfig:
+    """Uniform ranges for an object's start pose, drawn per episode from the server's --seed."""
+    object: str
+    x: tuple[float, float] | None = None
+    y: tuple[float, float] | None = None
+    yaw: tuple[float, float] | None = None     # degrees
+
+
+@dataclass(frozen=True)
+class MoveConfig:
+    """Teleport ``object`` to ``pos``/``yaw`` (None keeps that part) once: at time ``at``, or at
+    the first step from ``at`` on where ``when`` holds (e.g. stealing a cube from the hand)."""
+    object: str
+    at: float = 0.0
+    when: Predicate | None = None
+    pos: tuple[float, float, float] | None = None
+    yaw: float | None = None
+
+
+@dataclass(frozen=True)
+class PathConfig:
+    """Move a fixed (mocap) ``object`` through ``waypoints`` at ``speed`` m/s from time ``start``;
+    ``loop`` returns to the first waypoint and repeats (a dynamic obstacle)."""
+    object: str
+    waypoints: tuple[tuple[float, float, float], ...]
+    speed: float
+    start: float = 0.0
+    loop: bool = True
+
+
+@dataclass(frozen=True)
 class WorldConfig:
     timestep: float
     objects: tuple[ObjectConfig, ...] = ()
     arena: ArenaConfig | None = None
     battery: BatteryConfig | None = None
+    randomize: tuple[RandomizeConfig, ...] = ()
+    disturbances: tuple[MoveConfig | PathConfig, ...] = ()
 
 
 @dataclass(frozen=True)
@@ -272,8 +306,71 @@ def _world(s: Section) -> WorldConfig:
     if battery and battery.charger not in names:
         raise ConfigError(s.source, f"{s.path}.battery.charger", "not an object of this world",
                           battery.charger, f"one of: {', '.join(sorted(names))}")
+    by_name = {o.name: o for o in objects}
+    randomize = tuple(_randomize(r, by_name) for r in s.items("randomize"))
+    disturbances = tuple(_disturbance(d, by_name) for d in s.items("disturbances"))
     s.done()
-    return WorldConfig(timestep=timestep, objects=tuple(objects), arena=arena, battery=battery)
+    return WorldConfig(timestep=timestep, objects=tuple(objects), arena=arena, battery=battery,
+                       randomize=randomize, disturbances=disturbances)
+
+
+def _object_ref(s: Section, by_name: dict[str, ObjectConfig], fixed: bool | None = None) -> str:
+    name = s.req("object", str)
+    if name not in by_name:
+        raise s.error("object", "not an object of this world", name,
+                      f"one of: {', '.join(sorted(by_name))}")
+    if fixed is not None and by_name[name].fixed != fixed:
+        raise s.error("object", "must be a fixed object (moved kinematically)" if fixed
+                      else "must be a free object", name)
+    return name
+
+
+def _range(value) -> tuple[float, float]:
+    lo, hi = vector(2)(value)
+    if lo > hi:
+        raise ValueError("low > high")
+    return lo, hi
+
+
+def _waypoint(s: Section, i: int, value) -> tuple[float, float, float]:
+    try:
+        return vector(3)(value)
+    except ValueError as exc:
+        raise ConfigError(s.source, f"{s.key_path('waypoints')}[{i}]", str(exc), value,
+                          "[x, y, z]") from None
+
+
+def _randomize(s: Section, by_name) -> RandomizeConfig:
+    cfg = RandomizeConfig(object=_object_ref(s, by_name), x=s.opt("x", None, _range, "[low, high]"),
+                          y=s.opt("y", None, _range, "[low, high]"),
+                          yaw=s.opt("yaw", None, _range, "[low, high] degrees"))
+    s.done()
+    return cfg
+
+
+def _disturbance(s: Section, by_name) -> MoveConfig | PathConfig:
+    kinds = [k for k in ("move", "path") if s.has(k)]
+    if len(kinds) != 1:
+        raise ConfigError(s.source, s.path, "a disturbance needs exactly one of: move, path",
+                          sorted(s.data))
+    if kinds[0] == "move":
+        m = s.section("move")
+        when = parse_predicate(m.section("when")) if m.has("when") else None
+        cfg = MoveConfig(object=_object_ref(m, by_name), at=m.opt("at", 0.0, non_negative),
+                         when=when, pos=m.opt("pos", None, vector(3), "[x, y, z]"),
+                         yaw=m.opt("yaw", None, number, "degrees"))
+    else:
+        m = s.section("path")
+        points = m.req("waypoints", list, "a list of [x, y, z]")
+        if len(points) < 2:
+            raise m.error("waypoints", "needs at least two waypoints", points)
+        cfg = PathConfig(object=_object_ref(m, by_name, fixed=True),
+                         waypoints=tuple(_waypoint(m, i, p) for i, p in enumerate(points)),
+                         speed=m.req("speed", positive, "m/s"), start=m.opt("start", 0.0, non_negative),
+                         loop=m.opt("loop", True, bool))
+    m.done()
+    s.done()
+    return cfg
 
 
 def _object(s: Section) -> ObjectConfig:

@@ -10,6 +10,7 @@ from __future__ import annotations
 from abc import ABC, abstractmethod
 from collections.abc import Callable
 from dataclasses import dataclass
+from functools import cached_property
 from typing import ClassVar
 
 import torch
@@ -74,6 +75,11 @@ class CostTerm(ABC):
     @abstractmethod
     def sensors(self) -> list[SensorRequest]:
         """Sensor quantities this term reads from rollouts."""
+
+    @cached_property
+    def requests(self) -> list[SensorRequest]:
+        """:meth:`sensors`, built once: the hot loop reads these every iteration."""
+        return self.sensors()
 
     @abstractmethod
     def __call__(self, batch: RolloutBatch) -> torch.Tensor:

@@ -68,7 +68,7 @@ class Orientation(CostTerm):
         return [SensorRequest("framequat", self.a), SensorRequest("framequat", self.b)]
 
     def __call__(self, batch):
-        qa, qb = (batch.get(r) for r in self.sensors())
+        qa, qb = (batch.get(r) for r in self.requests)
         return symmetric_orientation_error_quat(qa, qb)
 
 
@@ -154,7 +154,7 @@ class PullDirection(CostTerm):
         return [SensorRequest("framepos", self.a), SensorRequest("framepos", self.obj)]
 
     def __call__(self, batch):
-        x_r, x_o = (batch.get(r) for r in self.sensors())
+        x_r, x_o = (batch.get(r) for r in self.requests)
         u = batch.controls[..., list(self.channels)]
         return torch.relu(_cosine(_planar(x_o - x_r, self.axes), u))
 
@@ -191,7 +191,7 @@ class DynamicObstacle(CostTerm):
                 SensorRequest("framelinvel", self.obstacle)]
 
     def __call__(self, batch):
-        x_r, x_d, v_d = (batch.get(r) for r in self.sensors())
+        x_r, x_d, v_d = (batch.get(r) for r in self.requests)
         steps = torch.arange(x_r.shape[1], dtype=x_r.dtype, device=x_r.device)
         x_pred = x_d[:, :1] + v_d[:, :1] * (steps * batch.dt)[None, :, None]     # [S, T, 3]
         return torch.exp(-torch.linalg.vector_norm(_planar(x_r - x_pred, self.axes), dim=-1))
@@ -236,7 +236,7 @@ class Reach(CostTerm):
                 SensorRequest("framezaxis", self.ee), SensorRequest("framezaxis", self.obj)]
 
     def __call__(self, batch):
-        x_ee, x_o, z_ee, z_o = (batch.get(r) for r in self.sensors())
+        x_ee, x_o, z_ee, z_o = (batch.get(r) for r in self.requests)
         dist = torch.linalg.vector_norm(x_ee - x_o, dim=-1)
         return dist + self.tilt_weight * (_cosine(z_ee, z_o) - self.theta).abs()
 
@@ -269,7 +269,7 @@ class GripperWidth(CostTerm):
         return [SensorRequest("framepos", self.left), SensorRequest("framepos", self.right)]
 
     def __call__(self, batch):
-        xl, xr = (batch.get(r) for r in self.sensors())
+        xl, xr = (batch.get(r) for r in self.requests)
         width = torch.linalg.vector_norm(xl - xr, dim=-1)
         if self.target == "closed":
             return width
@@ -315,5 +315,6 @@ class ContactForce(CostTerm):
     def __call__(self, batch):
         if not self.obstacles:
             return torch.zeros(batch.controls.shape[:2], dtype=batch.sensordata.dtype)
-        f = torch.stack([batch.get(r) for r in self.sensors()], dim=-2)    # [S, T, n_obstacles, 3]
+        f = batch.layout.take_all(batch.sensordata, self.requests)         # [S, T, 3 n_obstacles]
+        f = f.unflatten(-1, (len(self.requests), 3))                       # [S, T, n_obstacles, 3]
         return torch.linalg.vector_norm(f, dim=-1).sum(-1)

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import torch
 
@@ -31,6 +31,7 @@ class Objective:
     name: str
     terms: list[WeightedTerm]
     fixed: dict[int, float]         # control channel -> pinned value for this mode
+    _masks: dict = field(default_factory=dict, repr=False)
 
     def sensors(self) -> list[SensorRequest]:
         return [r for wt in self.terms for r in wt.term.sensors()]
@@ -38,13 +39,21 @@ class Objective:
     def __call__(self, batch: RolloutBatch) -> torch.Tensor:
         out = None
         for wt in self.terms:
-            c = wt.weight * wt.term(batch)
-            if wt.when == "running":
-                c = torch.cat([c[:, :-1], torch.zeros_like(c[:, -1:])], dim=1)
-            elif wt.when == "terminal":
-                c = torch.cat([torch.zeros_like(c[:, :-1]), c[:, -1:]], dim=1)
-            out = c if out is None else out + c
+            c = wt.term(batch) * self._step_weights(wt, batch.controls.shape[1], batch.sensordata.dtype)
+            out = c if out is None else out.add_(c)
         return out
+
+    def _step_weights(self, wt: WeightedTerm, horizon: int, dtype: torch.dtype) -> torch.Tensor:
+        """weight · mask over the horizon ``[T]``, cached: one multiply per term per iteration."""
+        key = (id(wt), horizon, dtype)
+        if key not in self._masks:
+            mask = torch.full((horizon,), wt.weight, dtype=dtype)
+            if wt.when == "running":
+                mask[-1] = 0.0
+            elif wt.when == "terminal":
+                mask[:-1] = 0.0
+            self._masks[key] = mask
+        return self._masks[key]
 
 
 def build_objective(name: str, cfg: ObjectiveConfig, ctx: TermContext) -> Objective:

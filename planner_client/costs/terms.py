@@ -36,7 +36,7 @@ class Distance(CostTerm):
         return [SensorRequest("framepos", self.a), SensorRequest("framepos", self.b)]
 
     def __call__(self, batch: RolloutBatch) -> torch.Tensor:
-        pa, pb = (batch.get(r) for r in self.sensors())
+        pa, pb = (batch.get(r) for r in self.requests)
         return torch.linalg.vector_norm(_planar(pa - pb, self.axes), dim=-1)
 
 
@@ -72,7 +72,7 @@ class Collision(CostTerm):
     def __call__(self, batch):
         if not self.obstacles:
             return torch.zeros(batch.controls.shape[:2], dtype=batch.sensordata.dtype)
-        d = torch.cat([batch.get(r) for r in self.sensors()], dim=-1)       # [S, T, n_obstacles]
+        d = batch.layout.take_all(batch.sensordata, self.requests)        # [S, T, n_obstacles]
         return torch.clamp(self.margin - d, min=0.0).sum(-1) / self.margin
 
 
@@ -115,4 +115,4 @@ class Velocity(CostTerm):
         return [SensorRequest("framelinvel", self.a)]
 
     def __call__(self, batch):
-        return torch.linalg.vector_norm(_planar(batch.get(self.sensors()[0]), self.axes), dim=-1)
+        return torch.linalg.vector_norm(_planar(batch.get(self.requests[0]), self.axes), dim=-1)
