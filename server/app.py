@@ -162,7 +162,7 @@ class WorldServer:
             self.log.event("action", time=float(self.world.data.time), action=cmd.action)
         d = self.world.data
         self.log.write("step", seq=self.seq, time=float(d.time), qpos=d.qpos, qvel=d.qvel,
-                       ctrl=d.ctrl, action=cmd.action if cmd else "", safe=cmd is None,
+                       mocap_pos=d.mocap_pos, mocap_quat=d.mocap_quat, ctrl=d.ctrl, action=cmd.action if cmd else "", safe=cmd is None,
                        plan_time=cmd.plan_time if cmd else 0.0, extras=self.world.extras)
         if self.viewer is not None:
             self.viewer.sync()
