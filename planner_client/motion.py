@@ -14,7 +14,7 @@ import torch
 
 from planner_client.costs import RolloutBatch
 from planner_client.mppi import M3P2I, MPPIConfig, ModeSpec, PlanResult
-from planner_client.problem import PlanningProblem
+from planner_client.problem import MocapState, PlanningProblem
 from planner_client.rollout import RolloutEngine
 
 
@@ -49,11 +49,18 @@ class MotionPlanner:
             self.mppi.set_modes([self._mode(m) for m in modes])
             self.modes = list(modes)
 
-    def plan(self, x0: np.ndarray) -> Plan:
-        """One iteration from the full physics state ``x0 [nstate]``."""
+    def plan(self, x0: np.ndarray, mocap: MocapState | None = None) -> Plan:
+        """One iteration from the full physics state ``x0 [nstate]`` and the mocap bodies'
+        ``mocap`` state; moving ones go at constant velocity through the rollouts (Eq. 22)."""
         V = self.mppi.sample()                                    # [S, T, nu]
         self.last_samples = V.numpy()
-        _, sensordata = self.engine.run(x0, self.last_samples)
+        path = None
+        if mocap is not None:
+            self.engine.set_mocap(mocap.pos, mocap.quat)
+            if mocap.moving:
+                steps = np.arange(V.shape[1])[:, None, None] * self.problem.model.opt.timestep
+                path = mocap.pos[None] + mocap.vel[None] * steps  # [T, nmocap, 3]
+        _, sensordata = self.engine.run(x0, self.last_samples, path)
         sd = torch.from_numpy(sensordata)                         # [S, T, nsensordata], no copy
         S, T = V.shape[:2]
         if self._step_costs is None or self._step_costs.shape != (S, T):

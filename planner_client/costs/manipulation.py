@@ -162,18 +162,14 @@ class PullDirection(CostTerm):
 @register("dynamic_obstacle")
 @dataclass
 class DynamicObstacle(CostTerm):
-    """S_dyn_obs(R, D) = exp(-|x_R - x_D_pred|) (paper Eq. 22).
+    """S_dyn_obs(R, D) = exp(-|x_R - x_D_pred|) (paper Eq. 22), per rollout step.
 
-    x_D_pred(t) = x_D(0) + v_D(0)·t·dt is a constant-velocity prediction of the obstacle ``D``
-    from its position and linear velocity at the first rollout step (t = 0 is the mirrored
-    state: MuJoCo records a step's sensors before integrating it), for t = 0..T-1.
-
-    The prediction is made here rather than by simulation because the rollouts cannot move such
-    an obstacle: the world drives it kinematically (mocap, or joints whose motion comes from
-    outside the planner's controls), so inside a rollout it stays frozen or drifts with whatever
-    friction acts on it. v_D(0) comes from the ``framelinvel`` sensor, i.e. from the mirrored
-    joint velocities: the obstacle must be a jointed body. A mocap body has no velocity in
-    MuJoCo (the sensor reads 0), so it would be predicted as standing still.
+    x_D_pred(t) is the obstacle's position at rollout step t. The planner moves world-driven
+    obstacles (fixed objects are mocap bodies that the world, or a person, moves) inside its
+    rollouts at the velocity estimated from the last two states: the constant-velocity model of
+    Eq. 22 (``planner_client/motion.py``). A jointed obstacle moves under its own dynamics in the
+    rollout. Either way the prediction is the rollout's, so contact sensors and collision terms
+    see the same predicted obstacle as this term.
 
     Parameters: ``a`` robot frame, ``obstacle`` frame, ``axes`` xyz (default) or xy. The value
     is 1 at contact of the two frame origins and decays per metre of separation.
@@ -187,14 +183,11 @@ class DynamicObstacle(CostTerm):
         return cls(**_frames(s, ctx, "a", "obstacle"), axes=_axes(s))
 
     def sensors(self):
-        return [SensorRequest("framepos", self.a), SensorRequest("framepos", self.obstacle),
-                SensorRequest("framelinvel", self.obstacle)]
+        return [SensorRequest("framepos", self.a), SensorRequest("framepos", self.obstacle)]
 
     def __call__(self, batch):
-        x_r, x_d, v_d = (batch.get(r) for r in self.requests)
-        steps = torch.arange(x_r.shape[1], dtype=x_r.dtype, device=x_r.device)
-        x_pred = x_d[:, :1] + v_d[:, :1] * (steps * batch.dt)[None, :, None]     # [S, T, 3]
-        return torch.exp(-torch.linalg.vector_norm(_planar(x_r - x_pred, self.axes), dim=-1))
+        x_r, x_d = (batch.get(r) for r in self.requests)
+        return torch.exp(-torch.linalg.vector_norm(_planar(x_r - x_d, self.axes), dim=-1))
 
 
 def _cosine_value(value) -> float:

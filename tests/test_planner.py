@@ -1,0 +1,89 @@
+"""The planner's MuJoCo side: mirroring states, moving-obstacle prediction in rollouts, and
+M3P2I over real rollouts lowering the navigation cost."""
+
+import mujoco
+import numpy as np
+import pytest
+
+from shared import protocol as P
+from shared.scenario import load_scenario
+from planner_client.build import build_motion_planner
+from planner_client.problem import Mirror, build_problem
+from planner_client.rollout import RolloutEngine
+from planner_client.sensors import SensorRequest
+
+
+@pytest.fixture(scope="module")
+def nav():
+    return load_scenario("navigation")
+
+
+def _state(model, time, qpos=None, mocap_pos=None):
+    return P.State(session="s", seq=0, time=time,
+                   qpos=np.zeros(model.nq) if qpos is None else np.asarray(qpos, float),
+                   qvel=np.zeros(model.nv), act=np.zeros(model.na),
+                   mocap_pos=np.zeros((model.nmocap, 3)) if mocap_pos is None else mocap_pos,
+                   mocap_quat=np.tile([1.0, 0, 0, 0], (model.nmocap, 1)))
+
+
+def test_mirror_copies_state_and_estimates_mocap_velocity(nav):
+    planner = build_motion_planner(nav, threads=1)
+    model = planner.problem.model
+    mirror = Mirror(model)
+    base = mujoco.MjData(model).mocap_pos.copy()               # the fixed objects' poses
+    mirror.apply(_state(model, 1.0, [0.5, -0.5], base.copy()))
+    np.testing.assert_allclose(mirror.data.xpos[model.body("robot").id][:2], [0.5, -0.5])
+    assert not mirror.mocap().moving
+    moved = base.copy()
+    moved[0] += [0.05, 0.0, 0.0]                               # 0.05 m in 0.05 s: 1 m/s
+    mirror.apply(_state(model, 1.05, [0.5, -0.5], moved))
+    vel = mirror.mocap().vel
+    np.testing.assert_allclose(vel[0], [1.0, 0, 0], atol=1e-9)
+    assert not vel[1:].any()
+    teleported = moved.copy()
+    teleported[0] += [2.0, 0.0, 0.0]                           # 40 m/s: a disturbance, not motion
+    mirror.apply(_state(model, 1.10, [0.5, -0.5], teleported))
+    assert not mirror.mocap().moving
+    planner.close()
+
+
+def test_mismatched_state_is_refused(nav):
+    planner = build_motion_planner(nav, threads=1)
+    mirror = Mirror(planner.problem.model)
+    with pytest.raises(ValueError, match="state.qpos has 3 values"):
+        mirror.apply(_state(planner.problem.model, 0.0, [0.0, 0.0, 0.0]))
+    planner.close()
+
+
+def test_moving_obstacle_follows_the_constant_velocity_prediction_in_rollouts(nav):
+    req = SensorRequest("framepos", "block_a")
+    problem = build_problem(nav, [req])
+    model = problem.model
+    mirror = Mirror(model)
+    x0 = mirror.apply(_state(model, 0.0, mocap_pos=mujoco.MjData(model).mocap_pos.copy()))
+    pos = mirror.data.mocap_pos.copy()
+    pos[int(model.body_mocapid[model.body("block_a").id])] += [1.0, 0.5, 0.0]   # moved by the world
+    vel = np.zeros_like(pos)
+    mocap = int(model.body_mocapid[model.body("block_a").id])
+    vel[mocap] = [0.0, -1.0, 0.0]
+    T, dt = 15, model.opt.timestep
+    engine = RolloutEngine(model, 1)
+    engine.set_mocap(pos, mirror.data.mocap_quat)
+    controls = np.zeros((3, T, model.nu))
+    _, sd = engine.run(x0, controls, pos[None] + vel[None] * (np.arange(T)[:, None, None] * dt))
+    y = sd[:, :, problem.layout.columns[req]][..., 1]                 # [S, T]
+    np.testing.assert_allclose(y, np.tile(pos[mocap, 1] - np.arange(T) * dt, (3, 1)), atol=1e-9)
+    _, sd = engine.run(x0, controls)                                  # no prediction: it stays
+    np.testing.assert_allclose(sd[:, :, problem.layout.columns[req]][..., 1], pos[mocap, 1])
+    engine.close()
+
+
+def test_planner_iterations_lower_the_navigation_cost(nav):
+    planner = build_motion_planner(nav, threads=1)
+    model = planner.problem.model
+    mirror = Mirror(model)
+    x0 = mirror.apply(_state(model, 0.0))
+    costs = [float(planner.plan(x0).result.mode_costs[0]) for _ in range(15)]
+    assert costs[-1] < 0.95 * costs[0]
+    assert min(costs[5:]) <= min(costs[:5])
+    planner.close()
