@@ -143,7 +143,7 @@ class PlannerClient:
         decision = self.task.decide(self.mirror.data, state.extras, state.time)
         self.planner.set_modes(decision.modes)
         plan = self.planner.plan(x0, self.mirror.mocap())
-        ctrl = decision.override if decision.override is not None else plan.result.u0.numpy()
+        ctrl = decision.override if decision.override is not None else plan.command
         plan_time = time.perf_counter() - t0
         self.push.send(P.encode(P.Command(session=state.session, seq=state.seq, ctrl=ctrl,
                                           plan_time=plan_time, action=decision.action)))

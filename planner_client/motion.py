@@ -23,6 +23,8 @@ class Plan:
     result: PlanResult
     modes: list[str]
     top: np.ndarray            # [M, T, 3] robot-frame positions of the lowest-cost samples
+    command: np.ndarray        # [nu] the control to send: u0 with discrete channels resolved
+    dominant: str              # the mode with the largest sum of fused weights
 
 
 class MotionPlanner:
@@ -71,7 +73,23 @@ class MotionPlanner:
         result = self.mppi.update(self._step_costs)
         best = torch.topk(result.weights, min(self.top_k, S)).indices
         top = self.problem.layout.take(sd[best], self.problem.robot_pos).numpy().copy()
-        return Plan(result=result, modes=list(self.modes), top=top)
+        dominant = self.modes[int(torch.argmax(result.mode_weights))]
+        return Plan(result=result, modes=list(self.modes), top=top,
+                    command=self._command(result.u0.numpy(), dominant), dominant=dominant)
+
+    def _command(self, u0: np.ndarray, dominant: str) -> np.ndarray:
+        """u0, with every channel that some active mode pins (suction on/off, gripper) set as
+        the dominant mode sets it: a blend of on and off is neither (thesis: the executed
+        suction follows the mode with the largest fused weight)."""
+        pinned = {ch for m in self.modes for ch in self.problem.objectives[m].fixed}
+        if not pinned:
+            return u0
+        u = u0.copy()
+        fixed = self.problem.objectives[dominant].fixed
+        for ch in pinned:
+            if ch in fixed:
+                u[ch] = fixed[ch]
+        return u
 
     def close(self) -> None:
         self.engine.close()

@@ -87,3 +87,26 @@ def test_planner_iterations_lower_the_navigation_cost(nav):
     assert costs[-1] < 0.95 * costs[0]
     assert min(costs[5:]) <= min(costs[:5])
     planner.close()
+
+
+def test_pinned_channels_follow_the_dominant_mode():
+    import yaml
+    from shared.scenario import SCENARIO_DIR, parse_scenario
+    raw = yaml.safe_load((SCENARIO_DIR / "navigation.yaml").read_text())
+    raw["robot"] = {"model": "point_robot_suction", "qpos": [0.0, 0.0]}
+    goal_terms = raw["objectives"]["navigate"]["terms"]
+    far = [{"term": "distance", "a": "robot", "b": "block_b", "weight": 1000.0}]
+    raw["objectives"] = {"push": {"terms": goal_terms, "fixed": {"suction": 0.0}},
+                         "pull": {"terms": goal_terms + far, "fixed": {"suction": 1.0}}}
+    raw["modes"] = ["push", "pull"]
+    planner = build_motion_planner(parse_scenario(raw, "hybrid.yaml"), threads=1)
+    model = planner.problem.model
+    x0 = Mirror(model).apply(_state(model, 0.0))
+    for _ in range(3):
+        plan = planner.plan(x0)
+    assert plan.dominant == "push"
+    assert plan.result.mode_weights[0] > 0.99
+    assert plan.command[2] == 0.0                              # suction off, as push pins it
+    planner.set_modes(["pull", "push"])
+    assert planner.plan(x0).command[2] == 0.0                  # push still dominates
+    planner.close()
