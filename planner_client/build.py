@@ -39,7 +39,7 @@ def build_task(scenario: Scenario, planner: MotionPlanner) -> TaskLayer:
         return FixedModes(scenario.modes)
     problem = planner.problem
     for factor, cfg in scenario.observers.items():
-        for i, (_, pred) in enumerate(cfg.rules):
+        for _, pred in cfg.rules:
             check_frames(pred, problem.resolve, scenario.source, f"observers.{factor}")
     return ActiveInferenceTask(ActiveInferencePlanner(scenario.task),
                                SymbolicObserver(scenario.observers, problem.resolve),

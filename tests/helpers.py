@@ -51,7 +51,7 @@ class StateWatcher:
         self.sub.setsockopt(zmq.CONFLATE, 1)
         self.sub.connect(Endpoints(port=port).state)
 
-    def latest(self, timeout: float = 5.0) -> P.State:
+    def latest(self, timeout: float = 30.0) -> P.State:
         if not self.sub.poll(int(timeout * 1000)):
             raise TimeoutError("no state received")
         return P.decode(self.sub.recv(), expect="state")

@@ -122,3 +122,67 @@ def test_world_survives_garbage_and_logs_the_rejections(tmp_path):
     rejected = [r for r in read_log(log) if r.get("what") == "rejected"]
     assert len(rejected) >= 4
     assert read_log(log)[-1]["kind"] == "summary"
+
+
+def test_planner_outlives_a_server_restart(tmp_path):
+    port = free_port_block()
+    # the first world runs in real time so that it is still mid-episode when it is killed
+    first = start_server("navigation", port, tmp_path / "first.jsonl", "--mode", "realtime")
+    planner = start_planner("navigation", port)
+    watcher = StateWatcher(port)
+    try:
+        assert wait_until(lambda: watcher.latest().seq > 10, timeout=60), "no progress"
+        first.kill()                                  # the world dies mid-episode
+        first.wait()
+        time.sleep(1.0)
+        assert planner.poll() is None, "the planner died with the server"
+        second = start_server("navigation", port, tmp_path / "second.jsonl")
+        out, _ = second.communicate(timeout=240)
+        planner_out, _ = planner.communicate(timeout=30)
+    finally:
+        watcher.close()
+        stop(first, planner)
+    assert second.returncode == 0 and "success" in out, out
+    assert planner.returncode == 0, planner_out
+    assert "handshaking again" in planner_out or "reconnecting" in planner_out
+
+
+def test_ctrl_c_keeps_the_episode_log(tmp_path):
+    import signal
+    port = free_port_block()
+    log = tmp_path / "episode.jsonl"
+    server = start_server("navigation", port, log, "--mode", "realtime")
+    planner = start_planner("navigation", port)
+    watcher = StateWatcher(port)
+    try:
+        assert wait_until(lambda: watcher.latest().seq > 10, timeout=60), "no progress"
+        server.send_signal(signal.SIGINT)
+        server.wait(15)
+    finally:
+        watcher.close()
+        stop(server, planner)
+    records = read_log(log)
+    steps = [r for r in records if r["kind"] == "step"]
+    assert records[0]["kind"] == "header" and len(steps) > 10
+    assert records[-1]["kind"] == "summary" and records[-1]["status"] == "stopped"
+    assert records[-1]["steps"] == steps[-1]["seq"]
+
+
+def test_protocol_version_mismatch_is_refused(tmp_path):
+    import msgpack
+    port = free_port_block()
+    server = start_server("navigation", port, tmp_path / "log.jsonl")
+    ctx = zmq.Context()
+    req = ctx.socket(zmq.REQ)
+    req.setsockopt(zmq.LINGER, 0)
+    req.connect(Endpoints(port=port).control)
+    try:
+        req.send(msgpack.packb({"type": "hello", "v": 99, "scenario": "navigation",
+                                "scenario_hash": "x"}))
+        assert req.poll(5000)
+        reply = P.decode(req.recv())
+        assert isinstance(reply, P.Error) and "protocol version 99 not supported" in reply.reason
+    finally:
+        req.close()
+        ctx.term()
+        stop(server)

@@ -7,8 +7,8 @@ from dataclasses import dataclass
 
 import torch
 
-from shared.config import Section, non_negative, one_of, positive, string_list
-from planner_client.costs.base import CostTerm, RolloutBatch, TermContext, register
+from shared.config import Section, one_of, positive, string_list, vector
+from planner_client.costs.base import CostTerm, RolloutBatch, register
 from planner_client.sensors import SensorRequest
 
 
@@ -23,21 +23,28 @@ def _planar(x: torch.Tensor, axes: str) -> torch.Tensor:
 @register("distance")
 @dataclass
 class Distance(CostTerm):
-    """S_dist(a, b) = |x_a - x_b| (paper Eq. 14, thesis Eq. 4.5); ``axes: xy`` ignores height."""
+    """S_dist(a, b) = |x_a - (x_b + offset)| (paper Eq. 14, thesis Eq. 4.5); ``axes: xy`` ignores
+    height. ``offset`` (world frame, metres; default 0) places a target relative to a movable
+    object: the paper's pre-place and goal locations above cube B (Eqs. 25, 26, 29)."""
     a: str
     b: str
     axes: str
+    offset: tuple[float, float, float] = (0.0, 0.0, 0.0)
 
     @classmethod
     def from_params(cls, s, ctx):
-        return cls(a=ctx.frame(s, "a"), b=ctx.frame(s, "b"), axes=_axes(s))
+        return cls(a=ctx.frame(s, "a"), b=ctx.frame(s, "b"), axes=_axes(s),
+                   offset=s.opt("offset", (0.0, 0.0, 0.0), vector(3), "[x, y, z] in metres"))
 
     def sensors(self):
         return [SensorRequest("framepos", self.a), SensorRequest("framepos", self.b)]
 
     def __call__(self, batch: RolloutBatch) -> torch.Tensor:
         pa, pb = (batch.get(r) for r in self.requests)
-        return torch.linalg.vector_norm(_planar(pa - pb, self.axes), dim=-1)
+        d = pa - pb
+        if any(self.offset):
+            d = d - torch.tensor(self.offset, dtype=d.dtype, device=d.device)
+        return torch.linalg.vector_norm(_planar(d, self.axes), dim=-1)
 
 
 @register("collision")
@@ -58,7 +65,7 @@ class Collision(CostTerm):
     def from_params(cls, s, ctx):
         a = ctx.frame(s, "a")
         names = s.opt("obstacles", tuple(ctx.obstacles), string_list, "a list of body names")
-        for i, name in enumerate(names):
+        for name in names:
             try:
                 ctx.resolve(name)
             except KeyError as exc:

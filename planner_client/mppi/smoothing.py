@@ -9,7 +9,6 @@ which keeps the ends unbiased instead of padding them with invented values.
 from __future__ import annotations
 
 import numpy as np
-import torch
 from scipy.signal import savgol_coeffs
 from torch import Tensor
 
