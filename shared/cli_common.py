@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import logging
+import sys
 import time
 from pathlib import Path
 
@@ -10,9 +11,15 @@ from rich.logging import RichHandler
 
 
 def setup_logging(verbose: bool, name: str) -> None:
-    logging.basicConfig(level=logging.DEBUG if verbose else logging.INFO, format="%(message)s",
-                        datefmt="[%X]", handlers=[RichHandler(show_path=False, markup=False)])
-    logging.getLogger(name).setLevel(logging.DEBUG if verbose else logging.INFO)
+    """Rich output on a terminal; plain one-line records when redirected (log files, CI),
+    where rich would wrap long lines at 80 columns."""
+    level = logging.DEBUG if verbose else logging.INFO
+    if sys.stderr.isatty():
+        logging.basicConfig(level=level, format="%(message)s", datefmt="[%X]",
+                            handlers=[RichHandler(show_path=False, markup=False)])
+    else:
+        logging.basicConfig(level=level, format="%(asctime)s %(levelname)s %(name)s: %(message)s")
+    logging.getLogger(name).setLevel(level)
 
 
 def default_run_dir(scenario: str) -> Path:
