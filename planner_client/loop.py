@@ -65,6 +65,9 @@ class PlannerClient:
         self.welcome: P.Welcome | None = None
         self.stats = LoopStats()
         self._action: tuple[str, tuple[str, ...]] | None = None
+        robot = planner.problem.robot
+        self._hold = [planner.problem.actuators.index(n) for n in robot.hold_ctrl]
+        self._last_ctrl = np.array(robot.safe_ctrl, dtype=float)
 
     # ------------------------------------------------------------------ handshake
 
@@ -143,7 +146,12 @@ class PlannerClient:
         decision = self.task.decide(self.mirror.data, state.extras, state.time)
         self.planner.set_modes(decision.modes)
         plan = self.planner.plan(x0, self.mirror.mocap())
-        ctrl = decision.override if decision.override is not None else plan.command
+        if decision.override is not None:
+            ctrl = decision.override.copy()
+            ctrl[self._hold] = self._last_ctrl[self._hold]   # e.g. a gripper keeps its grip
+        else:
+            ctrl = plan.command
+        self._last_ctrl = ctrl
         plan_time = time.perf_counter() - t0
         self.push.send(P.encode(P.Command(session=state.session, seq=state.seq, ctrl=ctrl,
                                           plan_time=plan_time, action=decision.action)))

@@ -26,10 +26,10 @@ from rich.console import Console
 from rich.table import Table
 
 from shared.scenario import load_scenario
-from shared.scene import compile_model, get_full_state
+from shared.scene import compile_model, get_full_state, initial_data
 from planner_client.build import build_motion_planner
 
-CASES = {"navigation": {}}   # scenario -> overrides of planner samples/horizon
+CASES = {"navigation": {}, "pick_place": {}}   # scenario -> overrides of planner samples/horizon
 
 app = typer.Typer(add_completion=False)
 
@@ -45,8 +45,7 @@ def measure(scenario, iterations: int, nthread: int, rounds: int = 4) -> dict:
     """
     planner = build_motion_planner(scenario, nthread)
     model = planner.problem.model
-    data = mujoco.MjData(model)
-    mujoco.mj_forward(model, data)
+    data = initial_data(scenario, model)      # the scenario's start pose (the Panda's ready pose)
     world = compile_model(scenario)
     samples, horizon = planner.mppi.num_samples, scenario.planner.horizon
     pool_data = [mujoco.MjData(world) for _ in range(nthread)]

@@ -20,8 +20,9 @@ import zmq
 
 from shared import protocol as P
 from shared.endpoints import Endpoints, socket
+from shared.metrics import MetricsEvaluator, describe
 from shared.scenario import Scenario
-from server.episode_log import EpisodeLog
+from server.episode_log import EpisodeLog, read_log
 from server.world import Outcome, SimWorld
 
 log = logging.getLogger("m3p2i.server")
@@ -43,6 +44,7 @@ class WorldServer:
         self.scenario = scenario
         self.opt = options or ServerOptions()
         self.world = SimWorld(scenario, seed)
+        self.metrics = MetricsEvaluator(scenario, self.world.model)   # bad metric frames fail here
         self.session = secrets.token_hex(4)
         self.seq = 0
         self.viewer = viewer
@@ -85,13 +87,26 @@ class WorldServer:
         finally:
             outcome = self.world.outcome()
             hz = 1.0 / np.mean(self._plan_times) if self._plan_times else 0.0
+            metrics = self._episode_metrics(outcome.status)
             self.log.write("summary", status=outcome.status, time=outcome.time,
                            measures=outcome.measures, planner_hz=hz, steps=self.seq,
-                           rejected=self._rejected, actions=self.action_changes)
+                           rejected=self._rejected, actions=self.action_changes,
+                           metrics=metrics)
             self.log.close()
             self.close()
         outcome.measures["planner_hz"] = hz
         return outcome
+
+    def _episode_metrics(self, status: str) -> dict | None:
+        """shared.metrics on the steps logged so far (the log is line-buffered, so complete on
+        disk). A failure here is logged, never allowed to cost the summary record."""
+        try:
+            metrics = self.metrics.evaluate(read_log(self.log.path), status=status)
+        except Exception:   # noqa: BLE001 - the summary must be written whatever went wrong
+            log.exception("could not compute the episode metrics")
+            return None
+        log.info("metrics: %s", describe(metrics))
+        return metrics.as_dict()
 
     def _running(self) -> bool:
         return self.world.status == "running" and not self._stop
@@ -147,7 +162,7 @@ class WorldServer:
     # ------------------------------------------------------------------ steps
 
     def _apply(self, cmd: P.Command | None) -> None:
-        ctrl = self.world.safe_ctrl if cmd is None else cmd.ctrl
+        ctrl = self.world.safe_command() if cmd is None else cmd.ctrl
         self.world.step(ctrl)
         for event in self.world.events:
             log.info("disturbance: %s moved at t=%.2f s", event["object"], event["time"])

@@ -52,7 +52,11 @@ def main(
         raise typer.Exit(2)
     log_file = log_file or default_run_dir(sc.name) / "episode.jsonl"
     opts = ServerOptions(mode=mode, command_timeout=command_timeout, realtime_factor=realtime_factor)
-    server = WorldServer(sc, Endpoints(host, port), log_file, opts, seed=seed)
+    try:
+        server = WorldServer(sc, Endpoints(host, port), log_file, opts, seed=seed)
+    except ConfigError as exc:   # e.g. a metrics frame the compiled model lacks
+        typer.echo(f"error: {exc}", err=True)
+        raise typer.Exit(2)
     if viewer:
         if os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY"):
             import mujoco.viewer

@@ -2,7 +2,8 @@
 
 Line-buffered JSONL survives Ctrl-C, a planner crash or a server crash: everything up to the last
 complete line is on disk. Record kinds (``kind`` field): ``header``, ``step``, ``event``,
-``summary``. ``scripts/`` and ``m3p2i bench`` read it back with :func:`read_log`.
+``summary``. ``scripts/``, tests and ``m3p2i bench`` read it back with :func:`read_log`
+(:mod:`shared.episode`, so that ``shared`` never imports the server; re-exported here).
 """
 
 from __future__ import annotations
@@ -13,6 +14,10 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+
+from shared.episode import read_log
+
+__all__ = ["EpisodeLog", "read_log"]
 
 
 def _plain(value: Any) -> Any:
@@ -43,15 +48,3 @@ class EpisodeLog:
         if not self._closed:
             self._closed = True
             self._f.close()
-
-
-def read_log(path: str | Path) -> list[dict]:
-    """All complete records of a log (a torn last line from a crash is skipped)."""
-    records = []
-    with Path(path).open() as f:
-        for line in f:
-            try:
-                records.append(json.loads(line))
-            except json.JSONDecodeError:
-                break
-    return records

@@ -17,7 +17,7 @@ from shared.predicates import WorldView
 from shared.protocol import State
 from shared.robots import get_robot
 from shared.scenario import Scenario
-from shared.scene import compile_model
+from shared.scene import compile_model, reset_data
 from server.disturbances import Disturbances
 
 
@@ -37,6 +37,7 @@ class SimWorld:
         self.data = mujoco.MjData(self.model)
         self.robot = get_robot(scenario.robot.model)
         self.safe_ctrl = np.array(self.robot.safe_ctrl, dtype=float)
+        self._hold = [self.model.actuator(n).id for n in self.robot.hold_ctrl]
         resolve = FrameResolver(self.model, self.robot.frame)
         self.success = [p.bind(resolve) for p in scenario.episode.success]
         self.battery = scenario.world.battery
@@ -57,12 +58,20 @@ class SimWorld:
 
     def reset(self) -> None:
         """Start pose (randomised from ``seed`` where the scenario says), status running."""
-        mujoco.mj_resetData(self.model, self.data)
+        reset_data(self.scenario, self.model, self.data)
         self.initial = self.disturbances.reset(self.data, np.random.default_rng(self.seed))
         mujoco.mj_forward(self.model, self.data)
+        self.data.ctrl[:] = self.safe_ctrl      # what a safe stop holds before any command
         self.status = "running"
+        self._success_since: float | None = None
         if self.battery:
             self.extras["battery"] = self.battery.initial
+
+    def safe_command(self) -> np.ndarray:
+        """The robot's safe control, its ``hold_ctrl`` actuators kept at their last command."""
+        ctrl = self.safe_ctrl.copy()
+        ctrl[self._hold] = self.data.ctrl[self._hold]
+        return ctrl
 
     def step(self, ctrl: np.ndarray) -> None:
         """Advance one timestep holding ``ctrl`` (clipped to the actuators' ranges)."""
@@ -70,6 +79,9 @@ class SimWorld:
         np.clip(ctrl, lo, hi, out=self.data.ctrl)
         self.events += self.disturbances.apply(self.data, self.extras)
         mujoco.mj_step(self.model, self.data)
+        # mj_step leaves xpos/xmat from before its integration; the success test, the battery
+        # and the summary must see the state that is published
+        mujoco.mj_kinematics(self.model, self.data)
         if self.battery:
             self._step_battery()
         self._check_episode()
@@ -85,7 +97,13 @@ class SimWorld:
         if self.status != "running":
             return
         view = WorldView(self.data, self.extras)
-        if all(p(view) for p in self.success):
+        if not all(p(view) for p in self.success):
+            self._success_since = None
+        elif self._success_since is None:
+            self._success_since = self.data.time
+        # episode.hold: a stack that topples, or a cube moved off its goal, is no success yet
+        if self._success_since is not None and \
+                self.data.time - self._success_since >= self.scenario.episode.hold - 1e-9:
             self.status = "success"
         elif self.data.time >= self.scenario.episode.max_time - 1e-9:
             self.status = "timeout"

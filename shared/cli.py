@@ -7,8 +7,7 @@ over the wire.
 
 from __future__ import annotations
 
-import socket as pysocket
-import subprocess
+import os
 import sys
 import time
 from pathlib import Path
@@ -18,48 +17,15 @@ import typer
 
 from shared.cli_common import default_run_dir, summary_line
 from shared.config import ConfigError
-from shared.endpoints import DEFAULT_HOST
+from shared.launch import EpisodeLaunch, free_port_block, run_episode
 from shared.scenario import SCENARIO_DIR, load_scenario
+
+__all__ = ["app", "free_port_block"]   # free_port_block: tests start processes with it
 
 app = typer.Typer(add_completion=False, no_args_is_help=True, help=(
     "m3p2i: reactive task and motion planning with active inference and multi-modal MPPI.\n\n"
     "`m3p2i run navigation` runs a scenario end to end; `m3p2i list` shows the scenarios. "
     "For two terminals use `m3p2i-server` and `m3p2i-planner` directly."))
-
-
-def free_port_block(host: str = DEFAULT_HOST, count: int = 4) -> int:
-    """A base port with ``count`` consecutive free ports on ``host``."""
-    for _ in range(50):
-        with pysocket.socket() as s:
-            s.bind((host, 0))
-            base = s.getsockname()[1]
-        if base + count >= 65535:
-            continue
-        ok = True
-        for p in range(base, base + count):
-            with pysocket.socket() as s:
-                try:
-                    s.bind((host, p))
-                except OSError:
-                    ok = False
-                    break
-        if ok:
-            return base
-    raise RuntimeError("no block of free ports found")
-
-
-def read_summary(log_path: Path) -> dict | None:
-    import json
-    if not log_path.is_file():
-        return None
-    for line in reversed(log_path.read_text().splitlines()):
-        try:
-            rec = json.loads(line)
-        except json.JSONDecodeError:
-            continue
-        if rec.get("kind") == "summary":
-            return rec
-    return None
 
 
 @app.command("run")
@@ -80,53 +46,165 @@ def run(
         typer.echo(f"error: {exc}", err=True)
         raise typer.Exit(2)
     run_dir = run_dir or default_run_dir(sc.name)
-    run_dir.mkdir(parents=True, exist_ok=True)
-    port = port or free_port_block()
-    log_path = run_dir / "episode.jsonl"
-    common = ["--scenario", sc.source, "--port", str(port), "--seed", str(seed)]
-    server_cmd = [sys.executable, "-m", "server", *common, "--mode", mode, "--log", str(log_path)]
-    planner_cmd = [sys.executable, "-m", "planner_client", *common]
-    if viewer:
-        server_cmd.append("--viewer")
     typer.echo(f"running {sc.name} ({mode}); logs in {run_dir}")
-    outs = {}
-    procs = {}
-    started = time.monotonic()
-    try:
-        for name, cmd in (("server", server_cmd), ("planner", planner_cmd)):
-            out = None if verbose else (run_dir / f"{name}.log").open("w")
-            outs[name] = out
-            procs[name] = subprocess.Popen(cmd, stdout=out, stderr=subprocess.STDOUT if out else None)
-        while procs["server"].poll() is None:
-            if time.monotonic() - started > timeout:
-                typer.echo(f"error: no outcome within {timeout:.0f} s; stopping", err=True)
-                break
-            if procs["planner"].poll() not in (None, 0, 1):
-                typer.echo(f"error: the planner exited with code {procs['planner'].returncode}; "
-                           f"see {run_dir / 'planner.log'}", err=True)
-                break
-            time.sleep(0.1)
-    except KeyboardInterrupt:
+    result = run_episode(EpisodeLaunch(scenario=sc.source, run_dir=run_dir, seed=seed, mode=mode,
+                                       port=port, timeout=timeout, viewer=viewer, verbose=verbose))
+    if result.reason == "timeout":
+        typer.echo(f"error: no outcome within {timeout:.0f} s; stopping", err=True)
+    elif result.reason == "interrupted":
         typer.echo("interrupted")
-    finally:
-        for p in procs.values():
-            if p.poll() is None:
-                p.terminate()
-        for p in procs.values():
-            try:
-                p.wait(5)
-            except subprocess.TimeoutExpired:
-                p.kill()
-        for out in outs.values():
-            if out is not None:
-                out.close()
-    summary = read_summary(log_path)
+    elif result.reason:
+        typer.echo(f"error: the {result.reason}; see {run_dir / 'planner.log'}", err=True)
+    summary = result.summary
     if summary is None:
-        typer.echo(f"error: no episode summary in {log_path}", err=True)
+        typer.echo(f"error: no episode summary in {result.log_path}", err=True)
         raise typer.Exit(1)
     measures = dict(summary.get("measures", {}), planner_hz=summary.get("planner_hz", 0.0))
     typer.echo(f"{sc.name}: " + summary_line(summary["status"], summary["time"], measures))
     raise typer.Exit(0 if summary["status"] == "success" else 1)
+
+
+@app.command("bench")
+def bench(
+    config: str = typer.Argument("paper", help="Bench file: configs/bench/NAME.yaml or a path."),
+    quick: bool = typer.Option(False, "--quick", help="A few trials per case (the file's "
+                               "quick_trials)."),
+    cases: Optional[str] = typer.Option(None, help="Comma-separated case names or patterns, "
+                                        "e.g. 'navigation,corner*'."),
+    out: Optional[Path] = typer.Option(None, help="Output folder (default runs/bench/CONFIG); "
+                                       "rerun with the same folder to resume."),
+    workers: int = typer.Option(0, help="Trials at once, each a server + planner pair "
+                                "(0: one per core)."),
+    trials: Optional[int] = typer.Option(None, min=1, help="Trials per case (overrides the file "
+                                         "and --quick)."),
+    timeout: Optional[float] = typer.Option(None, help="Wall-clock seconds per trial before "
+                                            "both processes are killed (default: the file's)."),
+    seed: int = typer.Option(0, help="Seed of trial 0; trial i uses seed + i."),
+) -> None:
+    """Run seeded trials of every case (Tables I-III), resumable; print and write the summary."""
+    from rich.console import Console
+
+    from shared import bench as B
+    from shared import bench_report as R
+    # piped or logged output gets the whole table instead of 80 columns of wrapped cells
+    console = Console(width=None if sys.stdout.isatty() else 200)
+    try:
+        cfg = B.load_bench(config)
+        ready, skipped = B.select_cases(cfg, [c.strip() for c in cases.split(",")] if cases else None)
+        paper = R.load_paper()
+    except ConfigError as exc:
+        typer.echo(f"error: {exc}", err=True)
+        raise typer.Exit(2)
+    out_dir = out or Path("runs") / "bench" / Path(cfg.source).stem
+    opts = B.BenchOptions(out_dir=out_dir, workers=workers or os.cpu_count() or 1,
+                          timeout=timeout or cfg.timeout, trials=trials, quick=quick, seed=seed)
+    results = B.ResultsFile(out_dir / "results.csv")
+    done = {B.trial_key(r["case"], r["seed"], r["scenario_hash"]) for r in results.rows()}
+    planned, todo = B.plan_trials(ready, cfg, opts, done)
+    for s in skipped:
+        console.print(f"[yellow]skipped[/] {s.case.case}: {s.reason}")
+    console.print(f"{len(planned)} trials in {len(ready)} cases, {len(planned) - len(todo)} already "
+                  f"in {results.path}, {len(todo)} to run on {opts.workers} workers "
+                  f"(time-out {opts.timeout:.0f} s each)")
+    with B.progress(console) as bar:
+        task = bar.add_task("bench", total=len(todo))
+        finished = B.run_trials(todo, opts, results, on_done=lambda row: bar.update(
+            task, advance=1, description=f"{row['case']} seed {row['seed']}: "
+                                         f"{row['reason'] or row['status']}"))
+    keys = {B.trial_key(t.case.case, t.seed, t.scenario.hash) for t in planned}
+    rows = B.latest_rows(results.rows(), keys)
+    table = R.table_rows(R.summarize(rows, [rc.case.case for rc in ready]), paper)
+    title = f"m3p2i bench {Path(cfg.source).stem}{' --quick' if quick else ''}"
+    console.print(R.rich_table(table, title))
+    header = (f"# {title}\n\n{time.strftime('%Y-%m-%d %H:%M')}, {os.cpu_count()} cores; "
+              f"results: `{results.path}`")
+    out_dir.mkdir(parents=True, exist_ok=True)
+    (out_dir / "summary.md").write_text(R.markdown_report(
+        table, [(s.case.case, s.reason) for s in skipped], header))
+    console.print(f"summary: {out_dir / 'summary.md'}")
+    if not finished:
+        console.print("interrupted: finished trials are kept; run the same command to resume")
+        raise typer.Exit(130)
+
+
+@app.command("plot")
+def plot(
+    log: Path = typer.Argument(..., help="Episode log (episode.jsonl) or the run folder holding it."),
+    out: Path = typer.Option(Path("."), help="Folder for episode.png."),
+    scenario: Optional[str] = typer.Option(None, help="Scenario to replay the log into (default: "
+                                           "the file named in the log's header)."),
+) -> None:
+    """Plot one episode like thesis Figs. A.3-A.5: trajectories, distances, robot-object-goal angle."""
+    from shared import episode
+    from shared.plots import episode_series, plot_episode
+    try:
+        path = episode.find_log(log)
+        records = episode.read_log(path)
+        sc = episode.log_scenario(records, scenario)
+        series = episode_series(sc, records)
+    except (ConfigError, FileNotFoundError, ValueError) as exc:
+        typer.echo(f"error: {exc}", err=True)
+        raise typer.Exit(2)
+    head = episode.header(records)
+    title = f"{sc.name}, seed {head.get('seed', '?')}"
+    try:
+        typer.echo(f"wrote {plot_episode(series, out / 'episode.png', title)}")
+    except ImportError:
+        typer.echo("error: m3p2i plot needs matplotlib: pip install -e '.[plots]'", err=True)
+        raise typer.Exit(2)
+
+
+@app.command("record")
+def record(
+    scenario: Optional[str] = typer.Argument(None, help="Scenario to run and record (name or "
+                                             "path); leave out with --log."),
+    out: Path = typer.Option(..., help="Video file: .gif (Pillow) or .mp4 (needs ffmpeg)."),
+    log: Optional[Path] = typer.Option(None, help="Render this episode log (or run folder) "
+                                       "instead of running an episode."),
+    seed: int = typer.Option(0, help="Seed of the randomised start and of the planner."),
+    run_dir: Optional[Path] = typer.Option(None, help="Where the episode's logs go (default "
+                                           "runs/<scenario>-<time>)."),
+    timeout: float = typer.Option(900.0, help="Wall-clock seconds before the run is abandoned."),
+    width: int = typer.Option(480, help="Frame width in pixels."),
+    height: int = typer.Option(360, help="Frame height in pixels."),
+    fps: float = typer.Option(20.0, help="Frames per second of the video."),
+    speed: float = typer.Option(1.0, help="Simulated seconds per video second."),
+) -> None:
+    """Record an episode offscreen (EGL or OSMesa) to GIF/MP4, with the planner's best sampled
+    trajectories drawn in green."""
+    from shared import video
+    if (scenario is None) == (log is None):
+        typer.echo("error: give a SCENARIO to run, or --log to render an existing episode", err=True)
+        raise typer.Exit(2)
+    try:
+        backend = video.gl_backend()      # before the episode: no point running one we cannot draw
+    except video.NoGLError as exc:
+        typer.echo(f"error: {exc}", err=True)
+        raise typer.Exit(3)
+    if log is None:
+        try:
+            sc = load_scenario(scenario)
+        except ConfigError as exc:
+            typer.echo(f"error: {exc}", err=True)
+            raise typer.Exit(2)
+        run_dir = run_dir or default_run_dir(sc.name)
+        run_dir.mkdir(parents=True, exist_ok=True)
+        port = free_port_block()
+        recorder = video.DiagnosticsRecorder(port, run_dir / video.DIAGNOSTICS_FILE)
+        try:
+            result = run_episode(EpisodeLaunch(scenario=sc.source, run_dir=run_dir, seed=seed,
+                                               port=port, timeout=timeout))
+        finally:
+            recorder.close()
+        status = result.summary["status"] if result.summary else result.reason or "no summary"
+        typer.echo(f"{sc.name}: {status}; logs in {run_dir}")
+        log = result.log_path
+    try:
+        video.render_in_child(backend, log, out, width - width % 2, height - height % 2, fps, speed)
+    except RuntimeError as exc:
+        typer.echo(f"error: {exc}", err=True)
+        raise typer.Exit(1)
+    typer.echo(f"wrote {out}")
 
 
 @app.command("list")

@@ -19,8 +19,9 @@ from typing import Any, ClassVar
 import mujoco
 import numpy as np
 
-from shared.config import ConfigError, Section, non_negative, number, one_of
+from shared.config import ConfigError, Section, non_negative, number, one_of, vector
 from shared.frames import Frame, FrameResolver
+from shared.geometry import symmetric_orientation_error
 
 PREDICATES: dict[str, type[Predicate]] = {}
 
@@ -145,6 +146,104 @@ class ExtraAtLeast(Predicate):
         return {self.name: view.extras.get(self.name, float("nan"))}
 
 
+@register("at_pose")
+@dataclass(frozen=True)
+class AtPose(Predicate):
+    """Frame ``a`` at ``b`` shifted by ``offset`` (world frame, metres), in position and in
+    orientation (paper Eqs. 25-26): |x_a - (x_b + offset)| < ``within`` and, when ``orientation``
+    is given, φ(Σ_a, Σ_b) < ``orientation`` with φ the symmetric-object metric of Eq. 33 (any of
+    a cube's 24 symmetries counts as aligned). The offset places a goal relative to a movable
+    object, e.g. "on top of cube B" is ``offset: [0, 0, 0.05]`` for 5 cm cubes."""
+    a: str
+    b: str
+    within: float
+    orientation: float | None = None
+    offset: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    frame_keys: ClassVar[tuple[str, ...]] = ("a", "b")
+
+    @classmethod
+    def from_section(cls, s: Section) -> AtPose:
+        return cls(a=s.req("a", str), b=s.req("b", str), within=s.req("within", non_negative),
+                   orientation=s.opt("orientation", None, non_negative, "phi tolerance >= 0"),
+                   offset=s.opt("offset", (0.0, 0.0, 0.0), vector(3), "[x, y, z] in metres"))
+
+    def errors(self, view, frames) -> tuple[float, float]:
+        """(position error in metres, orientation error φ)."""
+        d = view.data
+        target = frames["b"].pos(d) + np.asarray(self.offset)
+        phi = symmetric_orientation_error(frames["a"].rot(d), frames["b"].rot(d))
+        return float(np.linalg.norm(frames["a"].pos(d) - target)), float(phi)
+
+    def holds(self, view, frames):
+        position, phi = self.errors(view, frames)
+        return position < self.within and (self.orientation is None or phi < self.orientation)
+
+    def measure(self, view, frames):
+        position, phi = self.errors(view, frames)
+        return {f"position error {self.a}-{self.b}": position,
+                f"orientation error {self.a}-{self.b}": phi}
+
+
+@register("gripper_width_between")
+@dataclass(frozen=True)
+class GripperWidthBetween(Predicate):
+    """low < |x_left - x_right| < high: the gripper holds an object of about that width
+    (paper Eq. 24, l_gripper between the two fingertip frames)."""
+    left: str
+    right: str
+    low: float
+    high: float
+    frame_keys: ClassVar[tuple[str, ...]] = ("left", "right")
+
+    @classmethod
+    def from_section(cls, s: Section) -> GripperWidthBetween:
+        low, high = s.req("low", non_negative, "metres"), s.req("high", non_negative, "metres")
+        if not low < high:
+            raise s.error("high", "must be greater than low", high, f"a width > {low}")
+        return cls(left=s.req("left", str), right=s.req("right", str), low=low, high=high)
+
+    def width(self, view, frames) -> float:
+        return float(np.linalg.norm(frames["left"].pos(view.data) - frames["right"].pos(view.data)))
+
+    def holds(self, view, frames):
+        return self.low < self.width(view, frames) < self.high
+
+    def measure(self, view, frames):
+        return {"gripper width": self.width(view, frames)}
+
+
+@register("all")
+@dataclass(frozen=True)
+class All(Predicate):
+    """Every listed predicate holds, e.g. a cube on its goal *and* the gripper open:
+    ``all: [{at_pose: {...}}, {gripper_width_between: {...}}]``. For observers and disturbance
+    triggers that need more than one condition (``episode.success`` is already such a list)."""
+    parts: tuple[Predicate, ...]
+
+    @classmethod
+    def from_section(cls, s: Section) -> All:
+        raise s.error("", "all takes a list of predicates")   # parse_predicate reads the list
+
+    def bind(self, resolve: FrameResolver) -> BoundPredicate:
+        # each part's frames, keyed "i.key", so one BoundPredicate carries the whole tree
+        frames = {f"{i}.{k}": f for i, p in enumerate(self.parts)
+                  for k, f in p.bind(resolve).frames.items()}
+        return BoundPredicate(self, frames)
+
+    def _part_frames(self, i: int, frames: dict[str, Frame]) -> dict[str, Frame]:
+        prefix = f"{i}."
+        return {k[len(prefix):]: f for k, f in frames.items() if k.startswith(prefix)}
+
+    def holds(self, view, frames):
+        return all(p.holds(view, self._part_frames(i, frames)) for i, p in enumerate(self.parts))
+
+    def measure(self, view, frames):
+        out: dict[str, float] = {}
+        for i, p in enumerate(self.parts):
+            out.update(p.measure(view, self._part_frames(i, frames)))
+        return out
+
+
 def parse_predicate(s: Section) -> Predicate:
     """``{near: {a: robot, b: goal, within: 0.1}}`` -> a Predicate (one key: the predicate name)."""
     if len(s.data) != 1:
@@ -153,6 +252,12 @@ def parse_predicate(s: Section) -> Predicate:
     (name,) = s.data
     if name not in PREDICATES:
         raise s.error(name, "unknown predicate", name, f"one of: {', '.join(sorted(PREDICATES))}")
+    if name == "all":
+        pred = All(tuple(parse_predicate(p) for p in s.items(name, required=True)))
+        if not pred.parts:
+            raise s.error(name, "needs at least one predicate", [])
+        s.done()
+        return pred
     params = s.section(name)
     pred = PREDICATES[name].from_section(params)
     params.done()
@@ -162,6 +267,10 @@ def parse_predicate(s: Section) -> Predicate:
 
 def check_frames(pred: Predicate, resolve: FrameResolver, source: str, path: str) -> None:
     """Load-time check that every frame a predicate names exists in the model."""
+    if isinstance(pred, All):
+        for i, part in enumerate(pred.parts):
+            check_frames(part, resolve, source, f"{path}.all[{i}]")
+        return
     for key in pred.frame_keys:
         name = getattr(pred, key)
         try:

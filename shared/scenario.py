@@ -121,6 +121,34 @@ class ObserverConfig:
 class EpisodeConfig:
     max_time: float
     success: tuple[Predicate, ...]
+    hold: float = 0.0      # seconds the success predicates must hold without a break
+
+
+@dataclass(frozen=True)
+class FramePairConfig:
+    """Two frames an evaluation metric compares; for positions, ``b`` shifted by ``offset``
+    (world frame, m; e.g. on top of a cube) and only the ``axes`` components."""
+    a: str
+    b: str
+    axes: str = "xyz"
+    offset: tuple[float, float, float] = (0.0, 0.0, 0.0)
+
+
+@dataclass(frozen=True)
+class CollisionMetricConfig:
+    """Count contact onsets between the bodies of ``a`` and the bodies ``with_`` (``robot``: the
+    whole robot; any other name: that body and the bodies it carries)."""
+    a: tuple[str, ...]
+    with_: tuple[str, ...]
+
+
+@dataclass(frozen=True)
+class MetricsConfig:
+    """What ``shared.metrics`` measures per episode (``metrics:``; docs/evaluation.md). A metric
+    left as None is not measured."""
+    position: FramePairConfig | None = None
+    orientation: FramePairConfig | None = None
+    collisions: CollisionMetricConfig | None = None
 
 
 @dataclass(frozen=True)
@@ -163,6 +191,7 @@ class Scenario:
     task: TaskTemplate | None = None
     observers: dict[str, ObserverConfig] = field(default_factory=dict)
     plan: dict[str, str] = field(default_factory=dict)   # action -> objective (plan interface)
+    metrics: MetricsConfig = field(default_factory=MetricsConfig)
     raw: dict = field(repr=False, default_factory=dict)
 
 
@@ -203,6 +232,7 @@ def parse_scenario(raw: dict, source: str) -> Scenario:
     robot = _robot(top.section("robot"))
     world = _world(top.section("world"))
     episode = _episode(top.section("episode"))
+    metrics = _metrics(top.section("metrics", required=False), episode)
     planner = _planner(top.section("planner", required=False))
     objectives = _objectives(top.section("objectives"))
     task = parse_task(top.section("task")) if top.has("task") else None
@@ -221,7 +251,7 @@ def parse_scenario(raw: dict, source: str) -> Scenario:
     return Scenario(name=name, description=description, source=source, hash=scenario_hash(raw),
                     robot=robot, world=world, episode=episode, planner=planner,
                     objectives=objectives, modes=modes, task=task, observers=observers,
-                    plan=plan, raw=raw)
+                    plan=plan, metrics=metrics, raw=raw)
 
 
 def _observers(s: Section, task: TaskTemplate) -> dict[str, ObserverConfig]:
@@ -395,8 +425,51 @@ def _episode(s: Section) -> EpisodeConfig:
     success = tuple(parse_predicate(p) for p in s.items("success", required=True))
     if not success:
         raise s.error("success", "needs at least one predicate", [])
+    hold = s.opt("hold", 0.0, non_negative, "seconds >= 0")
     s.done()
-    return EpisodeConfig(max_time=max_time, success=success)
+    return EpisodeConfig(max_time=max_time, success=success, hold=hold)
+
+
+def _metrics(s: Section, episode: EpisodeConfig) -> MetricsConfig:
+    """``metrics: {position: {a, b, axes, offset}, orientation: {a, b}, collisions: {a, with}}``.
+    Without ``position``/``orientation``, what success is judged on: the first ``near`` or
+    ``at_pose`` success predicate (an ``at_pose`` with an orientation tolerance also gives the
+    orientation)."""
+    judged = next((p for p in episode.success if p.kind in ("near", "at_pose")), None)
+    if s.has("position"):
+        position = _frame_pair(s.section("position"), position=True)
+    elif judged is None:
+        position = None
+    elif judged.kind == "near":
+        position = FramePairConfig(judged.a, judged.b, judged.axes)
+    else:
+        position = FramePairConfig(judged.a, judged.b, offset=judged.offset)
+    if s.has("orientation"):
+        orientation = _frame_pair(s.section("orientation"), position=False)
+    elif judged is not None and judged.kind == "at_pose" and judged.orientation is not None:
+        orientation = FramePairConfig(judged.a, judged.b)
+    else:
+        orientation = None
+    collisions = None
+    if s.has("collisions"):
+        c = s.section("collisions")
+        collisions = CollisionMetricConfig(
+            a=c.req("a", string_list, "a frame name or a list of them (robot, an object)"),
+            with_=c.req("with", string_list, "a list of body names (e.g. a dynamic obstacle)"))
+        c.done()
+    s.done()
+    return MetricsConfig(position=position, orientation=orientation, collisions=collisions)
+
+
+def _frame_pair(s: Section, position: bool) -> FramePairConfig:
+    a, b = s.req("a", str, "a frame name"), s.req("b", str, "a frame name")
+    if not position:
+        s.done()
+        return FramePairConfig(a, b)
+    pair = FramePairConfig(a, b, axes=s.opt("axes", "xyz", one_of(("xy", "xyz"))),
+                           offset=s.opt("offset", (0.0, 0.0, 0.0), vector(3), "[x, y, z] in metres"))
+    s.done()
+    return pair
 
 
 def _planner(s: Section) -> PlannerConfig:

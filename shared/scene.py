@@ -39,23 +39,32 @@ def build_spec(scenario: Scenario) -> mujoco.MjSpec:
 
 
 def compile_model(scenario: Scenario, spec: mujoco.MjSpec | None = None) -> mujoco.MjModel:
-    """Compile (a possibly extended copy of) the scenario spec and set the initial configuration."""
+    """Compile (a possibly extended copy of) the scenario spec; checks ``robot.qpos`` fits."""
     spec = spec or build_spec(scenario)
     model = spec.compile()
-    if scenario.robot.qpos is not None:
-        robot = get_robot(scenario.robot.model)
-        n = len(scenario.robot.qpos)
-        if n > model.nq:
-            raise ValueError(f"{scenario.source}: robot.qpos has {n} values; "
-                             f"the {robot.name} model has nq={model.nq}")
-        model.qpos0[:n] = scenario.robot.qpos
+    if scenario.robot.qpos is not None and len(scenario.robot.qpos) > model.nq:
+        raise ValueError(f"{scenario.source}: robot.qpos has {len(scenario.robot.qpos)} values; "
+                         f"the {scenario.robot.model} model has nq={model.nq}")
     return model
 
 
-def initial_data(model: mujoco.MjModel) -> mujoco.MjData:
-    """MjData at the model's initial configuration, kinematics computed."""
-    data = mujoco.MjData(model)
+def reset_data(scenario: Scenario, model: mujoco.MjModel, data: mujoco.MjData) -> None:
+    """Reset ``data`` to the scenario's initial configuration, kinematics computed.
+
+    ``robot.qpos`` goes into ``data.qpos``, never into ``model.qpos0``: MuJoCo measures hinge and
+    slide displacements from qpos0, so writing it there would move the joints' zero instead of the
+    robot (a Panda set to its home pose that way is drawn fully stretched).
+    """
+    mujoco.mj_resetData(model, data)
+    if scenario.robot.qpos is not None:
+        data.qpos[:len(scenario.robot.qpos)] = scenario.robot.qpos
     mujoco.mj_forward(model, data)
+
+
+def initial_data(scenario: Scenario, model: mujoco.MjModel) -> mujoco.MjData:
+    """MjData at the scenario's initial configuration, kinematics computed."""
+    data = mujoco.MjData(model)
+    reset_data(scenario, model, data)
     return data
 
 

@@ -289,6 +289,16 @@ def test_pull_direction_penalises_controls_towards_the_object(ctx):
     close(term(b), [[1.0, 0.0, 0.0, h, h, 0.0, 1.0]])
 
 
+def test_pull_direction_within_counts_only_near_the_object(ctx):
+    # driving straight at the object from 1.0, 0.5 and 0.4 m away; counted within 0.5 m only
+    term = make(ctx, "pull_direction", a="robot", obj="box", actuators=["ux", "uy"], within=0.5)
+    b = batch_of({pos("robot"): [[[0, 0, 0.3], [0.5, 0, 0.3], [0.6, 0, 0.3]]],
+                  pos("box"): [[[1, 0, 0.1]] * 3]}, controls=[[[1, 0]] * 3])
+    close(term(b), [[0.0, 1.0, 1.0]])
+    with pytest.raises(ConfigError, match=r"terms\[0\]\.within"):
+        make(ctx, "pull_direction", a="robot", obj="box", actuators=["ux", "uy"], within=0)
+
+
 def test_pull_direction_needs_one_actuator_per_axis(ctx):
     with pytest.raises(ConfigError, match=r"terms\[0\]\.actuators: needs one velocity actuator"):
         make(ctx, "pull_direction", a="robot", obj="box", actuators=["ux"])

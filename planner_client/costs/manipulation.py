@@ -11,7 +11,7 @@ from dataclasses import dataclass
 import mujoco
 import torch
 
-from shared.config import Section, non_negative, number, one_of, string_list
+from shared.config import Section, non_negative, number, one_of, positive, string_list
 from shared.geometry import symmetric_orientation_error_quat
 from planner_client.costs.base import CostTerm, RolloutBatch, TermContext, register
 from planner_client.costs.terms import _axes, _planar
@@ -130,11 +130,17 @@ class PullDirection(CostTerm):
     at O, 0 for any u with a component away from it, and 0 for u = 0 (standing still is
     allowed). u is the control channels named by ``actuators`` (world-frame velocities, one per
     axis in ``axes``: xy by default), read from the sampled controls ``[S, T, nu]``.
+
+    ``within`` (metres, optional) counts the term only while |x_O - x_R| <= within, as the
+    thesis code does (0.5 m). In the paper pulling starts once the task planner observes the
+    robot close to the object (Eq. 13); a scenario that pulls without that precondition must
+    still let the robot drive up to the object, which Eq. 21 alone forbids.
     """
     a: str
     obj: str
     channels: tuple[int, ...]
     axes: str
+    within: float | None = None
 
     @classmethod
     def from_params(cls, s, ctx):
@@ -148,7 +154,8 @@ class PullDirection(CostTerm):
             if n not in ctx.actuators:
                 raise s.error("actuators", "unknown actuator", n,
                               f"one of: {', '.join(ctx.actuators)}")
-        return cls(**frames, channels=tuple(ctx.actuators.index(n) for n in names), axes=axes)
+        return cls(**frames, channels=tuple(ctx.actuators.index(n) for n in names), axes=axes,
+                   within=s.opt("within", None, positive, "metres > 0"))
 
     def sensors(self):
         return [SensorRequest("framepos", self.a), SensorRequest("framepos", self.obj)]
@@ -156,7 +163,11 @@ class PullDirection(CostTerm):
     def __call__(self, batch):
         x_r, x_o = (batch.get(r) for r in self.requests)
         u = batch.controls[..., list(self.channels)]
-        return torch.relu(_cosine(_planar(x_o - x_r, self.axes), u))
+        d = _planar(x_o - x_r, self.axes)
+        cost = torch.relu(_cosine(d, u))
+        if self.within is not None:
+            cost = cost * (torch.linalg.vector_norm(d, dim=-1) <= self.within)
+        return cost
 
 
 @register("dynamic_obstacle")
@@ -232,6 +243,33 @@ class Reach(CostTerm):
         x_ee, x_o, z_ee, z_o = (batch.get(r) for r in self.requests)
         dist = torch.linalg.vector_norm(x_ee - x_o, dim=-1)
         return dist + self.tilt_weight * (_cosine(z_ee, z_o) - self.theta).abs()
+
+
+@register("tilt")
+@dataclass
+class Tilt(CostTerm):
+    """|cos(z_ee, z_O) - θ|: the tilt summand of paper Eq. 27 on its own, as a constraint.
+
+    Keeps the end effector's z axis at the angle θ to the object's while the distance is costed
+    on something else, e.g. a grasped cube carried to its pre-place pose (Eq. 29): a hand that
+    tilts there pinches the cube on its edges. Parameters and the absolute residual as in
+    ``reach``; ``obj`` may be the held cube itself.
+    """
+    ee: str
+    obj: str
+    theta: float
+
+    @classmethod
+    def from_params(cls, s, ctx):
+        return cls(**_frames(s, ctx, "ee", "obj"),
+                   theta=s.req("theta", _cosine_value, "a cosine in [-1, 1]"))
+
+    def sensors(self):
+        return [SensorRequest("framezaxis", self.ee), SensorRequest("framezaxis", self.obj)]
+
+    def __call__(self, batch):
+        z_ee, z_o = (batch.get(r) for r in self.requests)
+        return (_cosine(z_ee, z_o) - self.theta).abs()
 
 
 @register("gripper_width")

@@ -23,7 +23,11 @@ class RobotSpec:
         description: one line for ``--help`` and error messages.
         ctrl_names: actuator names in control-vector order (checked against the MJCF).
         safe_ctrl: the control that holds the robot still (zero velocity for velocity actuators);
-            applied by the server when commands go stale.
+            applied by the server when commands go stale, and by the planner when the task is
+            done or has failed.
+        hold_ctrl: actuators a safe stop leaves at their last command instead: a gripper keeps
+            its grip (closing could grab a cube just released; opening would drop a held one).
+            Their ``safe_ctrl`` value applies only before any command was received.
         radius: planar footprint radius in metres (mobile bases), used by observers' thresholds.
     """
 
@@ -33,6 +37,7 @@ class RobotSpec:
     description: str
     ctrl_names: tuple[str, ...]
     safe_ctrl: tuple[float, ...]
+    hold_ctrl: tuple[str, ...] = ()
     radius: float = 0.0
     extras: dict = field(default_factory=dict)
 
@@ -99,5 +104,6 @@ register(RobotSpec(
                 "opening width (m, 0 closed .. 0.08 open)",
     ctrl_names=("j1", "j2", "j3", "j4", "j5", "j6", "j7", "gripper"),
     safe_ctrl=(0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0),
+    hold_ctrl=("gripper",),
     extras={"keyframe": "home", "finger_sites": ("finger_left", "finger_right")},
 ))

@@ -1,0 +1,316 @@
+"""``m3p2i bench``: seeded trials of the paper's cases, in parallel, resumable, with a hard
+time-out per trial.
+
+A bench file (``configs/bench/*.yaml``) lists cases ``{case, variant, scenario, trials}``. Trial
+``i`` of a case runs one lock-step episode (a server + planner process pair on its own free ports,
+:mod:`shared.launch`) with seed ``seed + i`` for both the world's randomised start and the
+planner's sampling. Each finished trial appends one row to ``results.csv`` in the output folder
+(flushed and synced before the next row), its episode log stays in ``logs/CASE/seed-NNN/``; a
+rerun skips every (case, seed) already in the file for the same scenario content (hash), so an
+interrupted bench resumes where it stopped. A trial past its time-out is killed and recorded as a
+failure with reason ``timeout``.
+"""
+
+from __future__ import annotations
+
+import csv
+import fnmatch
+import json
+import os
+import shutil
+import threading
+from collections.abc import Callable
+from concurrent.futures import FIRST_COMPLETED, ThreadPoolExecutor, wait
+from dataclasses import dataclass
+from pathlib import Path
+
+from rich.console import Console
+from rich.progress import (BarColumn, MofNCompleteColumn, Progress, SpinnerColumn, TextColumn,
+                           TimeElapsedColumn, TimeRemainingColumn)
+
+from shared import episode
+from shared.config import ConfigError, Section, load_yaml, positive, positive_int
+from shared.launch import EpisodeLaunch, run_episode
+from shared.metrics import MetricsEvaluator
+from shared.scenario import PROJECT_ROOT, Scenario, find_scenario, load_scenario
+
+BENCH_DIR = PROJECT_ROOT / "configs" / "bench"
+
+# results.csv columns; one row per finished trial
+FIELDS = ("case", "variant", "scenario", "scenario_hash", "seed", "success", "status", "reason",
+          "position_error", "orientation_error", "collisions", "time", "wall_time", "planner_hz",
+          "steps", "trial_wall", "initial", "log")
+
+
+@dataclass(frozen=True)
+class BenchCase:
+    case: str                    # unique name; keys the results and configs/paper_results.yaml
+    variant: str                 # e.g. push / pull / hybrid, normal / reactive
+    scenario: str                # scenario name, or a YAML path relative to the bench file
+    trials: int
+
+
+@dataclass(frozen=True)
+class BenchConfig:
+    source: str
+    cases: tuple[BenchCase, ...]
+    timeout: float = 600.0       # wall-clock seconds per trial
+    quick_trials: int = 2        # trials per case with --quick
+
+
+def find_bench(name_or_path: str | os.PathLike) -> Path:
+    """A path as given, else ``configs/bench/NAME.yaml``."""
+    p = Path(name_or_path)
+    if p.is_file():
+        return p
+    candidate = BENCH_DIR / f"{p.name}.yaml"
+    if candidate.is_file():
+        return candidate
+    known = ", ".join(sorted(x.stem for x in BENCH_DIR.glob("*.yaml")))
+    raise ConfigError(str(name_or_path), "", "no such bench file or name",
+                      expected=f"a YAML path or one of: {known}")
+
+
+def load_bench(name_or_path: str | os.PathLike) -> BenchConfig:
+    """Read a bench file strictly (errors name the file, the key, the value)."""
+    path = find_bench(name_or_path)
+    top = Section(load_yaml(path), str(path))
+    cases, names = [], set()
+    for c in top.items("cases", required=True):
+        case = BenchCase(case=c.req("case", str), variant=c.opt("variant", "", str),
+                         scenario=c.req("scenario", str, "a scenario name or YAML path"),
+                         trials=c.req("trials", positive_int))
+        if case.case in names:
+            raise c.error("case", "duplicate case name", case.case, "a unique name")
+        names.add(case.case)
+        c.done()
+        cases.append(case)
+    if not cases:
+        raise top.error("cases", "needs at least one case", [])
+    cfg = BenchConfig(source=str(path), cases=tuple(cases),
+                      timeout=top.opt("timeout", 600.0, positive, "wall-clock seconds > 0"),
+                      quick_trials=top.opt("quick_trials", 2, positive_int))
+    top.done()
+    return cfg
+
+
+# ----------------------------------------------------------------------------------- selection
+
+@dataclass(frozen=True)
+class ReadyCase:
+    case: BenchCase
+    scenario: Scenario
+    evaluator: MetricsEvaluator          # the scenario's metrics, frames resolved
+
+
+@dataclass(frozen=True)
+class SkippedCase:
+    case: BenchCase
+    reason: str
+
+
+def select_cases(cfg: BenchConfig, patterns: list[str] | None = None
+                 ) -> tuple[list[ReadyCase], list[SkippedCase]]:
+    """The cases matching ``patterns`` (fnmatch, e.g. ``corner*``; all when None) whose scenario
+    loads and compiles; the others with the reason (scenario file missing or invalid)."""
+    chosen = list(cfg.cases)
+    if patterns:
+        chosen = [c for c in cfg.cases if any(fnmatch.fnmatchcase(c.case, p) for p in patterns)]
+        if not chosen:
+            raise ConfigError(cfg.source, "cases", "no case matches --cases", patterns,
+                              f"names or patterns of: {', '.join(c.case for c in cfg.cases)}")
+    ready, skipped = [], []
+    base = Path(cfg.source).parent
+    for case in chosen:
+        local = base / case.scenario
+        try:
+            path = local if local.is_file() else find_scenario(case.scenario)
+        except ConfigError:
+            skipped.append(SkippedCase(case, f"no scenario file {case.scenario!r} "
+                                             f"(configs/scenarios/{case.scenario}.yaml)"))
+            continue
+        try:
+            scenario = load_scenario(path)
+            ready.append(ReadyCase(case, scenario, MetricsEvaluator(scenario)))
+        except (ConfigError, ValueError) as exc:   # ValueError: the model does not compile
+            skipped.append(SkippedCase(case, f"invalid scenario: {exc}"))
+    return ready, skipped
+
+
+# ------------------------------------------------------------------------------------- results
+
+class ResultsFile:
+    """``results.csv``: one row per finished trial, appended under a lock and synced to disk
+    before the next trial's row, so a killed bench loses at most the trials still running."""
+
+    def __init__(self, path: Path):
+        self.path = Path(path)
+        self._lock = threading.Lock()
+        self._drop_torn_tail()
+
+    def rows(self) -> list[dict[str, str]]:
+        if not self.path.is_file():
+            return []
+        with self.path.open(newline="") as f:
+            return list(csv.DictReader(f))
+
+    def append(self, row: dict) -> None:
+        with self._lock:
+            new = not self.path.is_file() or self.path.stat().st_size == 0
+            self.path.parent.mkdir(parents=True, exist_ok=True)
+            with self.path.open("a", newline="") as f:
+                writer = csv.DictWriter(f, fieldnames=FIELDS)
+                if new:
+                    writer.writeheader()
+                writer.writerow({k: _cell(row.get(k)) for k in FIELDS})
+                f.flush()
+                os.fsync(f.fileno())
+
+    def _drop_torn_tail(self) -> None:
+        """A bench killed mid-write leaves a partial last line; the next row must not be glued
+        to it."""
+        if not self.path.is_file():
+            return
+        text = self.path.read_bytes()
+        if text and not text.endswith(b"\n"):
+            self.path.write_bytes(text[:text.rfind(b"\n") + 1])
+
+
+def _cell(value) -> str:
+    if value is None:
+        return ""
+    if isinstance(value, bool):
+        return "1" if value else "0"
+    if isinstance(value, float):
+        return repr(value)
+    return str(value)
+
+
+def trial_key(case: str, seed: int | str, scenario_hash: str) -> tuple[str, int, str]:
+    """What makes a trial the same trial: case, seed and the scenario's content."""
+    return case, int(seed), scenario_hash
+
+
+def latest_rows(rows: list[dict[str, str]], keys: set[tuple[str, int, str]]) -> list[dict[str, str]]:
+    """The rows of the trials in ``keys``, the last one per trial (a rerun appends, never edits)."""
+    latest = {}
+    for r in rows:
+        key = trial_key(r["case"], r["seed"], r["scenario_hash"])
+        if key in keys:
+            latest[key] = r
+    return list(latest.values())
+
+
+# -------------------------------------------------------------------------------------- trials
+
+@dataclass(frozen=True)
+class Trial:
+    case: BenchCase
+    scenario: Scenario
+    evaluator: MetricsEvaluator
+    seed: int
+
+
+@dataclass(frozen=True)
+class BenchOptions:
+    out_dir: Path
+    workers: int                         # trials at once (each: one server + one planner)
+    timeout: float                       # wall-clock seconds per trial
+    trials: int | None = None            # per case; None: the case's (or quick_trials)
+    quick: bool = False
+    seed: int = 0                        # seed of trial 0; trial i uses seed + i
+
+
+def plan_trials(ready: list[ReadyCase], cfg: BenchConfig, opts: BenchOptions,
+                done: set[tuple[str, int, str]]) -> tuple[list[Trial], list[Trial]]:
+    """(all trials of this run, those still to run). Seed-major order, so an interrupted bench
+    has results for every case rather than all trials of the first ones."""
+    planned = []
+    for i in range(max(_trials(rc.case, cfg, opts) for rc in ready) if ready else 0):
+        for rc in ready:
+            if i < _trials(rc.case, cfg, opts):
+                planned.append(Trial(rc.case, rc.scenario, rc.evaluator, opts.seed + i))
+    todo = [t for t in planned if trial_key(t.case.case, t.seed, t.scenario.hash) not in done]
+    return planned, todo
+
+
+def _trials(case: BenchCase, cfg: BenchConfig, opts: BenchOptions) -> int:
+    if opts.trials is not None:
+        return opts.trials
+    return min(cfg.quick_trials, case.trials) if opts.quick else case.trials
+
+
+def run_trial(trial: Trial, opts: BenchOptions, threads: int, stop: threading.Event) -> dict | None:
+    """Run one trial and return its row; None when the bench was interrupted (not recorded, so
+    a rerun runs it again)."""
+    rel = Path("logs") / trial.case.case / f"seed-{trial.seed:03d}"
+    run_dir = opts.out_dir / rel
+    shutil.rmtree(run_dir, ignore_errors=True)   # a stale log of an interrupted attempt must not count
+    result = run_episode(EpisodeLaunch(scenario=trial.scenario.source, run_dir=run_dir,
+                                       seed=trial.seed, timeout=opts.timeout, threads=threads), stop)
+    if result.reason == "interrupted":
+        return None
+    records = episode.read_log(result.log_path) if result.log_path.is_file() else []
+    summary = episode.summary(records)
+    metrics = (summary or {}).get("metrics") or trial.evaluator.evaluate(records).as_dict()
+    initial = episode.header(records).get("initial")
+    return {
+        "case": trial.case.case, "variant": trial.case.variant, "scenario": trial.scenario.name,
+        "scenario_hash": trial.scenario.hash, "seed": trial.seed,
+        "success": not result.reason and metrics["status"] == "success",
+        "status": metrics["status"],
+        "reason": result.reason or ("" if summary else "no episode summary (see the logs)"),
+        "position_error": metrics["position_error"], "orientation_error": metrics["orientation_error"],
+        "collisions": metrics["collisions"], "time": metrics["time"],
+        "wall_time": metrics["wall_time"], "planner_hz": metrics["planner_hz"],
+        "steps": metrics["steps"], "trial_wall": round(result.wall_time, 3),
+        "initial": json.dumps(initial) if initial is not None else "",
+        "log": str(rel / "episode.jsonl"),
+    }
+
+
+def run_trials(todo: list[Trial], opts: BenchOptions, results: ResultsFile,
+               on_done: Callable[[dict], None] = lambda row: None) -> bool:
+    """Run ``todo`` on ``opts.workers`` threads, each driving one trial's process pair; rows are
+    appended as trials finish. Returns False when interrupted (Ctrl-C): running trials are
+    stopped and left out of the file."""
+    if not todo:
+        return True
+    cores = os.cpu_count() or 1
+    threads = max(1, cores // opts.workers)      # rollout threads per planner: share the cores
+    stop = threading.Event()
+
+    def work(trial: Trial) -> dict | None:
+        if stop.is_set():
+            return None
+        row = run_trial(trial, opts, threads, stop)
+        if row is not None:
+            results.append(row)
+        return row
+
+    pool = ThreadPoolExecutor(max_workers=opts.workers)
+    pending = {pool.submit(work, t) for t in todo}
+    interrupted = False
+    try:
+        while pending:
+            finished, pending = wait(pending, timeout=0.5, return_when=FIRST_COMPLETED)
+            for fut in finished:
+                row = fut.result()
+                if row is not None:
+                    on_done(row)
+    except KeyboardInterrupt:
+        interrupted = True
+    finally:
+        if pending:   # Ctrl-C or an error: stop the running trials, drop the queued ones
+            stop.set()
+            for fut in pending:
+                fut.cancel()
+        pool.shutdown(wait=True)
+    return not interrupted
+
+
+def progress(console: Console) -> Progress:
+    """The bench's progress bar: last finished trial, count, elapsed and remaining time."""
+    return Progress(SpinnerColumn(), TextColumn("{task.description}"), BarColumn(),
+                    MofNCompleteColumn(), TimeElapsedColumn(), TimeRemainingColumn(),
+                    console=console)

@@ -1,0 +1,146 @@
+"""Start one episode as two processes, ``python -m server`` and ``python -m planner_client``, on
+free loopback ports, and wait for it: what ``m3p2i run``, ``bench`` and ``record`` share.
+
+The two sides still meet only over the wire; this module only starts and stops them.
+"""
+
+from __future__ import annotations
+
+import socket as pysocket
+import subprocess
+import sys
+import threading
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+from shared import episode
+from shared.endpoints import DEFAULT_HOST
+
+# Ports this process already handed out: parallel bench trials pick their blocks at the same
+# moment, before any server has bound them, so "free right now" alone could give two trials
+# overlapping blocks.
+_handed_out: set[int] = set()
+_ports_lock = threading.Lock()
+
+
+def free_port_block(host: str = DEFAULT_HOST, count: int = 4) -> int:
+    """A base port with ``count`` consecutive free ports on ``host``, never one this process
+    handed out before."""
+    with _ports_lock:
+        base = _find_free_block(host, count)
+        _handed_out.update(range(base, base + count))
+    return base
+
+
+def _find_free_block(host: str, count: int) -> int:
+    for _ in range(50):
+        with pysocket.socket() as s:
+            s.bind((host, 0))
+            base = s.getsockname()[1]
+        if base + count >= 65535 or _handed_out.intersection(range(base, base + count)):
+            continue
+        ok = True
+        for p in range(base, base + count):
+            with pysocket.socket() as s:
+                try:
+                    s.bind((host, p))
+                except OSError:
+                    ok = False
+                    break
+        if ok:
+            return base
+    raise RuntimeError("no block of free ports found")
+
+
+def read_summary(log_path: Path) -> dict | None:
+    """The ``summary`` record of an episode log (None when missing or never written)."""
+    if not log_path.is_file():
+        return None
+    return episode.summary(episode.read_log(log_path))
+
+
+@dataclass(frozen=True)
+class EpisodeRun:
+    """How a launched episode ended. ``reason`` is empty when the world ended it by itself;
+    otherwise ``timeout`` (wall clock), ``planner exited with code N`` or ``interrupted``."""
+    log_path: Path
+    summary: dict | None
+    reason: str
+    wall_time: float
+
+
+@dataclass(frozen=True)
+class EpisodeLaunch:
+    """What to start: the scenario file, where logs go, and the two processes' options."""
+    scenario: str                   # a YAML path (both processes load the same file)
+    run_dir: Path
+    seed: int = 0                   # server: randomised start; planner: sampling
+    mode: str = "lockstep"
+    port: int = 0                   # 0: a free block
+    timeout: float = 900.0          # wall-clock seconds before both processes are stopped
+    threads: int = 0                # planner rollout threads (0: the scenario's / one per core)
+    viewer: bool = False
+    verbose: bool = False           # children write to this terminal instead of log files
+
+    def commands(self, port: int) -> dict[str, list[str]]:
+        common = ["--scenario", self.scenario, "--port", str(port), "--seed", str(self.seed)]
+        server = [sys.executable, "-m", "server", *common, "--mode", self.mode,
+                  "--log", str(self.run_dir / "episode.jsonl")]
+        if self.viewer:
+            server.append("--viewer")
+        planner = [sys.executable, "-m", "planner_client", *common]
+        if self.threads:
+            planner += ["--threads", str(self.threads)]
+        return {"server": server, "planner": planner}
+
+
+def run_episode(launch: EpisodeLaunch, stop: threading.Event | None = None) -> EpisodeRun:
+    """Run one episode to its end, its time-out, a planner crash, Ctrl-C or ``stop``; both
+    processes are always gone on return (terminated, then killed after 5 s)."""
+    launch.run_dir.mkdir(parents=True, exist_ok=True)
+    port = launch.port or free_port_block()
+    log_path = launch.run_dir / "episode.jsonl"
+    outs, procs = {}, {}
+    reason = ""
+    started = time.monotonic()
+    try:
+        for name, cmd in launch.commands(port).items():
+            out = None if launch.verbose else (launch.run_dir / f"{name}.log").open("w")
+            outs[name] = out
+            procs[name] = subprocess.Popen(cmd, stdout=out,
+                                           stderr=subprocess.STDOUT if out else None)
+        while procs["server"].poll() is None:
+            if time.monotonic() - started > launch.timeout:
+                reason = "timeout"
+                break
+            # 0 and 1 are the planner's normal exits (episode over); anything else is a crash
+            if procs["planner"].poll() not in (None, 0, 1):
+                reason = f"planner exited with code {procs['planner'].returncode}"
+                break
+            if stop is not None and stop.is_set():
+                reason = "interrupted"
+                break
+            time.sleep(0.1)
+    except KeyboardInterrupt:
+        reason = "interrupted"
+    finally:
+        _stop_all(procs.values())
+        for out in outs.values():
+            if out is not None:
+                out.close()
+    return EpisodeRun(log_path=log_path, summary=read_summary(log_path), reason=reason,
+                      wall_time=time.monotonic() - started)
+
+
+def _stop_all(procs) -> None:
+    procs = list(procs)
+    for p in procs:
+        if p.poll() is None:
+            p.terminate()
+    for p in procs:
+        try:
+            p.wait(5)
+        except subprocess.TimeoutExpired:
+            p.kill()
+            p.wait()

@@ -1,0 +1,182 @@
+"""Per-episode metrics of the paper's Tables I-III, computed from an episode log.
+
+Success, final position error and orientation error (Eq. 33) between two frames, number of
+collisions (contact onsets), completion time (simulated seconds), wall time and mean planner rate.
+Which frames is the scenario's ``metrics:`` section (:class:`shared.scenario.MetricsConfig`).
+Kinematics are recomputed by replaying logged states into the scenario's model
+(:mod:`shared.replay`), so the same function serves the server's summary, ``m3p2i bench`` and any
+log on disk. The maths are the small pure functions at the top.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import asdict, dataclass
+
+import mujoco
+import numpy as np
+
+from shared import episode
+from shared.geometry import symmetric_orientation_error
+from shared.replay import load_step, replay, resolve_frame
+from shared.robots import get_robot
+from shared.scenario import Scenario
+from shared.scene import compile_model
+
+
+@dataclass(frozen=True)
+class EpisodeMetrics:
+    """One episode's figures; a metric the scenario does not configure is None."""
+    status: str                      # success | timeout | stopped | unfinished (log cut short)
+    success: bool
+    position_error: float | None     # m, metrics.position's a to b (+ offset) at the end
+    orientation_error: float | None  # Eq. 33 phi between metrics.orientation's frames at the end
+    collisions: int | None           # contact onsets between metrics.collisions' bodies
+    time: float                      # simulated seconds until the episode ended
+    wall_time: float                 # wall seconds from the planner's handshake to the last step
+    planner_hz: float                # 1 / mean planning time of the commands that drove the steps
+    steps: int
+
+    def as_dict(self) -> dict:
+        return asdict(self)
+
+
+# ---------------------------------------------------------------------------------------- maths
+
+def position_error(pos_a: np.ndarray, pos_b: np.ndarray, axes: str = "xyz") -> float:
+    """Euclidean distance between two positions, in the plane for ``axes="xy"``."""
+    d = np.asarray(pos_a, dtype=float) - np.asarray(pos_b, dtype=float)
+    return float(np.linalg.norm(d[:2] if axes == "xy" else d))
+
+
+def orientation_error(rot_a: np.ndarray, rot_b: np.ndarray) -> float:
+    """Eq. 33's phi between two rotation matrices (symmetric-object metric, 0 = equivalent)."""
+    return float(symmetric_orientation_error(np.asarray(rot_a, dtype=float),
+                                             np.asarray(rot_b, dtype=float)))
+
+
+def contact_onsets(touching: Sequence[bool]) -> int:
+    """Number of collisions in a per-step contact sequence: each run of consecutive touching
+    steps is one collision (a contact held for a second is not twenty collisions)."""
+    count, before = 0, False
+    for now in touching:
+        count += bool(now) and not before
+        before = bool(now)
+    return count
+
+
+def mean_hz(plan_times: Sequence[float]) -> float:
+    """Planner iterations per second: 1 / mean planning time (0 when nothing was planned)."""
+    times = [t for t in plan_times if t > 0]
+    return 1.0 / float(np.mean(times)) if times else 0.0
+
+
+def wall_time(records: list[dict]) -> float:
+    """Wall seconds from the planner's first handshake (or the log's start) to the last step."""
+    steps = episode.steps(records)
+    if not steps:
+        return 0.0
+    start = next((r["wall"] for r in records if r.get("what") == "handshake"),
+                 episode.header(records).get("wall", steps[0]["wall"]))
+    return max(0.0, float(steps[-1]["wall"] - start))
+
+
+# ------------------------------------------------------------------------------------ evaluator
+
+class MetricsEvaluator:
+    """A scenario's metrics bound to its compiled model: frame names are resolved once, here, so
+    a wrong name fails when a server starts, not when its episode ends."""
+
+    def __init__(self, scenario: Scenario, model: mujoco.MjModel | None = None):
+        self.scenario = scenario
+        self.model = model if model is not None else compile_model(scenario)
+        cfg = scenario.metrics
+        self.position = self.orientation = None
+        if cfg.position:
+            self.position = (resolve_frame(scenario, self.model, cfg.position.a, "metrics.position.a"),
+                             resolve_frame(scenario, self.model, cfg.position.b, "metrics.position.b"))
+        if cfg.orientation:
+            self.orientation = (
+                resolve_frame(scenario, self.model, cfg.orientation.a, "metrics.orientation.a"),
+                resolve_frame(scenario, self.model, cfg.orientation.b, "metrics.orientation.b"))
+        self._geoms_a = self._geoms_b = None
+        if cfg.collisions:
+            self._geoms_a = self._geom_mask(cfg.collisions.a, "metrics.collisions.a")
+            self._geoms_b = self._geom_mask(cfg.collisions.with_, "metrics.collisions.with")
+
+    def evaluate(self, records: list[dict], status: str | None = None) -> EpisodeMetrics:
+        """Metrics of a logged episode. ``status`` overrides the log's summary (the server calls
+        this before writing its summary); a log without either is ``unfinished``."""
+        summary = episode.summary(records)
+        status = status or (summary["status"] if summary else "unfinished")
+        steps = episode.steps(records)
+        pos_err = ori_err = collisions = None
+        if steps:
+            data = mujoco.MjData(self.model)
+            load_step(self.model, data, steps[-1])
+            if self.position:
+                a, b = self.position
+                pair = self.scenario.metrics.position
+                pos_err = position_error(a.pos(data), b.pos(data) + pair.offset, pair.axes)
+            if self.orientation:
+                a, b = self.orientation
+                ori_err = orientation_error(a.rot(data), b.rot(data))
+            if self._geoms_a is not None:
+                collisions = contact_onsets([self.touching(d) for d in replay(self.model, steps)])
+        elif self._geoms_a is not None:
+            collisions = 0
+        return EpisodeMetrics(
+            status=status, success=status == "success", position_error=pos_err,
+            orientation_error=ori_err, collisions=collisions,
+            time=float(steps[-1]["time"]) if steps else 0.0, wall_time=wall_time(records),
+            planner_hz=mean_hz([s.get("plan_time", 0.0) for s in steps]), steps=len(steps))
+
+    def touching(self, data: mujoco.MjData) -> bool:
+        """Whether any contact (penetration or touch, not the collision margin) joins a geom of
+        the ``a`` bodies to a geom of the ``with`` bodies."""
+        if data.ncon == 0:
+            return False
+        geom = data.contact.geom
+        hit = data.contact.dist <= 0.0
+        g1, g2 = geom[:, 0], geom[:, 1]
+        pair = (self._geoms_a[g1] & self._geoms_b[g2]) | (self._geoms_a[g2] & self._geoms_b[g1])
+        return bool(np.any(pair & hit))
+
+    def _geom_mask(self, names: Sequence[str], key: str) -> np.ndarray:
+        """Boolean mask over geoms of the named bodies' subtrees (``robot``: the whole robot)."""
+        m = self.model
+        mask = np.zeros(m.ngeom, dtype=bool)
+        robot_frame = get_robot(self.scenario.robot.model).frame
+        for i, name in enumerate(names):
+            frame = resolve_frame(self.scenario, m, name, f"{key}[{i}]")
+            body = frame.id if frame.kind == mujoco.mjtObj.mjOBJ_BODY else int(m.site_bodyid[frame.id])
+            if name == "robot" or name == robot_frame:
+                body = int(m.body_rootid[body])
+            mask |= np.isin(m.geom_bodyid, _subtree(m, body))
+        return mask
+
+
+def _subtree(model: mujoco.MjModel, root: int) -> list[int]:
+    """``root`` and every body below it."""
+    bodies = []
+    for b in range(model.nbody):
+        walk = b
+        while walk != root and walk != 0:
+            walk = int(model.body_parentid[walk])
+        if walk == root:
+            bodies.append(b)
+    return bodies
+
+
+def describe(m: EpisodeMetrics) -> str:
+    """One line for logs and terminals."""
+    parts = [m.status]
+    if m.position_error is not None:
+        parts.append(f"position error {m.position_error:.4f} m")
+    if m.orientation_error is not None:
+        parts.append(f"orientation error {m.orientation_error:.4f}")
+    if m.collisions is not None:
+        parts.append(f"collisions {m.collisions}")
+    parts += [f"time {m.time:.2f} s", f"wall {m.wall_time:.1f} s", f"planner {m.planner_hz:.1f} Hz"]
+    return ", ".join(parts)
+

@@ -1,0 +1,131 @@
+"""Plots of one episode like the thesis' Figs. A.3-A.5: object and robot trajectories (xy),
+robot-object and object-goal distances over time, and the cosine of the robot-object-goal angle
+(Eq. 16) over time. The object and the goal are the scenario's ``metrics.position`` frames; when
+the "object" is the robot itself (navigation) the plot shows the robot, its distance to the goal,
+and no angle.
+
+Drawn with matplotlib's object API on the Agg canvas (no display, no pyplot state).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from shared import episode
+from shared.config import ConfigError
+from shared.replay import frame_tracks, resolve_frame
+from shared.scenario import Scenario
+from shared.scene import compile_model
+
+ROBOT, OBJECT, GOAL = "#ff7f0e", "#1f77b4", "#2ca02c"      # thesis colours: robot orange, object blue
+ROBOT_OBJECT, OBJECT_GOAL = "#e377c2", "#9467bd"          # pink and purple distance curves
+
+
+@dataclass(frozen=True)
+class EpisodeSeries:
+    """Frame positions over the logged steps (``[T, 3]``); ``obj`` is None when the tracked
+    object is the robot itself."""
+    name: str
+    time: np.ndarray
+    robot: np.ndarray
+    obj: np.ndarray | None
+    goal: np.ndarray
+    object_name: str
+    goal_name: str
+    actions: list[tuple[float, str]]       # (time, action) where the planner's action changed
+    arena: float | None                    # arena half-size, for the xy limits
+
+
+def cos_rog(robot: np.ndarray, obj: np.ndarray, goal: np.ndarray) -> np.ndarray:
+    """cos(theta_ROG) of Eq. 16 in the plane, per row; NaN where a distance is zero."""
+    a = robot[..., :2] - obj[..., :2]
+    b = goal[..., :2] - obj[..., :2]
+    norm = np.linalg.norm(a, axis=-1) * np.linalg.norm(b, axis=-1)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return np.where(norm > 0, np.sum(a * b, axis=-1) / norm, np.nan)
+
+
+def planar_distance(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    return np.linalg.norm(a[..., :2] - b[..., :2], axis=-1)
+
+
+def episode_series(scenario: Scenario, records: list[dict]) -> EpisodeSeries:
+    """Replay a log's steps and track the robot, the object and the goal."""
+    pair = scenario.metrics.position
+    if pair is None:
+        raise ConfigError(scenario.source, "metrics.position", "nothing to plot: no position "
+                          "metric and no 'near' success predicate", expected="metrics: {position: "
+                          "{a: OBJECT, b: GOAL}}")
+    steps = episode.steps(records)
+    if not steps:
+        raise ValueError("the episode log has no steps (the episode never started)")
+    model = compile_model(scenario)
+    frames = {"robot": resolve_frame(scenario, model, "robot", "robot"),
+              "goal": resolve_frame(scenario, model, pair.b, "metrics.position.b")}
+    is_robot = pair.a == "robot"
+    if not is_robot:
+        frames["obj"] = resolve_frame(scenario, model, pair.a, "metrics.position.a")
+    tracks = frame_tracks(model, steps, frames)
+    actions = [(float(r["time"]), r["action"]) for r in records
+               if r.get("kind") == "event" and r.get("what") == "action"]
+    return EpisodeSeries(name=scenario.name, time=np.array([s["time"] for s in steps]),
+                         robot=tracks["robot"], obj=None if is_robot else tracks["obj"],
+                         goal=tracks["goal"] + np.asarray(pair.offset), object_name=pair.a, goal_name=pair.b,
+                         actions=actions,
+                         arena=scenario.world.arena.half_size if scenario.world.arena else None)
+
+
+def plot_episode(series: EpisodeSeries, out: Path, title: str = "") -> Path:
+    """One figure, three panels as in Figs. A.3-A.5 (two without an object); returns its path."""
+    from matplotlib.figure import Figure
+
+    panels = 2 if series.obj is None else 3
+    fig = Figure(figsize=(5.2 * panels, 4.4), layout="constrained")
+    axes = fig.subplots(1, panels)
+    fig.suptitle(title or series.name)
+
+    ax = axes[0]
+    if series.obj is not None:
+        ax.plot(series.obj[:, 0], series.obj[:, 1], color=OBJECT, label=series.object_name)
+        ax.plot(*series.obj[0, :2], "o", color=OBJECT)
+    ax.plot(series.robot[:, 0], series.robot[:, 1], color=ROBOT, label="robot")
+    ax.plot(*series.robot[0, :2], "o", color=ROBOT)
+    ax.plot(*series.goal[-1, :2], "*", color=GOAL, markersize=14, label=series.goal_name)
+    if series.arena:
+        ax.set_xlim(-series.arena, series.arena)
+        ax.set_ylim(-series.arena, series.arena)
+    ax.set_aspect("equal")
+    ax.set(xlabel="x [m]", ylabel="y [m]", title="trajectories (o: start)")
+    ax.legend(loc="best", fontsize="small")
+
+    ax = axes[1]
+    tracked = series.robot if series.obj is None else series.obj
+    if series.obj is not None:
+        ax.plot(series.time, planar_distance(series.robot, series.obj), color=ROBOT_OBJECT,
+                label=f"robot-{series.object_name}")
+    ax.plot(series.time, planar_distance(tracked, series.goal), color=OBJECT_GOAL,
+            label=f"{'robot' if series.obj is None else series.object_name}-{series.goal_name}")
+    ax.set(xlabel="time [s]", ylabel="distance [m]", title="distances")
+    ax.legend(loc="best", fontsize="small")
+
+    if series.obj is not None:
+        ax = axes[2]
+        ax.plot(series.time, cos_rog(series.robot, series.obj, series.goal), color="black")
+        ax.axhline(0.0, color="grey", linewidth=0.5)
+        ax.set_ylim(-1.05, 1.05)
+        ax.set(xlabel="time [s]", ylabel=r"cos $\theta_{ROG}$",
+               title="robot-object-goal angle (-1: pushing, 1: pulling)")
+
+    for ax in axes[1:]:
+        for t, action in series.actions:
+            ax.axvline(t, color="grey", linestyle=":", linewidth=0.8)
+            ax.annotate(action, (t, 1.0), xycoords=("data", "axes fraction"), rotation=90,
+                        va="top", ha="right", fontsize="x-small", color="grey")
+
+    out = Path(out)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(out, dpi=110)
+    return out

@@ -1,0 +1,59 @@
+"""Replaying logged states into a MuJoCo model: the kinematics behind metrics, plots and videos.
+
+A ``step`` record of the episode log holds ``qpos``, ``qvel``, ``mocap_pos`` and ``mocap_quat``
+after that world step; copying them into an ``MjData`` of the scenario's compiled model and calling
+``mj_forward`` gives back every frame pose and contact the world had at that moment, without
+re-simulating anything.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable, Iterator
+
+import mujoco
+import numpy as np
+
+from shared.config import ConfigError
+from shared.frames import Frame, FrameResolver
+from shared.robots import get_robot
+from shared.scenario import Scenario
+
+
+def load_step(model: mujoco.MjModel, data: mujoco.MjData, step: dict) -> None:
+    """Copy one logged state into ``data`` and recompute kinematics and contacts."""
+    for name, size in (("qpos", model.nq), ("qvel", model.nv), ("mocap_pos", model.nmocap * 3),
+                       ("mocap_quat", model.nmocap * 4)):
+        value = np.asarray(step.get(name, []), dtype=float).reshape(-1)
+        if value.size != size:
+            raise ValueError(f"step {step.get('seq')}: {name} has {value.size} values, the "
+                             f"scenario's model needs {size} (was the log written for another "
+                             "scenario?)")
+        getattr(data, name)[:] = value.reshape(getattr(data, name).shape)
+    mujoco.mj_forward(model, data)
+
+
+def replay(model: mujoco.MjModel, steps: Iterable[dict]) -> Iterator[mujoco.MjData]:
+    """One ``MjData`` (reused: read it before advancing) per logged step, kinematics computed."""
+    data = mujoco.MjData(model)
+    for step in steps:
+        load_step(model, data, step)
+        yield data
+
+
+def resolve_frame(scenario: Scenario, model: mujoco.MjModel, name: str, key: str) -> Frame:
+    """A YAML frame name of the scenario, or a ConfigError naming ``key`` and the valid names."""
+    resolve = FrameResolver(model, get_robot(scenario.robot.model).frame)
+    try:
+        return resolve(name)
+    except KeyError as exc:
+        raise ConfigError(scenario.source, key, str(exc.args[0]), name,
+                          f"one of: {', '.join(resolve.names())}") from None
+
+
+def frame_tracks(model: mujoco.MjModel, steps: list[dict], frames: dict[str, Frame]) -> dict[str, np.ndarray]:
+    """World positions ``[len(steps), 3]`` of each named frame over the logged steps."""
+    out = {name: np.empty((len(steps), 3)) for name in frames}
+    for i, data in enumerate(replay(model, steps)):
+        for name, frame in frames.items():
+            out[name][i] = frame.pos(data)
+    return out
