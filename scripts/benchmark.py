@@ -29,7 +29,8 @@ from shared.scenario import load_scenario
 from shared.scene import compile_model, get_full_state, initial_data
 from planner_client.build import build_motion_planner
 
-CASES = {"navigation": {}, "pick_place": {}}   # scenario -> overrides of planner samples/horizon
+# scenario -> overrides of planner samples/horizon
+CASES = {"navigation": {}, "push_pull": {}, "pick_place": {}}
 
 app = typer.Typer(add_completion=False)
 

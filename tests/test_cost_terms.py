@@ -143,6 +143,14 @@ def test_distance_in_3d_and_in_the_plane(ctx):
     close(make(ctx, "distance", a="robot", b="goal", axes="xy")(b), [[5.0], [0.0]])
 
 
+def test_distance_to_an_offset_target(ctx):
+    # the paper's pre-place location: a point above a movable object
+    b = batch_of({pos("robot"): one_step((1, 2, 3.05), (1, 2, 3)),
+                  pos("goal"): one_step((1, 2, 3), (1, 2, 3))})
+    close(make(ctx, "distance", a="robot", b="goal", offset=[0, 0, 0.05])(b), [[0.0], [0.05]])
+    close(make(ctx, "distance", a="robot", b="goal", offset=[3, 4, 0], axes="xy")(b), [[5.0], [5.0]])
+
+
 def test_distance_reads_the_real_frame_positions(model, ctx):
     term = make(ctx, "distance", a="robot", b="goal")
     b = sensed(model, ctx, term, set_qpos(0, [2.0, -1.0]))
@@ -378,6 +386,17 @@ def test_reach_reads_the_real_z_axes(model, ctx):
     torch.testing.assert_close(term(b), torch.tensor([[math.hypot(0.5, 0.3)]], dtype=F64))
 
 
+def test_tilt_is_the_residual_of_eq_27_alone(ctx):
+    term = make(ctx, "tilt", ee="site:left", obj="box", theta=-1.0)
+    zee, zobj = term.sensors()
+    # pointing down (also unnormalised), horizontal, up; the box's z axis up
+    b = batch_of({zee: one_step((0, 0, -1), (0, 0, -3), (1, 0, 0), (0, 0, 1)),
+                  zobj: one_step(*[(0, 0, 1)] * 4)})
+    close(term(b), [[0.0], [0.0], [1.0], [2.0]])
+    level = make(ctx, "tilt", ee="site:left", obj="box", theta=0.0)
+    close(level(b), [[1.0], [1.0], [0.0], [1.0]])
+
+
 def test_reach_theta_must_be_a_cosine(ctx):
     with pytest.raises(ConfigError, match=r"terms\[0\]\.theta: must be in \[-1, 1\].*1.5"):
         make(ctx, "reach", ee="hand", obj="box", theta=1.5)
@@ -424,6 +443,7 @@ EXAMPLES = {
     "pull_direction": dict(a="robot", obj="box", actuators=["ux", "uy"]),
     "dynamic_obstacle": dict(a="robot", obstacle="mover"),
     "reach": dict(ee="site:left", obj="box", theta=-1.0),
+    "tilt": dict(ee="site:left", obj="box", theta=-1.0),
     "gripper_width": dict(left="site:left", right="site:right", target="open"),
     "contact_force": dict(a="robot"),
 }

@@ -2,6 +2,7 @@
 
 import copy
 
+import numpy as np
 import pytest
 import yaml
 
@@ -83,3 +84,49 @@ def test_missing_file_and_bad_yaml(tmp_path):
     bad.write_text("name: [unclosed\n")
     with pytest.raises(ConfigError, match="not valid YAML"):
         load_scenario(bad)
+
+
+def test_robot_qpos_sets_the_start_state_not_the_joint_zero():
+    # MuJoCo measures hinge angles from qpos0: the Panda at robot.qpos must be drawn exactly like
+    # its own "home" keyframe, and its joint zero must stay where the MJCF puts it
+    import mujoco
+    from shared.robots import get_robot
+    from shared.scene import initial_data
+
+    sc = load_scenario("pick_place")
+    model = compile_model(sc)
+    data = initial_data(sc, model)
+    np.testing.assert_array_equal(model.qpos0[:9], 0.0)
+    ref = mujoco.MjModel.from_xml_path(str(get_robot("panda").path))
+    ref_data = mujoco.MjData(ref)
+    mujoco.mj_resetDataKeyframe(ref, ref_data, ref.key("home").id)
+    mujoco.mj_forward(ref, ref_data)
+    np.testing.assert_allclose(data.site("grasp").xpos, ref_data.site("grasp").xpos, atol=1e-12)
+
+
+def test_success_must_hold_for_episode_hold_seconds(nav_raw):
+    from server.world import SimWorld
+
+    nav_raw["episode"]["success"] = [{"near": {"a": "robot", "b": "goal", "within": 10.0}}]
+    nav_raw["episode"]["hold"] = 0.2
+    world = SimWorld(parse_scenario(nav_raw, "x.yaml"))
+    steps = 0
+    while world.status == "running":
+        world.step(np.zeros(2))
+        steps += 1
+    assert world.status == "success" and steps == 5         # 0.05 s steps: held from t = 0.05
+    nav_raw["episode"]["hold"] = -1
+    assert "episode.hold: must be >= 0" in _error(nav_raw)
+
+
+def test_a_safe_stop_keeps_the_gripper_command():
+    from server.world import SimWorld
+
+    world = SimWorld(load_scenario("pick_place"))
+    np.testing.assert_array_equal(world.safe_command(), 0.0)    # before any command
+    ctrl = np.full(8, 0.5)
+    ctrl[7] = 0.08
+    world.step(ctrl)
+    expected = np.zeros(8)
+    expected[7] = 0.08                                           # joints stop, the hand stays open
+    np.testing.assert_array_equal(world.safe_command(), expected)
