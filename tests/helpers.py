@@ -29,6 +29,27 @@ def start_planner(scenario: str, port: int, *extra: str) -> subprocess.Popen:
                             stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, env=ENV)
 
 
+def wait_episode(server: subprocess.Popen, planner: subprocess.Popen,
+                 timeout: float = 300.0, grace: float = 10.0) -> str:
+    """The server's output once its episode is over. In lock-step a world whose planner died
+    waits for it for ever: a planner gone for ``grace`` seconds while the server still runs
+    raises at once, with the planner's output, instead of after ``timeout``."""
+    deadline = time.monotonic() + timeout
+    gone = None
+    while True:
+        try:
+            return server.communicate(timeout=0.5)[0]
+        except subprocess.TimeoutExpired:
+            now = time.monotonic()
+            if planner.poll() is not None:
+                gone = gone or now
+                if now - gone > grace:
+                    raise AssertionError(f"the planner exited (code {planner.returncode}) while "
+                                         f"the episode ran:\n{planner.communicate()[0]}") from None
+            if now > deadline:
+                raise
+
+
 def stop(*procs: subprocess.Popen) -> None:
     for p in procs:
         if p.poll() is None:
@@ -78,4 +99,5 @@ def wait_until(predicate, timeout: float, period: float = 0.05) -> bool:
     return False
 
 
-__all__ = ["StateWatcher", "free_port_block", "start_planner", "start_server", "stop", "wait_until"]
+__all__ = ["StateWatcher", "free_port_block", "start_planner", "start_server", "stop", "wait_episode",
+           "wait_until"]

@@ -9,7 +9,7 @@ import yaml
 
 from server.episode_log import read_log
 from shared.scenario import SCENARIO_DIR
-from tests.helpers import free_port_block, start_planner, start_server, stop
+from tests.helpers import free_port_block, start_planner, start_server, stop, wait_episode
 
 pytestmark = pytest.mark.slow
 
@@ -31,7 +31,7 @@ def _run(scenario: str, tmp_path, max_time: float | None = None):
     server = start_server(source, port, log, "--seed", "0")
     planner = start_planner(source, port, "--seed", "0")
     try:
-        out, _ = server.communicate(timeout=300)
+        out = wait_episode(server, planner)
         planner.communicate(timeout=30)
     finally:
         stop(server, planner)

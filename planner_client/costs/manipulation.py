@@ -319,7 +319,7 @@ class ContactForce(CostTerm):
     force [3] inside MuJoCo (it only scans the step's contact list: cheaper than the distance
     sensors of ``collision``). Unlike
     ``collision`` it is 0 until touching and carries no gradient of distance: it scores how hard
-    a sample hits. ``obstacles`` defaults to the arena walls and every non-visual fixed object;
+    a sample hits. ``obstacles`` defaults as for ``collision`` (walls and ``obstacle`` objects);
     ``a`` must be a body (contact sensors do not take sites).
     """
     a: str

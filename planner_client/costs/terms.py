@@ -55,7 +55,8 @@ class Collision(CostTerm):
     Eq. 4.7 sums contact forces with non-movable objects; here the signed geom distance d_i
     (MuJoCo GEOMDIST sensors) gives a smooth penalty that also acts before contact:
     Σ_i max(0, margin - d_i) / margin, which is 1 per obstacle at touching and grows with
-    penetration. ``obstacles`` defaults to the arena walls and every non-visual fixed object.
+    penetration. ``obstacles`` defaults to the arena walls and every object marked ``obstacle``
+    in the scenario (by default every non-visual one, free objects included).
     """
     a: str
     obstacles: tuple[str, ...]
