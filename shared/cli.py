@@ -28,6 +28,15 @@ app = typer.Typer(add_completion=False, no_args_is_help=True, help=(
     "For two terminals use `m3p2i-server` and `m3p2i-planner` directly."))
 
 
+def _load_or_exit(scenario: str):
+    """The scenario, or exit 2 with the loader's message (file, key, value, expected)."""
+    try:
+        return load_scenario(scenario)
+    except ConfigError as exc:
+        typer.echo(f"error: {exc}", err=True)
+        raise typer.Exit(2) from None
+
+
 @app.command("run")
 def run(
     scenario: str = typer.Argument(..., help="Scenario name (configs/scenarios/NAME.yaml) or path."),
@@ -40,11 +49,7 @@ def run(
     verbose: bool = typer.Option(False, "--verbose", "-v", help="Show both processes' output."),
 ) -> None:
     """Run one episode of SCENARIO with server and planner; exit 0 on success."""
-    try:
-        sc = load_scenario(scenario)
-    except ConfigError as exc:
-        typer.echo(f"error: {exc}", err=True)
-        raise typer.Exit(2)
+    sc = _load_or_exit(scenario)
     run_dir = run_dir or default_run_dir(sc.name)
     typer.echo(f"running {sc.name} ({mode}); logs in {run_dir}")
     result = run_episode(EpisodeLaunch(scenario=sc.source, run_dir=run_dir, seed=seed, mode=mode,
@@ -94,7 +99,7 @@ def bench(
         paper = R.load_paper()
     except ConfigError as exc:
         typer.echo(f"error: {exc}", err=True)
-        raise typer.Exit(2)
+        raise typer.Exit(2) from None
     out_dir = out or Path("runs") / "bench" / Path(cfg.source).stem
     opts = B.BenchOptions(out_dir=out_dir, workers=workers or os.cpu_count() or 1,
                           timeout=timeout or cfg.timeout, trials=trials, quick=quick, seed=seed)
@@ -182,11 +187,7 @@ def record(
         typer.echo(f"error: {exc}", err=True)
         raise typer.Exit(3)
     if log is None:
-        try:
-            sc = load_scenario(scenario)
-        except ConfigError as exc:
-            typer.echo(f"error: {exc}", err=True)
-            raise typer.Exit(2)
+        sc = _load_or_exit(scenario)
         run_dir = run_dir or default_run_dir(sc.name)
         run_dir.mkdir(parents=True, exist_ok=True)
         port = free_port_block()

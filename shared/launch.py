@@ -125,7 +125,7 @@ def run_episode(launch: EpisodeLaunch, stop: threading.Event | None = None) -> E
     except KeyboardInterrupt:
         reason = "interrupted"
     finally:
-        _stop_all(procs.values())
+        stop_processes(procs.values())
         for out in outs.values():
             if out is not None:
                 out.close()
@@ -133,7 +133,8 @@ def run_episode(launch: EpisodeLaunch, stop: threading.Event | None = None) -> E
                       wall_time=time.monotonic() - started)
 
 
-def _stop_all(procs) -> None:
+def stop_processes(procs) -> None:
+    """Terminate, wait up to 5 s each, then kill: used by the launcher and the tests."""
     procs = list(procs)
     for p in procs:
         if p.poll() is None:

@@ -13,6 +13,7 @@ import zmq
 from shared import protocol as P
 from shared.cli import free_port_block
 from shared.endpoints import Endpoints
+from shared.launch import stop_processes
 
 ENV = {**os.environ, "PYTHONUNBUFFERED": "1"}
 
@@ -51,15 +52,7 @@ def wait_episode(server: subprocess.Popen, planner: subprocess.Popen,
 
 
 def stop(*procs: subprocess.Popen) -> None:
-    for p in procs:
-        if p.poll() is None:
-            p.terminate()
-    for p in procs:
-        try:
-            p.wait(5)
-        except subprocess.TimeoutExpired:
-            p.kill()
-            p.wait()
+    stop_processes(procs)
 
 
 class StateWatcher:

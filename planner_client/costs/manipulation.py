@@ -99,23 +99,12 @@ class PushAlign(CostTerm):
 
 @register("pull_align")
 @dataclass
-class PullAlign(CostTerm):
+class PullAlign(PushAlign):
     """S_align_pull(R, O, G) = f(-cos θ_ROG), f = relu (paper Eq. 20).
 
     The mirror of ``push_align``: 0 while the robot R is on the goal's side of the object O
     (where pulling O brings it to G), rising to 1 with R directly behind O. Same parameters.
     """
-    a: str
-    obj: str
-    goal: str
-    axes: str
-
-    @classmethod
-    def from_params(cls, s, ctx):
-        return cls(**_frames(s, ctx, "a", "obj", "goal"), axes=_planar_axes(s))
-
-    def sensors(self):
-        return [SensorRequest("framepos", f) for f in (self.a, self.obj, self.goal)]
 
     def __call__(self, batch):
         return torch.relu(-_cos_rog(batch, self.a, self.obj, self.goal, self.axes))
