@@ -78,17 +78,15 @@ class MotionPlanner:
                     command=self._command(result.u0.numpy(), dominant), dominant=dominant)
 
     def _command(self, u0: np.ndarray, dominant: str) -> np.ndarray:
-        """u0, with every channel that some active mode pins (suction on/off, gripper) set as
-        the dominant mode sets it: a blend of on and off is neither (thesis: the executed
-        suction follows the mode with the largest fused weight)."""
-        pinned = {ch for m in self.modes for ch in self.problem.objectives[m].fixed}
-        if not pinned:
+        """u0 with the channels the dominant mode pins (suction on/off, gripper) set to its
+        values: a blend of on and off is neither (thesis: the executed suction follows the mode
+        with the largest fused weight). Channels only other modes pin keep the fused value."""
+        fixed = self.problem.objectives[dominant].fixed
+        if not fixed:
             return u0
         u = u0.copy()
-        fixed = self.problem.objectives[dominant].fixed
-        for ch in pinned:
-            if ch in fixed:
-                u[ch] = fixed[ch]
+        for ch, value in fixed.items():
+            u[ch] = value
         return u
 
     def close(self) -> None:
