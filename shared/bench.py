@@ -29,7 +29,7 @@ from rich.progress import (BarColumn, MofNCompleteColumn, Progress, SpinnerColum
                            TimeElapsedColumn, TimeRemainingColumn)
 
 from shared import episode
-from shared.config import ConfigError, Section, load_yaml, positive, positive_int
+from shared.config import ConfigError, Section, find_named, load_yaml, positive, positive_int
 from shared.launch import EpisodeLaunch, run_episode
 from shared.metrics import MetricsEvaluator
 from shared.scenario import PROJECT_ROOT, Scenario, find_scenario, load_scenario
@@ -60,15 +60,7 @@ class BenchConfig:
 
 def find_bench(name_or_path: str | os.PathLike) -> Path:
     """A path as given, else ``configs/bench/NAME.yaml``."""
-    p = Path(name_or_path)
-    if p.is_file():
-        return p
-    candidate = BENCH_DIR / f"{p.name}.yaml"
-    if candidate.is_file():
-        return candidate
-    known = ", ".join(sorted(x.stem for x in BENCH_DIR.glob("*.yaml")))
-    raise ConfigError(str(name_or_path), "", "no such bench file or name",
-                      expected=f"a YAML path or one of: {known}")
+    return find_named(name_or_path, [BENCH_DIR], "bench")
 
 
 def load_bench(name_or_path: str | os.PathLike) -> BenchConfig:

@@ -14,7 +14,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from shared.config import (ConfigError, Section, load_yaml, non_negative, number, one_of,
+from shared.config import (ConfigError, Section, find_named, load_yaml, non_negative, number, one_of,
                            positive, positive_int, string_list, vector)
 from shared.predicates import Predicate, parse_predicate
 from shared.robots import ROBOTS, get_robot
@@ -197,16 +197,7 @@ class Scenario:
 
 def find_scenario(name_or_path: str | os.PathLike) -> Path:
     """A path as given, else ``configs/scenarios/NAME.yaml`` (cwd first, then the project)."""
-    p = Path(name_or_path)
-    if p.is_file():
-        return p
-    candidates = [Path.cwd() / "configs" / "scenarios" / f"{p.name}.yaml", SCENARIO_DIR / f"{p.name}.yaml"]
-    for c in candidates:
-        if c.is_file():
-            return c
-    known = ", ".join(sorted(x.stem for x in SCENARIO_DIR.glob("*.yaml")))
-    raise ConfigError(str(name_or_path), "", "no such scenario file or name",
-                      expected=f"a YAML path or one of: {known}")
+    return find_named(name_or_path, [Path.cwd() / "configs" / "scenarios", SCENARIO_DIR], "scenario")
 
 
 def load_scenario(name_or_path: str | os.PathLike) -> Scenario:
