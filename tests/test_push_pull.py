@@ -64,6 +64,16 @@ def test_pull_drags_the_box_to_the_goal_with_the_suction_on(tmp_path):
     assert (_suction(steps) == 1.0).all()
 
 
+@pytest.mark.parametrize("scenario", ["push_dynamic_obstacle", "pull_dynamic_obstacle"])
+def test_push_and_pull_among_a_moving_obstacle_never_touch_it(scenario, tmp_path):
+    """Table I's setting: the world moves the obstacle, the planner only sees its poses."""
+    summary, steps, _ = _run(scenario, tmp_path)
+    assert summary["status"] == "success"
+    assert summary["metrics"]["collisions"] == 0
+    mover = np.array([s["mocap_pos"][-1][:2] for s in steps])
+    assert np.ptp(mover[:, 1]) > 1.0           # it did move across the way
+
+
 def test_hybrid_puts_the_box_into_a_corner(tmp_path):
     summary, _, _ = _run("push_pull_corner1", tmp_path)
     assert summary["status"] == "success"
