@@ -222,7 +222,11 @@ class All(Predicate):
 
     @classmethod
     def from_section(cls, s: Section) -> All:
-        raise s.error("", "all takes a list of predicates")   # parse_predicate reads the list
+        """``s`` is the mapping that holds ``all``: its parameters are a list, not a mapping."""
+        parts = tuple(parse_predicate(p) for p in s.items("all", required=True))
+        if not parts:
+            raise s.error("all", "needs at least one predicate", [])
+        return cls(parts)
 
     def bind(self, resolve: FrameResolver) -> BoundPredicate:
         # each part's frames, keyed "i.key", so one BoundPredicate carries the whole tree
@@ -253,14 +257,11 @@ def parse_predicate(s: Section) -> Predicate:
     if name not in PREDICATES:
         raise s.error(name, "unknown predicate", name, f"one of: {', '.join(sorted(PREDICATES))}")
     if name == "all":
-        pred = All(tuple(parse_predicate(p) for p in s.items(name, required=True)))
-        if not pred.parts:
-            raise s.error(name, "needs at least one predicate", [])
-        s.done()
-        return pred
-    params = s.section(name)
-    pred = PREDICATES[name].from_section(params)
-    params.done()
+        pred = All.from_section(s)
+    else:
+        params = s.section(name)
+        pred = PREDICATES[name].from_section(params)
+        params.done()
     s.done()
     return pred
 
