@@ -47,12 +47,12 @@ def main(
                               server_timeout=server_timeout, exit_on_done=not keep_running)
     except ConfigError as exc:
         typer.echo(f"error: {exc}", err=True)
-        raise typer.Exit(2)
+        raise typer.Exit(2) from None
     try:
         stats = client.run()
     except HandshakeRefused as exc:
         typer.echo(f"error: the server refused the handshake: {exc}", err=True)
-        raise typer.Exit(3)
+        raise typer.Exit(3) from None
     except KeyboardInterrupt:
         stats = client.stats
     finally:

@@ -49,14 +49,14 @@ def main(
         sc = load_scenario(scenario)
     except ConfigError as exc:
         typer.echo(f"error: {exc}", err=True)
-        raise typer.Exit(2)
+        raise typer.Exit(2) from None
     log_file = log_file or default_run_dir(sc.name) / "episode.jsonl"
     opts = ServerOptions(mode=mode, command_timeout=command_timeout, realtime_factor=realtime_factor)
     try:
         server = WorldServer(sc, Endpoints(host, port), log_file, opts, seed=seed)
     except ConfigError as exc:   # e.g. a metrics frame the compiled model lacks
         typer.echo(f"error: {exc}", err=True)
-        raise typer.Exit(2)
+        raise typer.Exit(2) from None
     if viewer:
         if os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY"):
             import mujoco.viewer

@@ -149,14 +149,14 @@ def plot(
         series = episode_series(sc, records)
     except (ConfigError, FileNotFoundError, ValueError) as exc:
         typer.echo(f"error: {exc}", err=True)
-        raise typer.Exit(2)
+        raise typer.Exit(2) from None
     head = episode.header(records)
     title = f"{sc.name}, seed {head.get('seed', '?')}"
     try:
         typer.echo(f"wrote {plot_episode(series, out / 'episode.png', title)}")
     except ImportError:
         typer.echo("error: m3p2i plot needs matplotlib: pip install -e '.[plots]'", err=True)
-        raise typer.Exit(2)
+        raise typer.Exit(2) from None
 
 
 @app.command("record")
@@ -185,7 +185,7 @@ def record(
         backend = video.gl_backend()      # before the episode: no point running one we cannot draw
     except video.NoGLError as exc:
         typer.echo(f"error: {exc}", err=True)
-        raise typer.Exit(3)
+        raise typer.Exit(3) from None
     if log is None:
         sc = _load_or_exit(scenario)
         run_dir = run_dir or default_run_dir(sc.name)
@@ -204,7 +204,7 @@ def record(
         video.render_in_child(backend, log, out, width - width % 2, height - height % 2, fps, speed)
     except RuntimeError as exc:
         typer.echo(f"error: {exc}", err=True)
-        raise typer.Exit(1)
+        raise typer.Exit(1) from None
     typer.echo(f"wrote {out}")
 
 

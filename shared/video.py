@@ -228,7 +228,7 @@ def main(
         typer.echo(f"wrote {write_video(frames, out, fps)} ({len(frames)} frames)")
     except (ConfigError, FileNotFoundError, ValueError, RuntimeError) as exc:
         typer.echo(f"error: {exc}", err=True)
-        raise typer.Exit(2)
+        raise typer.Exit(2) from None
 
 
 def render_in_child(backend: str, log: Path, out: Path, width: int, height: int, fps: float,
