@@ -68,6 +68,8 @@ class PlannerClient:
         robot = planner.problem.robot
         self._hold = [planner.problem.actuators.index(n) for n in robot.hold_ctrl]
         self._last_ctrl = np.array(robot.safe_ctrl, dtype=float)
+        self._answered: tuple[str, int] | None = None   # (session, seq) of the last command
+        self._answer = b""
 
     # ------------------------------------------------------------------ handshake
 
@@ -133,6 +135,12 @@ class PlannerClient:
                 if self.exit_on_done:
                     break
                 continue
+            if (state.session, state.seq) == self._answered:
+                # a lock-step world re-publishes a state until its command arrives: planning
+                # it again would shift the warm start and draw new noise, so a busy machine
+                # would change the episode; the same command again is harmless
+                self.push.send(self._answer)
+                continue
             self._step(state, on_plan)
         return self.stats
 
@@ -153,8 +161,10 @@ class PlannerClient:
             ctrl = plan.command
         self._last_ctrl = ctrl
         plan_time = time.perf_counter() - t0
-        self.push.send(P.encode(P.Command(session=state.session, seq=state.seq, ctrl=ctrl,
-                                          plan_time=plan_time, action=decision.action)))
+        self._answer = P.encode(P.Command(session=state.session, seq=state.seq, ctrl=ctrl,
+                                          plan_time=plan_time, action=decision.action))
+        self._answered = (state.session, state.seq)
+        self.push.send(self._answer)
         self.stats.iterations += 1
         self.stats.plan_times.append(plan_time)
         key = (decision.action, tuple(decision.modes))

@@ -38,6 +38,9 @@ def main(
     command_timeout: float = typer.Option(0.5, help="realtime: seconds after which a missing "
                                           "command makes the robot hold still."),
     realtime_factor: float = typer.Option(1.0, help="realtime: simulated seconds per wall second."),
+    republish: float = typer.Option(0.2, min=0.001, help="lockstep: re-send the state waiting "
+                                    "for its command this often (seconds), for a planner that "
+                                    "subscribed late or lost it."),
     viewer: bool = typer.Option(False, help="Open MuJoCo's passive viewer (needs a display)."),
     seed: int = typer.Option(0, help="Seed of the scenario's randomised start (world.randomize)."),
     verbose: bool = typer.Option(False, "--verbose", "-v"),
@@ -51,7 +54,8 @@ def main(
         typer.echo(f"error: {exc}", err=True)
         raise typer.Exit(2) from None
     log_file = log_file or default_run_dir(sc.name) / "episode.jsonl"
-    opts = ServerOptions(mode=mode, command_timeout=command_timeout, realtime_factor=realtime_factor)
+    opts = ServerOptions(mode=mode, command_timeout=command_timeout,
+                         realtime_factor=realtime_factor, republish=republish)
     try:
         server = WorldServer(sc, Endpoints(host, port), log_file, opts, seed=seed)
     except ConfigError as exc:   # e.g. a metrics frame the compiled model lacks

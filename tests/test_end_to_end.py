@@ -40,6 +40,29 @@ def test_lockstep_navigation_reaches_the_goal(tmp_path):
     assert len(steps) == summary["steps"] and all(not s["safe"] for s in steps)
 
 
+def _navigation_steps(tmp_path, *server_args: str) -> list[list[float]]:
+    port = free_port_block()
+    log = tmp_path / f"episode-{port}.jsonl"
+    server = start_server("navigation", port, log, *server_args)
+    planner = start_planner("navigation", port)
+    try:
+        out, _ = server.communicate(timeout=240)
+        planner.communicate(timeout=30)
+    finally:
+        stop(server, planner)
+    assert server.returncode == 0, out
+    return [r["qpos"] for r in read_log(log) if r["kind"] == "step"]
+
+
+def test_lockstep_episode_does_not_depend_on_re_published_states(tmp_path):
+    """The world re-sends a waiting state (--republish); a busy planner gets it again while
+    still planning. Answering it without planning again keeps the episode the same."""
+    quiet = _navigation_steps(tmp_path)
+    flooded = _navigation_steps(tmp_path, "--republish", "0.001")
+    assert len(flooded) == len(quiet)
+    np.testing.assert_array_equal(np.array(flooded), np.array(quiet))
+
+
 def test_scenario_mismatch_is_refused_with_a_clear_message(tmp_path):
     raw = yaml.safe_load((SCENARIO_DIR / "navigation.yaml").read_text())
     raw["world"]["objects"][0]["pos"][0] += 0.5
