@@ -88,6 +88,8 @@ class Disturbances:
         for c in self.randomize:
             h = self.handles[c.object]
             pos = h.pos(data).copy()
+            if c.choose is not None:
+                pos[:] = c.choose[rng.integers(len(c.choose))]
             for axis, rng_range in ((0, c.x), (1, c.y)):
                 if rng_range is not None:
                     pos[axis] = rng.uniform(*rng_range)

@@ -70,11 +70,14 @@ class BatteryConfig:
 
 @dataclass(frozen=True)
 class RandomizeConfig:
-    """Uniform ranges for an object's start pose, drawn per episode from the server's --seed."""
+    """An object's start pose, drawn per episode from the server's --seed: uniform ranges for
+    ``x``, ``y`` and ``yaw``, or ``choose``: one of a few start positions [x, y, z], each equally
+    likely (discrete cases of one scenario, e.g. a cube on the table or on a shelf)."""
     object: str
     x: tuple[float, float] | None = None
     y: tuple[float, float] | None = None
     yaw: tuple[float, float] | None = None     # degrees
+    choose: tuple[tuple[float, float, float], ...] | None = None
 
 
 @dataclass(frozen=True)
@@ -353,18 +356,27 @@ def _range(value) -> tuple[float, float]:
     return lo, hi
 
 
-def _waypoint(s: Section, i: int, value) -> tuple[float, float, float]:
+def _waypoint(s: Section, i: int, value, key: str = "waypoints") -> tuple[float, float, float]:
     try:
         return vector(3)(value)
     except ValueError as exc:
-        raise ConfigError(s.source, f"{s.key_path('waypoints')}[{i}]", str(exc), value,
+        raise ConfigError(s.source, f"{s.key_path(key)}[{i}]", str(exc), value,
                           "[x, y, z]") from None
 
 
 def _randomize(s: Section, by_name) -> RandomizeConfig:
+    choose = None
+    if s.has("choose"):
+        points = s.req("choose", list, "a list of [x, y, z] start positions")
+        if len(points) < 2:
+            raise s.error("choose", "needs at least two start positions", points)
+        for axis in ("x", "y"):
+            if s.has(axis):
+                raise s.error(axis, "give either choose or x/y ranges, not both", s.data[axis])
+        choose = tuple(_waypoint(s, i, p, "choose") for i, p in enumerate(points))
     cfg = RandomizeConfig(object=_object_ref(s, by_name), x=s.opt("x", None, _range, "[low, high]"),
                           y=s.opt("y", None, _range, "[low, high]"),
-                          yaw=s.opt("yaw", None, _range, "[low, high] degrees"))
+                          yaw=s.opt("yaw", None, _range, "[low, high] degrees"), choose=choose)
     s.done()
     return cfg
 

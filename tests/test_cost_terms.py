@@ -143,6 +143,14 @@ def test_distance_in_3d_and_in_the_plane(ctx):
     close(make(ctx, "distance", a="robot", b="goal", axes="xy")(b), [[5.0], [0.0]])
 
 
+def test_distance_along_two_axes_ignores_the_third(ctx):
+    # a side grasp lines up level with the cube (xz) before it moves in along y
+    b = batch_of({pos("robot"): one_step((0, 0, 0), (1, 1, 1)),
+                  pos("goal"): one_step((3, 12, 4), (1, 7, 1))})
+    close(make(ctx, "distance", a="robot", b="goal", axes="xz")(b), [[5.0], [0.0]])
+    close(make(ctx, "distance", a="robot", b="goal", axes="yz")(b), [[math.hypot(12, 4)], [6.0]])
+
+
 def test_distance_to_an_offset_target(ctx):
     # the paper's pre-place location: a point above a movable object
     b = batch_of({pos("robot"): one_step((1, 2, 3.05), (1, 2, 3)),

@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 import yaml
 
+from server.world import SimWorld
 from shared.config import ConfigError
 from shared.scenario import SCENARIO_DIR, load_scenario, parse_scenario
 from shared.scene import build_spec, compile_model
@@ -130,3 +131,32 @@ def test_a_safe_stop_keeps_the_gripper_command():
     expected = np.zeros(8)
     expected[7] = 0.08                                           # joints stop, the hand stays open
     np.testing.assert_array_equal(world.safe_command(), expected)
+
+
+def _shelf_raw():
+    return yaml.safe_load((SCENARIO_DIR / "pick_shelf.yaml").read_text())
+
+
+def test_randomize_choose_draws_one_of_the_listed_start_positions():
+    raw = _shelf_raw()
+    spots = [[0.1, -0.1, 1.025], [0.1, -0.3, 1.3]]
+    raw["world"]["randomize"] = [{"object": "cube_a", "choose": spots}]
+    sc = parse_scenario(raw, "test.yaml")
+    assert sc.world.randomize[0].choose == tuple(tuple(p) for p in spots)
+    drawn = set()
+    for seed in range(8):            # the server draws at reset, from its --seed
+        world = SimWorld(sc, seed=seed)
+        drawn.add(tuple(round(v, 6) for v in world.initial[0]["pos"]))
+    assert drawn == {tuple(p) for p in spots}
+
+
+@pytest.mark.parametrize("entry, message", [
+    ({"choose": [[0.1, 0.0, 1.0]]}, "world.randomize[0].choose: needs at least two start positions"),
+    ({"choose": [[0.1, 0.0, 1.0], [0.2, 0.0]]}, "world.randomize[0].choose[1]: needs 3 numbers"),
+    ({"choose": [[0.1, 0.0, 1.0], [0.2, 0.0, 1.0]], "x": [0.0, 0.1]},
+     "world.randomize[0].x: give either choose or x/y ranges, not both"),
+])
+def test_randomize_choose_errors_name_the_key(entry, message):
+    raw = _shelf_raw()
+    raw["world"]["randomize"] = [{"object": "cube_a", **entry}]
+    assert message in _error(raw)

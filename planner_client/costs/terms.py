@@ -12,12 +12,18 @@ from planner_client.costs.base import CostTerm, RolloutBatch, register
 from planner_client.sensors import SensorRequest
 
 
+# World axes a term may measure along: ``xy`` ignores height; ``xz`` and ``yz`` ignore one
+# horizontal axis, e.g. a side grasp lining up level with the cube before it moves in along y.
+_AXES = {"xy": [0, 1], "xz": [0, 2], "yz": [1, 2], "xyz": [0, 1, 2]}
+
+
 def _axes(s: Section) -> str:
-    return s.opt("axes", "xyz", one_of(["xy", "xyz"]))
+    return s.opt("axes", "xyz", one_of(list(_AXES)))
 
 
 def _planar(x: torch.Tensor, axes: str) -> torch.Tensor:
-    return x[..., :2] if axes == "xy" else x
+    """The components of ``x [..., 3]`` along ``axes`` -> ``[..., 2 or 3]``."""
+    return x if axes == "xyz" else x[..., _AXES[axes]]
 
 
 @register("distance")
