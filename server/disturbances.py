@@ -80,10 +80,12 @@ class Disturbances:
         names = {c.object for c in randomize} | {d.object for d in disturbances}
         self.handles = {n: ObjectHandle(model, n) for n in names}
         self._done: set[int] = set()
+        self._held_since: dict[int, float] = {}     # move index -> when its `when` first held
 
     def reset(self, data: mujoco.MjData, rng: np.random.Generator) -> list[dict]:
         """Draw the randomised start poses; returns what was drawn, for the episode log."""
         self._done.clear()
+        self._held_since.clear()
         drawn = []
         for c in self.randomize:
             h = self.handles[c.object]
@@ -109,7 +111,11 @@ class Disturbances:
             if i in self._done or data.time < m.at - 1e-9:
                 continue
             # kinematics (xpos) are those computed during the last step: one step old at most
-            if when is not None and not when(view):
+            if when is not None and i not in self._held_since:
+                if not when(view):
+                    continue
+                self._held_since[i] = float(data.time)
+            if data.time < self._held_since.get(i, 0.0) + m.delay - 1e-9:
                 continue
             self.handles[m.object].set(data, m.pos, m.yaw)
             self._done.add(i)

@@ -83,12 +83,14 @@ class RandomizeConfig:
 @dataclass(frozen=True)
 class MoveConfig:
     """Teleport ``object`` to ``pos``/``yaw`` (None keeps that part) once: at time ``at``, or at
-    the first step from ``at`` on where ``when`` holds (e.g. stealing a cube from the hand)."""
+    the first step from ``at`` on where ``when`` holds (e.g. stealing a cube from the hand), or
+    ``delay`` seconds after that step (a person who takes an obstacle away a moment later)."""
     object: str
     at: float = 0.0
     when: Predicate | None = None
     pos: tuple[float, float, float] | None = None
     yaw: float | None = None
+    delay: float = 0.0
 
 
 @dataclass(frozen=True)
@@ -389,9 +391,13 @@ def _disturbance(s: Section, by_name) -> MoveConfig | PathConfig:
     if kinds[0] == "move":
         m = s.section("move")
         when = parse_predicate(m.section("when")) if m.has("when") else None
+        delay = m.opt("delay", 0.0, non_negative, "seconds >= 0")
+        if delay and when is None:
+            raise m.error("delay", "a delay counts from when the `when` condition first holds; "
+                          "give `when`, or use `at` alone", delay)
         cfg = MoveConfig(object=_object_ref(m, by_name), at=m.opt("at", 0.0, non_negative),
                          when=when, pos=m.opt("pos", None, vector(3), "[x, y, z]"),
-                         yaw=m.opt("yaw", None, number, "degrees"))
+                         yaw=m.opt("yaw", None, number, "degrees"), delay=delay)
     else:
         m = s.section("path")
         points = m.req("waypoints", list, "a list of [x, y, z]")

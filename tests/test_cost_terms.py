@@ -405,6 +405,27 @@ def test_tilt_is_the_residual_of_eq_27_alone(ctx):
     close(level(b), [[1.0], [1.0], [0.0], [1.0]])
 
 
+def test_approach_cone_keeps_the_hand_above_the_object_until_over_it(ctx):
+    term = make(ctx, "approach_cone", ee="site:left", obj="box", slope=1.0, height=0.05)
+    pee, pobj = term.sensors()
+    # far and level with the box; far, 5 cm above; 2 cm off, 1 cm above; right over, at its centre
+    b = batch_of({pee: one_step((0.3, 0, 1.0), (0.3, 0, 1.05), (0.02, 0, 1.01), (0, 0, 1.0)),
+                  pobj: one_step(*[(0, 0, 1.0)] * 4)})
+    close(term(b), [[0.05], [0.0], [0.01], [0.0]])
+    steep = make(ctx, "approach_cone", ee="site:left", obj="box", slope=2.0, height=0.05)
+    close(steep(b), [[0.05], [0.0], [0.03], [0.0]])
+    # a flat bottom 1.5 cm wide: 2 cm off is 0.5 cm past it
+    flat = make(ctx, "approach_cone", ee="site:left", obj="box", radius=0.015, height=0.05)
+    close(flat(b), [[0.05], [0.0], [0.0], [0.0]])
+
+
+def test_approach_cone_rejects_a_non_positive_height_and_a_negative_radius(ctx):
+    with pytest.raises(ConfigError, match=r"terms\[0\]\.height.*metres > 0"):
+        make(ctx, "approach_cone", ee="site:left", obj="box", height=0.0)
+    with pytest.raises(ConfigError, match=r"terms\[0\]\.radius.*metres >= 0"):
+        make(ctx, "approach_cone", ee="site:left", obj="box", radius=-0.01)
+
+
 def test_reach_theta_must_be_a_cosine(ctx):
     with pytest.raises(ConfigError, match=r"terms\[0\]\.theta: must be in \[-1, 1\].*1.5"):
         make(ctx, "reach", ee="hand", obj="box", theta=1.5)
@@ -452,6 +473,7 @@ EXAMPLES = {
     "dynamic_obstacle": dict(a="robot", obstacle="mover"),
     "reach": dict(ee="site:left", obj="box", theta=-1.0),
     "tilt": dict(ee="site:left", obj="box", theta=-1.0),
+    "approach_cone": dict(ee="site:left", obj="box", radius=0.02),
     "gripper_width": dict(left="site:left", right="site:right", target="open"),
     "contact_force": dict(a="robot"),
 }

@@ -160,3 +160,27 @@ def test_randomize_choose_errors_name_the_key(entry, message):
     raw = _shelf_raw()
     raw["world"]["randomize"] = [{"object": "cube_a", **entry}]
     assert message in _error(raw)
+
+
+def test_a_move_fires_delay_seconds_after_its_condition_first_holds(nav_raw):
+    always = {"near": {"a": "robot", "b": "pillar", "within": 100.0}}
+    nav_raw["world"]["disturbances"] = [
+        {"move": {"object": "pillar", "when": always, "delay": 0.5, "pos": [0.0, 3.0, 0.2]}},
+        # chained: holds once the pillar is near the goal, i.e. after the first move
+        {"move": {"object": "block_a", "delay": 0.25, "pos": [2.0, -2.0, 0.2],
+                  "when": {"near": {"a": "pillar", "b": "goal", "within": 3.5}}}},
+    ]
+    world = SimWorld(parse_scenario(nav_raw, "x.yaml"))
+    for _ in range(30):                                  # 1.5 s of 0.05 s steps
+        world.step(np.zeros(2))
+    moved = [(e["object"], round(e["time"], 2)) for e in world.events if "object" in e]
+    # the condition holds before the first step (t = 0); the chained one from the step after
+    # the pillar moved (kinematics one step old), t = 0.55
+    assert moved == [("pillar", 0.5), ("block_a", 0.8)]
+    np.testing.assert_allclose(world.data.body("pillar").xpos, [0.0, 3.0, 0.2])
+
+
+def test_a_delay_needs_a_condition(nav_raw):
+    nav_raw["world"]["disturbances"] = [{"move": {"object": "pillar", "delay": 1.0, "pos": [0, 3, 0.2]}}]
+    assert ("world.disturbances[0].move.delay: a delay counts from when the `when` condition "
+            "first holds") in _error(nav_raw)
