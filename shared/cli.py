@@ -76,8 +76,9 @@ def bench(
                                "quick_trials)."),
     cases: Optional[str] = typer.Option(None, help="Comma-separated case names or patterns, "
                                         "e.g. 'navigation,corner*'."),
-    out: Optional[Path] = typer.Option(None, help="Output folder (default runs/bench/CONFIG); "
-                                       "rerun with the same folder to resume."),
+    out: Optional[Path] = typer.Option(None, help="Output folder (default runs/bench/CONFIG, "
+                                       "with --quick runs/bench/CONFIG-quick); rerun with the "
+                                       "same folder to resume."),
     workers: int = typer.Option(0, help="Trials at once, each a server + planner pair "
                                 "(0: one per core)."),
     trials: Optional[int] = typer.Option(None, min=1, help="Trials per case (overrides the file "
@@ -100,7 +101,9 @@ def bench(
     except ConfigError as exc:
         typer.echo(f"error: {exc}", err=True)
         raise typer.Exit(2) from None
-    out_dir = out or Path("runs") / "bench" / Path(cfg.source).stem
+    # --quick has its own folder: its trials are seeds 0-1 of the full run's, but its summary
+    # must not replace the full run's summary.md
+    out_dir = out or Path("runs") / "bench" / (Path(cfg.source).stem + ("-quick" if quick else ""))
     opts = B.BenchOptions(out_dir=out_dir, workers=workers or os.cpu_count() or 1,
                           timeout=timeout or cfg.timeout, trials=trials, quick=quick, seed=seed)
     results = B.ResultsFile(out_dir / "results.csv")

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+import signal
 import subprocess
 import sys
 import time
@@ -18,16 +19,24 @@ from shared.launch import stop_processes
 ENV = {**os.environ, "PYTHONUNBUFFERED": "1"}
 
 
+def _sigint_as_in_a_terminal() -> None:
+    # a test run started in the background (`pytest &`, some CI runners) hands its children
+    # SIGINT ignored, and Python then installs no KeyboardInterrupt: Ctrl-C tests need it back
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+
+
 def start_server(scenario: str, port: int, log: Path, *extra: str) -> subprocess.Popen:
     return subprocess.Popen([sys.executable, "-m", "server", "--scenario", scenario, "--port",
                              str(port), "--log", str(log), *extra],
-                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, env=ENV)
+                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, env=ENV,
+                            preexec_fn=_sigint_as_in_a_terminal)
 
 
 def start_planner(scenario: str, port: int, *extra: str) -> subprocess.Popen:
     return subprocess.Popen([sys.executable, "-m", "planner_client", "--scenario", scenario,
                              "--port", str(port), *extra],
-                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, env=ENV)
+                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, env=ENV,
+                            preexec_fn=_sigint_as_in_a_terminal)
 
 
 def wait_episode(server: subprocess.Popen, planner: subprocess.Popen,
