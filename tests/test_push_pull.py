@@ -94,7 +94,8 @@ def test_push_alone_stalls_where_the_hybrid_goes_from_corner_to_corner(corner_to
     # Table II: the walls keep the robot from getting behind the box, so push alone can only
     # press it against the north wall and slide it along. That gets there in 7 of 20 planner
     # seeds (`m3p2i bench`, 2026-11-30; seed 0 among them, in 10.95 s), and stalls in the other
-    # 13; seed 3 is one of those: within the hybrid's time and 5 s more, push gets nowhere near
+    # 13. Seed 3 is one of those: within the hybrid's time and 5 s more, push gets nowhere near
+    # the goal.
     hybrid_time = corner_to_corner[0]["time"]
     summary, _, _ = _run("push_corner2", tmp_path, max_time=hybrid_time + 5.0, seed=3)
     assert summary["status"] == "timeout"

@@ -181,6 +181,7 @@ def test_a_move_fires_delay_seconds_after_its_condition_first_holds(nav_raw):
 
 
 def test_a_delay_needs_a_condition(nav_raw):
-    nav_raw["world"]["disturbances"] = [{"move": {"object": "pillar", "delay": 1.0, "pos": [0, 3, 0.2]}}]
+    nav_raw["world"]["disturbances"] = [
+        {"move": {"object": "pillar", "delay": 1.0, "pos": [0, 3, 0.2]}}]
     assert ("world.disturbances[0].move.delay: a delay counts from when the `when` condition "
             "first holds") in _error(nav_raw)

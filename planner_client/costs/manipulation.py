@@ -270,11 +270,13 @@ class ApproachCone(CostTerm):
     d_xy is the horizontal distance of ``ee`` from ``obj``. Far away, the end effector must be at
     least ``height`` above the object's centre; closer than ``radius + height / slope`` the floor
     drops linearly, and within ``radius`` of the object's vertical axis it is the centre's height
-    itself, so a top grasp arrives from above and never sweeps in at the object's level. The flat
-    bottom matters: with a pointed cone, the sampled wobble of a hand 1 cm over the cube cost
-    more the lower it went, and it hovered there. Not in the paper: without it, a reach that starts low (a cube taken from a
-    hand carrying it 3 cm over the table) swept in at table height and stopped beside the cube
-    with a finger across its way, where rising costs more distance than a 12-step horizon gains.
+    itself, so a top grasp arrives from above and never sweeps in at the object's level.
+
+    Not in the paper. Without it, a reach that starts low (a cube taken from a hand carrying it
+    3 cm over the table) swept in at table height and stopped beside the cube with a finger
+    across its way, where rising costs more distance than a 12-step horizon gains. The flat
+    bottom matters too: with a pointed cone, the sampled wobble of a hand 1 cm over the cube
+    cost more the lower it went, and it hovered there.
     """
     ee: str
     obj: str
