@@ -19,8 +19,8 @@ from shared.frames import FrameResolver
 from shared.protocol import State
 from shared.robots import RobotSpec, get_robot
 from shared.scenario import Scenario
-from shared.scene import build_spec, compile_model, get_full_state, obstacle_names
-from planner_client.costs import Objective, TermContext, build_objective
+from shared.scene import build_spec, compile_model, get_full_state, initial_data, obstacle_names
+from planner_client.costs import JointInfo, Objective, TermContext, build_objective
 from planner_client.mppi import MPPIConfig
 from planner_client.sensors import SensorLayout, SensorRequest, add_sensors
 
@@ -37,13 +37,30 @@ class PlanningProblem:
     resolve: FrameResolver
 
 
+def robot_joints(scenario: Scenario, model: mujoco.MjModel) -> dict[str, JointInfo]:
+    """The robot's hinge and slide joints (the objects have only free joints), in qpos order,
+    with their ranges and start positions."""
+    start = initial_data(scenario, model).qpos
+    hinge, slide = int(mujoco.mjtJoint.mjJNT_HINGE), int(mujoco.mjtJoint.mjJNT_SLIDE)
+    out = {}
+    for j in range(model.njnt):
+        if int(model.jnt_type[j]) not in (hinge, slide):
+            continue
+        lo, hi = model.jnt_range[j]
+        out[model.joint(j).name] = JointInfo(
+            range=(float(lo), float(hi)) if model.jnt_limited[j] else None,
+            hinge=int(model.jnt_type[j]) == hinge, start=float(start[model.jnt_qposadr[j]]))
+    return out
+
+
 def build_problem(scenario: Scenario, extra_sensors: list[SensorRequest] = ()) -> PlanningProblem:
     robot = get_robot(scenario.robot.model)
     spec = build_spec(scenario)
     base = compile_model(scenario, spec.copy())
     resolve = FrameResolver(base, robot.frame)
     actuators = [base.actuator(i).name for i in range(base.nu)]
-    ctx = TermContext(scenario.source, resolve, obstacle_names(scenario), actuators)
+    ctx = TermContext(scenario.source, resolve, obstacle_names(scenario), actuators,
+                      robot_joints(scenario, base))
     objectives = {name: build_objective(name, cfg, ctx) for name, cfg in scenario.objectives.items()}
     robot_pos = SensorRequest("framepos", "robot")
     requests = [robot_pos, *extra_sensors] + [r for o in objectives.values() for r in o.sensors()]

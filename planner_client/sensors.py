@@ -24,6 +24,7 @@ _KINDS: dict[str, tuple[int, int]] = {
     "framelinvel": (mujoco.mjtSensor.mjSENS_FRAMELINVEL, 3),
     "distance": (mujoco.mjtSensor.mjSENS_GEOMDIST, 1),
     "contactforce": (mujoco.mjtSensor.mjSENS_CONTACT, 3),
+    "jointpos": (mujoco.mjtSensor.mjSENS_JOINTPOS, 1),
 }
 
 # CONTACT sensor settings (intprm = data fields, reduction, slots): only the force field, all
@@ -38,7 +39,8 @@ class SensorRequest:
     ``distance`` is the signed distance between the geoms of bodies ``obj`` and ``ref``, reported
     as ``cutoff`` when farther apart (MuJoCo's GEOMDIST sensor). ``contactforce`` is the net
     contact force [3] between the subtree of body ``obj`` (a robot with all its links) and the
-    geoms of body ``ref`` (MuJoCo's CONTACT sensor, zero when they do not touch).
+    geoms of body ``ref`` (MuJoCo's CONTACT sensor, zero when they do not touch). ``jointpos``
+    is the position of the joint named ``obj`` (a joint name, not a frame).
     """
     kind: str
     obj: str
@@ -63,6 +65,10 @@ def add_sensors(spec: mujoco.MjSpec, requests: list[SensorRequest], resolve: Fra
     """Add each distinct request to ``spec`` (before compiling the rollout model)."""
     for req in dict.fromkeys(requests):
         stype, _ = _KINDS[req.kind]
+        if req.kind == "jointpos":
+            spec.add_sensor(name=req.name, type=stype, objtype=mujoco.mjtObj.mjOBJ_JOINT,
+                            objname=req.obj)
+            continue
         objtype, objname = resolve.mujoco_ref(req.obj)
         sensor = spec.add_sensor(name=req.name, type=stype, objtype=objtype, objname=objname)
         if req.kind == "distance":

@@ -17,7 +17,9 @@ import csv
 import fnmatch
 import json
 import os
+import platform
 import shutil
+import time
 import threading
 from collections.abc import Callable
 from concurrent.futures import FIRST_COMPLETED, ThreadPoolExecutor, wait
@@ -39,7 +41,21 @@ BENCH_DIR = PROJECT_ROOT / "configs" / "bench"
 # results.csv columns; one row per finished trial
 FIELDS = ("case", "variant", "scenario", "scenario_hash", "seed", "success", "status", "reason",
           "position_error", "orientation_error", "collisions", "time", "wall_time", "planner_hz",
-          "steps", "trial_wall", "initial", "log")
+          "steps", "trial_wall", "initial", "log", "machine", "date")
+
+
+def machine() -> str:
+    """The CPU model and core count, recorded with every trial: a lock-step episode repeats
+    exactly on one machine, and only there (other CPUs round differently)."""
+    model = platform.processor() or platform.machine()
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name"):
+                model = line.split(":", 1)[1].strip()
+                break
+    except OSError:
+        pass
+    return f"{model}, {os.cpu_count()} cores"
 
 
 @dataclass(frozen=True)
@@ -139,6 +155,7 @@ class ResultsFile:
         self.path = Path(path)
         self._lock = threading.Lock()
         self._drop_torn_tail()
+        self._upgrade_header()
 
     def rows(self) -> list[dict[str, str]]:
         if not self.path.is_file():
@@ -157,6 +174,23 @@ class ResultsFile:
                 writer.writerow({k: _cell(row.get(k)) for k in FIELDS})
                 f.flush()
                 os.fsync(f.fileno())
+
+    def _upgrade_header(self) -> None:
+        """A file written before columns were added gets them (empty), so that new rows line
+        up with the header instead of shifting every cell after the first new column."""
+        rows = self.rows()
+        if not rows or list(rows[0]) == list(FIELDS):
+            return
+        unknown = set(rows[0]) - set(FIELDS)
+        if unknown:
+            raise ConfigError(str(self.path), "", "not a results file of this bench: unknown "
+                              "columns", sorted(unknown), f"columns among: {', '.join(FIELDS)}")
+        tmp = self.path.with_suffix(".csv.tmp")
+        with tmp.open("w", newline="") as f:
+            writer = csv.DictWriter(f, fieldnames=FIELDS)
+            writer.writeheader()
+            writer.writerows({k: r.get(k) or "" for k in FIELDS} for r in rows)
+        os.replace(tmp, self.path)
 
     def _drop_torn_tail(self) -> None:
         """A bench killed mid-write leaves a partial last line; the next row must not be glued
@@ -258,6 +292,7 @@ def run_trial(trial: Trial, opts: BenchOptions, threads: int, stop: threading.Ev
         "steps": metrics["steps"], "trial_wall": round(result.wall_time, 3),
         "initial": json.dumps(initial) if initial is not None else "",
         "log": str(rel / "episode.jsonl"),
+        "machine": machine(), "date": time.strftime("%Y-%m-%d"),
     }
 
 

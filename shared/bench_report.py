@@ -9,14 +9,16 @@ the successful trials only (the others all last ``max_time``).
 
 from __future__ import annotations
 
+import csv
 import math
+import re
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 from rich.table import Table
 
-from shared.config import Section, load_yaml, positive_int, vector
+from shared.config import ConfigError, Section, load_yaml, positive_int, vector
 from shared.scenario import PROJECT_ROOT
 
 PAPER_RESULTS = PROJECT_ROOT / "configs" / "paper_results.yaml"
@@ -77,6 +79,18 @@ def load_paper(path: Path = PAPER_RESULTS) -> dict[str, PaperRow]:
 
 # ---------------------------------------------------------------------------------- statistics
 
+def wilson(successes: int, trials: int, z: float = 1.96) -> tuple[float, float]:
+    """Wilson score interval of a success rate (95 % for z = 1.96): unlike p ± z·√(p(1-p)/n) it
+    stays inside [0, 1] and is not empty at 0/n or n/n, where a bench's rates usually are."""
+    if trials <= 0:
+        raise ValueError(f"a rate needs at least one trial (got {trials})")
+    p = successes / trials
+    zz = z * z / trials
+    centre = (p + zz / 2) / (1 + zz)
+    half = z / (1 + zz) * math.sqrt(p * (1 - p) / trials + zz / (4 * trials))
+    return max(0.0, centre - half), min(1.0, centre + half)
+
+
 @dataclass(frozen=True)
 class CaseSummary:
     case: str
@@ -85,11 +99,13 @@ class CaseSummary:
     successes: int
     killed: int                      # trials cut by the harness (time-out, crash)
     stats: dict[str, Stat | None]    # METRICS + planner_hz
+    seeds: str = ""                  # e.g. "0-49"
 
     @property
     def success_cell(self) -> str:
-        text = f"{self.successes}/{self.trials}"
-        return f"{text} ({self.killed} killed)" if self.killed else text
+        lo, hi = wilson(self.successes, self.trials)
+        text = f"{self.successes}/{self.trials} ({100 * lo:.0f}-{100 * hi:.0f} %)"
+        return f"{text}, {self.killed} killed" if self.killed else text
 
 
 def _number(cell: str) -> float | None:
@@ -120,21 +136,36 @@ def summarize(rows: list[dict[str, str]], order: list[str]) -> list[CaseSummary]
         stats["time"] = _stat([_number(r["time"]) for r in won])
         stats["planner_hz"] = _stat([_number(r["planner_hz"]) for r in ended])
         out.append(CaseSummary(case=case, variant=mine[0]["variant"], trials=len(mine),
-                               successes=len(won), killed=len(mine) - len(ended), stats=stats))
+                               successes=len(won), killed=len(mine) - len(ended), stats=stats,
+                               seeds=seed_ranges(int(r["seed"]) for r in mine)))
     return out
+
+
+def seed_ranges(seeds) -> str:
+    """``0-49, 1000-1009``: the seeds as runs of consecutive numbers."""
+    runs: list[list[int]] = []
+    for seed in sorted(set(seeds)):
+        if runs and seed == runs[-1][1] + 1:
+            runs[-1][1] = seed
+        else:
+            runs.append([seed, seed])
+    return ", ".join(str(a) if a == b else f"{a}-{b}" for a, b in runs)
 
 
 # ------------------------------------------------------------------------------------ rendering
 
-HEADERS = ("case", "variant", "trials", "success", "pos error [m]", "paper", "ori error (Eq. 33)",
+HEADERS = ("case", "variant", "seeds", "success (95 % interval)", "pos error [m]", "paper", "ori error (Eq. 33)",
            "paper", "collisions", "paper", "time [s]", "paper", "planner Hz")
+
+
+_LEFT = ("case", "variant", "seeds")
 
 
 def table_rows(summaries: list[CaseSummary], paper: dict[str, PaperRow]) -> list[list[str]]:
     rows = []
     for s in summaries:
         p = paper.get(s.case)
-        cells = [s.case, s.variant, str(s.trials), s.success_cell]
+        cells = [s.case, s.variant, s.seeds, s.success_cell]
         for m in METRICS:
             st = s.stats[m]
             cells.append(str(st) if st else ("time-out" if m == "time" and s.trials else "—"))
@@ -148,7 +179,7 @@ def table_rows(summaries: list[CaseSummary], paper: dict[str, PaperRow]) -> list
 def rich_table(rows: list[list[str]], title: str) -> Table:
     table = Table(title=title, header_style="bold")
     for h in HEADERS:
-        table.add_column(h, justify="left" if h in ("case", "variant") else "right")
+        table.add_column(h, justify="left" if h in _LEFT else "right")
     for r in rows:
         table.add_row(*r)
     return table
@@ -156,18 +187,101 @@ def rich_table(rows: list[list[str]], title: str) -> Table:
 
 def markdown_table(rows: list[list[str]]) -> str:
     lines = ["| " + " | ".join(HEADERS) + " |",
-             "|" + "|".join("---" if h in ("case", "variant") else "---:" for h in HEADERS) + "|"]
+             "|" + "|".join("---" if h in _LEFT else "---:" for h in HEADERS) + "|"]
     lines += ["| " + " | ".join(r) + " |" for r in rows]
     return "\n".join(lines)
 
 
+LEGEND = ("Success over all trials, with its 95 % Wilson interval; mean (std) over trials "
+          "(population std, as the paper): errors and collisions over the trials that ended by "
+          "themselves, time over the successful ones (time-out: none succeeded). *paper*: "
+          "configs/paper_results.yaml (Tables I-III).")
+
+
 def markdown_report(rows: list[list[str]], skipped: list[tuple[str, str]], header: str) -> str:
     """``summary.md``: the table, how it was made, and the cases that were skipped."""
-    parts = [header, "", markdown_table(rows), "",
-             "mean (std) over trials (population std, as the paper). Success counts all trials; "
-             "errors and collisions the trials that ended by themselves; time the successful ones "
-             "(time-out: none succeeded). *paper*: configs/paper_results.yaml (Tables I-III)."]
+    parts = [header, "", markdown_table(rows), "", LEGEND]
     if skipped:
         parts += ["", "Skipped cases:", ""] + [f"- `{c}`: {why}" for c, why in skipped]
     return "\n".join(parts) + "\n"
 
+
+
+# ------------------------------------------------------------- reports from committed results
+
+NOTES_FILE = "failures.yaml"     # beside results.csv: {case: {seed: one sentence}}
+_BLOCK = re.compile(r"(<!-- m3p2i report (?P<paths>[^>]*?) -->\n)(?P<body>.*?)(<!-- end of report -->)",
+                    re.S)
+
+
+@dataclass(frozen=True)
+class Results:
+    """One bench's results.csv as a report reads it: per case, the rows of the newest scenario
+    version (the hash of its last row), the last row per seed; and the failure notes."""
+    path: Path
+    rows: list[dict[str, str]]
+    notes: dict[tuple[str, int], str]
+
+    @property
+    def cases(self) -> list[str]:
+        return list(dict.fromkeys(r["case"] for r in self.rows))
+
+
+def read_results(path: str | Path) -> Results:
+    """``results.csv`` (or the bench folder holding it) and its ``failures.yaml``, if any."""
+    path = Path(path)
+    csv_path = path / "results.csv" if path.is_dir() else path
+    if not csv_path.is_file():
+        raise ConfigError(str(path), "", "no results file", expected="a bench's results.csv or "
+                          "its output folder")
+    with csv_path.open(newline="") as f:
+        rows = list(csv.DictReader(f))
+    newest = {r["case"]: r["scenario_hash"] for r in rows}
+    latest = {(r["case"], int(r["seed"])): r for r in rows if r["scenario_hash"] == newest[r["case"]]}
+    notes: dict[tuple[str, int], str] = {}
+    notes_path = csv_path.parent / NOTES_FILE
+    if notes_path.is_file():
+        top = Section(load_yaml(notes_path), str(notes_path))
+        for case in list(top.data):
+            for seed, text in top.section(case).data.items():
+                if not isinstance(seed, int) or not isinstance(text, str):
+                    raise ConfigError(str(notes_path), f"{case}.{seed}", "a failure note is "
+                                      "`SEED: one sentence`", text)
+                notes[(case, seed)] = text
+    return Results(csv_path, list(latest.values()), notes)
+
+
+def _failure_line(r: dict[str, str], notes: dict[tuple[str, int], str]) -> str:
+    what = r["reason"] or r["status"]
+    error = _number(r["position_error"])
+    where = f", {error:.3f} m from the goal" if error is not None else ""
+    note = notes.get((r["case"], int(r["seed"])), "not explained yet")
+    return f"- `{r['case']}` seed {r['seed']}: {what} at {_number(r['time']) or 0:.1f} s{where}. {note}"
+
+
+def results_report(results: list[Results], paper: dict[str, PaperRow]) -> str:
+    """The Markdown a README or doc shows for some results files: one table (a row per case and
+    file), the machines and dates the trials ran on, and every failure with its note."""
+    rows, failures, machines, dates = [], [], set(), set()
+    for res in results:
+        rows += table_rows(summarize(res.rows, res.cases), paper)
+        failures += [_failure_line(r, res.notes) for r in res.rows if r["success"] != "1"]
+        machines |= {r.get("machine") or "machine not recorded" for r in res.rows}
+        dates |= {r.get("date") or "date not recorded" for r in res.rows}
+    parts = [markdown_table(rows), "", LEGEND + f" Trials ran on {'; '.join(sorted(machines))}, "
+             f"{', '.join(sorted(dates))}."]
+    if failures:
+        parts += ["", "Failures:", ""] + failures
+    return "\n".join(parts) + "\n"
+
+
+def update_reports(text: str, base: Path, paper: dict[str, PaperRow]) -> str:
+    """``text`` with every ``<!-- m3p2i report PATH... -->`` block regenerated from the results
+    files it names (relative to ``base``), up to its ``<!-- end of report -->``."""
+    def fill(m: re.Match) -> str:
+        paths = m.group("paths").split()
+        if not paths:
+            raise ConfigError(str(base), "", "a report block names no results file", m.group(1))
+        body = results_report([read_results(base / p) for p in paths], paper)
+        return m.group(1) + body + m.group(4)
+    return _BLOCK.sub(fill, text)

@@ -135,6 +135,44 @@ def bench(
         raise typer.Exit(130)
 
 
+@app.command("report")
+def report(
+    results: Optional[list[Path]] = typer.Argument(None, help="results.csv files or bench "
+                                                   "output folders to tabulate together."),
+    update: Optional[list[Path]] = typer.Option(None, "--update", help="Markdown file whose "
+                                                "`<!-- m3p2i report PATH... -->` blocks are "
+                                                "regenerated in place (repeatable)."),
+    check: bool = typer.Option(False, "--check", help="With --update: change nothing; exit 1 "
+                               "when a block differs from what its results give."),
+) -> None:
+    """Tables from bench results: success with its 95 % Wilson interval, the paper's metrics,
+    the machine and date of the trials, every failure with its note (failures.yaml beside
+    results.csv). README and docs tables are made this way, never by hand."""
+    from shared import bench_report as R
+    if not results and not update:
+        typer.echo("error: give results files to tabulate, or --update FILE", err=True)
+        raise typer.Exit(2)
+    try:
+        paper = R.load_paper()
+        if results:
+            typer.echo(R.results_report([R.read_results(p) for p in results], paper), nl=False)
+        stale = []
+        for doc in update or []:
+            text = doc.read_text()
+            new = R.update_reports(text, doc.parent, paper)
+            if new != text:
+                stale.append(doc)
+                if not check:
+                    doc.write_text(new)
+    except (ConfigError, OSError) as exc:
+        typer.echo(f"error: {exc}", err=True)
+        raise typer.Exit(2) from None
+    for doc in stale:
+        typer.echo(f"{doc}: {'out of date' if check else 'updated'}")
+    if check and stale:
+        raise typer.Exit(1)
+
+
 @app.command("plot")
 def plot(
     log: Path = typer.Argument(..., help="Episode log (episode.jsonl) or the run folder holding it."),

@@ -11,7 +11,9 @@ from typer.testing import CliRunner
 
 from shared.bench import (FIELDS, BenchOptions, ResultsFile, load_bench, plan_trials,
                           select_cases, trial_key)
-from shared.bench_report import load_paper, markdown_table, summarize, table_rows
+from shared.bench_report import (load_paper, markdown_table, read_results, results_report,
+                                 seed_ranges, summarize, table_rows, update_reports, wilson)
+from shared.scenario import PROJECT_ROOT
 from shared.cli import app
 from shared.config import ConfigError
 from shared.scenario import SCENARIO_DIR
@@ -103,13 +105,96 @@ def test_summary_statistics_follow_the_paper():
                 "collisions": str(collisions), "time": str(time), "planner_hz": "50"}
     rows = [row(True, 1, 5.0)] * 3 + [row(True, 0, 7.0)] * 56 + [row(False, 0, 30.0)] + \
         [row(False, 9, 3.0, reason="timeout")]
+    rows = [{**r, "seed": str(i)} for i, r in enumerate(rows)]
     (s,) = summarize(rows, ["push"])
     assert (s.trials, s.successes, s.killed) == (61, 59, 1)
     assert str(s.stats["collisions"]) == "0.0500 (0.2179)"
     assert s.stats["time"].n == 59 and s.stats["orientation_error"] is None
     cells = table_rows([s], load_paper())[0]
-    assert cells[3] == "59/61 (1 killed)" and cells[9] == "0.0500 (0.2179)"
-    assert "| push | push | 61 |" in markdown_table([cells])
+    assert cells[3] == "59/61 (89-99 %), 1 killed" and cells[9] == "0.0500 (0.2179)"
+    assert "| push | push | 0-60 | 59/61" in markdown_table([cells])
+
+
+def test_wilson_interval_matches_the_textbook_and_stays_in_0_1():
+    lo, hi = wilson(49, 50)
+    assert (round(lo, 4), round(hi, 4)) == (0.8950, 0.9965)     # e.g. Brown, Cai, DasGupta (2001)
+    assert wilson(50, 50)[1] == 1.0 and wilson(0, 2)[0] == 0.0
+    assert round(wilson(50, 50)[0], 4) == 0.9286
+    with pytest.raises(ValueError):
+        wilson(0, 0)
+
+
+def test_seed_ranges_are_runs_of_consecutive_seeds():
+    assert seed_ranges([3, 0, 1, 2, 1000, 1001, 7]) == "0-3, 7, 1000-1001"
+
+
+def _results(folder, rows, notes=None):
+    folder.mkdir(parents=True, exist_ok=True)
+    results = ResultsFile(folder / "results.csv")
+    for r in rows:
+        results.append({"variant": "normal", "scenario": "pick_place", "status": "success",
+                        "time": 3.0, "planner_hz": 15.0, "position_error": 0.005,
+                        "machine": "CPU X, 2 cores", "date": "2026-11-30", **r})
+    if notes:
+        (folder / "failures.yaml").write_text(yaml.safe_dump(notes))
+    return folder
+
+
+def test_report_counts_the_newest_scenario_version_and_explains_failures(tmp_path):
+    rows = [{"case": "pick_place", "seed": s, "scenario_hash": "old", "success": False}
+            for s in range(3)]                                       # an earlier version: ignored
+    rows += [{"case": "pick_place", "seed": s, "scenario_hash": "new", "success": s != 2}
+             for s in range(4)]
+    rows[-2] = {**rows[-2], "status": "timeout", "time": 30.0, "position_error": 0.377}
+    rows.append({"case": "pick_place", "seed": 0, "scenario_hash": "new", "success": True})
+    folder = _results(tmp_path / "a", rows, {"pick_place": {2: "Joint 7 at its limit."}})
+    res = read_results(folder)
+    assert sorted(int(r["seed"]) for r in res.rows) == [0, 1, 2, 3]
+    text = results_report([res], load_paper())
+    assert "| pick_place | normal | 0-3 | 3/4 (30-95 %) |" in text
+    assert "- `pick_place` seed 2: timeout at 30.0 s, 0.377 m from the goal. Joint 7 at its limit." in text
+    assert "CPU X, 2 cores, 2026-11-30" in text
+
+
+def test_report_blocks_are_regenerated_and_checked(tmp_path):
+    _results(tmp_path / "r", [{"case": "pick_place", "seed": 0, "scenario_hash": "h",
+                               "success": False}])
+    doc = tmp_path / "doc.md"
+    doc.write_text("# Results\n\n<!-- m3p2i report r -->\nhand-edited\n<!-- end of report -->\n"
+                   "after\n")
+    runner = CliRunner()
+    checked = runner.invoke(app, ["report", "--update", str(doc), "--check"])
+    assert checked.exit_code == 1 and "out of date" in checked.output
+    assert "hand-edited" in doc.read_text()
+    assert runner.invoke(app, ["report", "--update", str(doc)]).exit_code == 0
+    text = doc.read_text()
+    assert "hand-edited" not in text and text.endswith("<!-- end of report -->\nafter\n")
+    assert "seed 0: success at 3.0 s" in text and "not explained yet" in text
+    assert runner.invoke(app, ["report", "--update", str(doc), "--check"]).exit_code == 0
+    missing = tmp_path / "bad.md"
+    missing.write_text("<!-- m3p2i report nowhere -->\n<!-- end of report -->\n")
+    bad = runner.invoke(app, ["report", "--update", str(missing)])
+    assert bad.exit_code == 2 and "no results file" in bad.output
+
+
+def test_results_files_written_before_the_machine_column_are_upgraded(tmp_path):
+    old = [c for c in FIELDS if c not in ("machine", "date")]
+    path = tmp_path / "results.csv"
+    path.write_text(",".join(old) + "\n" + ",".join("x" if c == "case" else "0" for c in old) + "\n")
+    results = ResultsFile(path)
+    results.append({"case": "y", "seed": 1, "machine": "M", "date": "D"})
+    rows = results.rows()
+    assert [(r["case"], r["machine"]) for r in rows] == [("x", ""), ("y", "M")]
+
+
+def test_readme_and_docs_tables_are_what_their_results_give():
+    """Tables are generated from committed results files, never edited by hand:
+    `m3p2i report --update README.md docs/*.md` regenerates them."""
+    paper = load_paper()
+    for doc in [PROJECT_ROOT / "README.md", *sorted((PROJECT_ROOT / "docs").glob("*.md"))]:
+        text = doc.read_text()
+        assert update_reports(text, doc.parent, paper) == text, \
+            f"{doc.name}: run `m3p2i report --update {doc.relative_to(PROJECT_ROOT)}`"
 
 
 @pytest.mark.slow

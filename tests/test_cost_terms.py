@@ -18,7 +18,7 @@ from mujoco import rollout as mj_rollout
 from shared.config import ConfigError, Section
 from shared.frames import FrameResolver
 from shared.scenario import ObjectiveConfig, TermConfig
-from planner_client.costs import TERMS, RolloutBatch, TermContext, build_objective
+from planner_client.costs import TERMS, JointInfo, RolloutBatch, TermContext, build_objective
 from planner_client.sensors import SensorLayout, SensorRequest, add_sensors
 
 F64 = torch.float64
@@ -67,8 +67,11 @@ def model() -> mujoco.MjModel:
 
 @pytest.fixture(scope="module")
 def ctx(model) -> TermContext:
+    # the base's slide joints as the robot's: x unlimited, y given a range of ±0.5 m
+    joints = {"x": JointInfo(range=None, hinge=False, start=0.0),
+              "y": JointInfo(range=(-0.5, 0.5), hinge=False, start=0.1)}
     return TermContext(SRC, FrameResolver(model, "base"), obstacles=["wall", "pillar"],
-                       actuators=["ux", "uy"])
+                       actuators=["ux", "uy"], joints=joints)
 
 
 def make(ctx: TermContext, name: str, **params):
@@ -459,6 +462,42 @@ def test_gripper_width_needs_exactly_one_target(ctx):
         make(ctx, "gripper_width", target="shut", **pair)
 
 
+# --- joint_limits, posture -----------------------------------------------------------------------
+
+def joint(name: str) -> SensorRequest:
+    return SensorRequest("jointpos", name)
+
+
+def test_joint_limits_cost_nothing_inside_the_margin_and_one_per_joint_at_a_limit(ctx):
+    term = make(ctx, "joint_limits", joints=["y"], margin=0.2)
+    # mid-range; 0.1 into the margin; at the upper limit; 0.1 past the lower one
+    b = batch_of({joint("y"): one_step((0.0,), (0.4,), (0.5,), (-0.6,))})
+    close(term(b), [[0.0], [0.5], [1.0], [1.5]])
+
+
+def test_joint_limits_reads_the_real_joint(model, ctx):
+    term = make(ctx, "joint_limits", joints=["y"], margin=0.2)
+    close(term(sensed(model, ctx, term, set_qpos(1, [0.45]))), [[0.75]])
+
+
+def test_joint_limits_refuses_unknown_unlimited_or_no_joints(ctx):
+    with pytest.raises(ConfigError, match=r"terms\[0\]\.joints: not a joint of the robot "
+                                          r"\(got 'z'; expected one of: x, y\)"):
+        make(ctx, "joint_limits", joints=["z"])
+    with pytest.raises(ConfigError, match=r"joint has no range in the model \(got 'x'"):
+        make(ctx, "joint_limits", joints=["x"])
+    with pytest.raises(ConfigError, match=r"no joints to cost: the robot has no limited hinge"):
+        make(ctx, "joint_limits")                    # the base has slides only
+
+
+def test_posture_is_the_squared_distance_to_the_start_pose_or_a_target(ctx):
+    b = batch_of({joint("x"): one_step((0.0,), (1.0,)), joint("y"): one_step((0.1,), (0.4,))})
+    close(make(ctx, "posture", joints=["x", "y"])(b), [[0.0], [1.0 + 0.09]])
+    close(make(ctx, "posture", joints=["x", "y"], target=[1.0, 0.0])(b), [[1.01], [0.16]])
+    with pytest.raises(ConfigError, match=r"terms\[0\]\.target.*2 joint positions"):
+        make(ctx, "posture", joints=["x", "y"], target=[1.0])
+
+
 # --- every term: sensors compile into a model ----------------------------------------------------
 
 EXAMPLES = {
@@ -476,6 +515,8 @@ EXAMPLES = {
     "approach_cone": dict(ee="site:left", obj="box", radius=0.02),
     "gripper_width": dict(left="site:left", right="site:right", target="open"),
     "contact_force": dict(a="robot"),
+    "joint_limits": dict(joints=["y"]),
+    "posture": dict(joints=["x", "y"]),
 }
 
 

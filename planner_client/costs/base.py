@@ -9,7 +9,7 @@ from __future__ import annotations
 
 from abc import ABC, abstractmethod
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from functools import cached_property
 from typing import ClassVar
 
@@ -44,6 +44,15 @@ class RolloutBatch:
         return self.layout.take(self.sensordata, req)
 
 
+@dataclass(frozen=True)
+class JointInfo:
+    """A robot joint (hinge or slide) as terms see it: its range (None when unlimited), whether
+    it is a hinge (radians) or a slide (metres), and its position in the scenario's start pose."""
+    range: tuple[float, float] | None
+    hinge: bool
+    start: float
+
+
 @dataclass
 class TermContext:
     """What a term may check its parameters against at load time."""
@@ -51,6 +60,7 @@ class TermContext:
     resolve: FrameResolver
     obstacles: list[str]
     actuators: list[str]
+    joints: dict[str, JointInfo] = field(default_factory=dict)   # the robot's, in qpos order
 
     def frame(self, s: Section, key: str, default: str | None = None) -> str:
         """A frame name parameter, checked to exist in the model."""
