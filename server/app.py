@@ -20,7 +20,7 @@ import zmq
 
 from shared import protocol as P
 from shared.endpoints import Endpoints, socket
-from shared.metrics import MetricsEvaluator, describe
+from shared.evaluation.metrics import MetricsEvaluator, describe
 from shared.scenario import Scenario
 from server.episode_log import EpisodeLog, read_log
 from server.world import Outcome, SimWorld
@@ -98,7 +98,7 @@ class WorldServer:
         return outcome
 
     def _episode_metrics(self, status: str) -> dict | None:
-        """shared.metrics on the steps logged so far (the log is line-buffered, so complete on
+        """shared.evaluation.metrics on the logged steps (the log is line-buffered, so complete on
         disk). A failure here is logged, never allowed to cost the summary record."""
         try:
             metrics = self.metrics.evaluate(read_log(self.log.path), status=status)

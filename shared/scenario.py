@@ -149,7 +149,7 @@ class CollisionMetricConfig:
 
 @dataclass(frozen=True)
 class MetricsConfig:
-    """What ``shared.metrics`` measures per episode (``metrics:``; docs/evaluation.md). A metric
+    """What ``shared.evaluation.metrics`` measures per episode (``metrics:``; docs/evaluation.md). A metric
     left as None is not measured."""
     position: FramePairConfig | None = None
     orientation: FramePairConfig | None = None

@@ -9,10 +9,10 @@ import pytest
 import yaml
 from typer.testing import CliRunner
 
-from shared.bench import (FIELDS, BenchOptions, ResultsFile, load_bench, plan_trials,
+from shared.tools.bench import (FIELDS, BenchOptions, ResultsFile, load_bench, plan_trials,
                           select_cases, trial_key)
-from shared.bench_report import load_paper, markdown_table, summarize, table_rows
-from shared.cli import app
+from shared.tools.bench_report import load_paper, markdown_table, summarize, table_rows
+from shared.tools.cli import app
 from shared.config import ConfigError
 from shared.scenario import SCENARIO_DIR
 

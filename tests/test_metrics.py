@@ -1,4 +1,4 @@
-"""Episode metrics (shared/metrics.py) on a hand-made episode log with known answers; the
+"""Episode metrics (shared/evaluation/metrics.py) on a hand-made episode log with known answers; the
 scenario's ``metrics:`` section; the episode plot on the same log."""
 
 from __future__ import annotations
@@ -11,7 +11,7 @@ import pytest
 import yaml
 
 from shared.config import ConfigError
-from shared.metrics import (MetricsEvaluator, contact_onsets, mean_hz, orientation_error,
+from shared.evaluation.metrics import (MetricsEvaluator, contact_onsets, mean_hz, orientation_error,
                             position_error)
 from shared.scenario import load_scenario, parse_scenario
 from shared.scene import compile_model
@@ -173,7 +173,7 @@ def test_robot_collisions_cover_the_whole_robot_tree(tmp_path):
 
 
 def test_plot_of_the_hand_made_log(scenario, tmp_path):
-    from shared.plots import cos_rog, episode_series, plot_episode
+    from shared.tools.plots import cos_rog, episode_series, plot_episode
     series = episode_series(scenario, hand_made_log(scenario))
     assert series.obj is not None and series.time.shape == (len(ROBOT_X),)
     np.testing.assert_allclose(series.obj[-1, :2], [1.0, 2.0], atol=1e-9)

@@ -4,7 +4,7 @@ Success, final position error and orientation error (Eq. 33) between two frames,
 collisions (contact onsets), completion time (simulated seconds), wall time and mean planner rate.
 Which frames is the scenario's ``metrics:`` section (:class:`shared.scenario.MetricsConfig`).
 Kinematics are recomputed by replaying logged states into the scenario's model
-(:mod:`shared.replay`), so the same function serves the server's summary, ``m3p2i bench`` and any
+(:mod:`shared.evaluation.replay`), so the same function serves the server's summary, ``m3p2i bench`` and any
 log on disk. The maths are the small pure functions at the top.
 """
 
@@ -16,9 +16,9 @@ from dataclasses import asdict, dataclass
 import mujoco
 import numpy as np
 
-from shared import episode
+from shared.evaluation import episode
 from shared.geometry import symmetric_orientation_error
-from shared.replay import load_step, replay, resolve_frame
+from shared.evaluation.replay import load_step, replay, resolve_frame
 from shared.robots import get_robot
 from shared.scenario import Scenario
 from shared.scene import compile_model

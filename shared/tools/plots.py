@@ -14,9 +14,9 @@ from pathlib import Path
 
 import numpy as np
 
-from shared import episode
+from shared.evaluation import episode
 from shared.config import ConfigError
-from shared.replay import frame_tracks, resolve_frame
+from shared.evaluation.replay import frame_tracks, resolve_frame
 from shared.scenario import Scenario
 from shared.scene import compile_model
 

@@ -17,7 +17,7 @@ import typer
 
 from shared.cli_common import default_run_dir, summary_line
 from shared.config import ConfigError
-from shared.launch import EpisodeLaunch, free_port_block, run_episode
+from shared.tools.launch import EpisodeLaunch, free_port_block, run_episode
 from shared.scenario import SCENARIO_DIR, load_scenario
 
 __all__ = ["app", "free_port_block"]   # free_port_block: tests start processes with it
@@ -90,8 +90,8 @@ def bench(
     """Run seeded trials of every case (Tables I-III), resumable; print and write the summary."""
     from rich.console import Console
 
-    from shared import bench as B
-    from shared import bench_report as R
+    from shared.tools import bench as B
+    from shared.tools import bench_report as R
     # piped or logged output gets the whole table instead of 80 columns of wrapped cells
     console = Console(width=None if sys.stdout.isatty() else 200)
     try:
@@ -143,8 +143,8 @@ def plot(
                                            "the file named in the log's header)."),
 ) -> None:
     """Plot one episode like thesis Figs. A.3-A.5: trajectories, distances, robot-object-goal angle."""
-    from shared import episode
-    from shared.plots import episode_series, plot_episode
+    from shared.evaluation import episode
+    from shared.tools.plots import episode_series, plot_episode
     try:
         path = episode.find_log(log)
         records = episode.read_log(path)
@@ -180,7 +180,7 @@ def record(
 ) -> None:
     """Record an episode offscreen (EGL or OSMesa) to GIF/MP4, with the planner's best sampled
     trajectories drawn in green."""
-    from shared import video
+    from shared.tools import video
     if (scenario is None) == (log is None):
         typer.echo("error: give a SCENARIO to run, or --log to render an existing episode", err=True)
         raise typer.Exit(2)
