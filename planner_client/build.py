@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import dataclasses
 
-import numpy as np
 import torch
 
 from shared.endpoints import Endpoints
@@ -26,7 +25,7 @@ def build_motion_planner(scenario: Scenario, threads: int = 0,
     torch.set_num_threads(1)
     problem = build_problem(scenario)
     modes = list(scenario.modes) or [next(iter(scenario.plan.values()))]
-    cfg = mppi_config(problem)
+    cfg = mppi_config(scenario, problem.model)
     if seed is not None:
         cfg = dataclasses.replace(cfg, seed=seed)
     return MotionPlanner(problem, cfg, scenario.planner.samples, modes,
@@ -43,8 +42,7 @@ def build_task(scenario: Scenario, planner: MotionPlanner) -> TaskLayer:
             check_frames(pred, problem.resolve, scenario.source, f"observers.{factor}")
     return ActiveInferenceTask(ActiveInferencePlanner(scenario.task),
                                SymbolicObserver(scenario.observers, problem.resolve),
-                               scenario.plan, scenario.planner.aip_period,
-                               np.array(problem.robot.safe_ctrl, dtype=float))
+                               scenario.plan, scenario.planner.aip_period)
 
 
 def build_client(scenario: Scenario, endpoints: Endpoints, threads: int = 0,

@@ -65,9 +65,8 @@ class PlannerClient:
         self.welcome: P.Welcome | None = None
         self.stats = LoopStats()
         self._action: tuple[str, tuple[str, ...]] | None = None
-        robot = planner.problem.robot
-        self._hold = [planner.problem.actuators.index(n) for n in robot.hold_ctrl]
-        self._last_ctrl = np.array(robot.safe_ctrl, dtype=float)
+        self.robot = planner.problem.robot
+        self._last_ctrl = self.robot.safe_stop()
         self._answered: tuple[str, int] | None = None   # (session, seq) of the last command
         self._answer = b""
 
@@ -154,11 +153,8 @@ class PlannerClient:
         decision = self.task.decide(self.mirror.data, state.extras, state.time)
         self.planner.set_modes(decision.modes)
         plan = self.planner.plan(x0, self.mirror.mocap())
-        if decision.override is not None:
-            ctrl = decision.override.copy()
-            ctrl[self._hold] = self._last_ctrl[self._hold]   # e.g. a gripper keeps its grip
-        else:
-            ctrl = plan.command
+        # a safe stop keeps the hold_ctrl actuators where they were: a gripper keeps its grip
+        ctrl = self.robot.safe_stop(self._last_ctrl) if decision.stop else plan.command
         self._last_ctrl = ctrl
         plan_time = time.perf_counter() - t0
         self._answer = P.encode(P.Command(session=state.session, seq=state.seq, ctrl=ctrl,

@@ -14,7 +14,7 @@ from dataclasses import dataclass
 import mujoco
 import numpy as np
 
-from shared.config import ConfigError, Section
+from shared.config import ConfigError, ErrorLog, Section
 from shared.frames import FrameResolver
 from shared.protocol import State
 from shared.robots import RobotSpec, get_robot
@@ -42,9 +42,8 @@ def build_problem(scenario: Scenario, extra_sensors: list[SensorRequest] = ()) -
     spec = build_spec(scenario)
     base = compile_model(scenario, spec.copy())
     resolve = FrameResolver(base, robot.frame)
-    actuators = [base.actuator(i).name for i in range(base.nu)]
-    ctx = TermContext(scenario.source, resolve, obstacle_names(scenario), actuators)
-    objectives = {name: build_objective(name, cfg, ctx) for name, cfg in scenario.objectives.items()}
+    actuators = actuator_names(base)
+    objectives = build_objectives(scenario, resolve, actuators)
     robot_pos = SensorRequest("framepos", "robot")
     requests = [robot_pos, *extra_sensors] + [r for o in objectives.values() for r in o.sensors()]
     add_sensors(spec, requests, resolve)
@@ -53,13 +52,28 @@ def build_problem(scenario: Scenario, extra_sensors: list[SensorRequest] = ()) -
                            robot_pos, actuators, FrameResolver(model, robot.frame))
 
 
-def mppi_config(problem: PlanningProblem) -> MPPIConfig:
-    """MPPIConfig from ``planner.mppi`` of the scenario, defaults filled from the model.
+def actuator_names(model: mujoco.MjModel) -> list[str]:
+    """Actuator names in control-vector order."""
+    return [model.actuator(i).name for i in range(model.nu)]
+
+
+def build_objectives(scenario: Scenario, resolve: FrameResolver,
+                     actuators: list[str]) -> dict[str, Objective]:
+    """Every objective of the scenario, checked against the term registry and the model; the
+    errors of all objectives are raised together."""
+    ctx = TermContext(scenario.source, resolve, obstacle_names(scenario), actuators)
+    errors = ErrorLog()
+    objectives = {name: errors.call(build_objective, name, cfg, ctx)
+                  for name, cfg in scenario.objectives.items()}
+    errors.raise_if_any()
+    return objectives
+
+
+def mppi_config(sc: Scenario, m: mujoco.MjModel) -> MPPIConfig:
+    """MPPIConfig from ``planner.mppi`` of scenario ``sc``, defaults filled from model ``m``.
 
     Defaults: bounds = the actuators' ctrlrange, noise_sigma = a quarter of each range.
     """
-    sc = problem.scenario
-    m = problem.model
     lo, hi = m.actuator_ctrlrange.T
     limited = m.actuator_ctrllimited.astype(bool)
     u_min = tuple(float(v) if lim else -math.inf for v, lim in zip(lo, limited))

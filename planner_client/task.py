@@ -26,7 +26,7 @@ class TaskDecision:
     action: str                          # the task-level action being executed (for logs)
     modes: tuple[str, ...]               # objectives handed to M3P2I, one mode each
     alternatives: tuple[str, ...] = ()   # all admissible actions the task planner found
-    override: np.ndarray | None = None   # a control to send instead of the planner's (idle)
+    stop: bool = False                   # send the robot's safe stop instead of the planner's command
 
 
 class TaskLayer(Protocol):
@@ -50,15 +50,14 @@ class ActiveInferenceTask:
 
     The AIP ticks every ``period`` seconds of simulated time (slower than the motion planner);
     between ticks the last decision stands. Each admissible alternative action becomes one M3P2I
-    mode through the plan interface (action -> objective). On success or failure the robot is
-    held with ``safe_ctrl``.
+    mode through the plan interface (action -> objective). On success or failure the decision
+    says ``stop``: the loop holds the robot with its safe stop.
     """
 
     def __init__(self, aip: ActiveInferencePlanner, observer: SymbolicObserver,
-                 plan: dict[str, str], period: float, safe_ctrl: np.ndarray):
+                 plan: dict[str, str], period: float):
         self.aip, self.observer, self.plan = aip, observer, plan
         self.period = period
-        self.safe_ctrl = safe_ctrl
         self._next = -np.inf
         self.decision: TaskDecision | None = None
         self.last_observation: dict[str, str] = {}
@@ -79,5 +78,5 @@ class ActiveInferenceTask:
                 log.error("task planner failed: %s", d.reason)
             self.decision = TaskDecision("idle" if d.status == "success" else "failure",
                                          keep or (next(iter(self.plan.values())),),
-                                         (), override=self.safe_ctrl)
+                                         (), stop=True)
         return self.decision

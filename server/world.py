@@ -36,8 +36,6 @@ class SimWorld:
         self.model = compile_model(scenario)
         self.data = mujoco.MjData(self.model)
         self.robot = get_robot(scenario.robot.model)
-        self.safe_ctrl = np.array(self.robot.safe_ctrl, dtype=float)
-        self._hold = [self.model.actuator(n).id for n in self.robot.hold_ctrl]
         resolve = FrameResolver(self.model, self.robot.frame)
         self.success = [p.bind(resolve) for p in scenario.episode.success]
         self.battery = scenario.world.battery
@@ -61,7 +59,7 @@ class SimWorld:
         reset_data(self.scenario, self.model, self.data)
         self.initial = self.disturbances.reset(self.data, np.random.default_rng(self.seed))
         mujoco.mj_forward(self.model, self.data)
-        self.data.ctrl[:] = self.safe_ctrl      # what a safe stop holds before any command
+        self.data.ctrl[:] = self.robot.safe_stop()      # what a safe stop holds before any command
         self.status = "running"
         self._success_since: float | None = None
         if self.battery:
@@ -69,9 +67,7 @@ class SimWorld:
 
     def safe_command(self) -> np.ndarray:
         """The robot's safe control, its ``hold_ctrl`` actuators kept at their last command."""
-        ctrl = self.safe_ctrl.copy()
-        ctrl[self._hold] = self.data.ctrl[self._hold]
-        return ctrl
+        return self.robot.safe_stop(self.data.ctrl)
 
     def step(self, ctrl: np.ndarray) -> None:
         """Advance one timestep holding ``ctrl`` (clipped to the actuators' ranges)."""

@@ -19,7 +19,7 @@ from typing import Any, ClassVar
 import mujoco
 import numpy as np
 
-from shared.config import ConfigError, Section, non_negative, number, one_of, vector
+from shared.config import ConfigError, ErrorLog, Section, non_negative, number, one_of, vector
 from shared.frames import Frame, FrameResolver
 from shared.geometry import symmetric_orientation_error
 
@@ -50,9 +50,6 @@ class Predicate(ABC):
     @abstractmethod
     def from_section(cls, s: Section) -> Predicate:
         """Build from the predicate's YAML parameters."""
-
-    def frames(self) -> list[str]:
-        return [getattr(self, k) for k in self.frame_keys]
 
     def bind(self, resolve: FrameResolver) -> BoundPredicate:
         """Resolve frame names once; the result is called every tick."""
@@ -267,18 +264,21 @@ def parse_predicate(s: Section) -> Predicate:
 
 
 def check_frames(pred: Predicate, resolve: FrameResolver, source: str, path: str) -> None:
-    """Load-time check that every frame a predicate names exists in the model."""
+    """Load-time check that every frame a predicate names exists in the model; every missing
+    frame of the predicate (and of the parts of an ``all``) is reported at once."""
+    errors = ErrorLog()
+    _check_frames(pred, resolve, source, path, errors)
+    errors.raise_if_any()
+
+
+def _check_frames(pred: Predicate, resolve: FrameResolver, source: str, path: str,
+                  errors: ErrorLog) -> None:
     if isinstance(pred, All):
         for i, part in enumerate(pred.parts):
-            check_frames(part, resolve, source, f"{path}.all[{i}]")
+            _check_frames(part, resolve, source, f"{path}.all[{i}]", errors)
         return
     for key in pred.frame_keys:
-        name = getattr(pred, key)
-        try:
-            resolve(name)
-        except KeyError as exc:
-            raise ConfigError(source, f"{path}.{pred.kind}.{key}", str(exc.args[0]), name,
-                              f"one of: {', '.join(resolve.names())}") from None
+        errors.call(resolve.checked, getattr(pred, key), source, f"{path}.{pred.kind}.{key}")
 
 
 @register("battery_enough")

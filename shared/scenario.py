@@ -14,11 +14,11 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from shared.config import (ConfigError, Section, find_named, load_yaml, non_negative, number, one_of,
+from shared.config import (ConfigError, ErrorLog, Section, find_named, load_yaml, non_negative, number, one_of,
                            positive, positive_int, string_list, vector)
 from shared.predicates import Predicate, parse_predicate
 from shared.robots import ROBOTS, get_robot
-from shared.task_template import TaskTemplate, parse_task
+from shared.task_template import FactorTemplate, TaskTemplate, parse_task
 
 PROJECT_ROOT = Path(__file__).resolve().parent.parent
 SCENARIO_DIR = PROJECT_ROOT / "configs" / "scenarios"
@@ -206,10 +206,40 @@ def find_scenario(name_or_path: str | os.PathLike) -> Path:
 
 
 def load_scenario(name_or_path: str | os.PathLike) -> Scenario:
-    """Load and validate a scenario; raises :class:`ConfigError` naming file, key, value."""
-    path = find_scenario(name_or_path)
-    raw = load_yaml(path)
-    return parse_scenario(raw, str(path))
+    """Load and validate a scenario; raises :class:`ConfigError` naming file, key, value (or
+    :class:`~shared.config.ConfigErrors` with every error of the file)."""
+    reading = read_scenario(name_or_path)
+    reading.raise_if_any()
+    return reading.scenario
+
+
+@dataclass
+class ScenarioReading:
+    """A scenario file read with every error collected instead of raised at the first.
+
+    ``scenario`` is what could be read (None when not even a model could be described: no file,
+    bad YAML, an unknown robot); faulty parts are left out of it, so it serves only checks.
+    ``model_ok``: the robot and the world were read without error, so the compiled model is
+    the one the file describes and model checks (frames, actuators, sensors) mean something.
+    """
+    scenario: Scenario | None
+    errors: list[ConfigError]
+    model_ok: bool
+
+    def raise_if_any(self) -> None:
+        log = ErrorLog()
+        log.errors = list(self.errors)
+        log.raise_if_any()
+
+
+def read_scenario(name_or_path: str | os.PathLike) -> ScenarioReading:
+    """Read a scenario, collecting every load-time error (see :class:`ScenarioReading`)."""
+    errors = ErrorLog()
+    path = errors.call(find_scenario, name_or_path)
+    raw = errors.call(load_yaml, path) if path is not None else None
+    if raw is None:
+        return ScenarioReading(None, errors.errors, False)
+    return _read(raw, str(path), errors)
 
 
 def scenario_hash(raw: dict) -> str:
@@ -222,67 +252,104 @@ def scenario_hash(raw: dict) -> str:
 
 
 def parse_scenario(raw: dict, source: str) -> Scenario:
+    """A scenario from its YAML mapping; raises with every error of the file."""
+    reading = _read(raw, source, ErrorLog())
+    reading.raise_if_any()
+    return reading.scenario
+
+
+def _read(raw: dict, source: str, errors: ErrorLog) -> ScenarioReading:
+    """Each independent part is read under ``errors``: a fault is recorded and the part left
+    out, and the rest is still read. Parts that depend on a faulty one (observers on the task,
+    metrics on the episode) are skipped rather than reported again."""
+    n_before = len(errors.errors)
     top = Section(raw, source)
-    name = top.req("name", str)
-    description = top.opt("description", "", str)
-    robot = _robot(top.section("robot"))
-    world = _world(top.section("world"))
-    episode = _episode(top.section("episode"))
-    metrics = _metrics(top.section("metrics", required=False), episode)
-    planner = _planner(top.section("planner", required=False))
-    objectives = _objectives(top.section("objectives"))
-    task = parse_task(top.section("task")) if top.has("task") else None
-    if task is None:
-        modes = top.req("modes", string_list, "a list of objective names (or a task: template)")
-        observers, plan = {}, {}
+    name = errors.call(top.req, "name", str, default=Path(source).stem)
+    description = errors.call(top.opt, "description", "", str, default="")
+    robot = errors.call(lambda: _robot(top.section("robot")))
+    world = errors.call(lambda: _world(top.section("world"), errors))
+    model_ok = len(errors.errors) == n_before
+    episode = errors.call(lambda: _episode(top.section("episode"), errors))
+    metrics = MetricsConfig()
+    if episode is not None:
+        metrics = errors.call(lambda: _metrics(top.section("metrics", required=False), episode),
+                              default=metrics)
     else:
-        modes = top.opt("modes", (), string_list, "a list of objective names")
-        observers = _observers(top.section("observers"), task)
-        plan = _plan(top.section("plan"), task, objectives)
-    for i, m in enumerate(modes):
-        if m not in objectives:
-            raise ConfigError(source, f"modes[{i}]", "not an objective of this scenario", m,
-                              f"one of: {', '.join(objectives)}")
-    top.done()
-    return Scenario(name=name, description=description, source=source, hash=scenario_hash(raw),
-                    robot=robot, world=world, episode=episode, planner=planner,
-                    objectives=objectives, modes=modes, task=task, observers=observers,
-                    plan=plan, metrics=metrics, raw=raw)
+        top.section("metrics", required=False)
+    planner = errors.call(lambda: _planner(top.section("planner", required=False)),
+                          default=PlannerConfig())
+    objectives = errors.call(lambda: _objectives(top.section("objectives"), errors), default={})
+    task = errors.call(lambda: parse_task(top.section("task"))) if top.has("task") else None
+    observers, plan, modes = {}, {}, ()
+    if task is None and not top.has("task"):
+        modes = errors.call(top.req, "modes", string_list,
+                            "a list of objective names (or a task: template)", default=())
+    else:
+        modes = errors.call(top.opt, "modes", (), string_list, "a list of objective names",
+                            default=())
+        if task is not None:
+            observers = errors.call(lambda: _observers(top.section("observers"), task, errors),
+                                    default={})
+            plan = errors.call(lambda: _plan(top.section("plan"), task, objectives), default={})
+        else:   # the task's own errors are reported; its dependants would only repeat them
+            top.section("observers", required=False)
+            top.section("plan", required=False)
+    if top.has("objectives") and isinstance(top.data["objectives"], dict):
+        known = list(top.data["objectives"])
+        for i, m in enumerate(modes):
+            if m not in known:
+                errors.add(ConfigError(source, f"modes[{i}]", "not an objective of this scenario",
+                                       m, f"one of: {', '.join(known)}"))
+    errors.call(top.done)
+    if robot is None or world is None:
+        return ScenarioReading(None, errors.errors, False)
+    scenario = Scenario(name=name, description=description, source=source,
+                        hash=scenario_hash(raw), robot=robot, world=world,
+                        episode=episode or EpisodeConfig(max_time=0.0, success=()),
+                        planner=planner, objectives=objectives, modes=modes, task=task,
+                        observers=observers, plan=plan, metrics=metrics, raw=raw)
+    return ScenarioReading(scenario, errors.errors, model_ok)
 
 
-def _observers(s: Section, task: TaskTemplate) -> dict[str, ObserverConfig]:
+def _observers(s: Section, task: TaskTemplate, errors: ErrorLog) -> dict[str, ObserverConfig]:
     """``factor: {predicate: {...}}`` (true -> first state, false -> second), or
-    ``factor: [{state: s, when: {predicate: {...}}}, ..., {default: s}]``."""
+    ``factor: [{state: s, when: {predicate: {...}}}, ..., {default: s}]``. Each factor's
+    faults are collected in ``errors``."""
     out = {}
     for factor in task.factors:
-        if not s.has(factor.name):
-            raise s.error(factor.name, "missing observer for task factor", expected="a predicate "
-                          "or a list of {state, when} rules ending with {default: state}")
-        value = s.data[factor.name]
-        states = factor.states
-        if isinstance(value, dict):
-            if len(states) != 2:
-                raise s.error(factor.name, "the one-predicate form needs a two-state factor",
-                              list(states), "a list of {state, when} rules")
-            out[factor.name] = ObserverConfig(((states[0], parse_predicate(s.section(factor.name))),),
-                                              states[1])
-            continue
-        rules, default = [], None
-        for i, rule in enumerate(s.items(factor.name, required=True)):
-            if rule.has("default"):
-                default = rule.req("default", one_of(states))
-                rule.done()
-                if i != len(s.data[factor.name]) - 1:
-                    raise rule.error("default", "must be the last rule")
-                continue
-            state = rule.req("state", one_of(states))
-            rules.append((state, parse_predicate(rule.section("when"))))
-            rule.done()
-        if default is None:
-            raise s.error(factor.name, "the rule list needs a final {default: state}")
-        out[factor.name] = ObserverConfig(tuple(rules), default)
+        observer = errors.call(_observer, s, factor)
+        if observer is not None:
+            out[factor.name] = observer
     s.done()
     return out
+
+
+def _observer(s: Section, factor: FactorTemplate) -> ObserverConfig:
+    """One task factor's observer (see :func:`_observers`)."""
+    if not s.has(factor.name):
+        raise s.error(factor.name, "missing observer for task factor", expected="a predicate "
+                      "or a list of {state, when} rules ending with {default: state}")
+    value = s.data[factor.name]
+    states = factor.states
+    if isinstance(value, dict):
+        if len(states) != 2:
+            raise s.error(factor.name, "the one-predicate form needs a two-state factor",
+                          list(states), "a list of {state, when} rules")
+        return ObserverConfig(((states[0], parse_predicate(s.section(factor.name))),), states[1])
+    rules, default = [], None
+    for i, rule in enumerate(s.items(factor.name, required=True)):
+        if rule.has("default"):
+            default = rule.req("default", one_of(states))
+            rule.done()
+            if i != len(s.data[factor.name]) - 1:
+                raise rule.error("default", "must be the last rule")
+            continue
+        state = rule.req("state", one_of(states))
+        rules.append((state, parse_predicate(rule.section("when"))))
+        rule.done()
+    if default is None:
+        raise s.error(factor.name, "the rule list needs a final {default: state}")
+    return ObserverConfig(tuple(rules), default)
 
 
 def _plan(s: Section, task: TaskTemplate, objectives: dict) -> dict[str, str]:
@@ -305,7 +372,10 @@ def _robot(s: Section) -> RobotConfig:
     return RobotConfig(model=model, qpos=qpos)
 
 
-def _world(s: Section) -> WorldConfig:
+def _world(s: Section, errors: ErrorLog) -> WorldConfig | None:
+    """The world, or None when a faulty object, randomisation or disturbance was recorded in
+    ``errors`` (the model of a faulty world is not the file's)."""
+    n_before = len(errors.errors)
     timestep = s.req("timestep", positive, "seconds > 0")
     arena = None
     if s.has("arena"):
@@ -324,18 +394,24 @@ def _world(s: Section) -> WorldConfig:
     objects = []
     names: set[str] = set()
     for o in s.items("objects"):
-        obj = _object(o)
+        obj = errors.call(_object, o)
+        if obj is None:
+            continue
         if obj.name in names or obj.name == "robot":
-            raise o.error("name", "duplicate or reserved object name", obj.name, "a unique name")
+            errors.add(o.error("name", "duplicate or reserved object name", obj.name,
+                               "a unique name"))
+            continue
         names.add(obj.name)
         objects.append(obj)
     if battery and battery.charger not in names:
         raise ConfigError(s.source, f"{s.path}.battery.charger", "not an object of this world",
                           battery.charger, f"one of: {', '.join(sorted(names))}")
     by_name = {o.name: o for o in objects}
-    randomize = tuple(_randomize(r, by_name) for r in s.items("randomize"))
-    disturbances = tuple(_disturbance(d, by_name) for d in s.items("disturbances"))
+    randomize = tuple(errors.call(_randomize, r, by_name) for r in s.items("randomize"))
+    disturbances = tuple(errors.call(_disturbance, d, by_name) for d in s.items("disturbances"))
     s.done()
+    if len(errors.errors) > n_before:
+        return None
     return WorldConfig(timestep=timestep, objects=tuple(objects), arena=arena, battery=battery,
                        randomize=randomize, disturbances=disturbances)
 
@@ -429,13 +505,17 @@ def _object(s: Section) -> ObjectConfig:
     return obj
 
 
-def _episode(s: Section) -> EpisodeConfig:
-    max_time = s.req("max_time", positive, "seconds of simulated time")
-    success = tuple(parse_predicate(p) for p in s.items("success", required=True))
-    if not success:
+def _episode(s: Section, errors: ErrorLog) -> EpisodeConfig:
+    """The episode; a faulty success predicate is recorded in ``errors``, and then the whole
+    success test is left out (so later checks never name a shifted index)."""
+    max_time = errors.call(s.req, "max_time", positive, "seconds of simulated time", default=0.0)
+    items = s.items("success", required=True)
+    if not items:
         raise s.error("success", "needs at least one predicate", [])
-    hold = s.opt("hold", 0.0, non_negative, "seconds >= 0")
-    s.done()
+    parsed = [errors.call(parse_predicate, i) for i in items]
+    success = tuple(parsed) if None not in parsed else ()
+    hold = errors.call(s.opt, "hold", 0.0, non_negative, "seconds >= 0", default=0.0)
+    errors.call(s.done)
     return EpisodeConfig(max_time=max_time, success=success, hold=hold)
 
 
@@ -491,22 +571,31 @@ def _planner(s: Section) -> PlannerConfig:
     return cfg
 
 
-def _objectives(s: Section) -> dict[str, ObjectiveConfig]:
+def _objectives(s: Section, errors: ErrorLog) -> dict[str, ObjectiveConfig]:
+    """Every objective; a faulty term or ``fixed`` value is recorded in ``errors`` and left out,
+    so the planner's checks of the other terms still run."""
     out = {}
     for name in s.data:
-        o = s.section(name)
-        terms = []
-        for t in o.items("terms", required=True):
-            term = t.req("term", str)
-            weight = t.opt("weight", 1.0, number)
-            params = {k: v for k, v in t.data.items() if k not in ("term", "weight")}
-            terms.append(TermConfig(term=term, weight=weight, params=params, path=t.path))
-        fixed = o.opt("fixed", {}, dict, "a mapping actuator -> value")
+        o = errors.call(s.section, name)
+        if o is None:
+            continue
+        items = errors.call(o.items, "terms", required=True, default=[])
+        terms = tuple(t for t in (errors.call(_term, t) for t in items) if t is not None)
+        fixed = errors.call(o.opt, "fixed", {}, dict, "a mapping actuator -> value", default={})
         for k, v in fixed.items():
             if isinstance(v, bool) or not isinstance(v, (int, float)):
-                raise ConfigError(s.source, f"{o.path}.fixed.{k}", "must be a number", v)
-        o.done()
-        out[name] = ObjectiveConfig(terms=tuple(terms), fixed={k: float(v) for k, v in fixed.items()})
-    if not out:
+                errors.add(ConfigError(s.source, f"{o.path}.fixed.{k}", "must be a number", v))
+        errors.call(o.done)
+        out[name] = ObjectiveConfig(terms=terms, fixed={k: float(v) for k, v in fixed.items()
+                                                        if isinstance(v, (int, float))
+                                                        and not isinstance(v, bool)})
+    if not s.data:
         raise ConfigError(s.source, s.path, "needs at least one objective", {})
     return out
+
+
+def _term(t: Section) -> TermConfig:
+    term = t.req("term", str)
+    weight = t.opt("weight", 1.0, number, "a number")
+    params = {k: v for k, v in t.data.items() if k not in ("term", "weight")}
+    return TermConfig(term=term, weight=weight, params=params, path=t.path)

@@ -218,7 +218,7 @@ def test_contact_force_ignores_movable_objects_and_free_space(model, ctx):
 def test_contact_force_rejects_sites(ctx):
     with pytest.raises(ConfigError, match=r"o\.terms\[0\]\.a: contact forces need a body"):
         make(ctx, "contact_force", a="site:left")
-    with pytest.raises(ConfigError, match=r"terms\[0\]\.obstacles: no body named 'shelf'"):
+    with pytest.raises(ConfigError, match=r"terms\[0\]\.obstacles\[1\]: no body named 'shelf'"):
         make(ctx, "contact_force", a="robot", obstacles=["wall", "shelf"])
 
 

@@ -139,11 +139,7 @@ class PullDirection(CostTerm):
         if len(names) != len(axes):
             raise s.error("actuators", f"needs one velocity actuator per axis of {axes!r}",
                           list(names), f"{len(axes)} actuator names")
-        for n in names:
-            if n not in ctx.actuators:
-                raise s.error("actuators", "unknown actuator", n,
-                              f"one of: {', '.join(ctx.actuators)}")
-        return cls(**frames, channels=tuple(ctx.actuators.index(n) for n in names), axes=axes,
+        return cls(**frames, channels=ctx.channels(s, "actuators", names), axes=axes,
                    within=s.opt("within", None, positive, "metres > 0"))
 
     def sensors(self):
@@ -359,13 +355,9 @@ class ContactForce(CostTerm):
         a = ctx.frame(s, "a")
         if ctx.resolve(a).kind == mujoco.mjtObj.mjOBJ_SITE:
             raise s.error("a", "contact forces need a body, not a site", a, "a body name or robot")
-        names = s.opt("obstacles", tuple(ctx.obstacles), string_list, "a list of body names")
+        names = ctx.bodies(s, "obstacles", tuple(ctx.obstacles))
         for name in names:
-            try:
-                frame = ctx.resolve(name)
-            except KeyError as exc:
-                raise s.error("obstacles", str(exc.args[0]), name) from None
-            if frame.kind == mujoco.mjtObj.mjOBJ_SITE:
+            if ctx.resolve(name).kind == mujoco.mjtObj.mjOBJ_SITE:
                 raise s.error("obstacles", "contact forces need bodies, not sites", name)
         return cls(a=a, obstacles=tuple(n for n in names if n != a))
 

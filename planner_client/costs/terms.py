@@ -71,12 +71,7 @@ class Collision(CostTerm):
     @classmethod
     def from_params(cls, s, ctx):
         a = ctx.frame(s, "a")
-        names = s.opt("obstacles", tuple(ctx.obstacles), string_list, "a list of body names")
-        for name in names:
-            try:
-                ctx.resolve(name)
-            except KeyError as exc:
-                raise s.error("obstacles", str(exc.args[0]), name) from None
+        names = ctx.bodies(s, "obstacles", tuple(ctx.obstacles))
         return cls(a=a, obstacles=tuple(n for n in names if n != a),
                    margin=s.opt("margin", 0.1, positive, "metres > 0"))
 
@@ -101,10 +96,7 @@ class ControlEffort(CostTerm):
         names = s.opt("actuators", None, string_list, "a list of actuator names")
         if names is None:
             return cls(channels=None)
-        for n in names:
-            if n not in ctx.actuators:
-                raise s.error("actuators", "unknown actuator", n, f"one of: {', '.join(ctx.actuators)}")
-        return cls(channels=tuple(ctx.actuators.index(n) for n in names))
+        return cls(channels=ctx.channels(s, "actuators", names))
 
     def sensors(self):
         return []

@@ -17,6 +17,8 @@ import mujoco
 import numpy as np
 
 from shared.evaluation import episode
+from shared.config import ErrorLog
+from shared.frames import Frame
 from shared.geometry import symmetric_orientation_error
 from shared.evaluation.replay import load_step, replay, resolve_frame
 from shared.robots import get_robot
@@ -91,18 +93,23 @@ class MetricsEvaluator:
         self.scenario = scenario
         self.model = model if model is not None else compile_model(scenario)
         cfg = scenario.metrics
+        errors = ErrorLog()     # every wrong frame name at once
         self.position = self.orientation = None
         if cfg.position:
-            self.position = (resolve_frame(scenario, self.model, cfg.position.a, "metrics.position.a"),
-                             resolve_frame(scenario, self.model, cfg.position.b, "metrics.position.b"))
+            self.position = self._frames(cfg.position, "metrics.position", errors)
         if cfg.orientation:
-            self.orientation = (
-                resolve_frame(scenario, self.model, cfg.orientation.a, "metrics.orientation.a"),
-                resolve_frame(scenario, self.model, cfg.orientation.b, "metrics.orientation.b"))
+            self.orientation = self._frames(cfg.orientation, "metrics.orientation", errors)
         self._geoms_a = self._geoms_b = None
         if cfg.collisions:
-            self._geoms_a = self._geom_mask(cfg.collisions.a, "metrics.collisions.a")
-            self._geoms_b = self._geom_mask(cfg.collisions.with_, "metrics.collisions.with")
+            self._geoms_a = errors.call(self._geom_mask, cfg.collisions.a, "metrics.collisions.a")
+            self._geoms_b = errors.call(self._geom_mask, cfg.collisions.with_,
+                                        "metrics.collisions.with")
+        errors.raise_if_any()
+
+    def _frames(self, pair, key: str, errors: ErrorLog) -> tuple[Frame, Frame] | None:
+        a = errors.call(resolve_frame, self.scenario, self.model, pair.a, f"{key}.a")
+        b = errors.call(resolve_frame, self.scenario, self.model, pair.b, f"{key}.b")
+        return (a, b) if a is not None and b is not None else None
 
     def evaluate(self, records: list[dict], status: str | None = None) -> EpisodeMetrics:
         """Metrics of a logged episode. ``status`` overrides the log's summary (the server calls

@@ -13,7 +13,6 @@ from collections.abc import Iterable, Iterator
 import mujoco
 import numpy as np
 
-from shared.config import ConfigError
 from shared.frames import Frame, FrameResolver
 from shared.robots import get_robot
 from shared.scenario import Scenario
@@ -42,12 +41,8 @@ def replay(model: mujoco.MjModel, steps: Iterable[dict]) -> Iterator[mujoco.MjDa
 
 def resolve_frame(scenario: Scenario, model: mujoco.MjModel, name: str, key: str) -> Frame:
     """A YAML frame name of the scenario, or a ConfigError naming ``key`` and the valid names."""
-    resolve = FrameResolver(model, get_robot(scenario.robot.model).frame)
-    try:
-        return resolve(name)
-    except KeyError as exc:
-        raise ConfigError(scenario.source, key, str(exc.args[0]), name,
-                          f"one of: {', '.join(resolve.names())}") from None
+    return FrameResolver(model, get_robot(scenario.robot.model).frame).checked(
+        name, scenario.source, key)
 
 
 def frame_tracks(model: mujoco.MjModel, steps: list[dict], frames: dict[str, Frame]) -> dict[str, np.ndarray]:
