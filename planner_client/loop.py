@@ -13,13 +13,13 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
-import numpy as np
 import zmq
 
 from shared import protocol as P
 from shared.endpoints import Endpoints, socket
+from shared.evaluation.metrics import mean_hz
 from planner_client.motion import MotionPlanner
-from planner_client.problem import Mirror
+from planner_client.mirror import Mirror
 from planner_client.task import TaskLayer
 
 log = logging.getLogger("m3p2i.planner")
@@ -38,7 +38,7 @@ class LoopStats:
 
     @property
     def hz(self) -> float:
-        return 1.0 / float(np.mean(self.plan_times)) if self.plan_times else 0.0
+        return mean_hz(self.plan_times)
 
 
 class PlannerClient:

@@ -14,7 +14,8 @@ import torch
 
 from planner_client.costs import RolloutBatch
 from planner_client.mppi import M3P2I, MPPIConfig, ModeSpec, PlanResult
-from planner_client.problem import MocapState, PlanningProblem
+from planner_client.mirror import MocapState
+from planner_client.problem import PlanningProblem
 from planner_client.rollout import RolloutEngine
 
 

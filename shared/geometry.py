@@ -15,6 +15,19 @@ import torch
 
 ArrayLike = torch.Tensor | np.ndarray
 
+# World axes a distance may be measured along: ``xy`` ignores height; ``xz`` and ``yz`` ignore
+# one horizontal axis (e.g. a side grasp lining up level with a cube before it moves in along y).
+# The one definition costs, predicates, metrics and the scenario loader use.
+AXES: dict[str, tuple[int, ...]] = {"xy": (0, 1), "xz": (0, 2), "yz": (1, 2), "xyz": (0, 1, 2)}
+
+
+def select_axes(x: ArrayLike, axes: str) -> ArrayLike:
+    """The components of ``x [..., 3]`` along ``axes`` (a key of :data:`AXES`) ->
+    ``[..., 2 or 3]``; NumPy stays NumPy, a tensor stays a tensor."""
+    if axes not in AXES:
+        raise ValueError(f"unknown axes {axes!r}; one of: {', '.join(AXES)}")
+    return x if axes == "xyz" else x[..., list(AXES[axes])]
+
 
 def _tensors(*xs: ArrayLike) -> list[torch.Tensor]:
     """Inputs as tensors of one floating dtype on one device. NumPy inputs join the tensor

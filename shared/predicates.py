@@ -21,7 +21,7 @@ import numpy as np
 
 from shared.config import ConfigError, ErrorLog, Section, non_negative, number, one_of, vector
 from shared.frames import Frame, FrameResolver
-from shared.geometry import symmetric_orientation_error
+from shared.geometry import AXES, select_axes, symmetric_orientation_error
 
 PREDICATES: dict[str, type[Predicate]] = {}
 
@@ -78,12 +78,11 @@ class BoundPredicate:
 
 
 def _axes(value: Any) -> str:
-    return one_of(["xy", "xyz"])(value)
+    return one_of(AXES)(value)
 
 
 def _distance(a: np.ndarray, b: np.ndarray, axes: str) -> float:
-    d = a - b
-    return float(np.linalg.norm(d[:2] if axes == "xy" else d))
+    return float(np.linalg.norm(select_axes(a - b, axes)))
 
 
 @register("near")

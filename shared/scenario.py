@@ -16,6 +16,7 @@ from typing import Any
 
 from shared.config import (ConfigError, ErrorLog, Section, find_named, load_yaml, non_negative, number, one_of,
                            positive, positive_int, string_list, vector)
+from shared.geometry import AXES
 from shared.predicates import Predicate, parse_predicate
 from shared.robots import ROBOTS, get_robot
 from shared.task_template import FactorTemplate, TaskTemplate, parse_task
@@ -52,10 +53,9 @@ class ObjectConfig:
 @dataclass(frozen=True)
 class ArenaConfig:
     """Walls of a square arena at ±half_size around the origin (thesis code: 4 m); drawn
-    ``wall_height`` high. ``wall_thickness`` is kept for YAML compatibility: walls are planes."""
+    ``wall_height`` high."""
     half_size: float = 4.0
     wall_height: float = 0.3
-    wall_thickness: float = 0.1
 
 
 @dataclass(frozen=True)
@@ -381,8 +381,8 @@ def _world(s: Section, errors: ErrorLog) -> WorldConfig | None:
     if s.has("arena"):
         a = s.section("arena")
         arena = ArenaConfig(half_size=a.opt("half_size", 4.0, positive),
-                            wall_height=a.opt("wall_height", 0.3, positive),
-                            wall_thickness=a.opt("wall_thickness", 0.1, positive))
+                            wall_height=a.opt("wall_height", 0.3, positive))
+        a.opt("wall_thickness", None, positive)   # accepted from older files: walls are planes
         a.done()
     battery = None
     if s.has("battery"):
@@ -555,7 +555,7 @@ def _frame_pair(s: Section, position: bool) -> FramePairConfig:
     if not position:
         s.done()
         return FramePairConfig(a, b)
-    pair = FramePairConfig(a, b, axes=s.opt("axes", "xyz", one_of(("xy", "xyz"))),
+    pair = FramePairConfig(a, b, axes=s.opt("axes", "xyz", one_of(AXES)),
                            offset=s.opt("offset", (0.0, 0.0, 0.0), vector(3), "[x, y, z] in metres"))
     s.done()
     return pair

@@ -8,7 +8,8 @@ import pytest
 from shared import protocol as P
 from shared.scenario import load_scenario
 from planner_client.build import build_motion_planner
-from planner_client.problem import Mirror, build_problem
+from planner_client.mirror import Mirror
+from planner_client.problem import build_problem
 from planner_client.rollout import RolloutEngine
 from planner_client.sensors import SensorRequest
 

@@ -19,7 +19,7 @@ import numpy as np
 from shared.evaluation import episode
 from shared.config import ErrorLog
 from shared.frames import Frame
-from shared.geometry import symmetric_orientation_error
+from shared.geometry import select_axes, symmetric_orientation_error
 from shared.evaluation.replay import load_step, replay, resolve_frame
 from shared.robots import get_robot
 from shared.scenario import Scenario
@@ -46,9 +46,9 @@ class EpisodeMetrics:
 # ---------------------------------------------------------------------------------------- maths
 
 def position_error(pos_a: np.ndarray, pos_b: np.ndarray, axes: str = "xyz") -> float:
-    """Euclidean distance between two positions, in the plane for ``axes="xy"``."""
+    """Euclidean distance between two positions along ``axes`` (``xy``, ``xz``, ``yz``, ``xyz``)."""
     d = np.asarray(pos_a, dtype=float) - np.asarray(pos_b, dtype=float)
-    return float(np.linalg.norm(d[:2] if axes == "xy" else d))
+    return float(np.linalg.norm(select_axes(d, axes)))
 
 
 def orientation_error(rot_a: np.ndarray, rot_b: np.ndarray) -> float:

@@ -28,7 +28,7 @@ import zmq
 from shared.evaluation import episode
 from shared import protocol as P
 from shared.config import ConfigError
-from shared.endpoints import Endpoints
+from shared.endpoints import Endpoints, socket
 
 GL_BACKENDS = ("egl", "osmesa")
 DIAGNOSTICS_FILE = "diagnostics.jsonl"
@@ -68,9 +68,8 @@ class DiagnosticsRecorder:
         self.path = path
         self._stop = threading.Event()
         self._ctx = zmq.Context()
-        self._sub = self._ctx.socket(zmq.SUB)
+        self._sub = socket(self._ctx, zmq.SUB)      # the project's size limit and no linger
         self._sub.setsockopt(zmq.SUBSCRIBE, b"")
-        self._sub.setsockopt(zmq.LINGER, 0)
         self._sub.connect(Endpoints(host, port).diagnostics)
         self._thread = threading.Thread(target=self._run, daemon=True)
         self._thread.start()
