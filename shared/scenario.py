@@ -10,6 +10,7 @@ from __future__ import annotations
 import hashlib
 import json
 import os
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -23,6 +24,7 @@ from shared.task_template import FactorTemplate, TaskTemplate, parse_task
 
 PROJECT_ROOT = Path(__file__).resolve().parent.parent
 SCENARIO_DIR = PROJECT_ROOT / "configs" / "scenarios"
+OBJECTIVES_DIR = PROJECT_ROOT / "configs" / "objectives"
 
 SHAPES = ("box", "cylinder", "sphere")
 _SIZE_LEN = {"box": 3, "cylinder": 2, "sphere": 1}
@@ -163,6 +165,7 @@ class TermConfig:
     weight: float
     params: dict[str, Any]
     path: str                              # key path, for the planner's error messages
+    source: str = ""                       # the file it is written in, when not the scenario's
 
 
 @dataclass(frozen=True)
@@ -242,9 +245,18 @@ def read_scenario(name_or_path: str | os.PathLike) -> ScenarioReading:
     return _read(raw, str(path), errors)
 
 
-def scenario_hash(raw: dict) -> str:
-    """Hash of the scenario's content and of the robot model file it names."""
+def find_objectives(name_or_path: str | os.PathLike) -> Path:
+    """A path as given, else ``configs/objectives/NAME.yaml`` (cwd first, then the project)."""
+    return find_named(name_or_path, [Path.cwd() / "configs" / "objectives", OBJECTIVES_DIR],
+                      "objectives")
+
+
+def scenario_hash(raw: dict, included: Sequence[dict] = ()) -> str:
+    """Hash of the scenario's content, of the objective files it includes and of the robot
+    model file it names."""
     h = hashlib.sha256(json.dumps(raw, sort_keys=True, default=str).encode())
+    for inc in included:
+        h.update(json.dumps(inc, sort_keys=True, default=str).encode())
     robot = raw.get("robot", {}).get("model") if isinstance(raw.get("robot"), dict) else None
     if robot in ROBOTS:
         h.update(ROBOTS[robot].path.read_bytes())
@@ -278,7 +290,9 @@ def _read(raw: dict, source: str, errors: ErrorLog) -> ScenarioReading:
         top.section("metrics", required=False)
     planner = errors.call(lambda: _planner(top.section("planner", required=False)),
                           default=PlannerConfig())
-    objectives = errors.call(lambda: _objectives(top.section("objectives"), errors), default={})
+    library, included = _includes(top, errors)
+    objectives = errors.call(lambda: _objectives(top.section("objectives"), errors, library),
+                             default={})
     task = errors.call(lambda: parse_task(top.section("task"))) if top.has("task") else None
     observers, plan, modes = {}, {}, ()
     if task is None and not top.has("task"):
@@ -304,7 +318,7 @@ def _read(raw: dict, source: str, errors: ErrorLog) -> ScenarioReading:
     if robot is None or world is None:
         return ScenarioReading(None, errors.errors, False)
     scenario = Scenario(name=name, description=description, source=source,
-                        hash=scenario_hash(raw), robot=robot, world=world,
+                        hash=scenario_hash(raw, included), robot=robot, world=world,
                         episode=episode or EpisodeConfig(max_time=0.0, success=()),
                         planner=planner, objectives=objectives, modes=modes, task=task,
                         observers=observers, plan=plan, metrics=metrics, raw=raw)
@@ -571,24 +585,72 @@ def _planner(s: Section) -> PlannerConfig:
     return cfg
 
 
-def _objectives(s: Section, errors: ErrorLog) -> dict[str, ObjectiveConfig]:
-    """Every objective; a faulty term or ``fixed`` value is recorded in ``errors`` and left out,
-    so the planner's checks of the other terms still run."""
-    out = {}
+def _includes(top: Section, errors: ErrorLog) -> tuple[dict[str, ObjectiveConfig], list[dict]]:
+    """``include: [NAME or path, ...]``: files of named objectives (``configs/objectives/``)
+    that this scenario's objectives may ``extends``; their contents, for the hash."""
+    names = errors.call(top.opt, "include", (), string_list,
+                        "a list of objective files: configs/objectives/NAME.yaml or paths",
+                        default=())
+    library: dict[str, ObjectiveConfig] = {}
+    contents = []
+    for i, name in enumerate(names):
+        try:
+            path = find_objectives(name)
+            raw = load_yaml(path)
+        except ConfigError as exc:
+            errors.add(ConfigError(top.source, f"include[{i}]", exc.message, name,
+                                   exc.expected or "an objectives file"))
+            continue
+        contents.append(raw)
+        s = Section(raw, str(path))
+        errors.call(s.opt, "description", "", str)
+        defined = errors.call(lambda: _objectives(s.section("objectives"), errors, library),
+                              default={})
+        errors.call(s.done)
+        for key in defined:
+            if key in library:
+                errors.add(ConfigError(str(path), f"objectives.{key}",
+                                       "defined in two included files", key, "a unique name"))
+        library.update(defined)
+    return library, contents
+
+
+def _objectives(s: Section, errors: ErrorLog,
+                library: dict[str, ObjectiveConfig]) -> dict[str, ObjectiveConfig]:
+    """Every objective of the mapping at ``s``; a faulty term or ``fixed`` value is recorded in
+    ``errors`` and left out, so the planner's checks of the other terms still run.
+
+    ``NAME: {extends: BASE, terms: [...], fixed: {...}}`` starts from objective BASE (of an
+    included file, or defined above in the same mapping): its terms, then these; its ``fixed``
+    controls, updated with these."""
+    out: dict[str, ObjectiveConfig] = {}
     for name in s.data:
         o = errors.call(s.section, name)
         if o is None:
             continue
-        items = errors.call(o.items, "terms", required=True, default=[])
+        known = {**library, **out}
+        base = ObjectiveConfig(terms=())
+        if o.has("extends"):
+            base_name = errors.call(o.req, "extends", one_of(known),
+                                    "an objective of an included file or defined above")
+            if base_name is None:
+                o.opt("terms", None)     # the extends error is the one to report
+                o.opt("fixed", None)
+                continue
+            base = known[base_name]
+            items = errors.call(o.items, "terms", default=[])
+        else:
+            items = errors.call(o.items, "terms", required=True, default=[])
         terms = tuple(t for t in (errors.call(_term, t) for t in items) if t is not None)
         fixed = errors.call(o.opt, "fixed", {}, dict, "a mapping actuator -> value", default={})
+        numbers = {}
         for k, v in fixed.items():
             if isinstance(v, bool) or not isinstance(v, (int, float)):
                 errors.add(ConfigError(s.source, f"{o.path}.fixed.{k}", "must be a number", v))
+            else:
+                numbers[k] = float(v)
         errors.call(o.done)
-        out[name] = ObjectiveConfig(terms=terms, fixed={k: float(v) for k, v in fixed.items()
-                                                        if isinstance(v, (int, float))
-                                                        and not isinstance(v, bool)})
+        out[name] = ObjectiveConfig(terms=base.terms + terms, fixed={**base.fixed, **numbers})
     if not s.data:
         raise ConfigError(s.source, s.path, "needs at least one objective", {})
     return out
@@ -598,4 +660,4 @@ def _term(t: Section) -> TermConfig:
     term = t.req("term", str)
     weight = t.opt("weight", 1.0, number, "a number")
     params = {k: v for k, v in t.data.items() if k not in ("term", "weight")}
-    return TermConfig(term=term, weight=weight, params=params, path=t.path)
+    return TermConfig(term=term, weight=weight, params=params, path=t.path, source=t.source)

@@ -72,7 +72,8 @@ def build_objective(name: str, cfg: ObjectiveConfig, ctx: TermContext) -> Object
 
 
 def _weighted_term(tc: TermConfig, ctx: TermContext) -> WeightedTerm:
-    s = Section({"term": tc.term, "weight": tc.weight, **tc.params}, ctx.source, tc.path)
+    s = Section({"term": tc.term, "weight": tc.weight, **tc.params}, tc.source or ctx.source,
+                tc.path)
     s.req("term", str)
     s.opt("weight", 1.0)
     if tc.term not in TERMS:
