@@ -35,7 +35,7 @@ class Mirror:
     """The planner's MjData, overwritten by each received state (full physics state).
 
     It also estimates the velocity of every mocap body (objects the world moves: scripted or
-    dynamic obstacles) from the last two states, for the constant-velocity prediction of Eq. 22.
+    dynamic obstacles) from the last two states, for the constant-velocity prediction of paper Eq. 22.
     A jump faster than ``max_speed`` is a teleport (a disturbance), not motion: velocity 0.
     """
 

@@ -54,7 +54,7 @@ class MotionPlanner:
 
     def plan(self, x0: np.ndarray, mocap: MocapState | None = None) -> Plan:
         """One iteration from the full physics state ``x0 [nstate]`` and the mocap bodies'
-        ``mocap`` state; moving ones go at constant velocity through the rollouts (Eq. 22)."""
+        ``mocap`` state; moving ones go at constant velocity through the rollouts (paper Eq. 22)."""
         V = self.mppi.sample()                                    # [S, T, nu]
         self.last_samples = V.numpy()
         path = None

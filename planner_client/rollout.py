@@ -20,7 +20,7 @@ class RolloutEngine:
 
     With ``mocap_path`` the mocap bodies follow a given path during the rollouts (the per-step
     control vector is then [ctrl, mocap_pos], mujoco's state order): the planner's constant
-    velocity prediction of moving obstacles (Eq. 22).
+    velocity prediction of moving obstacles (paper Eq. 22).
     """
 
     def __init__(self, model: mujoco.MjModel, nthread: int = 0):

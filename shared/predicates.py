@@ -88,7 +88,7 @@ def _distance(a: np.ndarray, b: np.ndarray, axes: str) -> float:
 @register("near")
 @dataclass(frozen=True)
 class Near(Predicate):
-    """|x_a - x_b| <= within (paper Eq. 13, Eq. 23); ``axes: xy`` ignores height."""
+    """|x_a - x_b| <= within (paper Eq. 13, paper Eq. 23); ``axes: xy`` ignores height."""
     a: str
     b: str
     within: float
@@ -147,7 +147,7 @@ class ExtraAtLeast(Predicate):
 class AtPose(Predicate):
     """Frame ``a`` at ``b`` shifted by ``offset`` (world frame, metres), in position and in
     orientation (paper Eqs. 25-26): |x_a - (x_b + offset)| < ``within`` and, when ``orientation``
-    is given, φ(Σ_a, Σ_b) < ``orientation`` with φ the symmetric-object metric of Eq. 33 (any of
+    is given, φ(Σ_a, Σ_b) < ``orientation`` with φ the symmetric-object metric of paper Eq. 33 (any of
     a cube's 24 symmetries counts as aligned). The offset places a goal relative to a movable
     object, e.g. "on top of cube B" is ``offset: [0, 0, 0.05]`` for 5 cm cubes."""
     a: str

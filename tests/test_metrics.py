@@ -79,7 +79,7 @@ def test_metrics_of_a_hand_made_log_have_the_known_values(scenario):
     m = MetricsEvaluator(scenario).evaluate(hand_made_log(scenario))
     assert m.status == "timeout" and not m.success
     assert m.position_error == pytest.approx(0.5)                   # |(1, 2) - (1.3, 2.4)|
-    assert m.orientation_error == pytest.approx(2 - math.sqrt(3))   # 30 deg about z, Eq. 33
+    assert m.orientation_error == pytest.approx(2 - math.sqrt(3))   # 30 deg about z, paper Eq. 33
     assert m.collisions == 2
     assert m.time == pytest.approx(0.35)
     assert m.wall_time == pytest.approx(104.5 - 101.0)              # handshake -> last step
@@ -114,7 +114,7 @@ def test_default_position_metric_is_the_first_near_success_predicate(scenario):
 
 
 def test_at_pose_success_gives_position_with_offset_and_orientation(tmp_path):
-    """Pick-and-place judges success on at_pose (goal = b + offset, Eq. 26): the metrics default
+    """Pick-and-place judges success on at_pose (goal = b + offset, paper Eq. 26): the metrics default
     to the same frames, offset included."""
     raw = {**SCENARIO, "metrics": {"collisions": {"a": "robot", "with": ["obstacle"]}},
            "episode": {"max_time": 10.0, "success": [{"at_pose": {

@@ -52,7 +52,7 @@ ON_B = {"a": "cube_a", "b": "cube_b", "offset": [0, 0, 0.05], "within": 0.01, "o
 def test_at_pose_position_with_offset(model):
     p = bound(model, {"at_pose": ON_B})
     assert p(world(model))                                   # exactly on top of cube B
-    assert p(world(model, (0.009, 0, 1.075)))                # 9 mm off: inside 1 cm (Eq. 26)
+    assert p(world(model, (0.009, 0, 1.075)))                # 9 mm off: inside 1 cm (paper Eq. 26)
     assert not p(world(model, (0.011, 0, 1.075)))
     assert not p(world(model, (0, 0, 1.025 + 0.05 + 0.0101)))
     m = p.measures(world(model, (0.003, 0.004, 1.075)))

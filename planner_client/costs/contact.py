@@ -20,7 +20,7 @@ from planner_client.sensors import SensorRequest
 class Collision(CostTerm):
     """Keep-out cost for frame ``a`` against obstacles (the role of thesis Eq. 4.7).
 
-    Eq. 4.7 sums contact forces with non-movable objects; here the signed geom distance d_i
+    thesis Eq. 4.7 sums contact forces with non-movable objects; here the signed geom distance d_i
     (MuJoCo GEOMDIST sensors) gives a smooth penalty that also acts before contact:
     Σ_i max(0, margin - d_i) / margin, which is 1 per obstacle at touching and grows with
     penetration. ``obstacles`` defaults to the arena walls and every object marked ``obstacle``
@@ -93,7 +93,7 @@ class DynamicObstacle(CostTerm):
     x_D_pred(t) is the obstacle's position at rollout step t. The planner moves world-driven
     obstacles (fixed objects are mocap bodies that the world, or a person, moves) inside its
     rollouts at the velocity estimated from the last two states: the constant-velocity model of
-    Eq. 22 (``planner_client/motion.py``). A jointed obstacle moves under its own dynamics in the
+    paper Eq. 22 (``planner_client/motion.py``). A jointed obstacle moves under its own dynamics in the
     rollout. Either way the prediction is the rollout's, so contact sensors and collision terms
     see the same predicted obstacle as this term.
 

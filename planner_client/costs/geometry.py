@@ -20,7 +20,7 @@ from planner_client.sensors import SensorRequest
 class Distance(CostTerm):
     """S_dist(a, b) = |x_a - (x_b + offset)| (paper Eq. 14, thesis Eq. 4.5); ``axes: xy`` ignores
     height. ``offset`` (world frame, metres; default 0) places a target relative to a movable
-    object: the paper's pre-place and goal locations above cube B (Eqs. 25, 26, 29)."""
+    object: the paper's pre-place and goal locations above cube B (paper Eqs. 25, 26, 29)."""
     a: str
     b: str
     axes: str
@@ -94,7 +94,7 @@ class Reach(CostTerm):
     sensors). θ = -1 asks for the gripper perpendicular to the object's top face (z axes
     opposed), θ = 0 for the gripper parallel to the plane the object stands on.
 
-    Eq. 27 writes the tilt residual without absolute value: linear in the cosine, so its
+    paper Eq. 27 writes the tilt residual without absolute value: linear in the cosine, so its
     minimum is always cos = -1 and θ only shifts the cost by a constant. The absolute residual
     used here is minimised exactly at cos = θ, as the text intends; for θ = -1 it equals the
     printed expression (cos >= -1 always). Absolute rather than squared, so the tilt cost keeps
@@ -127,7 +127,7 @@ class Tilt(CostTerm):
     """|cos(z_ee, z_O) - θ|: the tilt summand of paper Eq. 27 on its own, as a constraint.
 
     Keeps the end effector's z axis at the angle θ to the object's while the distance is costed
-    on something else, e.g. a grasped cube carried to its pre-place pose (Eq. 29): a hand that
+    on something else, e.g. a grasped cube carried to its pre-place pose (paper Eq. 29): a hand that
     tilts there pinches the cube on its edges. Parameters and the absolute residual as in
     ``reach``; ``obj`` may be the held cube itself.
     """

@@ -18,7 +18,7 @@ class GripperWidth(CostTerm):
     """Gripper opening l = |x_left - x_right| between two frames, e.g. fingertip sites.
 
     ``target: closed`` gives l (paper Eq. 28, closing to grasp), ``target: open`` gives 1 - l
-    (Eq. 30, opening to release; l in metres stays far below 1), ``value: w`` gives |l - w|
+    (paper Eq. 30, opening to release; l in metres stays far below 1), ``value: w`` gives |l - w|
     (e.g. the cube's width, to hold without squeezing). Exactly one of ``target``/``value``.
     """
     left: str

@@ -18,14 +18,14 @@ _WHEN = ("all", "running", "terminal")
 class WeightedTerm:
     term: CostTerm
     weight: float
-    when: str   # all steps, running steps only (t < T-1), or the terminal step only (Eq. 4)
+    when: str   # all steps, running steps only (t < T-1), or the terminal step only (paper Eq. 4)
 
 
 @dataclass
 class Objective:
     """``S(V)`` per step: Σ_terms weight · term, masked to running/terminal steps.
 
-    The last column of the result is the terminal cost φ of Eq. 4; the planner applies the
+    The last column of the result is the terminal cost φ of paper Eq. 4; the planner applies the
     discount γ^t.
     """
     name: str

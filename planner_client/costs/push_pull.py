@@ -64,8 +64,8 @@ class PullDirection(CostTerm):
 
     ``within`` (metres, optional) counts the term only while |x_O - x_R| <= within, as the
     thesis code does (0.5 m). In the paper pulling starts once the task planner observes the
-    robot close to the object (Eq. 13); a scenario that pulls without that precondition must
-    still let the robot drive up to the object, which Eq. 21 alone forbids.
+    robot close to the object (paper Eq. 13); a scenario that pulls without that precondition must
+    still let the robot drive up to the object, which paper Eq. 21 alone forbids.
     """
     a: str
     obj: str

@@ -1,6 +1,6 @@
 """Per-episode metrics of the paper's Tables I-III, computed from an episode log.
 
-Success, final position error and orientation error (Eq. 33) between two frames, number of
+Success, final position error and orientation error (paper Eq. 33) between two frames, number of
 collisions (contact onsets), completion time (simulated seconds), wall time and mean planner rate.
 Which frames is the scenario's ``metrics:`` section (:class:`shared.scenario.MetricsConfig`).
 Kinematics are recomputed by replaying logged states into the scenario's model
@@ -32,7 +32,7 @@ class EpisodeMetrics:
     status: str                      # success | timeout | stopped | unfinished (log cut short)
     success: bool
     position_error: float | None     # m, metrics.position's a to b (+ offset) at the end
-    orientation_error: float | None  # Eq. 33 phi between metrics.orientation's frames at the end
+    orientation_error: float | None  # paper Eq. 33 phi between metrics.orientation's frames at the end
     collisions: int | None           # contact onsets between metrics.collisions' bodies
     time: float                      # simulated seconds until the episode ended
     wall_time: float                 # wall seconds from the planner's handshake to the last step
@@ -52,7 +52,7 @@ def position_error(pos_a: np.ndarray, pos_b: np.ndarray, axes: str = "xyz") -> f
 
 
 def orientation_error(rot_a: np.ndarray, rot_b: np.ndarray) -> float:
-    """Eq. 33's phi between two rotation matrices (symmetric-object metric, 0 = equivalent)."""
+    """paper Eq. 33's phi between two rotation matrices (symmetric-object metric, 0 = equivalent)."""
     return float(symmetric_orientation_error(np.asarray(rot_a, dtype=float),
                                              np.asarray(rot_b, dtype=float)))
 

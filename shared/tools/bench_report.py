@@ -126,7 +126,7 @@ def summarize(rows: list[dict[str, str]], order: list[str]) -> list[CaseSummary]
 
 # ------------------------------------------------------------------------------------ rendering
 
-HEADERS = ("case", "variant", "trials", "success", "pos error [m]", "paper", "ori error (Eq. 33)",
+HEADERS = ("case", "variant", "trials", "success", "pos error [m]", "paper", "ori error (paper Eq. 33)",
            "paper", "collisions", "paper", "time [s]", "paper", "planner Hz")
 
 

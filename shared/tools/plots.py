@@ -1,6 +1,6 @@
 """Plots of one episode like the thesis' Figs. A.3-A.5: object and robot trajectories (xy),
 robot-object and object-goal distances over time, and the cosine of the robot-object-goal angle
-(Eq. 16) over time. The object and the goal are the scenario's ``metrics.position`` frames; when
+(paper Eq. 16) over time. The object and the goal are the scenario's ``metrics.position`` frames; when
 the "object" is the robot itself (navigation) the plot shows the robot, its distance to the goal,
 and no angle.
 
@@ -40,7 +40,7 @@ class EpisodeSeries:
 
 
 def cos_rog(robot: np.ndarray, obj: np.ndarray, goal: np.ndarray) -> np.ndarray:
-    """cos(theta_ROG) of Eq. 16 in the plane, per row; NaN where a distance is zero."""
+    """cos(theta_ROG) of paper Eq. 16 in the plane, per row; NaN where a distance is zero."""
     a = robot[..., :2] - obj[..., :2]
     b = goal[..., :2] - obj[..., :2]
     norm = np.linalg.norm(a, axis=-1) * np.linalg.norm(b, axis=-1)
