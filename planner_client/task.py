@@ -55,8 +55,9 @@ class ActiveInferenceTask:
     """
 
     def __init__(self, aip: ActiveInferencePlanner, observer: SymbolicObserver,
-                 plan: dict[str, str], period: float):
-        self.aip, self.observer, self.plan = aip, observer, plan
+                 action_objectives: dict[str, str], period: float):
+        self.aip, self.observer = aip, observer
+        self.action_objectives = action_objectives
         self.period = period
         self._next = -np.inf
         self.decision: TaskDecision | None = None
@@ -70,13 +71,13 @@ class ActiveInferenceTask:
         d = self.aip.step(self.last_observation)
         previous = self.decision
         if d.status == "running":
-            modes = tuple(dict.fromkeys(self.plan[a] for a in d.alternatives))
+            modes = tuple(dict.fromkeys(self.action_objectives[a] for a in d.alternatives))
             self.decision = TaskDecision(d.action, modes, d.alternatives)
         else:
             keep = previous.modes if previous else ()
             if d.status == "failure" and (previous is None or previous.action != "failure"):
                 log.error("task planner failed: %s", d.reason)
             self.decision = TaskDecision("idle" if d.status == "success" else "failure",
-                                         keep or (next(iter(self.plan.values())),),
+                                         keep or (next(iter(self.action_objectives.values())),),
                                          (), stop=True)
         return self.decision

@@ -62,10 +62,10 @@ def measure(scenario, iterations: int, nthread: int, rounds: int = 4) -> dict:
 
     def plan_step():
         x0 = get_full_state(model, data).copy()
-        plan = planner.plan(x0)
+        it = planner.iterate(x0)
         work.append((x0, planner.last_samples.copy()))
         del work[:-block]
-        data.ctrl[:] = plan.result.u0.numpy()
+        data.ctrl[:] = it.result.u0.numpy()
         mujoco.mj_step(model, data)
 
     counter = iter(range(10**9))

@@ -37,7 +37,7 @@ class SimWorld:
         self.data = mujoco.MjData(self.model)
         self.robot = get_robot(scenario.robot.model)
         resolve = FrameResolver(self.model, self.robot.frame)
-        self.success = [p.bind(resolve) for p in scenario.episode.success]
+        self.success_test = [p.bind(resolve) for p in scenario.episode.success]
         self.battery = scenario.world.battery
         if self.battery:
             self._robot_frame = resolve("robot")
@@ -93,7 +93,7 @@ class SimWorld:
         if self.status != "running":
             return
         view = WorldView(self.data, self.extras)
-        if not all(p(view) for p in self.success):
+        if not all(p(view) for p in self.success_test):
             self._success_since = None
         elif self._success_since is None:
             self._success_since = self.data.time
@@ -114,6 +114,6 @@ class SimWorld:
         """Status and the success predicates' measures (e.g. final distance to the goal)."""
         view = WorldView(self.data, self.extras)
         measures = {}
-        for p in self.success:
+        for p in self.success_test:
             measures.update(p.measures(view))
         return Outcome(self.status, float(self.data.time), measures)

@@ -85,9 +85,23 @@ def _distance(a: np.ndarray, b: np.ndarray, axes: str) -> float:
     return float(np.linalg.norm(select_axes(a - b, axes)))
 
 
+class _PairDistance:
+    """What ``near`` and ``far`` share: the distance between frames ``a`` and ``b`` along
+    ``axes``, reported as ``distance a-b``."""
+    a: str
+    b: str
+    axes: str
+
+    def distance(self, view, frames) -> float:
+        return _distance(frames["a"].pos(view.data), frames["b"].pos(view.data), self.axes)
+
+    def measure(self, view, frames):
+        return {f"distance {self.a}-{self.b}": self.distance(view, frames)}
+
+
 @register("near")
 @dataclass(frozen=True)
-class Near(Predicate):
+class Near(_PairDistance, Predicate):
     """|x_a - x_b| <= within (paper Eq. 13, paper Eq. 23); ``axes: xy`` ignores height."""
     a: str
     b: str
@@ -100,28 +114,27 @@ class Near(Predicate):
         return cls(a=s.req("a", str), b=s.req("b", str), within=s.req("within", non_negative),
                    axes=s.opt("axes", "xyz", _axes))
 
-    def distance(self, view, frames) -> float:
-        return _distance(frames["a"].pos(view.data), frames["b"].pos(view.data), self.axes)
-
     def holds(self, view, frames):
         return self.distance(view, frames) <= self.within
-
-    def measure(self, view, frames):
-        return {f"distance {self.a}-{self.b}": self.distance(view, frames)}
 
 
 @register("far")
 @dataclass(frozen=True)
-class Far(Near):
+class Far(_PairDistance, Predicate):
     """|x_a - x_b| > beyond: the negation of ``near`` for templates that need it by name."""
+    a: str
+    b: str
+    beyond: float
+    axes: str = "xyz"
+    frame_keys: ClassVar[tuple[str, ...]] = ("a", "b")
 
     @classmethod
     def from_section(cls, s: Section) -> Far:
-        return cls(a=s.req("a", str), b=s.req("b", str), within=s.req("beyond", non_negative),
+        return cls(a=s.req("a", str), b=s.req("b", str), beyond=s.req("beyond", non_negative),
                    axes=s.opt("axes", "xyz", _axes))
 
     def holds(self, view, frames):
-        return self.distance(view, frames) > self.within
+        return self.distance(view, frames) > self.beyond
 
 
 @register("extra_at_least")

@@ -198,7 +198,8 @@ class Scenario:
     modes: tuple[str, ...]                 # fixed modes (when there is no task template)
     task: TaskTemplate | None = None
     observers: dict[str, ObserverConfig] = field(default_factory=dict)
-    plan: dict[str, str] = field(default_factory=dict)   # action -> objective (plan interface)
+    # the plan interface, YAML key ``plan``: task action -> the objective that executes it
+    action_objectives: dict[str, str] = field(default_factory=dict)
     metrics: MetricsConfig = field(default_factory=MetricsConfig)
     raw: dict = field(repr=False, default_factory=dict)
 
@@ -294,7 +295,7 @@ def _read(raw: dict, source: str, errors: ErrorLog) -> ScenarioReading:
     objectives = errors.call(lambda: _objectives(top.section("objectives"), errors, library),
                              default={})
     task = errors.call(lambda: parse_task(top.section("task"))) if top.has("task") else None
-    observers, plan, modes = {}, {}, ()
+    observers, action_objectives, modes = {}, {}, ()
     if task is None and not top.has("task"):
         modes = errors.call(top.req, "modes", string_list,
                             "a list of objective names (or a task: template)", default=())
@@ -304,7 +305,8 @@ def _read(raw: dict, source: str, errors: ErrorLog) -> ScenarioReading:
         if task is not None:
             observers = errors.call(lambda: _observers(top.section("observers"), task, errors),
                                     default={})
-            plan = errors.call(lambda: _plan(top.section("plan"), task, objectives), default={})
+            action_objectives = errors.call(
+                lambda: _action_objectives(top.section("plan"), task, objectives), default={})
         else:   # the task's own errors are reported; its dependants would only repeat them
             top.section("observers", required=False)
             top.section("plan", required=False)
@@ -321,7 +323,7 @@ def _read(raw: dict, source: str, errors: ErrorLog) -> ScenarioReading:
                         hash=scenario_hash(raw, included), robot=robot, world=world,
                         episode=episode or EpisodeConfig(max_time=0.0, success=()),
                         planner=planner, objectives=objectives, modes=modes, task=task,
-                        observers=observers, plan=plan, metrics=metrics, raw=raw)
+                        observers=observers, action_objectives=action_objectives, metrics=metrics, raw=raw)
     return ScenarioReading(scenario, errors.errors, model_ok)
 
 
@@ -366,7 +368,7 @@ def _observer(s: Section, factor: FactorTemplate) -> ObserverConfig:
     return ObserverConfig(tuple(rules), default)
 
 
-def _plan(s: Section, task: TaskTemplate, objectives: dict) -> dict[str, str]:
+def _action_objectives(s: Section, task: TaskTemplate, objectives: dict) -> dict[str, str]:
     """The plan interface (paper II.D): every task action -> the objective that executes it."""
     out = {}
     for action in task.actions():

@@ -197,7 +197,7 @@ def test_update_matches_eqs_4_to_12_for_unequal_modes():
     modes = [ModeSpec("a", 30), ModeSpec("b", 50), ModeSpec("c", 7)]
     planner = M3P2I(cfg, modes)
     planner.update(wiggly_costs(planner.sample()))     # non-zero means and plan
-    u_prev = planner.plan.clone()
+    u_prev = planner.nominal.clone()
 
     v = planner.sample()
     step = wiggly_costs(v)
@@ -217,8 +217,8 @@ def test_update_matches_eqs_4_to_12_for_unequal_modes():
         mu = ((w / w.sum())[:, None, None] * v[rows]).sum(0)                     # paper Eq. 8
         assert torch.allclose(planner.means[i, :-1], mu[1:], atol=1e-12)       # after the shift
         assert torch.equal(result.best[i], v[rows][s[rows].argmin()])
-    assert torch.allclose(planner.plan[:-1], u[1:], atol=1e-12)
-    assert torch.equal(planner.plan[-1], planner.plan[-2])
+    assert torch.allclose(planner.nominal[:-1], u[1:], atol=1e-12)
+    assert torch.equal(planner.nominal[-1], planner.nominal[-2])
 
 
 def test_diverged_rollouts_get_zero_weight():
@@ -362,7 +362,7 @@ def test_set_modes_keeps_persisting_means_and_seeds_new_ones_from_the_plan():
     planner = M3P2I(cfg_of(eta_bounds=(3.0, 10.0)), [ModeSpec("push", 40), ModeSpec("pull", 40)])
     for _ in range(5):
         result = planner.update(((planner.sample() - t(0.5, -0.5)) ** 2).sum(-1))
-    mu_pull, plan = planner.means[1].clone(), planner.plan.clone()
+    mu_pull, plan = planner.means[1].clone(), planner.nominal.clone()
     lam_pull = result.lambdas[1]
 
     planner.set_modes([ModeSpec("pull", 30), ModeSpec("pick", 50, fixed={0: 1.0})])

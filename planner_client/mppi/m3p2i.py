@@ -321,8 +321,9 @@ class M3P2I:
         return self._mu
 
     @property
-    def plan(self) -> Tensor:
-        """``[T, nu]`` fused plan u carried into the next iteration (already shifted)."""
+    def nominal(self) -> Tensor:
+        """``[T, nu]`` fused nominal control sequence u carried into the next iteration (already
+        shifted)."""
         return self._u
 
     def reset(self) -> None:
