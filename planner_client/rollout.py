@@ -51,9 +51,10 @@ class RolloutEngine:
     def set_mocap(self, pos: np.ndarray, quat: np.ndarray) -> None:
         """Mocap poses [nmocap, 3], [nmocap, 4] to start every rollout from.
 
-        mjSTATE_FULLPHYSICS, the rollouts' initial state, leaves mocap bodies out. Depending on
-        each rollout starts from a reset MjData, which takes mocap poses from the model's
-        body_pos / body_quat: so those are set (the planner's own model; physics unchanged).
+        mjSTATE_FULLPHYSICS, the rollouts' initial state, leaves mocap bodies out, and each
+        rollout starts from a reset MjData, which takes its mocap poses from the model's
+        ``body_pos`` / ``body_quat``: so those are what is set (in the planner's own model; the
+        physics is unchanged).
         """
         self.model.body_pos[self._mocap_bodies] = pos
         self.model.body_quat[self._mocap_bodies] = quat
