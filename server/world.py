@@ -13,6 +13,7 @@ import mujoco
 import numpy as np
 
 from shared.frames import FrameResolver
+from shared.geometry import select_axes
 from shared.predicates import WorldView
 from shared.protocol import State
 from shared.robots import get_robot
@@ -84,7 +85,7 @@ class SimWorld:
 
     def _step_battery(self) -> None:
         """Thesis Eq. 4.1, per second of simulated time: charge near the charger, else drain."""
-        d = self._robot_frame.pos(self.data)[:2] - self._charger.pos(self.data)[:2]
+        d = select_axes(self._robot_frame.pos(self.data) - self._charger.pos(self.data), "xy")
         sign = 1.0 if np.linalg.norm(d) <= self.battery.radius else -1.0
         level = self.extras["battery"] + sign * self.battery.rate * self.dt
         self.extras["battery"] = float(np.clip(level, 0.0, 100.0))

@@ -17,6 +17,7 @@ import numpy as np
 from shared.evaluation import episode
 from shared.config import ConfigError
 from shared.evaluation.replay import frame_tracks, resolve_frame
+from shared.geometry import select_axes
 from shared.scenario import Scenario
 from shared.scene import compile_model
 
@@ -41,15 +42,16 @@ class EpisodeSeries:
 
 def cos_rog(robot: np.ndarray, obj: np.ndarray, goal: np.ndarray) -> np.ndarray:
     """cos(theta_ROG) of paper Eq. 16 in the plane, per row; NaN where a distance is zero."""
-    a = robot[..., :2] - obj[..., :2]
-    b = goal[..., :2] - obj[..., :2]
+    a = select_axes(robot - obj, "xy")
+    b = select_axes(goal - obj, "xy")
     norm = np.linalg.norm(a, axis=-1) * np.linalg.norm(b, axis=-1)
     with np.errstate(invalid="ignore", divide="ignore"):
         return np.where(norm > 0, np.sum(a * b, axis=-1) / norm, np.nan)
 
 
 def planar_distance(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    return np.linalg.norm(a[..., :2] - b[..., :2], axis=-1)
+    """|a - b| in the plane, per row."""
+    return np.linalg.norm(select_axes(a - b, "xy"), axis=-1)
 
 
 def episode_series(scenario: Scenario, records: list[dict]) -> EpisodeSeries:
