@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import dataclasses
 
-import numpy as np
 import torch
 
 from shared.endpoints import Endpoints
@@ -25,8 +24,8 @@ def build_motion_planner(scenario: Scenario, threads: int = 0,
     # 12.5 ms -> 7.6 ms per navigation iteration on 2 cores).
     torch.set_num_threads(1)
     problem = build_problem(scenario)
-    modes = list(scenario.modes) or [next(iter(scenario.plan.values()))]
-    cfg = mppi_config(problem)
+    modes = list(scenario.modes) or [next(iter(scenario.action_objectives.values()))]
+    cfg = mppi_config(scenario, problem.model)
     if seed is not None:
         cfg = dataclasses.replace(cfg, seed=seed)
     return MotionPlanner(problem, cfg, scenario.planner.samples, modes,
@@ -43,8 +42,7 @@ def build_task(scenario: Scenario, planner: MotionPlanner) -> TaskLayer:
             check_frames(pred, problem.resolve, scenario.source, f"observers.{factor}")
     return ActiveInferenceTask(ActiveInferencePlanner(scenario.task),
                                SymbolicObserver(scenario.observers, problem.resolve),
-                               scenario.plan, scenario.planner.aip_period,
-                               np.array(problem.robot.safe_ctrl, dtype=float))
+                               scenario.action_objectives, scenario.planner.aip_period)
 
 
 def build_client(scenario: Scenario, endpoints: Endpoints, threads: int = 0,

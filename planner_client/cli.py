@@ -7,7 +7,7 @@ from typing import Optional
 
 import typer
 
-from shared.cli_common import setup_logging
+from shared.cli_common import print_errors, setup_logging
 from shared.config import ConfigError
 from shared.endpoints import DEFAULT_HOST, DEFAULT_PORT, Endpoints
 from shared.scenario import load_scenario
@@ -36,9 +36,17 @@ def main(
                                       "exiting when the episode ends."),
     seed: Optional[int] = typer.Option(None, help="Sampling seed (default: planner.mppi.seed of "
                                        "the scenario)."),
+    check: bool = typer.Option(False, "--check", help="Only check the scenario (every error of "
+                               "the file, cost terms and model names included) and exit: 0 "
+                               "sound, 2 faulty."),
     verbose: bool = typer.Option(False, "--verbose", "-v"),
 ) -> None:
     setup_logging(verbose, "m3p2i.planner")
+    from planner_client.check import scenario_errors
+    errors = scenario_errors(scenario)     # every error of the file, before anything starts
+    print_errors(errors, err=not check)
+    if errors or check:
+        raise typer.Exit(2 if errors else 0)
     from planner_client.build import build_client
     from planner_client.loop import HandshakeRefused
     try:

@@ -13,13 +13,13 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
-import numpy as np
 import zmq
 
 from shared import protocol as P
 from shared.endpoints import Endpoints, socket
-from planner_client.motion import MotionPlanner
-from planner_client.problem import Mirror
+from shared.evaluation.metrics import mean_hz
+from planner_client.motion import Iteration, MotionPlanner
+from planner_client.mirror import Mirror
 from planner_client.task import TaskLayer
 
 log = logging.getLogger("m3p2i.planner")
@@ -38,7 +38,7 @@ class LoopStats:
 
     @property
     def hz(self) -> float:
-        return 1.0 / float(np.mean(self.plan_times)) if self.plan_times else 0.0
+        return mean_hz(self.plan_times)
 
 
 class PlannerClient:
@@ -65,9 +65,8 @@ class PlannerClient:
         self.welcome: P.Welcome | None = None
         self.stats = LoopStats()
         self._action: tuple[str, tuple[str, ...]] | None = None
-        robot = planner.problem.robot
-        self._hold = [planner.problem.actuators.index(n) for n in robot.hold_ctrl]
-        self._last_ctrl = np.array(robot.safe_ctrl, dtype=float)
+        self.robot = planner.problem.robot
+        self._last_ctrl = self.robot.safe_stop()
         self._answered: tuple[str, int] | None = None   # (session, seq) of the last command
         self._answer = b""
 
@@ -108,7 +107,7 @@ class PlannerClient:
     # ------------------------------------------------------------------ loop
 
     def run(self, max_iterations: int | None = None,
-            on_plan: Callable[[P.State, object], None] | None = None) -> LoopStats:
+            on_plan: Callable[[P.State, Iteration], None] | None = None) -> LoopStats:
         """Plan until the episode ends (or forever with ``exit_on_done=False``)."""
         self.handshake()
         last_state_at = time.monotonic()
@@ -153,12 +152,9 @@ class PlannerClient:
             return
         decision = self.task.decide(self.mirror.data, state.extras, state.time)
         self.planner.set_modes(decision.modes)
-        plan = self.planner.plan(x0, self.mirror.mocap())
-        if decision.override is not None:
-            ctrl = decision.override.copy()
-            ctrl[self._hold] = self._last_ctrl[self._hold]   # e.g. a gripper keeps its grip
-        else:
-            ctrl = plan.command
+        it = self.planner.iterate(x0, self.mirror.mocap())
+        # a safe stop keeps the hold_ctrl actuators where they were: a gripper keeps its grip
+        ctrl = self.robot.safe_stop(self._last_ctrl) if decision.stop else it.command
         self._last_ctrl = ctrl
         plan_time = time.perf_counter() - t0
         self._answer = P.encode(P.Command(session=state.session, seq=state.seq, ctrl=ctrl,
@@ -173,13 +169,13 @@ class PlannerClient:
             self.stats.action_changes.append((state.time, decision.action, tuple(decision.modes)))
             log.info("t=%.2f s: action %s, modes %s", state.time, decision.action, list(decision.modes))
         if self.diag is not None:
-            r = plan.result
+            r = it.result
             self.diag.send(P.encode(P.Diagnostics(
                 seq=state.seq, action=decision.action, alternatives=list(decision.alternatives),
-                mode_names=plan.modes, mode_weights=r.mode_weights.numpy(),
-                top=plan.top, plan_time=plan_time)))
+                mode_names=it.modes, mode_weights=r.mode_weights.numpy(),
+                top=it.top, plan_time=plan_time)))
         if on_plan is not None:
-            on_plan(state, plan)
+            on_plan(state, it)
 
     def close(self) -> None:
         self.planner.close()

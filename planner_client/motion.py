@@ -14,12 +14,13 @@ import torch
 
 from planner_client.costs import RolloutBatch
 from planner_client.mppi import M3P2I, MPPIConfig, ModeSpec, PlanResult
-from planner_client.problem import MocapState, PlanningProblem
+from planner_client.mirror import MocapState
+from planner_client.problem import PlanningProblem
 from planner_client.rollout import RolloutEngine
 
 
 @dataclass
-class Plan:
+class Iteration:
     result: PlanResult
     modes: list[str]
     top: np.ndarray            # [M, T, 3] robot-frame positions of the lowest-cost samples
@@ -40,7 +41,7 @@ class MotionPlanner:
         self.mppi = M3P2I(cfg, [self._mode(m) for m in modes], dtype=torch.float64)
         self.modes = list(modes)
         self._step_costs: torch.Tensor | None = None
-        self.last_samples: np.ndarray | None = None     # [S, T, nu] of the last plan()
+        self.last_samples: np.ndarray | None = None     # [S, T, nu] of the last iterate()
 
     def _mode(self, name: str) -> ModeSpec:
         return ModeSpec(name=name, samples=self.samples, fixed=self.problem.objectives[name].fixed)
@@ -51,9 +52,9 @@ class MotionPlanner:
             self.mppi.set_modes([self._mode(m) for m in modes])
             self.modes = list(modes)
 
-    def plan(self, x0: np.ndarray, mocap: MocapState | None = None) -> Plan:
+    def iterate(self, x0: np.ndarray, mocap: MocapState | None = None) -> Iteration:
         """One iteration from the full physics state ``x0 [nstate]`` and the mocap bodies'
-        ``mocap`` state; moving ones go at constant velocity through the rollouts (Eq. 22)."""
+        ``mocap`` state; moving ones go at constant velocity through the rollouts (paper Eq. 22)."""
         V = self.mppi.sample()                                    # [S, T, nu]
         self.last_samples = V.numpy()
         path = None
@@ -74,7 +75,7 @@ class MotionPlanner:
         best = torch.topk(result.weights, min(self.top_k, S)).indices
         top = self.problem.layout.take(sd[best], self.problem.robot_pos).numpy().copy()
         dominant = self.modes[int(torch.argmax(result.mode_weights))]
-        return Plan(result=result, modes=list(self.modes), top=top,
+        return Iteration(result=result, modes=list(self.modes), top=top,
                     command=self._command(result.u0.numpy(), dominant), dominant=dominant)
 
     def _command(self, u0: np.ndarray, dominant: str) -> np.ndarray:

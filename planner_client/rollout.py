@@ -20,7 +20,7 @@ class RolloutEngine:
 
     With ``mocap_path`` the mocap bodies follow a given path during the rollouts (the per-step
     control vector is then [ctrl, mocap_pos], mujoco's state order): the planner's constant
-    velocity prediction of moving obstacles (Eq. 22).
+    velocity prediction of moving obstacles (paper Eq. 22).
     """
 
     def __init__(self, model: mujoco.MjModel, nthread: int = 0):
@@ -51,9 +51,10 @@ class RolloutEngine:
     def set_mocap(self, pos: np.ndarray, quat: np.ndarray) -> None:
         """Mocap poses [nmocap, 3], [nmocap, 4] to start every rollout from.
 
-        mjSTATE_FULLPHYSICS, the rollouts' initial state, leaves mocap bodies out. Depending on
-        each rollout starts from a reset MjData, which takes mocap poses from the model's
-        body_pos / body_quat: so those are set (the planner's own model; physics unchanged).
+        mjSTATE_FULLPHYSICS, the rollouts' initial state, leaves mocap bodies out, and each
+        rollout starts from a reset MjData, which takes its mocap poses from the model's
+        ``body_pos`` / ``body_quat``: so those are what is set (in the planner's own model; the
+        physics is unchanged).
         """
         self.model.body_pos[self._mocap_bodies] = pos
         self.model.body_quat[self._mocap_bodies] = quat

@@ -26,7 +26,7 @@ class TaskDecision:
     action: str                          # the task-level action being executed (for logs)
     modes: tuple[str, ...]               # objectives handed to M3P2I, one mode each
     alternatives: tuple[str, ...] = ()   # all admissible actions the task planner found
-    override: np.ndarray | None = None   # a control to send instead of the planner's (idle)
+    stop: bool = False                   # send the robot's safe stop instead of the planner's command
 
 
 class TaskLayer(Protocol):
@@ -50,15 +50,15 @@ class ActiveInferenceTask:
 
     The AIP ticks every ``period`` seconds of simulated time (slower than the motion planner);
     between ticks the last decision stands. Each admissible alternative action becomes one M3P2I
-    mode through the plan interface (action -> objective). On success or failure the robot is
-    held with ``safe_ctrl``.
+    mode through the plan interface (action -> objective). On success or failure the decision
+    says ``stop``: the loop holds the robot with its safe stop.
     """
 
     def __init__(self, aip: ActiveInferencePlanner, observer: SymbolicObserver,
-                 plan: dict[str, str], period: float, safe_ctrl: np.ndarray):
-        self.aip, self.observer, self.plan = aip, observer, plan
+                 action_objectives: dict[str, str], period: float):
+        self.aip, self.observer = aip, observer
+        self.action_objectives = action_objectives
         self.period = period
-        self.safe_ctrl = safe_ctrl
         self._next = -np.inf
         self.decision: TaskDecision | None = None
         self.last_observation: dict[str, str] = {}
@@ -71,13 +71,13 @@ class ActiveInferenceTask:
         d = self.aip.step(self.last_observation)
         previous = self.decision
         if d.status == "running":
-            modes = tuple(dict.fromkeys(self.plan[a] for a in d.alternatives))
+            modes = tuple(dict.fromkeys(self.action_objectives[a] for a in d.alternatives))
             self.decision = TaskDecision(d.action, modes, d.alternatives)
         else:
             keep = previous.modes if previous else ()
             if d.status == "failure" and (previous is None or previous.action != "failure"):
                 log.error("task planner failed: %s", d.reason)
             self.decision = TaskDecision("idle" if d.status == "success" else "failure",
-                                         keep or (next(iter(self.plan.values())),),
-                                         (), override=self.safe_ctrl)
+                                         keep or (next(iter(self.action_objectives.values())),),
+                                         (), stop=True)
         return self.decision

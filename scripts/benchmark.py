@@ -29,8 +29,7 @@ from shared.scenario import load_scenario
 from shared.scene import compile_model, get_full_state, initial_data
 from planner_client.build import build_motion_planner
 
-# scenario -> overrides of planner samples/horizon
-CASES = {"navigation": {}, "push_pull": {}, "pick_place": {}}
+SCENARIOS = ("navigation", "push_pull", "pick_place")
 
 app = typer.Typer(add_completion=False)
 
@@ -63,10 +62,10 @@ def measure(scenario, iterations: int, nthread: int, rounds: int = 4) -> dict:
 
     def plan_step():
         x0 = get_full_state(model, data).copy()
-        plan = planner.plan(x0)
+        it = planner.iterate(x0)
         work.append((x0, planner.last_samples.copy()))
         del work[:-block]
-        data.ctrl[:] = plan.result.u0.numpy()
+        data.ctrl[:] = it.result.u0.numpy()
         mujoco.mj_step(model, data)
 
     counter = iter(range(10**9))
@@ -99,7 +98,7 @@ def measure(scenario, iterations: int, nthread: int, rounds: int = 4) -> dict:
 
 @app.command()
 def main(
-    scenario: list[str] = typer.Option(list(CASES), "--scenario", "-s", help="Scenarios to run."),
+    scenario: list[str] = typer.Option(list(SCENARIOS), "--scenario", "-s", help="Scenarios to run."),
     iterations: int = typer.Option(200, "--iterations", "-n", help="Timed planner iterations."),
     threads: int = typer.Option(0, help="Rollout threads (0: one per core)."),
     as_json: bool = typer.Option(False, "--json", help="One JSON object per line per case."),

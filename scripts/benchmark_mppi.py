@@ -5,7 +5,7 @@ Closed loop on two analytic systems, same K, T, λ, σ, bounds and cost for ever
 * pendulum swing-up (pytorch_mppi's own example: K=100, T=15, σ=10, λ=1, |u| ≤ 2, dt=0.05),
 * a 2-D double integrator driven to a goal (K=200, T=15, σ=1.5, λ=1, |u| ≤ 3, dt=0.05).
 
-Rows: ``pytorch_mppi``; ``MPPI (Alg. 2)`` with Gaussian noise and the control cost on, i.e. the
+Rows: ``pytorch_mppi``; ``MPPI (thesis Alg. 2)`` with Gaussian noise and the control cost on, i.e. the
 same algorithm as pytorch_mppi; ``M3P2I (1 mode)`` with this package's defaults plus
 η ∈ [3, 10] and a Savitzky-Golay window of 9 (the thesis settings). Columns: true-system cost
 summed over the episode and at its last step (mean ± std over seeds), wall time per control step
@@ -137,7 +137,7 @@ def arm(task: Task, seed: int):
 
 PLANNERS = {
     "pytorch_mppi": arm,
-    "MPPI (Alg. 2)": ours(lambda task, seed: MPPI(
+    "MPPI (thesis Alg. 2)": ours(lambda task, seed: MPPI(
         config(task, seed, sampling="gaussian", control_cost=1.0, null_action=False,
                keep_best=False), task.samples)),
     "M3P2I (1 mode)": ours(lambda task, seed: M3P2I(
@@ -225,7 +225,7 @@ def main() -> None:
     base = dict(horizon=15, nu=2, noise_sigma=(1.0, 1.0), u_min=(-1.0, -1.0), u_max=(1.0, 1.0))
     adapt = dict(eta_bounds=(3.0, 10.0), savgol_window=9)
     for name, planner in [
-        ("MPPI, Gaussian, Alg. 2 literal",
+        ("MPPI, Gaussian, thesis Alg. 2 literal",
          MPPI(MPPIConfig(**base, sampling="gaussian", null_action=False, keep_best=False), 200)),
         ("M3P2I, 1 mode, defaults", M3P2I(MPPIConfig(**base), [ModeSpec("a", 200)])),
         ("M3P2I, 1 mode, η ∈ [3, 10], SGF 9", M3P2I(MPPIConfig(**base, **adapt), [ModeSpec("a", 200)])),

@@ -20,7 +20,7 @@ import zmq
 
 from shared import protocol as P
 from shared.endpoints import Endpoints, socket
-from shared.metrics import MetricsEvaluator, describe
+from shared.evaluation.metrics import MetricsEvaluator, describe, mean_hz
 from shared.scenario import Scenario
 from server.episode_log import EpisodeLog, read_log
 from server.world import Outcome, SimWorld
@@ -86,7 +86,7 @@ class WorldServer:
             log.info("interrupted")
         finally:
             outcome = self.world.outcome()
-            hz = 1.0 / np.mean(self._plan_times) if self._plan_times else 0.0
+            hz = mean_hz(self._plan_times)
             metrics = self._episode_metrics(outcome.status)
             self.log.write("summary", status=outcome.status, time=outcome.time,
                            measures=outcome.measures, planner_hz=hz, steps=self.seq,
@@ -98,7 +98,7 @@ class WorldServer:
         return outcome
 
     def _episode_metrics(self, status: str) -> dict | None:
-        """shared.metrics on the steps logged so far (the log is line-buffered, so complete on
+        """shared.evaluation.metrics on the logged steps (the log is line-buffered, so complete on
         disk). A failure here is logged, never allowed to cost the summary record."""
         try:
             metrics = self.metrics.evaluate(read_log(self.log.path), status=status)
@@ -177,7 +177,8 @@ class WorldServer:
             self.log.event("action", time=float(self.world.data.time), action=cmd.action)
         d = self.world.data
         self.log.write("step", seq=self.seq, time=float(d.time), qpos=d.qpos, qvel=d.qvel,
-                       mocap_pos=d.mocap_pos, mocap_quat=d.mocap_quat, ctrl=d.ctrl, action=cmd.action if cmd else "", safe=cmd is None,
+                       act=d.act, mocap_pos=d.mocap_pos, mocap_quat=d.mocap_quat, ctrl=d.ctrl,
+                       action=cmd.action if cmd else "", safe=cmd is None,
                        plan_time=cmd.plan_time if cmd else 0.0, extras=self.world.extras)
         if self.viewer is not None:
             self.viewer.sync()

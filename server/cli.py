@@ -9,11 +9,12 @@ from typing import Optional
 
 import typer
 
-from shared.cli_common import default_run_dir, setup_logging, summary_line
+from shared.cli_common import default_run_dir, print_errors, setup_logging, summary_line
 from shared.config import ConfigError
 from shared.endpoints import DEFAULT_HOST, DEFAULT_PORT, Endpoints
 from shared.scenario import load_scenario
 from server.app import ServerOptions, WorldServer
+from server.check import scenario_errors
 
 app = typer.Typer(add_completion=False, help=(
     "Run the world: a MuJoCo simulation of a scenario that publishes its state over ZeroMQ and "
@@ -42,17 +43,19 @@ def main(
                                     "for its command this often (seconds), for a planner that "
                                     "subscribed late or lost it."),
     viewer: bool = typer.Option(False, help="Open MuJoCo's passive viewer (needs a display)."),
+    check: bool = typer.Option(False, "--check", help="Only check the scenario (every error of "
+                               "the file, model names included) and exit: 0 sound, 2 faulty."),
     seed: int = typer.Option(0, help="Seed of the scenario's randomised start (world.randomize)."),
     verbose: bool = typer.Option(False, "--verbose", "-v"),
 ) -> None:
     setup_logging(verbose, "m3p2i.server")
     if mode not in ("lockstep", "realtime"):
         raise typer.BadParameter("must be 'lockstep' or 'realtime'", param_hint="--mode")
-    try:
-        sc = load_scenario(scenario)
-    except ConfigError as exc:
-        typer.echo(f"error: {exc}", err=True)
-        raise typer.Exit(2) from None
+    errors = scenario_errors(scenario)     # every error of the file, before anything starts
+    print_errors(errors, err=not check)
+    if errors or check:
+        raise typer.Exit(2 if errors else 0)
+    sc = load_scenario(scenario)
     log_file = log_file or default_run_dir(sc.name) / "episode.jsonl"
     opts = ServerOptions(mode=mode, command_timeout=command_timeout,
                          realtime_factor=realtime_factor, republish=republish)

@@ -2,8 +2,9 @@
 
 Line-buffered JSONL survives Ctrl-C, a planner crash or a server crash: everything up to the last
 complete line is on disk. Record kinds (``kind`` field): ``header``, ``step``, ``event``,
-``summary``. ``scripts/``, tests and ``m3p2i bench`` read it back with :func:`read_log`
-(:mod:`shared.episode`, so that ``shared`` never imports the server; re-exported here).
+``summary``. The server's own metrics, ``m3p2i bench``, ``plot`` and ``record``, and the tests
+read it back with :func:`read_log` (:mod:`shared.evaluation.episode`, so that ``shared`` never
+imports the server; re-exported here).
 """
 
 from __future__ import annotations
@@ -15,7 +16,7 @@ from typing import Any
 
 import numpy as np
 
-from shared.episode import read_log
+from shared.evaluation.episode import read_log
 
 __all__ = ["EpisodeLog", "read_log"]
 

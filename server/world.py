@@ -13,6 +13,7 @@ import mujoco
 import numpy as np
 
 from shared.frames import FrameResolver
+from shared.geometry import select_axes
 from shared.predicates import WorldView
 from shared.protocol import State
 from shared.robots import get_robot
@@ -36,10 +37,8 @@ class SimWorld:
         self.model = compile_model(scenario)
         self.data = mujoco.MjData(self.model)
         self.robot = get_robot(scenario.robot.model)
-        self.safe_ctrl = np.array(self.robot.safe_ctrl, dtype=float)
-        self._hold = [self.model.actuator(n).id for n in self.robot.hold_ctrl]
         resolve = FrameResolver(self.model, self.robot.frame)
-        self.success = [p.bind(resolve) for p in scenario.episode.success]
+        self.success_test = [p.bind(resolve) for p in scenario.episode.success]
         self.battery = scenario.world.battery
         if self.battery:
             self._robot_frame = resolve("robot")
@@ -61,7 +60,7 @@ class SimWorld:
         reset_data(self.scenario, self.model, self.data)
         self.initial = self.disturbances.reset(self.data, np.random.default_rng(self.seed))
         mujoco.mj_forward(self.model, self.data)
-        self.data.ctrl[:] = self.safe_ctrl      # what a safe stop holds before any command
+        self.data.ctrl[:] = self.robot.safe_stop()      # what a safe stop holds before any command
         self.status = "running"
         self._success_since: float | None = None
         if self.battery:
@@ -69,9 +68,7 @@ class SimWorld:
 
     def safe_command(self) -> np.ndarray:
         """The robot's safe control, its ``hold_ctrl`` actuators kept at their last command."""
-        ctrl = self.safe_ctrl.copy()
-        ctrl[self._hold] = self.data.ctrl[self._hold]
-        return ctrl
+        return self.robot.safe_stop(self.data.ctrl)
 
     def step(self, ctrl: np.ndarray) -> None:
         """Advance one timestep holding ``ctrl`` (clipped to the actuators' ranges)."""
@@ -88,7 +85,7 @@ class SimWorld:
 
     def _step_battery(self) -> None:
         """Thesis Eq. 4.1, per second of simulated time: charge near the charger, else drain."""
-        d = self._robot_frame.pos(self.data)[:2] - self._charger.pos(self.data)[:2]
+        d = select_axes(self._robot_frame.pos(self.data) - self._charger.pos(self.data), "xy")
         sign = 1.0 if np.linalg.norm(d) <= self.battery.radius else -1.0
         level = self.extras["battery"] + sign * self.battery.rate * self.dt
         self.extras["battery"] = float(np.clip(level, 0.0, 100.0))
@@ -97,7 +94,7 @@ class SimWorld:
         if self.status != "running":
             return
         view = WorldView(self.data, self.extras)
-        if not all(p(view) for p in self.success):
+        if not all(p(view) for p in self.success_test):
             self._success_since = None
         elif self._success_since is None:
             self._success_since = self.data.time
@@ -118,6 +115,6 @@ class SimWorld:
         """Status and the success predicates' measures (e.g. final distance to the goal)."""
         view = WorldView(self.data, self.extras)
         measures = {}
-        for p in self.success:
+        for p in self.success_test:
             measures.update(p.measures(view))
         return Outcome(self.status, float(self.data.time), measures)

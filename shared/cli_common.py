@@ -38,3 +38,24 @@ def summary_line(status: str, sim_time: float, measures: dict[str, float]) -> st
     if "planner_hz" in measures:
         parts.append(f"planner {measures['planner_hz']:.1f} Hz")
     return ", ".join(parts)
+
+
+ERROR_PREFIX = "error: "
+
+
+def print_errors(errors, err: bool = True) -> None:
+    """Each error on its own ``error: ...`` line(s), as ``m3p2i`` reads them back from the
+    processes' ``--check``."""
+    for e in errors:
+        print(f"{ERROR_PREFIX}{e}", file=sys.stderr if err else sys.stdout)
+
+
+def error_blocks(text: str) -> list[str]:
+    """The messages :func:`print_errors` wrote into ``text`` (a message may span lines)."""
+    blocks: list[str] = []
+    for line in text.splitlines():
+        if line.startswith(ERROR_PREFIX):
+            blocks.append(line[len(ERROR_PREFIX):])
+        elif blocks and line:
+            blocks[-1] += "\n" + line
+    return blocks

@@ -12,6 +12,7 @@ Unknown keys are errors (a typo must never silently fall back to a default).
 from __future__ import annotations
 
 from collections.abc import Callable, Iterable, Sequence
+from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
@@ -37,6 +38,54 @@ class ConfigError(ValueError):
         if extra:
             text += f" ({'; '.join(extra)})"
         super().__init__(text)
+
+
+class ConfigErrors(ConfigError):
+    """Several errors of one file, reported together: its message is one line per error."""
+
+    def __init__(self, errors: Sequence[ConfigError]):
+        self.errors = list(errors)
+        first = self.errors[0]
+        self.source, self.path, self.value, self.expected = first.source, "", _MISSING, None
+        self.message = "\n".join(str(e) for e in self.errors)
+        ValueError.__init__(self, self.message)
+
+
+class ErrorLog:
+    """Collects ConfigErrors so a file's faults are all reported at once, not one per run.
+
+    A reader wraps each independent part (a section, a list item, a cost term) in
+    :meth:`collect` or :meth:`call`; :meth:`raise_if_any` raises what was found: the single
+    :class:`ConfigError`, or :class:`ConfigErrors` for several.
+    """
+
+    def __init__(self) -> None:
+        self.errors: list[ConfigError] = []
+
+    def add(self, exc: ConfigError) -> None:
+        self.errors.extend(exc.errors if isinstance(exc, ConfigErrors) else [exc])
+
+    @contextmanager
+    def collect(self):
+        """Run a block; a ConfigError it raises is recorded and the block is abandoned."""
+        try:
+            yield
+        except ConfigError as exc:
+            self.add(exc)
+
+    def call(self, fn: Callable[..., Any], *args: Any, default: Any = None, **kwargs: Any) -> Any:
+        """``fn(*args, **kwargs)``, or ``default`` with the ConfigError recorded."""
+        try:
+            return fn(*args, **kwargs)
+        except ConfigError as exc:
+            self.add(exc)
+            return default
+
+    def raise_if_any(self) -> None:
+        if len(self.errors) == 1:
+            raise self.errors[0]
+        if self.errors:
+            raise ConfigErrors(self.errors)
 
 
 def find_named(name_or_path: str | Path, directories: Sequence[Path], what: str) -> Path:

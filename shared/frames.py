@@ -12,6 +12,8 @@ from dataclasses import dataclass
 import mujoco
 import numpy as np
 
+from shared.config import ConfigError
+
 
 @dataclass(frozen=True)
 class Frame:
@@ -52,10 +54,20 @@ class FrameResolver:
             raise KeyError(f"no {what} named {mj_name!r} in the model (frame {name!r})")
         return Frame(name, kind, fid)
 
+    def checked(self, name: str, source: str, key: str) -> Frame:
+        """The frame of a YAML name, or a ConfigError naming the file, the key path, the name
+        and every valid name: the one place such an error is worded."""
+        try:
+            return self(name)
+        except KeyError as exc:
+            raise ConfigError(source, key, str(exc.args[0]), name,
+                              f"one of: {', '.join(self.names())}") from None
+
     def names(self) -> list[str]:
-        """Every name a YAML file may use, for error messages."""
+        """Every name a YAML file may use, once each, for error messages (a robot whose frame
+        body is itself called ``robot`` is listed once)."""
         bodies = [mujoco.mj_id2name(self.model, mujoco.mjtObj.mjOBJ_BODY, i)
                   for i in range(1, self.model.nbody)]
         sites = [f"site:{mujoco.mj_id2name(self.model, mujoco.mjtObj.mjOBJ_SITE, i)}"
                  for i in range(self.model.nsite)]
-        return ["robot"] + [n for n in bodies + sites if n and n != "site:None"]
+        return list(dict.fromkeys(["robot"] + [n for n in bodies + sites if n and n != "site:None"]))

@@ -15,6 +15,19 @@ import torch
 
 ArrayLike = torch.Tensor | np.ndarray
 
+# World axes a distance may be measured along: ``xy`` ignores height; ``xz`` and ``yz`` ignore
+# one horizontal axis (e.g. a side grasp lining up level with a cube before it moves in along y).
+# The one definition costs, predicates, metrics and the scenario loader use.
+AXES: dict[str, tuple[int, ...]] = {"xy": (0, 1), "xz": (0, 2), "yz": (1, 2), "xyz": (0, 1, 2)}
+
+
+def select_axes(x: ArrayLike, axes: str) -> ArrayLike:
+    """The components of ``x [..., 3]`` along ``axes`` (a key of :data:`AXES`) ->
+    ``[..., 2 or 3]``; NumPy stays NumPy, a tensor stays a tensor."""
+    if axes not in AXES:
+        raise ValueError(f"unknown axes {axes!r}; one of: {', '.join(AXES)}")
+    return x if axes == "xyz" else x[..., list(AXES[axes])]
+
 
 def _tensors(*xs: ArrayLike) -> list[torch.Tensor]:
     """Inputs as tensors of one floating dtype on one device. NumPy inputs join the tensor
@@ -49,11 +62,11 @@ def quat_to_rotmat(quat: ArrayLike) -> torch.Tensor:
 
 
 def symmetric_orientation_error(rot_u: ArrayLike, rot_v: ArrayLike) -> torch.Tensor:
-    """Orientation distance between two frames of a fully symmetric object (thesis Eq. 33).
+    """Orientation distance between two frames of a fully symmetric object (paper Eq. 33).
 
     ``phi(S_u, S_v) = min_{i,j in 1..3} 2 - |u1 . v_i| - |u2 . v_j|``, where ``u1, u2`` are the
     first two axes of frame u and ``v_i`` any axis of frame v. The two minimisations are
-    independent, as in Eq. 33, so ``phi = 2 - max_i |u1 . v_i| - max_j |u2 . v_j|``. It is 0
+    independent, as in paper Eq. 33, so ``phi = 2 - max_i |u1 . v_i| - max_j |u2 . v_j|``. It is 0
     exactly when the frames are in "general equivalence" (Definition 1: every axis of one is
     collinear with an axis of the other): for orthonormal u1, u2 both maxima can reach 1 only on
     different axes of v (Proposition 1 / Theorem 1). Any of the 24 rotations of a cube onto

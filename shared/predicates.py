@@ -19,9 +19,9 @@ from typing import Any, ClassVar
 import mujoco
 import numpy as np
 
-from shared.config import ConfigError, Section, non_negative, number, one_of, vector
+from shared.config import ConfigError, ErrorLog, Section, non_negative, number, one_of, vector
 from shared.frames import Frame, FrameResolver
-from shared.geometry import symmetric_orientation_error
+from shared.geometry import AXES, select_axes, symmetric_orientation_error
 
 PREDICATES: dict[str, type[Predicate]] = {}
 
@@ -51,9 +51,6 @@ class Predicate(ABC):
     def from_section(cls, s: Section) -> Predicate:
         """Build from the predicate's YAML parameters."""
 
-    def frames(self) -> list[str]:
-        return [getattr(self, k) for k in self.frame_keys]
-
     def bind(self, resolve: FrameResolver) -> BoundPredicate:
         """Resolve frame names once; the result is called every tick."""
         return BoundPredicate(self, {k: resolve(getattr(self, k)) for k in self.frame_keys})
@@ -81,18 +78,31 @@ class BoundPredicate:
 
 
 def _axes(value: Any) -> str:
-    return one_of(["xy", "xyz"])(value)
+    return one_of(AXES)(value)
 
 
 def _distance(a: np.ndarray, b: np.ndarray, axes: str) -> float:
-    d = a - b
-    return float(np.linalg.norm(d[:2] if axes == "xy" else d))
+    return float(np.linalg.norm(select_axes(a - b, axes)))
+
+
+class _PairDistance:
+    """What ``near`` and ``far`` share: the distance between frames ``a`` and ``b`` along
+    ``axes``, reported as ``distance a-b``."""
+    a: str
+    b: str
+    axes: str
+
+    def distance(self, view, frames) -> float:
+        return _distance(frames["a"].pos(view.data), frames["b"].pos(view.data), self.axes)
+
+    def measure(self, view, frames):
+        return {f"distance {self.a}-{self.b}": self.distance(view, frames)}
 
 
 @register("near")
 @dataclass(frozen=True)
-class Near(Predicate):
-    """|x_a - x_b| <= within (paper Eq. 13, Eq. 23); ``axes: xy`` ignores height."""
+class Near(_PairDistance, Predicate):
+    """|x_a - x_b| <= within (paper Eq. 13, paper Eq. 23); ``axes: xy`` ignores height."""
     a: str
     b: str
     within: float
@@ -104,28 +114,27 @@ class Near(Predicate):
         return cls(a=s.req("a", str), b=s.req("b", str), within=s.req("within", non_negative),
                    axes=s.opt("axes", "xyz", _axes))
 
-    def distance(self, view, frames) -> float:
-        return _distance(frames["a"].pos(view.data), frames["b"].pos(view.data), self.axes)
-
     def holds(self, view, frames):
         return self.distance(view, frames) <= self.within
-
-    def measure(self, view, frames):
-        return {f"distance {self.a}-{self.b}": self.distance(view, frames)}
 
 
 @register("far")
 @dataclass(frozen=True)
-class Far(Near):
+class Far(_PairDistance, Predicate):
     """|x_a - x_b| > beyond: the negation of ``near`` for templates that need it by name."""
+    a: str
+    b: str
+    beyond: float
+    axes: str = "xyz"
+    frame_keys: ClassVar[tuple[str, ...]] = ("a", "b")
 
     @classmethod
     def from_section(cls, s: Section) -> Far:
-        return cls(a=s.req("a", str), b=s.req("b", str), within=s.req("beyond", non_negative),
+        return cls(a=s.req("a", str), b=s.req("b", str), beyond=s.req("beyond", non_negative),
                    axes=s.opt("axes", "xyz", _axes))
 
     def holds(self, view, frames):
-        return self.distance(view, frames) > self.within
+        return self.distance(view, frames) > self.beyond
 
 
 @register("extra_at_least")
@@ -151,7 +160,7 @@ class ExtraAtLeast(Predicate):
 class AtPose(Predicate):
     """Frame ``a`` at ``b`` shifted by ``offset`` (world frame, metres), in position and in
     orientation (paper Eqs. 25-26): |x_a - (x_b + offset)| < ``within`` and, when ``orientation``
-    is given, φ(Σ_a, Σ_b) < ``orientation`` with φ the symmetric-object metric of Eq. 33 (any of
+    is given, φ(Σ_a, Σ_b) < ``orientation`` with φ the symmetric-object metric of paper Eq. 33 (any of
     a cube's 24 symmetries counts as aligned). The offset places a goal relative to a movable
     object, e.g. "on top of cube B" is ``offset: [0, 0, 0.05]`` for 5 cm cubes."""
     a: str
@@ -267,18 +276,21 @@ def parse_predicate(s: Section) -> Predicate:
 
 
 def check_frames(pred: Predicate, resolve: FrameResolver, source: str, path: str) -> None:
-    """Load-time check that every frame a predicate names exists in the model."""
+    """Load-time check that every frame a predicate names exists in the model; every missing
+    frame of the predicate (and of the parts of an ``all``) is reported at once."""
+    errors = ErrorLog()
+    _check_frames(pred, resolve, source, path, errors)
+    errors.raise_if_any()
+
+
+def _check_frames(pred: Predicate, resolve: FrameResolver, source: str, path: str,
+                  errors: ErrorLog) -> None:
     if isinstance(pred, All):
         for i, part in enumerate(pred.parts):
-            check_frames(part, resolve, source, f"{path}.all[{i}]")
+            _check_frames(part, resolve, source, f"{path}.all[{i}]", errors)
         return
     for key in pred.frame_keys:
-        name = getattr(pred, key)
-        try:
-            resolve(name)
-        except KeyError as exc:
-            raise ConfigError(source, f"{path}.{pred.kind}.{key}", str(exc.args[0]), name,
-                              f"one of: {', '.join(resolve.names())}") from None
+        errors.call(resolve.checked, getattr(pred, key), source, f"{path}.{pred.kind}.{key}")
 
 
 @register("battery_enough")

@@ -10,18 +10,21 @@ from __future__ import annotations
 import hashlib
 import json
 import os
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from shared.config import (ConfigError, Section, find_named, load_yaml, non_negative, number, one_of,
+from shared.config import (ConfigError, ErrorLog, Section, find_named, load_yaml, non_negative, number, one_of,
                            positive, positive_int, string_list, vector)
+from shared.geometry import AXES
 from shared.predicates import Predicate, parse_predicate
 from shared.robots import ROBOTS, get_robot
-from shared.task_template import TaskTemplate, parse_task
+from shared.task_template import FactorTemplate, TaskTemplate, parse_task
 
 PROJECT_ROOT = Path(__file__).resolve().parent.parent
 SCENARIO_DIR = PROJECT_ROOT / "configs" / "scenarios"
+OBJECTIVES_DIR = PROJECT_ROOT / "configs" / "objectives"
 
 SHAPES = ("box", "cylinder", "sphere")
 _SIZE_LEN = {"box": 3, "cylinder": 2, "sphere": 1}
@@ -52,10 +55,9 @@ class ObjectConfig:
 @dataclass(frozen=True)
 class ArenaConfig:
     """Walls of a square arena at ±half_size around the origin (thesis code: 4 m); drawn
-    ``wall_height`` high. ``wall_thickness`` is kept for YAML compatibility: walls are planes."""
+    ``wall_height`` high."""
     half_size: float = 4.0
     wall_height: float = 0.3
-    wall_thickness: float = 0.1
 
 
 @dataclass(frozen=True)
@@ -149,7 +151,7 @@ class CollisionMetricConfig:
 
 @dataclass(frozen=True)
 class MetricsConfig:
-    """What ``shared.metrics`` measures per episode (``metrics:``; docs/evaluation.md). A metric
+    """What ``shared.evaluation.metrics`` measures per episode (``metrics:``; docs/evaluation.md). A metric
     left as None is not measured."""
     position: FramePairConfig | None = None
     orientation: FramePairConfig | None = None
@@ -163,6 +165,7 @@ class TermConfig:
     weight: float
     params: dict[str, Any]
     path: str                              # key path, for the planner's error messages
+    source: str = ""                       # the file it is written in, when not the scenario's
 
 
 @dataclass(frozen=True)
@@ -195,7 +198,8 @@ class Scenario:
     modes: tuple[str, ...]                 # fixed modes (when there is no task template)
     task: TaskTemplate | None = None
     observers: dict[str, ObserverConfig] = field(default_factory=dict)
-    plan: dict[str, str] = field(default_factory=dict)   # action -> objective (plan interface)
+    # the plan interface, YAML key ``plan``: task action -> the objective that executes it
+    action_objectives: dict[str, str] = field(default_factory=dict)
     metrics: MetricsConfig = field(default_factory=MetricsConfig)
     raw: dict = field(repr=False, default_factory=dict)
 
@@ -206,15 +210,54 @@ def find_scenario(name_or_path: str | os.PathLike) -> Path:
 
 
 def load_scenario(name_or_path: str | os.PathLike) -> Scenario:
-    """Load and validate a scenario; raises :class:`ConfigError` naming file, key, value."""
-    path = find_scenario(name_or_path)
-    raw = load_yaml(path)
-    return parse_scenario(raw, str(path))
+    """Load and validate a scenario; raises :class:`ConfigError` naming file, key, value (or
+    :class:`~shared.config.ConfigErrors` with every error of the file)."""
+    reading = read_scenario(name_or_path)
+    reading.raise_if_any()
+    return reading.scenario
 
 
-def scenario_hash(raw: dict) -> str:
-    """Hash of the scenario's content and of the robot model file it names."""
+@dataclass
+class ScenarioReading:
+    """A scenario file read with every error collected instead of raised at the first.
+
+    ``scenario`` is what could be read (None when not even a model could be described: no file,
+    bad YAML, an unknown robot); faulty parts are left out of it, so it serves only checks.
+    ``model_ok``: the robot and the world were read without error, so the compiled model is
+    the one the file describes and model checks (frames, actuators, sensors) mean something.
+    """
+    scenario: Scenario | None
+    errors: list[ConfigError]
+    model_ok: bool
+
+    def raise_if_any(self) -> None:
+        log = ErrorLog()
+        log.errors = list(self.errors)
+        log.raise_if_any()
+
+
+def read_scenario(name_or_path: str | os.PathLike) -> ScenarioReading:
+    """Read a scenario, collecting every load-time error (see :class:`ScenarioReading`)."""
+    errors = ErrorLog()
+    path = errors.call(find_scenario, name_or_path)
+    raw = errors.call(load_yaml, path) if path is not None else None
+    if raw is None:
+        return ScenarioReading(None, errors.errors, False)
+    return _read(raw, str(path), errors)
+
+
+def find_objectives(name_or_path: str | os.PathLike) -> Path:
+    """A path as given, else ``configs/objectives/NAME.yaml`` (cwd first, then the project)."""
+    return find_named(name_or_path, [Path.cwd() / "configs" / "objectives", OBJECTIVES_DIR],
+                      "objectives")
+
+
+def scenario_hash(raw: dict, included: Sequence[dict] = ()) -> str:
+    """Hash of the scenario's content, of the objective files it includes and of the robot
+    model file it names."""
     h = hashlib.sha256(json.dumps(raw, sort_keys=True, default=str).encode())
+    for inc in included:
+        h.update(json.dumps(inc, sort_keys=True, default=str).encode())
     robot = raw.get("robot", {}).get("model") if isinstance(raw.get("robot"), dict) else None
     if robot in ROBOTS:
         h.update(ROBOTS[robot].path.read_bytes())
@@ -222,70 +265,110 @@ def scenario_hash(raw: dict) -> str:
 
 
 def parse_scenario(raw: dict, source: str) -> Scenario:
+    """A scenario from its YAML mapping; raises with every error of the file."""
+    reading = _read(raw, source, ErrorLog())
+    reading.raise_if_any()
+    return reading.scenario
+
+
+def _read(raw: dict, source: str, errors: ErrorLog) -> ScenarioReading:
+    """Each independent part is read under ``errors``: a fault is recorded and the part left
+    out, and the rest is still read. Parts that depend on a faulty one (observers on the task,
+    metrics on the episode) are skipped rather than reported again."""
+    n_before = len(errors.errors)
     top = Section(raw, source)
-    name = top.req("name", str)
-    description = top.opt("description", "", str)
-    robot = _robot(top.section("robot"))
-    world = _world(top.section("world"))
-    episode = _episode(top.section("episode"))
-    metrics = _metrics(top.section("metrics", required=False), episode)
-    planner = _planner(top.section("planner", required=False))
-    objectives = _objectives(top.section("objectives"))
-    task = parse_task(top.section("task")) if top.has("task") else None
-    if task is None:
-        modes = top.req("modes", string_list, "a list of objective names (or a task: template)")
-        observers, plan = {}, {}
+    name = errors.call(top.req, "name", str, default=Path(source).stem)
+    description = errors.call(top.opt, "description", "", str, default="")
+    robot = errors.call(lambda: _robot(top.section("robot")))
+    world = errors.call(lambda: _world(top.section("world"), errors))
+    model_ok = len(errors.errors) == n_before
+    episode = errors.call(lambda: _episode(top.section("episode"), errors))
+    metrics = MetricsConfig()
+    if episode is not None:
+        metrics = errors.call(lambda: _metrics(top.section("metrics", required=False), episode),
+                              default=metrics)
     else:
-        modes = top.opt("modes", (), string_list, "a list of objective names")
-        observers = _observers(top.section("observers"), task)
-        plan = _plan(top.section("plan"), task, objectives)
-    for i, m in enumerate(modes):
-        if m not in objectives:
-            raise ConfigError(source, f"modes[{i}]", "not an objective of this scenario", m,
-                              f"one of: {', '.join(objectives)}")
-    top.done()
-    return Scenario(name=name, description=description, source=source, hash=scenario_hash(raw),
-                    robot=robot, world=world, episode=episode, planner=planner,
-                    objectives=objectives, modes=modes, task=task, observers=observers,
-                    plan=plan, metrics=metrics, raw=raw)
+        top.section("metrics", required=False)
+    planner = errors.call(lambda: _planner(top.section("planner", required=False)),
+                          default=PlannerConfig())
+    library, included = _includes(top, errors)
+    objectives = errors.call(lambda: _objectives(top.section("objectives"), errors, library),
+                             default={})
+    task = errors.call(lambda: parse_task(top.section("task"))) if top.has("task") else None
+    observers, action_objectives, modes = {}, {}, ()
+    if task is None and not top.has("task"):
+        modes = errors.call(top.req, "modes", string_list,
+                            "a list of objective names (or a task: template)", default=())
+    else:
+        modes = errors.call(top.opt, "modes", (), string_list, "a list of objective names",
+                            default=())
+        if task is not None:
+            observers = errors.call(lambda: _observers(top.section("observers"), task, errors),
+                                    default={})
+            action_objectives = errors.call(
+                lambda: _action_objectives(top.section("plan"), task, objectives), default={})
+        else:   # the task's own errors are reported; its dependants would only repeat them
+            top.section("observers", required=False)
+            top.section("plan", required=False)
+    if top.has("objectives") and isinstance(top.data["objectives"], dict):
+        known = list(top.data["objectives"])
+        for i, m in enumerate(modes):
+            if m not in known:
+                errors.add(ConfigError(source, f"modes[{i}]", "not an objective of this scenario",
+                                       m, f"one of: {', '.join(known)}"))
+    errors.call(top.done)
+    if robot is None or world is None:
+        return ScenarioReading(None, errors.errors, False)
+    scenario = Scenario(name=name, description=description, source=source,
+                        hash=scenario_hash(raw, included), robot=robot, world=world,
+                        episode=episode or EpisodeConfig(max_time=0.0, success=()),
+                        planner=planner, objectives=objectives, modes=modes, task=task,
+                        observers=observers, action_objectives=action_objectives, metrics=metrics, raw=raw)
+    return ScenarioReading(scenario, errors.errors, model_ok)
 
 
-def _observers(s: Section, task: TaskTemplate) -> dict[str, ObserverConfig]:
+def _observers(s: Section, task: TaskTemplate, errors: ErrorLog) -> dict[str, ObserverConfig]:
     """``factor: {predicate: {...}}`` (true -> first state, false -> second), or
-    ``factor: [{state: s, when: {predicate: {...}}}, ..., {default: s}]``."""
+    ``factor: [{state: s, when: {predicate: {...}}}, ..., {default: s}]``. Each factor's
+    faults are collected in ``errors``."""
     out = {}
     for factor in task.factors:
-        if not s.has(factor.name):
-            raise s.error(factor.name, "missing observer for task factor", expected="a predicate "
-                          "or a list of {state, when} rules ending with {default: state}")
-        value = s.data[factor.name]
-        states = factor.states
-        if isinstance(value, dict):
-            if len(states) != 2:
-                raise s.error(factor.name, "the one-predicate form needs a two-state factor",
-                              list(states), "a list of {state, when} rules")
-            out[factor.name] = ObserverConfig(((states[0], parse_predicate(s.section(factor.name))),),
-                                              states[1])
-            continue
-        rules, default = [], None
-        for i, rule in enumerate(s.items(factor.name, required=True)):
-            if rule.has("default"):
-                default = rule.req("default", one_of(states))
-                rule.done()
-                if i != len(s.data[factor.name]) - 1:
-                    raise rule.error("default", "must be the last rule")
-                continue
-            state = rule.req("state", one_of(states))
-            rules.append((state, parse_predicate(rule.section("when"))))
-            rule.done()
-        if default is None:
-            raise s.error(factor.name, "the rule list needs a final {default: state}")
-        out[factor.name] = ObserverConfig(tuple(rules), default)
+        observer = errors.call(_observer, s, factor)
+        if observer is not None:
+            out[factor.name] = observer
     s.done()
     return out
 
 
-def _plan(s: Section, task: TaskTemplate, objectives: dict) -> dict[str, str]:
+def _observer(s: Section, factor: FactorTemplate) -> ObserverConfig:
+    """One task factor's observer (see :func:`_observers`)."""
+    if not s.has(factor.name):
+        raise s.error(factor.name, "missing observer for task factor", expected="a predicate "
+                      "or a list of {state, when} rules ending with {default: state}")
+    value = s.data[factor.name]
+    states = factor.states
+    if isinstance(value, dict):
+        if len(states) != 2:
+            raise s.error(factor.name, "the one-predicate form needs a two-state factor",
+                          list(states), "a list of {state, when} rules")
+        return ObserverConfig(((states[0], parse_predicate(s.section(factor.name))),), states[1])
+    rules, default = [], None
+    for i, rule in enumerate(s.items(factor.name, required=True)):
+        if rule.has("default"):
+            default = rule.req("default", one_of(states))
+            rule.done()
+            if i != len(s.data[factor.name]) - 1:
+                raise rule.error("default", "must be the last rule")
+            continue
+        state = rule.req("state", one_of(states))
+        rules.append((state, parse_predicate(rule.section("when"))))
+        rule.done()
+    if default is None:
+        raise s.error(factor.name, "the rule list needs a final {default: state}")
+    return ObserverConfig(tuple(rules), default)
+
+
+def _action_objectives(s: Section, task: TaskTemplate, objectives: dict) -> dict[str, str]:
     """The plan interface (paper II.D): every task action -> the objective that executes it."""
     out = {}
     for action in task.actions():
@@ -305,14 +388,17 @@ def _robot(s: Section) -> RobotConfig:
     return RobotConfig(model=model, qpos=qpos)
 
 
-def _world(s: Section) -> WorldConfig:
+def _world(s: Section, errors: ErrorLog) -> WorldConfig | None:
+    """The world, or None when a faulty object, randomisation or disturbance was recorded in
+    ``errors`` (the model of a faulty world is not the file's)."""
+    n_before = len(errors.errors)
     timestep = s.req("timestep", positive, "seconds > 0")
     arena = None
     if s.has("arena"):
         a = s.section("arena")
         arena = ArenaConfig(half_size=a.opt("half_size", 4.0, positive),
-                            wall_height=a.opt("wall_height", 0.3, positive),
-                            wall_thickness=a.opt("wall_thickness", 0.1, positive))
+                            wall_height=a.opt("wall_height", 0.3, positive))
+        a.opt("wall_thickness", None, positive)   # accepted from older files: walls are planes
         a.done()
     battery = None
     if s.has("battery"):
@@ -324,18 +410,24 @@ def _world(s: Section) -> WorldConfig:
     objects = []
     names: set[str] = set()
     for o in s.items("objects"):
-        obj = _object(o)
+        obj = errors.call(_object, o)
+        if obj is None:
+            continue
         if obj.name in names or obj.name == "robot":
-            raise o.error("name", "duplicate or reserved object name", obj.name, "a unique name")
+            errors.add(o.error("name", "duplicate or reserved object name", obj.name,
+                               "a unique name"))
+            continue
         names.add(obj.name)
         objects.append(obj)
     if battery and battery.charger not in names:
         raise ConfigError(s.source, f"{s.path}.battery.charger", "not an object of this world",
                           battery.charger, f"one of: {', '.join(sorted(names))}")
     by_name = {o.name: o for o in objects}
-    randomize = tuple(_randomize(r, by_name) for r in s.items("randomize"))
-    disturbances = tuple(_disturbance(d, by_name) for d in s.items("disturbances"))
+    randomize = tuple(errors.call(_randomize, r, by_name) for r in s.items("randomize"))
+    disturbances = tuple(errors.call(_disturbance, d, by_name) for d in s.items("disturbances"))
     s.done()
+    if len(errors.errors) > n_before:
+        return None
     return WorldConfig(timestep=timestep, objects=tuple(objects), arena=arena, battery=battery,
                        randomize=randomize, disturbances=disturbances)
 
@@ -429,13 +521,17 @@ def _object(s: Section) -> ObjectConfig:
     return obj
 
 
-def _episode(s: Section) -> EpisodeConfig:
-    max_time = s.req("max_time", positive, "seconds of simulated time")
-    success = tuple(parse_predicate(p) for p in s.items("success", required=True))
-    if not success:
+def _episode(s: Section, errors: ErrorLog) -> EpisodeConfig:
+    """The episode; a faulty success predicate is recorded in ``errors``, and then the whole
+    success test is left out (so later checks never name a shifted index)."""
+    max_time = errors.call(s.req, "max_time", positive, "seconds of simulated time", default=0.0)
+    items = s.items("success", required=True)
+    if not items:
         raise s.error("success", "needs at least one predicate", [])
-    hold = s.opt("hold", 0.0, non_negative, "seconds >= 0")
-    s.done()
+    parsed = [errors.call(parse_predicate, i) for i in items]
+    success = tuple(parsed) if None not in parsed else ()
+    hold = errors.call(s.opt, "hold", 0.0, non_negative, "seconds >= 0", default=0.0)
+    errors.call(s.done)
     return EpisodeConfig(max_time=max_time, success=success, hold=hold)
 
 
@@ -475,7 +571,7 @@ def _frame_pair(s: Section, position: bool) -> FramePairConfig:
     if not position:
         s.done()
         return FramePairConfig(a, b)
-    pair = FramePairConfig(a, b, axes=s.opt("axes", "xyz", one_of(("xy", "xyz"))),
+    pair = FramePairConfig(a, b, axes=s.opt("axes", "xyz", one_of(AXES)),
                            offset=s.opt("offset", (0.0, 0.0, 0.0), vector(3), "[x, y, z] in metres"))
     s.done()
     return pair
@@ -491,22 +587,79 @@ def _planner(s: Section) -> PlannerConfig:
     return cfg
 
 
-def _objectives(s: Section) -> dict[str, ObjectiveConfig]:
-    out = {}
+def _includes(top: Section, errors: ErrorLog) -> tuple[dict[str, ObjectiveConfig], list[dict]]:
+    """``include: [NAME or path, ...]``: files of named objectives (``configs/objectives/``)
+    that this scenario's objectives may ``extends``; their contents, for the hash."""
+    names = errors.call(top.opt, "include", (), string_list,
+                        "a list of objective files: configs/objectives/NAME.yaml or paths",
+                        default=())
+    library: dict[str, ObjectiveConfig] = {}
+    contents = []
+    for i, name in enumerate(names):
+        try:
+            path = find_objectives(name)
+            raw = load_yaml(path)
+        except ConfigError as exc:
+            errors.add(ConfigError(top.source, f"include[{i}]", exc.message, name,
+                                   exc.expected or "an objectives file"))
+            continue
+        contents.append(raw)
+        s = Section(raw, str(path))
+        errors.call(s.opt, "description", "", str)
+        defined = errors.call(lambda: _objectives(s.section("objectives"), errors, library),
+                              default={})
+        errors.call(s.done)
+        for key in defined:
+            if key in library:
+                errors.add(ConfigError(str(path), f"objectives.{key}",
+                                       "defined in two included files", key, "a unique name"))
+        library.update(defined)
+    return library, contents
+
+
+def _objectives(s: Section, errors: ErrorLog,
+                library: dict[str, ObjectiveConfig]) -> dict[str, ObjectiveConfig]:
+    """Every objective of the mapping at ``s``; a faulty term or ``fixed`` value is recorded in
+    ``errors`` and left out, so the planner's checks of the other terms still run.
+
+    ``NAME: {extends: BASE, terms: [...], fixed: {...}}`` starts from objective BASE (of an
+    included file, or defined above in the same mapping): its terms, then these; its ``fixed``
+    controls, updated with these."""
+    out: dict[str, ObjectiveConfig] = {}
     for name in s.data:
-        o = s.section(name)
-        terms = []
-        for t in o.items("terms", required=True):
-            term = t.req("term", str)
-            weight = t.opt("weight", 1.0, number)
-            params = {k: v for k, v in t.data.items() if k not in ("term", "weight")}
-            terms.append(TermConfig(term=term, weight=weight, params=params, path=t.path))
-        fixed = o.opt("fixed", {}, dict, "a mapping actuator -> value")
+        o = errors.call(s.section, name)
+        if o is None:
+            continue
+        known = {**library, **out}
+        base = ObjectiveConfig(terms=())
+        if o.has("extends"):
+            base_name = errors.call(o.req, "extends", one_of(known),
+                                    "an objective of an included file or defined above")
+            if base_name is None:
+                o.opt("terms", None)     # the extends error is the one to report
+                o.opt("fixed", None)
+                continue
+            base = known[base_name]
+            items = errors.call(o.items, "terms", default=[])
+        else:
+            items = errors.call(o.items, "terms", required=True, default=[])
+        terms = tuple(t for t in (errors.call(_term, t) for t in items) if t is not None)
+        fixed = errors.call(o.opt, "fixed", {}, dict, "a mapping actuator -> value", default={})
+        numbers = {}
         for k, v in fixed.items():
             if isinstance(v, bool) or not isinstance(v, (int, float)):
-                raise ConfigError(s.source, f"{o.path}.fixed.{k}", "must be a number", v)
-        o.done()
-        out[name] = ObjectiveConfig(terms=tuple(terms), fixed={k: float(v) for k, v in fixed.items()})
-    if not out:
+                errors.add(ConfigError(s.source, f"{o.path}.fixed.{k}", "must be a number", v))
+            else:
+                numbers[k] = float(v)
+        errors.call(o.done)
+        out[name] = ObjectiveConfig(terms=base.terms + terms, fixed={**base.fixed, **numbers})
+    if not s.data:
         raise ConfigError(s.source, s.path, "needs at least one objective", {})
     return out
+
+
+def _term(t: Section) -> TermConfig:
+    term = t.req("term", str)
+    weight = t.opt("weight", 1.0, number, "a number")
+    params = {k: v for k, v in t.data.items() if k not in ("term", "weight")}
+    return TermConfig(term=term, weight=weight, params=params, path=t.path, source=t.source)

@@ -8,6 +8,8 @@ compiling; sensors do not change the dynamics, so the mirrored state stays valid
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping
+from typing import Any
 
 import mujoco
 import numpy as np
@@ -110,6 +112,24 @@ def obstacle_names(scenario: Scenario) -> list[str]:
     names = list(WALL_NAMES) if scenario.world.arena else []
     names += [o.name for o in scenario.world.objects if o.obstacle and not o.visual]
     return names
+
+
+# What a world state holds besides time: the fields of the protocol's ``state`` message and of
+# the episode log's ``step`` records, in MuJoCo's names.
+STATE_FIELDS = ("qpos", "qvel", "act", "mocap_pos", "mocap_quat")
+
+
+def set_state(model: mujoco.MjModel, data: mujoco.MjData, values: Mapping[str, Any]) -> None:
+    """Copy a world state (each of :data:`STATE_FIELDS`, any array shape) into ``data``; sizes
+    are checked, a ValueError naming the field. Kinematics are not recomputed: the caller runs
+    ``mj_forward`` once it has set what else it needs (time, mocap velocities)."""
+    sizes = {"qpos": model.nq, "qvel": model.nv, "act": model.na,
+             "mocap_pos": model.nmocap * 3, "mocap_quat": model.nmocap * 4}
+    for name in STATE_FIELDS:
+        value = np.asarray(values[name], dtype=float).reshape(-1)
+        if value.size != sizes[name]:
+            raise ValueError(f"{name} has {value.size} values, the model needs {sizes[name]}")
+        getattr(data, name).flat[:] = value
 
 
 def state_size(model: mujoco.MjModel) -> int:

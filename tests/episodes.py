@@ -15,9 +15,9 @@ from pathlib import Path
 
 import yaml
 
-from shared import bench as B
-from shared import episode
-from shared.metrics import MetricsEvaluator
+from shared.evaluation import episode
+from shared.evaluation.metrics import MetricsEvaluator
+from shared.tools import bench as B
 from shared.scenario import find_scenario, load_scenario
 
 

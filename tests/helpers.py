@@ -12,9 +12,9 @@ from pathlib import Path
 import zmq
 
 from shared import protocol as P
-from shared.cli import free_port_block
+from shared.tools.cli import free_port_block
 from shared.endpoints import Endpoints
-from shared.launch import stop_processes
+from shared.tools.launch import stop_processes
 
 ENV = {**os.environ, "PYTHONUNBUFFERED": "1"}
 

@@ -9,14 +9,13 @@ import pytest
 import yaml
 from typer.testing import CliRunner
 
-from shared.bench import (FIELDS, BenchOptions, ResultsFile, load_bench, plan_trials,
-                          select_cases, trial_key)
-from shared.bench_report import (load_paper, markdown_table, read_results, results_report,
-                                 seed_ranges, summarize, table_rows, update_reports, wilson)
-from shared.scenario import PROJECT_ROOT
-from shared.cli import app
+from shared.tools.bench import (FIELDS, BenchOptions, ResultsFile, load_bench, plan_trials,
+                                select_cases, trial_key)
+from shared.tools.bench_report import (load_paper, markdown_table, read_results, results_report,
+                                       seed_ranges, summarize, table_rows, update_reports, wilson)
+from shared.tools.cli import app
 from shared.config import ConfigError
-from shared.scenario import SCENARIO_DIR
+from shared.scenario import PROJECT_ROOT, SCENARIO_DIR
 
 
 def write_bench(tmp_path, cases, **top):

@@ -137,7 +137,7 @@ def sensed(model: mujoco.MjModel, ctx: TermContext, term, setup, steps: int = 0)
     return RolloutBatch(sd, ctrl, SensorLayout(m, term.sensors()), m.opt.timestep)
 
 
-# --- distance, velocity (Eq. 14) -----------------------------------------------------------------
+# --- distance, velocity (paper Eq. 14) -----------------------------------------------------------------
 
 def test_distance_in_3d_and_in_the_plane(ctx):
     b = batch_of({pos("robot"): one_step((0, 0, 0), (1, 1, 1)),
@@ -174,7 +174,7 @@ def test_velocity_is_the_speed_of_the_frame(ctx):
     close(make(ctx, "velocity", a="box", axes="xy")(b), [[5.0], [0.0]])
 
 
-# --- collision, contact_force (Eq. 4.7) ----------------------------------------------------------
+# --- collision, contact_force (thesis Eq. 4.7) ----------------------------------------------------------
 
 def test_collision_is_zero_outside_the_margin_one_at_touching_and_sums_obstacles(ctx):
     term = make(ctx, "collision", a="robot", margin=0.1)
@@ -221,7 +221,7 @@ def test_contact_force_ignores_movable_objects_and_free_space(model, ctx):
 def test_contact_force_rejects_sites(ctx):
     with pytest.raises(ConfigError, match=r"o\.terms\[0\]\.a: contact forces need a body"):
         make(ctx, "contact_force", a="site:left")
-    with pytest.raises(ConfigError, match=r"terms\[0\]\.obstacles: no body named 'shelf'"):
+    with pytest.raises(ConfigError, match=r"terms\[0\]\.obstacles\[1\]: no body named 'shelf'"):
         make(ctx, "contact_force", a="robot", obstacles=["wall", "shelf"])
 
 
@@ -235,7 +235,7 @@ def test_control_effort_over_all_or_named_channels(ctx):
         make(ctx, "control_effort", actuators=["uz"])
 
 
-# --- orientation (Eqs. 15, 33) -------------------------------------------------------------------
+# --- orientation (paper Eqs. 15, 33) -------------------------------------------------------------------
 
 def _yaw(deg: float) -> tuple[float, float, float, float]:
     h = math.radians(deg) / 2
@@ -257,7 +257,7 @@ def test_orientation_reads_the_real_frame_quaternions(model, ctx):
     torch.testing.assert_close(term(b), torch.tensor([[2.0 - math.sqrt(2.0)]], dtype=F64))
 
 
-# --- push_align, pull_align (Eqs. 16-18, 20) -----------------------------------------------------
+# --- push_align, pull_align (paper Eqs. 16-18, 20) -----------------------------------------------------
 
 # object at the origin, goal 2 m ahead on x; robots: behind, between, beside, diagonally in
 # front, diagonally behind, on the object
@@ -294,7 +294,7 @@ def test_align_with_the_object_on_the_goal_costs_nothing(ctx):
         close(make(ctx, name, a="robot", obj="box", goal="goal")(b), [[0.0]])
 
 
-# --- pull_direction (Eq. 21) ---------------------------------------------------------------------
+# --- pull_direction (paper Eq. 21) ---------------------------------------------------------------------
 
 def test_pull_direction_penalises_controls_towards_the_object(ctx):
     # object 1 m along +x; actuators listed as (x, y) velocity although the channels are swapped
@@ -327,7 +327,7 @@ def test_pull_direction_needs_one_actuator_per_axis(ctx):
         make(ctx, "pull_direction", a="robot", obj="box", actuators=["ux", "vel_y"])
 
 
-# --- dynamic_obstacle (Eq. 22) -------------------------------------------------------------------
+# --- dynamic_obstacle (paper Eq. 22) -------------------------------------------------------------------
 
 def test_dynamic_obstacle_uses_the_rollouts_obstacle_position_at_each_step(ctx):
     term = make(ctx, "dynamic_obstacle", a="robot", obstacle="mover")
@@ -360,7 +360,7 @@ def test_dynamic_obstacle_prediction_matches_a_real_rollout(model, ctx):
     torch.testing.assert_close(term(b), torch.tensor([[math.exp(-g) for g in gap]], dtype=F64))
 
 
-# --- reach (Eq. 27) ------------------------------------------------------------------------------
+# --- reach (paper Eq. 27) ------------------------------------------------------------------------------
 
 def _reach_batch(term, z_ee: list) -> RolloutBatch:
     n = len(z_ee)
@@ -436,7 +436,7 @@ def test_reach_theta_must_be_a_cosine(ctx):
         make(ctx, "reach", ee="hand", obj="box")
 
 
-# --- gripper_width (Eqs. 28, 30) -----------------------------------------------------------------
+# --- gripper_width (paper Eqs. 28, 30) -----------------------------------------------------------------
 
 def test_gripper_width_closed_open_and_value(ctx):
     b = batch_of({pos("site:left"): one_step((0, 0.03, 1), (0, 0, 1)),

@@ -1,4 +1,4 @@
-"""Rotation utilities and the orientation metric for fully symmetric objects (thesis Eq. 33)."""
+"""Rotation utilities and the orientation metric for fully symmetric objects (paper Eq. 33)."""
 
 from __future__ import annotations
 
@@ -58,7 +58,7 @@ def test_quat_to_rotmat_batches_normalises_and_keeps_dtype():
     assert quat_to_rotmat(np.array([1.0, 0, 0, 0])).dtype == torch.float64
 
 
-# ---------------------------------------------------------------- phi (Eq. 33) -----------------
+# ---------------------------------------------------------------- phi (paper Eq. 33) -----------------
 
 def test_identical_frames_give_zero():
     frames = random_rotations(20, seed=1)
@@ -135,7 +135,7 @@ def test_symmetric_in_its_arguments_for_rotations_about_the_first_frames_third_a
 
 
 def test_not_symmetric_for_general_pairs_as_eq_33_is_written():
-    # Eq. 33 matches only u's first two axes, so swapping the frames can change phi (by up to
+    # paper Eq. 33 matches only u's first two axes, so swapping the frames can change phi (by up to
     # ~0.3 for random pairs). Guard against a silent "fix": this is the thesis' metric.
     u, v = random_rotations(200, seed=9), random_rotations(200, seed=10)
     difference = (symmetric_orientation_error(u, v) - symmetric_orientation_error(v, u)).abs()

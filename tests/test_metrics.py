@@ -1,4 +1,4 @@
-"""Episode metrics (shared/metrics.py) on a hand-made episode log with known answers; the
+"""Episode metrics (shared/evaluation/metrics.py) on a hand-made episode log with known answers; the
 scenario's ``metrics:`` section; the episode plot on the same log."""
 
 from __future__ import annotations
@@ -11,7 +11,7 @@ import pytest
 import yaml
 
 from shared.config import ConfigError
-from shared.metrics import (MetricsEvaluator, contact_onsets, mean_hz, orientation_error,
+from shared.evaluation.metrics import (MetricsEvaluator, contact_onsets, mean_hz, orientation_error,
                             position_error)
 from shared.scenario import load_scenario, parse_scenario
 from shared.scene import compile_model
@@ -79,7 +79,7 @@ def test_metrics_of_a_hand_made_log_have_the_known_values(scenario):
     m = MetricsEvaluator(scenario).evaluate(hand_made_log(scenario))
     assert m.status == "timeout" and not m.success
     assert m.position_error == pytest.approx(0.5)                   # |(1, 2) - (1.3, 2.4)|
-    assert m.orientation_error == pytest.approx(2 - math.sqrt(3))   # 30 deg about z, Eq. 33
+    assert m.orientation_error == pytest.approx(2 - math.sqrt(3))   # 30 deg about z, paper Eq. 33
     assert m.collisions == 2
     assert m.time == pytest.approx(0.35)
     assert m.wall_time == pytest.approx(104.5 - 101.0)              # handshake -> last step
@@ -114,7 +114,7 @@ def test_default_position_metric_is_the_first_near_success_predicate(scenario):
 
 
 def test_at_pose_success_gives_position_with_offset_and_orientation(tmp_path):
-    """Pick-and-place judges success on at_pose (goal = b + offset, Eq. 26): the metrics default
+    """Pick-and-place judges success on at_pose (goal = b + offset, paper Eq. 26): the metrics default
     to the same frames, offset included."""
     raw = {**SCENARIO, "metrics": {"collisions": {"a": "robot", "with": ["obstacle"]}},
            "episode": {"max_time": 10.0, "success": [{"at_pose": {
@@ -173,7 +173,7 @@ def test_robot_collisions_cover_the_whole_robot_tree(tmp_path):
 
 
 def test_plot_of_the_hand_made_log(scenario, tmp_path):
-    from shared.plots import cos_rog, episode_series, plot_episode
+    from shared.tools.plots import cos_rog, episode_series, plot_episode
     series = episode_series(scenario, hand_made_log(scenario))
     assert series.obj is not None and series.time.shape == (len(ROBOT_X),)
     np.testing.assert_allclose(series.obj[-1, :2], [1.0, 2.0], atol=1e-9)

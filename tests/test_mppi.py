@@ -40,7 +40,7 @@ def wiggly_costs(v: torch.Tensor) -> torch.Tensor:
 
 
 @pytest.mark.parametrize("kw", [
-    dict(sampling="gaussian", null_action=False, keep_best=False),            # literal Alg. 2
+    dict(sampling="gaussian", null_action=False, keep_best=False),            # literal thesis Alg. 2
     dict(sampling="halton", savgol_window=5, control_cost=1.0, gamma=0.9),
     dict(sampling="halton", halton_rotate=False, bound="squash", lambda_init=0.3),
     dict(sampling="gaussian", savgol_window=7, control_cost=0.5, u_min=None, u_max=None),
@@ -197,28 +197,28 @@ def test_update_matches_eqs_4_to_12_for_unequal_modes():
     modes = [ModeSpec("a", 30), ModeSpec("b", 50), ModeSpec("c", 7)]
     planner = M3P2I(cfg, modes)
     planner.update(wiggly_costs(planner.sample()))     # non-zero means and plan
-    u_prev = planner.plan.clone()
+    u_prev = planner.nominal.clone()
 
     v = planner.sample()
     step = wiggly_costs(v)
     result = planner.update(step)
 
-    s = (step * 0.9 ** torch.arange(15, dtype=F64)).sum(-1)                     # Eq. 4
+    s = (step * 0.9 ** torch.arange(15, dtype=F64)).sum(-1)                     # paper Eq. 4
     fused = torch.exp(-(s - s.min()) / 0.7)
-    fused = fused / fused.sum()                                                  # Eqs. 9-11
-    u = (1 - 0.6) * u_prev + 0.6 * (fused[:, None, None] * v).sum(0)            # Eq. 12
+    fused = fused / fused.sum()                                                  # paper Eqs. 9-11
+    u = (1 - 0.6) * u_prev + 0.6 * (fused[:, None, None] * v).sum(0)            # paper Eq. 12
     assert torch.allclose(result.weights, fused, atol=1e-14)
     assert torch.allclose(result.U, u, atol=1e-12)
     for i, rows in enumerate(planner.mode_slices):
-        w = torch.exp(-(s[rows] - s[rows].min()) / 0.7)                         # Eqs. 5-7
+        w = torch.exp(-(s[rows] - s[rows].min()) / 0.7)                         # paper Eqs. 5-7
         assert torch.isclose(result.etas[i], w.sum())
         assert torch.isclose(result.mode_costs[i], s[rows].min())
         assert torch.isclose(result.mode_weights[i], fused[rows].sum())
-        mu = ((w / w.sum())[:, None, None] * v[rows]).sum(0)                     # Eq. 8
+        mu = ((w / w.sum())[:, None, None] * v[rows]).sum(0)                     # paper Eq. 8
         assert torch.allclose(planner.means[i, :-1], mu[1:], atol=1e-12)       # after the shift
         assert torch.equal(result.best[i], v[rows][s[rows].argmin()])
-    assert torch.allclose(planner.plan[:-1], u[1:], atol=1e-12)
-    assert torch.equal(planner.plan[-1], planner.plan[-2])
+    assert torch.allclose(planner.nominal[:-1], u[1:], atol=1e-12)
+    assert torch.equal(planner.nominal[-1], planner.nominal[-2])
 
 
 def test_diverged_rollouts_get_zero_weight():
@@ -232,7 +232,7 @@ def test_diverged_rollouts_get_zero_weight():
     assert math.isclose(float(result.weights.sum()), 1.0, rel_tol=1e-12)
 
 
-# --- temperature adaptation (Alg. 3) ------------------------------------------------------------
+# --- temperature adaptation (paper Alg. 3) ------------------------------------------------------------
 
 @pytest.mark.parametrize("bounds", [(3.0, 10.0), (10.0, 30.0), (1.5, 2.0)])
 def test_temperature_lands_eta_in_window_for_any_cost_spread(bounds):
@@ -362,7 +362,7 @@ def test_set_modes_keeps_persisting_means_and_seeds_new_ones_from_the_plan():
     planner = M3P2I(cfg_of(eta_bounds=(3.0, 10.0)), [ModeSpec("push", 40), ModeSpec("pull", 40)])
     for _ in range(5):
         result = planner.update(((planner.sample() - t(0.5, -0.5)) ** 2).sum(-1))
-    mu_pull, plan = planner.means[1].clone(), planner.plan.clone()
+    mu_pull, plan = planner.means[1].clone(), planner.nominal.clone()
     lam_pull = result.lambdas[1]
 
     planner.set_modes([ModeSpec("pull", 30), ModeSpec("pick", 50, fixed={0: 1.0})])

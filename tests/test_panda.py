@@ -47,7 +47,7 @@ def test_placed_is_success_and_the_shelf_template_offers_both_grasps():
     assert _decide("pick_place_reactive", placed="placed_on").status == "success"
     d = _decide("pick_shelf")
     assert d.alternatives == ("reach_top", "reach_side")
-    assert load_scenario("pick_shelf").plan["reach_side"] == "reach_side"
+    assert load_scenario("pick_shelf").action_objectives["reach_side"] == "reach_side"
 
 
 # ------------------------------------------------------------------ end to end (slow)

@@ -8,7 +8,8 @@ import pytest
 from shared import protocol as P
 from shared.scenario import load_scenario
 from planner_client.build import build_motion_planner
-from planner_client.problem import Mirror, build_problem
+from planner_client.mirror import Mirror
+from planner_client.problem import build_problem
 from planner_client.rollout import RolloutEngine
 from planner_client.sensors import SensorRequest
 
@@ -83,7 +84,7 @@ def test_planner_iterations_lower_the_navigation_cost(nav):
     model = planner.problem.model
     mirror = Mirror(model)
     x0 = mirror.apply(_state(model, 0.0))
-    costs = [float(planner.plan(x0).result.mode_costs[0]) for _ in range(15)]
+    costs = [float(planner.iterate(x0).result.mode_costs[0]) for _ in range(15)]
     assert costs[-1] < 0.95 * costs[0]
     assert min(costs[5:]) <= min(costs[:5])
     planner.close()
@@ -103,10 +104,10 @@ def test_pinned_channels_follow_the_dominant_mode():
     model = planner.problem.model
     x0 = Mirror(model).apply(_state(model, 0.0))
     for _ in range(3):
-        plan = planner.plan(x0)
+        plan = planner.iterate(x0)
     assert plan.dominant == "push"
     assert plan.result.mode_weights[0] > 0.99
     assert plan.command[2] == 0.0                              # suction off, as push pins it
     planner.set_modes(["pull", "push"])
-    assert planner.plan(x0).command[2] == 0.0                  # push still dominates
+    assert planner.iterate(x0).command[2] == 0.0                  # push still dominates
     planner.close()

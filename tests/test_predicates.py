@@ -52,7 +52,7 @@ ON_B = {"a": "cube_a", "b": "cube_b", "offset": [0, 0, 0.05], "within": 0.01, "o
 def test_at_pose_position_with_offset(model):
     p = bound(model, {"at_pose": ON_B})
     assert p(world(model))                                   # exactly on top of cube B
-    assert p(world(model, (0.009, 0, 1.075)))                # 9 mm off: inside 1 cm (Eq. 26)
+    assert p(world(model, (0.009, 0, 1.075)))                # 9 mm off: inside 1 cm (paper Eq. 26)
     assert not p(world(model, (0.011, 0, 1.075)))
     assert not p(world(model, (0, 0, 1.025 + 0.05 + 0.0101)))
     m = p.measures(world(model, (0.003, 0.004, 1.075)))
@@ -122,3 +122,13 @@ def test_at_pose_reads_both_frames_rotations(model):
     expected = 2 * (1 - math.cos(math.radians(20)))
     assert p.measures(WorldView(data, {}))["orientation error cube_a-cube_b"] == \
         pytest.approx(expected, abs=1e-9)
+
+
+def test_far_keeps_its_distance_as_beyond_and_negates_near(model):
+    far = parse_predicate(Section({"far": {"a": "cube_a", "b": "cube_b", "beyond": 0.04}},
+                                  "test.yaml", "p"))
+    assert far.beyond == 0.04 and not hasattr(far, "within")
+    resolve = FrameResolver(model, "hand")
+    assert far.bind(resolve)(world(model))                        # cubes 5 cm apart
+    assert not far.bind(resolve)(world(model, a_pos=(0, 0, 1.05)))  # 2.5 cm apart
+    assert far.bind(resolve).measures(world(model)) == pytest.approx({"distance cube_a-cube_b": 0.05})

@@ -13,7 +13,7 @@ import mujoco
 import numpy as np
 
 from server.app import WorldServer
-from shared.cli import free_port_block
+from shared.tools.cli import free_port_block
 from shared.endpoints import Endpoints
 from shared.scenario import load_scenario
 

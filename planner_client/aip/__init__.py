@@ -1,4 +1,4 @@
-"""Active-inference task planner (thesis Sec. 2.1.2, Alg. 1; paper Sec. II.B, Alg. 2).
+"""Active-inference task planner (thesis Sec. 2.1.2, thesis Alg. 1; paper Sec. II.B, paper Alg. 2).
 
 Build a planner from a parsed action template (:func:`shared.task_template.parse_task`) and call
 :meth:`ActiveInferencePlanner.step` with one observation per factor every AIP tick.

@@ -1,4 +1,4 @@
-"""One state factor as an active-inference agent (thesis Eq. 2.12, Alg. 1).
+"""One state factor as an active-inference agent (thesis Eq. 2.12, thesis Alg. 1).
 
 The factor's generative model is built from its action template: A is the identity (each factor
 is observed directly by a symbolic observer), B has one column-stochastic matrix per action with
@@ -60,18 +60,18 @@ class Perception(NamedTuple):
 
     obs: int
     posterior: maths.StatePosterior
-    F: np.ndarray         # [n_actions], Eq. 2.13
+    F: np.ndarray         # [n_actions], thesis Eq. 2.13
     outcomes: np.ndarray  # [n_obs, n_actions], o^π = A B_π s_0^π
-    G_flat: np.ndarray    # [n_actions], Eq. 2.15 with C = 0
+    G_flat: np.ndarray    # [n_actions], thesis Eq. 2.15 with C = 0
 
 
 class Policies(NamedTuple):
-    G: np.ndarray  # [n_actions], Eq. 2.15
-    q: np.ndarray  # [n_actions], Eq. 2.16
+    G: np.ndarray  # [n_actions], thesis Eq. 2.15
+    q: np.ndarray  # [n_actions], thesis Eq. 2.16
 
 
 class FactorAgent:
-    """Perception (Eqs. 2.13-2.14), policy selection (2.15-2.16) and learning of D (2.17)."""
+    """Perception (thesis Eqs. 2.13-2.14), policy selection (2.15-2.16) and learning of D (2.17)."""
 
     def __init__(self, model: FactorModel):
         self.model = model
@@ -96,12 +96,12 @@ class FactorAgent:
         """G and q for log preferences C ``[n_obs]`` and log habits log_E ``[n_actions]``.
 
         The planner re-evaluates a factor many times per tick with new C and E; G being affine
-        in C (Eq. 2.15), only the preference term is recomputed.
+        in C (thesis Eq. 2.15), only the preference term is recomputed.
         """
         G = perception.G_flat - C @ perception.outcomes
         return Policies(G, maths.policy_posterior(perception.F, G, log_E))
 
     def learn(self, perception: Perception, q: np.ndarray) -> None:
-        """D ← norm(D + κ_d s̄_0) with s̄_0 the model average of Eq. 2.17; call once per tick."""
+        """D ← norm(D + κ_d s̄_0) with s̄_0 the model average of thesis Eq. 2.17; call once per tick."""
         s0 = maths.model_average(perception.posterior.s0, q)
         self._D = maths.update_prior(self._D, s0, self.model.kappa_d, BELIEF_FLOOR)

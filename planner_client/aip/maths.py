@@ -46,7 +46,7 @@ def normalise_columns(x: np.ndarray) -> np.ndarray:
 
 
 class StatePosterior(NamedTuple):
-    """Policy-conditioned beliefs of Eq. 2.14, each ``[n_states, n_policies]`` unless noted."""
+    """Policy-conditioned beliefs of thesis Eq. 2.14, each ``[n_states, n_policies]`` unless noted."""
 
     s0: np.ndarray         # s_0^π, the current state
     s1: np.ndarray         # s_1^π, the next state
@@ -56,7 +56,7 @@ class StatePosterior(NamedTuple):
 
 
 def state_posterior(A: np.ndarray, B: np.ndarray, D: np.ndarray, obs: int) -> StatePosterior:
-    """One message-passing sweep of Eq. 2.14 for observation index ``obs``, from s_1 uniform.
+    """One message-passing sweep of thesis Eq. 2.14 for observation index ``obs``, from s_1 uniform.
 
     s_0^π = σ(ln D + ln B_πᵀ s_1 + ln Aᵀ o_0) and s_1^π = σ(ln B_π s_0^π + ln Aᵀ o_1^π). The next
     observation is not known yet; as in the reference, o_1^π is the outcome most likely under
@@ -75,7 +75,7 @@ def state_posterior(A: np.ndarray, B: np.ndarray, D: np.ndarray, obs: int) -> St
 
 
 def free_energy(D: np.ndarray, post: StatePosterior) -> np.ndarray:
-    """Variational free energy per policy, Eq. 2.13, ``[n_policies]``.
+    """Variational free energy per policy, thesis Eq. 2.13, ``[n_policies]``.
 
     F(π) = Σ_τ s_τ^π · (ln s_τ^π − ln m_τ − ln Aᵀ o_τ), with m_0 = D and m_1 = B_π s_0^π.
     """
@@ -90,7 +90,7 @@ def ambiguity(A: np.ndarray) -> np.ndarray:
 
 
 def expected_free_energy(A: np.ndarray, predicted: np.ndarray, C: np.ndarray) -> np.ndarray:
-    """Expected free energy per policy at τ=1, Eq. 2.15, ``[n_policies]``.
+    """Expected free energy per policy at τ=1, thesis Eq. 2.15, ``[n_policies]``.
 
     G(π) = o^πᵀ (ln o^π − C) − diag(Aᵀ ln A) · s^π with s^π = B_π s_0^π and o^π = A s^π: risk
     (distance of the predicted outcome from the preferences) plus ambiguity (a non-negative
@@ -102,12 +102,12 @@ def expected_free_energy(A: np.ndarray, predicted: np.ndarray, C: np.ndarray) ->
 
 
 def policy_posterior(F: np.ndarray, G: np.ndarray, log_E: np.ndarray) -> np.ndarray:
-    """q(π) = σ(ln E − F − G), Eq. 2.16 with the habit prior E, ``[n_policies]``."""
+    """q(π) = σ(ln E − F − G), thesis Eq. 2.16 with the habit prior E, ``[n_policies]``."""
     return softmax(log_E - F - G)
 
 
 def model_average(s: np.ndarray, q: np.ndarray) -> np.ndarray:
-    """Bayesian model average s_τ = Σ_π q(π) s_τ^π, Eq. 2.17.
+    """Bayesian model average s_τ = Σ_π q(π) s_τ^π, thesis Eq. 2.17.
 
     ``s``: ``[n_states, n_policies]``, ``q``: ``[n_policies]`` → ``[n_states]``.
     """

@@ -15,7 +15,7 @@ from typing import ClassVar
 
 import torch
 
-from shared.config import ConfigError, Section
+from shared.config import Section, string_list
 from shared.frames import FrameResolver
 from planner_client.sensors import SensorLayout, SensorRequest
 
@@ -65,12 +65,25 @@ class TermContext:
     def frame(self, s: Section, key: str, default: str | None = None) -> str:
         """A frame name parameter, checked to exist in the model."""
         name = s.req(key, str) if default is None else s.opt(key, default, str)
-        try:
-            self.resolve(name)
-        except KeyError as exc:
-            raise ConfigError(s.source, s.key_path(key), str(exc.args[0]), name,
-                              f"one of: {', '.join(self.resolve.names())}") from None
+        self.resolve.checked(name, s.source, s.key_path(key))
         return name
+
+    def bodies(self, s: Section, key: str, default: tuple[str, ...]) -> tuple[str, ...]:
+        """A list of body names (``obstacles``), each checked to exist in the model."""
+        names = s.opt(key, default, string_list, "a list of body names")
+        for i, name in enumerate(names):
+            self.resolve.checked(name, s.source, f"{s.key_path(key)}[{i}]")
+        return names
+
+    def channel(self, name: str, s: Section, key: str) -> int:
+        """The control channel of an actuator name, or an error listing the actuators: the one
+        place an actuator name from YAML is checked."""
+        if name not in self.actuators:
+            raise s.error(key, "unknown actuator", name, f"one of: {', '.join(self.actuators)}")
+        return self.actuators.index(name)
+
+    def channels(self, s: Section, key: str, names: tuple[str, ...]) -> tuple[int, ...]:
+        return tuple(self.channel(n, s, key) for n in names)
 
 
 class CostTerm(ABC):

@@ -6,8 +6,8 @@ from dataclasses import dataclass, field
 
 import torch
 
-from shared.config import Section, one_of
-from shared.scenario import ObjectiveConfig
+from shared.config import ErrorLog, Section, one_of
+from shared.scenario import ObjectiveConfig, TermConfig
 from planner_client.costs.base import TERMS, CostTerm, RolloutBatch, TermContext
 from planner_client.sensors import SensorRequest
 
@@ -18,14 +18,14 @@ _WHEN = ("all", "running", "terminal")
 class WeightedTerm:
     term: CostTerm
     weight: float
-    when: str   # all steps, running steps only (t < T-1), or the terminal step only (Eq. 4)
+    when: str   # all steps, running steps only (t < T-1), or the terminal step only (paper Eq. 4)
 
 
 @dataclass
 class Objective:
     """``S(V)`` per step: Σ_terms weight · term, masked to running/terminal steps.
 
-    The last column of the result is the terminal cost φ of Eq. 4; the planner applies the
+    The last column of the result is the terminal cost φ of paper Eq. 4; the planner applies the
     discount γ^t.
     """
     name: str
@@ -57,23 +57,28 @@ class Objective:
 
 
 def build_objective(name: str, cfg: ObjectiveConfig, ctx: TermContext) -> Objective:
-    """Validate an objective's terms against the registry and the model; build it."""
-    terms = []
-    for tc in cfg.terms:
-        s = Section({"term": tc.term, "weight": tc.weight, **tc.params}, ctx.source, tc.path)
-        s.req("term", str)
-        s.opt("weight", 1.0)
-        if tc.term not in TERMS:
-            raise s.error("term", "unknown cost term", tc.term,
-                          f"one of: {', '.join(sorted(TERMS))}")
-        when = s.opt("when", "all", one_of(_WHEN))
-        term = TERMS[tc.term].from_params(s, ctx)
-        s.done()
-        terms.append(WeightedTerm(term, tc.weight, when))
+    """Validate an objective's terms against the registry and the model; build it. Every
+    faulty term is reported, not only the first."""
+    errors = ErrorLog()
+    terms = [t for t in (errors.call(_weighted_term, tc, ctx) for tc in cfg.terms) if t]
+    s = Section(dict(cfg.fixed), ctx.source, f"objectives.{name}.fixed")
     fixed = {}
     for act, value in cfg.fixed.items():
-        if act not in ctx.actuators:
-            s = Section(dict(cfg.fixed), ctx.source, f"objectives.{name}.fixed")
-            raise s.error(act, "unknown actuator", act, f"one of: {', '.join(ctx.actuators)}")
-        fixed[ctx.actuators.index(act)] = value
+        channel = errors.call(ctx.channel, act, s, act)
+        if channel is not None:
+            fixed[channel] = value
+    errors.raise_if_any()
     return Objective(name=name, terms=terms, fixed=fixed)
+
+
+def _weighted_term(tc: TermConfig, ctx: TermContext) -> WeightedTerm:
+    s = Section({"term": tc.term, "weight": tc.weight, **tc.params}, tc.source or ctx.source,
+                tc.path)
+    s.req("term", str)
+    s.opt("weight", 1.0)
+    if tc.term not in TERMS:
+        raise s.error("term", "unknown cost term", tc.term, f"one of: {', '.join(sorted(TERMS))}")
+    when = s.opt("when", "all", one_of(_WHEN))
+    term = TERMS[tc.term].from_params(s, ctx)
+    s.done()
+    return WeightedTerm(term, tc.weight, when)

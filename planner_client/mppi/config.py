@@ -29,13 +29,13 @@ class MPPIConfig:
         knot_every: Halton-spline knot spacing in control steps.
         spline_degree: degree of the B-spline through the knots (lowered automatically when the
             horizon has too few knots for it).
-        gamma: discount γ of the per-step costs (Eq. 4); 1 = undiscounted.
+        gamma: discount γ of the per-step costs (paper Eq. 4); 1 = undiscounted.
         lambda_init: initial (and, without adaptation, fixed) temperature λ of every mode and
             of the fused weights.
-        eta_bounds: ``(η_l, η_u)`` window for the normaliser η (Alg. 3): λ is re-tuned each
+        eta_bounds: ``(η_l, η_u)`` window for the normaliser η (paper Alg. 3): λ is re-tuned each
             iteration until η falls inside. ``None`` keeps λ fixed.
-        adapt_iters: most root-finding steps of one temperature adaptation (Alg. 3 bound).
-        alpha_u: step size α_u of the fused mean (Eq. 12); 1 = take the new estimate.
+        adapt_iters: most root-finding steps of one temperature adaptation (paper Alg. 3 bound).
+        alpha_u: step size α_u of the fused mean (paper Eq. 12); 1 = take the new estimate.
         u_min, u_max: per-channel control bounds (``±inf`` allowed with ``"clamp"``), or both
             ``None`` for unbounded controls.
         bound: ``"clamp"`` projects samples onto the box, ``"squash"`` maps them through a

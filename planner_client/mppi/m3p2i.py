@@ -1,4 +1,4 @@
-"""MPPI (thesis Alg. 2) and Multi-Modal MPPI, M3P2I (paper Alg. 3-4, Eqs. 4-12).
+"""MPPI (thesis Alg. 2) and Multi-Modal MPPI, M3P2I (paper Alg. 3-4, paper Eqs. 4-12).
 
 The planners never see states or dynamics: each iteration the caller takes the sampled control
 sequences ``V: [S, T, nu]`` from :meth:`sample`, rolls them out (batched MuJoCo, or any model), and
@@ -28,15 +28,15 @@ class PlanResult:
 
     Attributes:
         u0: ``[nu]`` control to apply now (``U[0]``).
-        U: ``[T, nu]`` fused, smoothed, bounded control sequence (Eq. 12).
+        U: ``[T, nu]`` fused, smoothed, bounded control sequence (paper Eq. 12).
         mode_weights: ``[N]`` fused weight mass of each mode's samples (sums to 1); the
             dominant mode decides discrete choices such as suction on/off.
-        mode_costs: ``[N]`` lowest total cost among each mode's samples (β_i, Eq. 7).
-        etas: ``[N]`` per-mode normalisers η_i (Eq. 6), roughly the number of samples that count.
+        mode_costs: ``[N]`` lowest total cost among each mode's samples (β_i, paper Eq. 7).
+        etas: ``[N]`` per-mode normalisers η_i (paper Eq. 6), roughly the number of samples that count.
         lambdas: ``[N]`` per-mode temperatures λ_i used this iteration.
         best: ``[N, T, nu]`` lowest-cost sample sequence of each mode.
-        weights: ``[S]`` fused sample weights ω̃ (Eq. 9).
-        fused_eta: ``[]`` normaliser η of the fused weights (Eq. 10).
+        weights: ``[S]`` fused sample weights ω̃ (paper Eq. 9).
+        fused_eta: ``[]`` normaliser η of the fused weights (paper Eq. 10).
         fused_lambda: ``[]`` temperature λ of the fused weights.
     """
 
@@ -53,7 +53,7 @@ class PlanResult:
 
 
 def trajectory_costs(step_costs: Tensor, discount: Tensor) -> Tensor:
-    """S_k = Σ_t γ^t c_{k,t} (Eq. 4; the caller puts the terminal cost φ in the last column).
+    """S_k = Σ_t γ^t c_{k,t} (paper Eq. 4; the caller puts the terminal cost φ in the last column).
 
     Args:
         step_costs: ``[S, T]`` per-step costs.
@@ -66,8 +66,8 @@ def trajectory_costs(step_costs: Tensor, discount: Tensor) -> Tensor:
 
 
 def control_costs(mean: Tensor, eps: Tensor, inv_var: Tensor, coef: Tensor | float) -> Tensor:
-    """Importance-sampling control cost  coef · Σ_t (u_tᵀΣ⁻¹u_t + 2u_tᵀΣ⁻¹ε_t)  (Alg. 2 line 18,
-    Eq. 2.46) with coef = λ/2 · scale and diagonal Σ.
+    """Importance-sampling control cost  coef · Σ_t (u_tᵀΣ⁻¹u_t + 2u_tᵀΣ⁻¹ε_t)  (thesis Alg. 2 line 18,
+    thesis Eq. 2.46) with coef = λ/2 · scale and diagonal Σ.
 
     Args:
         mean: ``[S, T, nu]`` or ``[T, nu]`` sampling mean u of each sample.
@@ -134,7 +134,7 @@ class _Common:
         self.inv_var = self.sigma.pow(-2)
         self.discount = cfg.gamma ** torch.arange(t, dtype=dtype, device=self.device)
         self.box = _Box(cfg, dtype, self.device)
-        # λ/2 of Alg. 2 line 18 with the *initial* λ: the adapted λ_i would scale the control cost
+        # λ/2 of thesis Alg. 2 line 18 with the *initial* λ: the adapted λ_i would scale the control cost
         # with the temperature meant to temper it, and the gaps (hence λ_i) would grow without end.
         self.control_coef = cfg.lambda_init * (0.5 * cfg.control_cost)
         self.savgol = (torch.as_tensor(savgol_matrix(t, cfg.savgol_window, cfg.savgol_order),
@@ -166,21 +166,21 @@ class MPPI:
     """Plain MPPI, thesis Alg. 2, as a reference and baseline.
 
     Per iteration: v = g(U + ε) (ε Gaussian or Halton-spline, g = bounds), S_k from the per-step
-    costs (Eq. 4, plus the control cost of line 18 if enabled), ω = softmin(S, λ) with the
+    costs (paper Eq. 4, plus the control cost of line 18 if enabled), ω = softmin(S, λ) with the
     min-cost shift (lines 25-29), U ← SGF(U + Σ_k ω_k ε_k) with ε the bounded noise (line 33),
     then the shift (lines 36-39). The optional null-action and kept-best samples are the same
     extra rows as in :class:`M3P2I`; disable both for the literal algorithm.
 
     Args:
         cfg: parameters; ``eta_bounds`` and ``alpha_u`` must be the identity choices
-            (``None``, 1.0) since Alg. 2 has neither.
+            (``None``, 1.0) since thesis Alg. 2 has neither.
         samples: K.
     """
 
     def __init__(self, cfg: MPPIConfig, samples: int, dtype: torch.dtype = torch.float64,
                  device: str | torch.device = "cpu"):
         if cfg.eta_bounds is not None or cfg.alpha_u != 1.0:
-            raise ValueError("MPPI (Alg. 2) has a fixed temperature and full steps: "
+            raise ValueError("MPPI (thesis Alg. 2) has a fixed temperature and full steps: "
                              "use eta_bounds=None, alpha_u=1.0, or M3P2I")
         if samples < 1 + cfg.null_action + cfg.keep_best:
             raise ValueError(f"MPPI needs more than {cfg.null_action + cfg.keep_best} samples")
@@ -277,14 +277,14 @@ class M3P2I:
       1. :meth:`sample`: mode i draws ``V = g(μ_i + σ·ε)`` for its rows (Halton-spline or Gaussian
          ε), row 0 is its previous best sequence (shifted), its last row the null action, and its
          fixed channels are pinned. Rows are grouped by mode (:attr:`mode_slices`).
-      2. :meth:`update` with per-step costs ``[S, T]``: S_k (Eq. 4 + optional control cost);
-         per mode β_i, η_i, λ_i (Eqs. 5-7, Alg. 3) and μ_i ← Σ ω_i V (Eq. 8); fused weights over
-         all S samples (Eqs. 9-11, their λ adapted to the same η window); u ← (1-α_u)u + α_u Σ ω̃ V
-         (Eq. 12); Savitzky-Golay smoothing of u and μ_i; projection onto the bounds; shift.
+      2. :meth:`update` with per-step costs ``[S, T]``: S_k (paper Eq. 4 + optional control cost);
+         per mode β_i, η_i, λ_i (paper Eqs. 5-7, paper Alg. 3) and μ_i ← Σ ω_i V (paper Eq. 8); fused weights over
+         all S samples (paper Eqs. 9-11, their λ adapted to the same η window); u ← (1-α_u)u + α_u Σ ω̃ V
+         (paper Eq. 12); Savitzky-Golay smoothing of u and μ_i; projection onto the bounds; shift.
 
     With one mode, α_u = 1 and no temperature adaptation this is exactly :class:`MPPI` (bit for
-    bit, same seed): μ_1 and u then follow the same recursion. Eq. 8 and Eq. 12 are evaluated as
-    ``m + Σ_k ω_k (V_k - m)``, equal to ``Σ_k ω_k V_k`` since Σ ω = 1 and Alg. 2's form of it.
+    bit, same seed): μ_1 and u then follow the same recursion. paper Eq. 8 and paper Eq. 12 are evaluated as
+    ``m + Σ_k ω_k (V_k - m)``, equal to ``Σ_k ω_k V_k`` since Σ ω = 1 and thesis Alg. 2's form of it.
 
     Fixed channels are pinned in every sample of a mode, so μ_i keeps them; the fused u blends the
     modes' values by weight, and the caller takes discrete decisions from ``mode_weights``.
@@ -321,8 +321,9 @@ class M3P2I:
         return self._mu
 
     @property
-    def plan(self) -> Tensor:
-        """``[T, nu]`` fused plan u carried into the next iteration (already shifted)."""
+    def nominal(self) -> Tensor:
+        """``[T, nu]`` fused nominal control sequence u carried into the next iteration (already
+        shifted)."""
         return self._u
 
     def reset(self) -> None:
@@ -388,13 +389,13 @@ class M3P2I:
             self._lam = adapt_temperature(gaps, self._lam, c.cfg.eta_bounds, c.cfg.adapt_iters)
         lam = self._lam
 
-        # Per-mode distributions (Eqs. 5-8).
+        # Per-mode distributions (paper Eqs. 5-8).
         mode_idx = lay.table[:n, :lay.k_max]
         w_mode, eta_mode, beta_mode = softmin_weights(table[:n, :lay.k_max], lam[:n, None])
         v_mode = v[mode_idx]                                           # [N, K_max, T, nu]
         mu = self._mu + (w_mode[..., None, None] * (v_mode - self._mu[:, None])).sum(dim=1)
 
-        # Fused distribution over all samples (Eqs. 9-12).
+        # Fused distribution over all samples (paper Eqs. 9-12).
         w, eta, _ = softmin_weights(costs, lam[n])
         u = self._u + c.cfg.alpha_u * (w[:, None, None] * (v - self._u)).sum(dim=0)
 

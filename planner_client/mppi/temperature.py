@@ -22,7 +22,7 @@ _LOG_HI_MARGIN = math.log(50.0)
 def softmin_weights(costs: Tensor, lam: Tensor | float) -> tuple[Tensor, Tensor, Tensor]:
     """Exponentiated-cost weights with the min-cost shift.
 
-    ω_k = exp(-(S_k - β)/λ) / η,  η = Σ_k exp(-(S_k - β)/λ),  β = min_k S_k   (Eqs. 5-7 / 9-11).
+    ω_k = exp(-(S_k - β)/λ) / η,  η = Σ_k exp(-(S_k - β)/λ),  β = min_k S_k   (paper Eqs. 5-7 / 9-11).
 
     Args:
         costs: ``[..., K]`` total costs S_k; ``+inf`` entries get zero weight (padding).
@@ -41,7 +41,7 @@ def adapt_temperature(gaps: Tensor, lam: Tensor, eta_bounds: tuple[float, float]
                       max_iters: int) -> Tensor:
     """Re-tune λ per row until η(λ) = Σ_k exp(-d_k/λ) lies in ``[η_l, η_u]`` (paper Alg. 3).
 
-    Alg. 3 multiplies λ by 0.9 or 1.2 until η is in the window, which needs tens to hundreds of steps
+    paper Alg. 3 multiplies λ by 0.9 or 1.2 until η is in the window, which needs tens to hundreds of steps
     when the cost scale changes by orders of magnitude and never ends when the window is unreachable.
     Here a row whose current λ already gives η in the window keeps it (temporal consistency);
     otherwise a safeguarded Newton iteration on log η(log λ) aims at the window's geometric centre

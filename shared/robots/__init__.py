@@ -6,8 +6,11 @@ A robot MJCF is a complete model with the robot in its worldbody; the scene buil
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from collections.abc import Sequence
+from dataclasses import dataclass
 from pathlib import Path
+
+import numpy as np
 
 ROBOT_DIR = Path(__file__).parent
 
@@ -28,7 +31,6 @@ class RobotSpec:
         hold_ctrl: actuators a safe stop leaves at their last command instead: a gripper keeps
             its grip (closing could grab a cube just released; opening would drop a held one).
             Their ``safe_ctrl`` value applies only before any command was received.
-        radius: planar footprint radius in metres (mobile bases), used by observers' thresholds.
     """
 
     name: str
@@ -38,12 +40,20 @@ class RobotSpec:
     ctrl_names: tuple[str, ...]
     safe_ctrl: tuple[float, ...]
     hold_ctrl: tuple[str, ...] = ()
-    radius: float = 0.0
-    extras: dict = field(default_factory=dict)
 
     @property
     def path(self) -> Path:
         return ROBOT_DIR / self.mjcf
+
+    def safe_stop(self, last_ctrl: Sequence[float] | None = None) -> np.ndarray:
+        """The control of a safe stop ``[nu]``: ``safe_ctrl``, with the ``hold_ctrl`` actuators
+        at ``last_ctrl`` (the last command applied) when given. The one definition both the
+        server (stale commands) and the planner (task done or failed) use."""
+        ctrl = np.array(self.safe_ctrl, dtype=float)
+        if last_ctrl is not None:
+            hold = [self.ctrl_names.index(n) for n in self.hold_ctrl]
+            ctrl[hold] = np.asarray(last_ctrl, dtype=float)[hold]
+        return ctrl
 
 
 ROBOTS: dict[str, RobotSpec] = {}
@@ -70,7 +80,6 @@ register(RobotSpec(
     description="omnidirectional point robot: velocity actuators on x and y (thesis code)",
     ctrl_names=("vel_x", "vel_y"),
     safe_ctrl=(0.0, 0.0),
-    radius=0.2,
 ))
 
 register(RobotSpec(
@@ -81,7 +90,6 @@ register(RobotSpec(
                 "suction in [0, 1] (adhesion actuator, 250 N at 1)",
     ctrl_names=("vel_x", "vel_y", "suction"),
     safe_ctrl=(0.0, 0.0, 0.0),
-    radius=0.2,
 ))
 
 register(RobotSpec(
@@ -92,8 +100,6 @@ register(RobotSpec(
                 "(rad/s); lateral_grip is the passive tyre grip, its control value is ignored",
     ctrl_names=("forward", "yaw_rate", "lateral_grip"),
     safe_ctrl=(0.0, 0.0, 0.0),
-    radius=0.2,
-    extras={"ignored_ctrl": ("lateral_grip",)},
 ))
 
 register(RobotSpec(
@@ -105,5 +111,4 @@ register(RobotSpec(
     ctrl_names=("j1", "j2", "j3", "j4", "j5", "j6", "j7", "gripper"),
     safe_ctrl=(0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0),
     hold_ctrl=("gripper",),
-    extras={"keyframe": "home", "finger_sites": ("finger_left", "finger_right")},
 ))

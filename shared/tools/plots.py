@@ -1,6 +1,6 @@
 """Plots of one episode like the thesis' Figs. A.3-A.5: object and robot trajectories (xy),
 robot-object and object-goal distances over time, and the cosine of the robot-object-goal angle
-(Eq. 16) over time. The object and the goal are the scenario's ``metrics.position`` frames; when
+(paper Eq. 16) over time. The object and the goal are the scenario's ``metrics.position`` frames; when
 the "object" is the robot itself (navigation) the plot shows the robot, its distance to the goal,
 and no angle.
 
@@ -14,9 +14,10 @@ from pathlib import Path
 
 import numpy as np
 
-from shared import episode
+from shared.evaluation import episode
 from shared.config import ConfigError
-from shared.replay import frame_tracks, resolve_frame
+from shared.evaluation.replay import frame_tracks, resolve_frame
+from shared.geometry import select_axes
 from shared.scenario import Scenario
 from shared.scene import compile_model
 
@@ -40,16 +41,17 @@ class EpisodeSeries:
 
 
 def cos_rog(robot: np.ndarray, obj: np.ndarray, goal: np.ndarray) -> np.ndarray:
-    """cos(theta_ROG) of Eq. 16 in the plane, per row; NaN where a distance is zero."""
-    a = robot[..., :2] - obj[..., :2]
-    b = goal[..., :2] - obj[..., :2]
+    """cos(theta_ROG) of paper Eq. 16 in the plane, per row; NaN where a distance is zero."""
+    a = select_axes(robot - obj, "xy")
+    b = select_axes(goal - obj, "xy")
     norm = np.linalg.norm(a, axis=-1) * np.linalg.norm(b, axis=-1)
     with np.errstate(invalid="ignore", divide="ignore"):
         return np.where(norm > 0, np.sum(a * b, axis=-1) / norm, np.nan)
 
 
 def planar_distance(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    return np.linalg.norm(a[..., :2] - b[..., :2], axis=-1)
+    """|a - b| in the plane, per row."""
+    return np.linalg.norm(select_axes(a - b, "xy"), axis=-1)
 
 
 def episode_series(scenario: Scenario, records: list[dict]) -> EpisodeSeries:

@@ -4,7 +4,7 @@ as GIF (Pillow) or MP4 (an ``ffmpeg`` executable).
 
 Rendering needs an OpenGL context without a display: EGL (GPU drivers or Mesa, ``libegl1``) or
 OSMesa (software, ``libosmesa6``). MuJoCo picks the backend from ``MUJOCO_GL`` when it is first
-imported, so rendering runs in a child process, ``python -m shared.video``, started with the first
+imported, so rendering runs in a child process, ``python -m shared.tools.video``, started with the first
 backend that works (:func:`gl_backend`). ``m3p2i record`` drives all of it.
 """
 
@@ -25,10 +25,10 @@ import numpy as np
 import typer
 import zmq
 
-from shared import episode
+from shared.evaluation import episode
 from shared import protocol as P
 from shared.config import ConfigError
-from shared.endpoints import Endpoints
+from shared.endpoints import Endpoints, socket
 
 GL_BACKENDS = ("egl", "osmesa")
 DIAGNOSTICS_FILE = "diagnostics.jsonl"
@@ -68,9 +68,8 @@ class DiagnosticsRecorder:
         self.path = path
         self._stop = threading.Event()
         self._ctx = zmq.Context()
-        self._sub = self._ctx.socket(zmq.SUB)
+        self._sub = socket(self._ctx, zmq.SUB)      # the project's size limit and no linger
         self._sub.setsockopt(zmq.SUBSCRIBE, b"")
-        self._sub.setsockopt(zmq.LINGER, 0)
         self._sub.connect(Endpoints(host, port).diagnostics)
         self._thread = threading.Thread(target=self._run, daemon=True)
         self._thread.start()
@@ -151,7 +150,7 @@ def _draw_paths(scene: mujoco.MjvScene, paths: np.ndarray, radius: float) -> Non
 def render_frames(log: Path, scenario: Optional[str], width: int, height: int, fps: float,
                   speed: float) -> list[np.ndarray]:
     """RGB frames of a logged episode, with the trajectories of ``diagnostics.jsonl`` beside it."""
-    from shared.replay import load_step, resolve_frame
+    from shared.evaluation.replay import load_step, resolve_frame
     from shared.scene import compile_model
 
     records = episode.read_log(log)
@@ -234,7 +233,7 @@ def main(
 def render_in_child(backend: str, log: Path, out: Path, width: int, height: int, fps: float,
                     speed: float) -> None:
     """Run :func:`main` in a child process with ``MUJOCO_GL=backend``; raises on failure."""
-    cmd = [sys.executable, "-m", "shared.video", str(log), str(out), "--width", str(width),
+    cmd = [sys.executable, "-m", "shared.tools.video", str(log), str(out), "--width", str(width),
            "--height", str(height), "--fps", str(fps), "--speed", str(speed)]
     done = subprocess.run(cmd, env={**os.environ, "MUJOCO_GL": backend}, capture_output=True,
                           text=True, check=False)

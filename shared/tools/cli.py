@@ -15,10 +15,11 @@ from typing import Optional
 
 import typer
 
-from shared.cli_common import default_run_dir, summary_line
+from shared.cli_common import default_run_dir, error_blocks, summary_line
 from shared.config import ConfigError
-from shared.launch import EpisodeLaunch, free_port_block, run_episode
-from shared.scenario import SCENARIO_DIR, load_scenario
+from shared.tools.launch import EpisodeLaunch, free_port_block, run_episode
+from shared.scenario import SCENARIO_DIR, find_scenario, load_scenario
+from shared.tools.check import scenario_errors
 
 __all__ = ["app", "free_port_block"]   # free_port_block: tests start processes with it
 
@@ -29,12 +30,30 @@ app = typer.Typer(add_completion=False, no_args_is_help=True, help=(
 
 
 def _load_or_exit(scenario: str):
-    """The scenario, or exit 2 with the loader's message (file, key, value, expected)."""
+    """The scenario, checked by both processes before either starts; or exit 2 printing every
+    error of the file (file, key path, value, expected)."""
     try:
-        return load_scenario(scenario)
+        path = find_scenario(scenario)
     except ConfigError as exc:
         typer.echo(f"error: {exc}", err=True)
         raise typer.Exit(2) from None
+    errors = scenario_errors(path)
+    for message in errors:
+        typer.echo(f"error: {message}", err=True)
+    if errors:
+        typer.echo(f"{path}: {len(errors)} error{'s' if len(errors) > 1 else ''}", err=True)
+        raise typer.Exit(2)
+    return load_scenario(path)
+
+
+@app.command("check")
+def check(
+    scenario: str = typer.Argument(..., help="Scenario name (configs/scenarios/NAME.yaml) or path."),
+) -> None:
+    """Check SCENARIO as both processes would, without starting them: every error of the file
+    at once (frames, actuators, cost terms, observers included); exit 0 when sound, 2 if not."""
+    sc = _load_or_exit(scenario)
+    typer.echo(f"{sc.source}: ok")
 
 
 @app.command("run")
@@ -59,7 +78,11 @@ def run(
     elif result.reason == "interrupted":
         typer.echo("interrupted")
     elif result.reason:
-        typer.echo(f"error: the {result.reason}; see {run_dir / 'planner.log'}", err=True)
+        log_file = run_dir / "planner.log"
+        # the planner's own messages first: the log file is the place to look only for more
+        for message in error_blocks(log_file.read_text()) if log_file.is_file() else []:
+            typer.echo(f"error: {message}", err=True)
+        typer.echo(f"error: the {result.reason}; see {log_file}", err=True)
     summary = result.summary
     if summary is None:
         typer.echo(f"error: no episode summary in {result.log_path}", err=True)
@@ -90,8 +113,8 @@ def bench(
     """Run seeded trials of every case (Tables I-III), resumable; print and write the summary."""
     from rich.console import Console
 
-    from shared import bench as B
-    from shared import bench_report as R
+    from shared.tools import bench as B
+    from shared.tools import bench_report as R
     # piped or logged output gets the whole table instead of 80 columns of wrapped cells
     console = Console(width=None if sys.stdout.isatty() else 200)
     try:
@@ -148,7 +171,7 @@ def report(
     """Tables from bench results: success with its 95 % Wilson interval, the paper's metrics,
     the machine and date of the trials, every failure with its note (failures.yaml beside
     results.csv). README and docs tables are made this way, never by hand."""
-    from shared import bench_report as R
+    from shared.tools import bench_report as R
     if not results and not update:
         typer.echo("error: give results files to tabulate, or --update FILE", err=True)
         raise typer.Exit(2)
@@ -181,8 +204,8 @@ def plot(
                                            "the file named in the log's header)."),
 ) -> None:
     """Plot one episode like thesis Figs. A.3-A.5: trajectories, distances, robot-object-goal angle."""
-    from shared import episode
-    from shared.plots import episode_series, plot_episode
+    from shared.evaluation import episode
+    from shared.tools.plots import episode_series, plot_episode
     try:
         path = episode.find_log(log)
         records = episode.read_log(path)
@@ -218,7 +241,7 @@ def record(
 ) -> None:
     """Record an episode offscreen (EGL or OSMesa) to GIF/MP4, with the planner's best sampled
     trajectories drawn in green."""
-    from shared import video
+    from shared.tools import video
     if (scenario is None) == (log is None):
         typer.echo("error: give a SCENARIO to run, or --log to render an existing episode", err=True)
         raise typer.Exit(2)

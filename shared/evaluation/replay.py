@@ -1,7 +1,7 @@
 """Replaying logged states into a MuJoCo model: the kinematics behind metrics, plots and videos.
 
-A ``step`` record of the episode log holds ``qpos``, ``qvel``, ``mocap_pos`` and ``mocap_quat``
-after that world step; copying them into an ``MjData`` of the scenario's compiled model and calling
+A ``step`` record of the episode log holds ``qpos``, ``qvel``, ``act``, ``mocap_pos`` and
+``mocap_quat`` after that world step; copying them into an ``MjData`` of the scenario's compiled model and calling
 ``mj_forward`` gives back every frame pose and contact the world had at that moment, without
 re-simulating anything.
 """
@@ -13,22 +13,25 @@ from collections.abc import Iterable, Iterator
 import mujoco
 import numpy as np
 
-from shared.config import ConfigError
 from shared.frames import Frame, FrameResolver
 from shared.robots import get_robot
 from shared.scenario import Scenario
+from shared.scene import STATE_FIELDS, set_state
 
 
 def load_step(model: mujoco.MjModel, data: mujoco.MjData, step: dict) -> None:
-    """Copy one logged state into ``data`` and recompute kinematics and contacts."""
-    for name, size in (("qpos", model.nq), ("qvel", model.nv), ("mocap_pos", model.nmocap * 3),
-                       ("mocap_quat", model.nmocap * 4)):
-        value = np.asarray(step.get(name, []), dtype=float).reshape(-1)
-        if value.size != size:
-            raise ValueError(f"step {step.get('seq')}: {name} has {value.size} values, the "
-                             f"scenario's model needs {size} (was the log written for another "
-                             "scenario?)")
-        getattr(data, name)[:] = value.reshape(getattr(data, name).shape)
+    """Copy one logged state into ``data`` and recompute kinematics and contacts.
+
+    Logs written before ``act`` was logged restore actuator activations as zeros (no shipped
+    robot has any)."""
+    values = {name: step.get(name, []) for name in STATE_FIELDS}
+    if "act" not in step:
+        values["act"] = np.zeros(model.na)
+    try:
+        set_state(model, data, values)
+    except ValueError as exc:
+        raise ValueError(f"step {step.get('seq')}: {exc} (was the log written for another "
+                         "scenario?)") from None
     mujoco.mj_forward(model, data)
 
 
@@ -42,12 +45,8 @@ def replay(model: mujoco.MjModel, steps: Iterable[dict]) -> Iterator[mujoco.MjDa
 
 def resolve_frame(scenario: Scenario, model: mujoco.MjModel, name: str, key: str) -> Frame:
     """A YAML frame name of the scenario, or a ConfigError naming ``key`` and the valid names."""
-    resolve = FrameResolver(model, get_robot(scenario.robot.model).frame)
-    try:
-        return resolve(name)
-    except KeyError as exc:
-        raise ConfigError(scenario.source, key, str(exc.args[0]), name,
-                          f"one of: {', '.join(resolve.names())}") from None
+    return FrameResolver(model, get_robot(scenario.robot.model).frame).checked(
+        name, scenario.source, key)
 
 
 def frame_tracks(model: mujoco.MjModel, steps: list[dict], frames: dict[str, Frame]) -> dict[str, np.ndarray]:

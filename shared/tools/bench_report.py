@@ -154,7 +154,8 @@ def seed_ranges(seeds) -> str:
 
 # ------------------------------------------------------------------------------------ rendering
 
-HEADERS = ("case", "variant", "seeds", "success (95 % interval)", "pos error [m]", "paper", "ori error (Eq. 33)",
+HEADERS = ("case", "variant", "seeds", "success (95 % interval)", "pos error [m]", "paper",
+           "ori error (paper Eq. 33)",
            "paper", "collisions", "paper", "time [s]", "paper", "planner Hz")
 
 

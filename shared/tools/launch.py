@@ -14,7 +14,7 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
-from shared import episode
+from shared.evaluation import episode
 from shared.endpoints import DEFAULT_HOST
 
 # Ports this process already handed out: parallel bench trials pick their blocks at the same

@@ -3,7 +3,7 @@ time-out per trial.
 
 A bench file (``configs/bench/*.yaml``) lists cases ``{case, variant, scenario, trials}``. Trial
 ``i`` of a case runs one lock-step episode (a server + planner process pair on its own free ports,
-:mod:`shared.launch`) with seed ``seed + i`` for both the world's randomised start and the
+:mod:`shared.tools.launch`) with seed ``seed + i`` for both the world's randomised start and the
 planner's sampling. Each finished trial appends one row to ``results.csv`` in the output folder
 (flushed and synced before the next row), its episode log stays in ``logs/CASE/seed-NNN/``; a
 rerun skips every (case, seed) already in the file for the same scenario content (hash), so an
@@ -19,8 +19,8 @@ import json
 import os
 import platform
 import shutil
-import time
 import threading
+import time
 from collections.abc import Callable
 from concurrent.futures import FIRST_COMPLETED, ThreadPoolExecutor, wait
 from dataclasses import dataclass
@@ -30,10 +30,10 @@ from rich.console import Console
 from rich.progress import (BarColumn, MofNCompleteColumn, Progress, SpinnerColumn, TextColumn,
                            TimeElapsedColumn, TimeRemainingColumn)
 
-from shared import episode
+from shared.evaluation import episode
 from shared.config import ConfigError, Section, find_named, load_yaml, positive, positive_int
-from shared.launch import EpisodeLaunch, run_episode
-from shared.metrics import MetricsEvaluator
+from shared.tools.launch import EpisodeLaunch, run_episode
+from shared.evaluation.metrics import MetricsEvaluator
 from shared.scenario import PROJECT_ROOT, Scenario, find_scenario, load_scenario
 
 BENCH_DIR = PROJECT_ROOT / "configs" / "bench"

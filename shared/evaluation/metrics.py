@@ -1,10 +1,10 @@
 """Per-episode metrics of the paper's Tables I-III, computed from an episode log.
 
-Success, final position error and orientation error (Eq. 33) between two frames, number of
+Success, final position error and orientation error (paper Eq. 33) between two frames, number of
 collisions (contact onsets), completion time (simulated seconds), wall time and mean planner rate.
 Which frames is the scenario's ``metrics:`` section (:class:`shared.scenario.MetricsConfig`).
 Kinematics are recomputed by replaying logged states into the scenario's model
-(:mod:`shared.replay`), so the same function serves the server's summary, ``m3p2i bench`` and any
+(:mod:`shared.evaluation.replay`), so the same function serves the server's summary, ``m3p2i bench`` and any
 log on disk. The maths are the small pure functions at the top.
 """
 
@@ -16,9 +16,11 @@ from dataclasses import asdict, dataclass
 import mujoco
 import numpy as np
 
-from shared import episode
-from shared.geometry import symmetric_orientation_error
-from shared.replay import load_step, replay, resolve_frame
+from shared.evaluation import episode
+from shared.config import ErrorLog
+from shared.frames import Frame
+from shared.geometry import select_axes, symmetric_orientation_error
+from shared.evaluation.replay import load_step, replay, resolve_frame
 from shared.robots import get_robot
 from shared.scenario import Scenario
 from shared.scene import compile_model
@@ -30,7 +32,7 @@ class EpisodeMetrics:
     status: str                      # success | timeout | stopped | unfinished (log cut short)
     success: bool
     position_error: float | None     # m, metrics.position's a to b (+ offset) at the end
-    orientation_error: float | None  # Eq. 33 phi between metrics.orientation's frames at the end
+    orientation_error: float | None  # paper Eq. 33 phi between metrics.orientation's frames at the end
     collisions: int | None           # contact onsets between metrics.collisions' bodies
     time: float                      # simulated seconds until the episode ended
     wall_time: float                 # wall seconds from the planner's handshake to the last step
@@ -44,13 +46,13 @@ class EpisodeMetrics:
 # ---------------------------------------------------------------------------------------- maths
 
 def position_error(pos_a: np.ndarray, pos_b: np.ndarray, axes: str = "xyz") -> float:
-    """Euclidean distance between two positions, in the plane for ``axes="xy"``."""
+    """Euclidean distance between two positions along ``axes`` (``xy``, ``xz``, ``yz``, ``xyz``)."""
     d = np.asarray(pos_a, dtype=float) - np.asarray(pos_b, dtype=float)
-    return float(np.linalg.norm(d[:2] if axes == "xy" else d))
+    return float(np.linalg.norm(select_axes(d, axes)))
 
 
 def orientation_error(rot_a: np.ndarray, rot_b: np.ndarray) -> float:
-    """Eq. 33's phi between two rotation matrices (symmetric-object metric, 0 = equivalent)."""
+    """paper Eq. 33's phi between two rotation matrices (symmetric-object metric, 0 = equivalent)."""
     return float(symmetric_orientation_error(np.asarray(rot_a, dtype=float),
                                              np.asarray(rot_b, dtype=float)))
 
@@ -91,18 +93,23 @@ class MetricsEvaluator:
         self.scenario = scenario
         self.model = model if model is not None else compile_model(scenario)
         cfg = scenario.metrics
+        errors = ErrorLog()     # every wrong frame name at once
         self.position = self.orientation = None
         if cfg.position:
-            self.position = (resolve_frame(scenario, self.model, cfg.position.a, "metrics.position.a"),
-                             resolve_frame(scenario, self.model, cfg.position.b, "metrics.position.b"))
+            self.position = self._frames(cfg.position, "metrics.position", errors)
         if cfg.orientation:
-            self.orientation = (
-                resolve_frame(scenario, self.model, cfg.orientation.a, "metrics.orientation.a"),
-                resolve_frame(scenario, self.model, cfg.orientation.b, "metrics.orientation.b"))
+            self.orientation = self._frames(cfg.orientation, "metrics.orientation", errors)
         self._geoms_a = self._geoms_b = None
         if cfg.collisions:
-            self._geoms_a = self._geom_mask(cfg.collisions.a, "metrics.collisions.a")
-            self._geoms_b = self._geom_mask(cfg.collisions.with_, "metrics.collisions.with")
+            self._geoms_a = errors.call(self._geom_mask, cfg.collisions.a, "metrics.collisions.a")
+            self._geoms_b = errors.call(self._geom_mask, cfg.collisions.with_,
+                                        "metrics.collisions.with")
+        errors.raise_if_any()
+
+    def _frames(self, pair, key: str, errors: ErrorLog) -> tuple[Frame, Frame] | None:
+        a = errors.call(resolve_frame, self.scenario, self.model, pair.a, f"{key}.a")
+        b = errors.call(resolve_frame, self.scenario, self.model, pair.b, f"{key}.b")
+        return (a, b) if a is not None and b is not None else None
 
     def evaluate(self, records: list[dict], status: str | None = None) -> EpisodeMetrics:
         """Metrics of a logged episode. ``status`` overrides the log's summary (the server calls

@@ -1,0 +1,35 @@
+"""What the planner checks before it starts: the scenario file, and every name in it that only
+the compiled model or the planner's registries can confirm (cost terms and their frames and
+actuators, pinned controls, observers' frames, ``planner.mppi`` keys).
+
+``m3p2i-planner --check`` prints them all; ``m3p2i check`` / ``m3p2i run`` merge them with the
+world's.
+"""
+
+from __future__ import annotations
+
+import os
+
+import mujoco
+
+from shared.check import scenario_errors as _scenario_errors
+from shared.config import ConfigError, ErrorLog
+from shared.frames import FrameResolver
+from shared.predicates import check_frames
+from shared.scenario import Scenario
+from planner_client.problem import actuator_names, build_objectives, mppi_config
+
+
+def model_checks(scenario: Scenario, model: mujoco.MjModel, resolve: FrameResolver,
+                 errors: ErrorLog) -> None:
+    """What the planner resolves against its compiled model and registries."""
+    errors.call(build_objectives, scenario, resolve, actuator_names(model))
+    errors.call(mppi_config, scenario, model)
+    for factor, cfg in scenario.observers.items():
+        for _, pred in cfg.rules:
+            errors.call(check_frames, pred, resolve, scenario.source, f"observers.{factor}")
+
+
+def scenario_errors(name_or_path: str | os.PathLike) -> list[ConfigError]:
+    """Every error of a scenario file the planner would meet."""
+    return _scenario_errors(name_or_path, model_checks)

@@ -1,0 +1,188 @@
+"""Cost terms on frame poses: distances, speed, orientation, and how an end effector
+approaches an object (paper Eqs. 14-15, 27; thesis Eqs. 4.5-4.6). Every term returns ``[S, T]``
+(S samples, T horizon steps); positions are world-frame metres from ``framepos`` sensors."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import torch
+
+from shared.config import non_negative, positive, vector
+from shared.geometry import select_axes, symmetric_orientation_error_quat
+from planner_client.costs.base import CostTerm, RolloutBatch, register
+from planner_client.costs.helpers import axes_param, cosine, cosine_value, frame_params
+from planner_client.sensors import SensorRequest
+
+
+@register("distance")
+@dataclass
+class Distance(CostTerm):
+    """S_dist(a, b) = |x_a - (x_b + offset)| (paper Eq. 14, thesis Eq. 4.5); ``axes: xy`` ignores
+    height. ``offset`` (world frame, metres; default 0) places a target relative to a movable
+    object: the paper's pre-place and goal locations above cube B (paper Eqs. 25, 26, 29)."""
+    a: str
+    b: str
+    axes: str
+    offset: tuple[float, float, float] = (0.0, 0.0, 0.0)
+
+    @classmethod
+    def from_params(cls, s, ctx):
+        return cls(a=ctx.frame(s, "a"), b=ctx.frame(s, "b"), axes=axes_param(s),
+                   offset=s.opt("offset", (0.0, 0.0, 0.0), vector(3), "[x, y, z] in metres"))
+
+    def sensors(self):
+        return [SensorRequest("framepos", self.a), SensorRequest("framepos", self.b)]
+
+    def __call__(self, batch: RolloutBatch) -> torch.Tensor:
+        pa, pb = (batch.get(r) for r in self.requests)
+        d = pa - pb
+        if any(self.offset):
+            d = d - torch.tensor(self.offset, dtype=d.dtype, device=d.device)
+        return torch.linalg.vector_norm(select_axes(d, self.axes), dim=-1)
+
+
+@register("velocity")
+@dataclass
+class Velocity(CostTerm):
+    """|v_a|: linear speed of frame ``a`` (a velocity regulariser, e.g. to arrive at rest)."""
+    a: str
+    axes: str
+
+    @classmethod
+    def from_params(cls, s, ctx):
+        return cls(a=ctx.frame(s, "a"), axes=axes_param(s))
+
+    def sensors(self):
+        return [SensorRequest("framelinvel", self.a)]
+
+    def __call__(self, batch):
+        return torch.linalg.vector_norm(select_axes(batch.get(self.requests[0]), self.axes), dim=-1)
+
+
+@register("orientation")
+@dataclass
+class Orientation(CostTerm):
+    """S_ori(a, b) = φ(Σ_a, Σ_b) (paper Eq. 15, thesis Eq. 4.6), the weight being ω_ori.
+
+    φ is the orientation metric for fully symmetric objects (paper Eq. 33): 0 whenever every axis
+    of one frame is collinear with an axis of the other (any of a cube's 24 symmetries), at most
+    2 - 2/√3. Read from the ``framequat`` sensors of both frames ``[S, T, 4]``.
+    """
+    a: str
+    b: str
+
+    @classmethod
+    def from_params(cls, s, ctx):
+        return cls(**frame_params(s, ctx, "a", "b"))
+
+    def sensors(self):
+        return [SensorRequest("framequat", self.a), SensorRequest("framequat", self.b)]
+
+    def __call__(self, batch):
+        qa, qb = (batch.get(r) for r in self.requests)
+        return symmetric_orientation_error_quat(qa, qb)
+
+
+@register("reach")
+@dataclass
+class Reach(CostTerm):
+    """S_reach(ee, O, θ) = |x_ee - x_O| + tilt_weight · |cos(z_ee, z_O) - θ| (paper Eq. 27).
+
+    The term's weight is ω_reach and ``tilt_weight`` is ω_tilt / ω_reach. cos(z_ee, z_O) is the
+    cosine between the z axes of the end effector ``ee`` and the object ``obj`` (``framezaxis``
+    sensors). θ = -1 asks for the gripper perpendicular to the object's top face (z axes
+    opposed), θ = 0 for the gripper parallel to the plane the object stands on.
+
+    paper Eq. 27 writes the tilt residual without absolute value: linear in the cosine, so its
+    minimum is always cos = -1 and θ only shifts the cost by a constant. The absolute residual
+    used here is minimised exactly at cos = θ, as the text intends; for θ = -1 it equals the
+    printed expression (cos >= -1 always). Absolute rather than squared, so the tilt cost keeps
+    the same linear scale as the distance it is added to.
+    """
+    ee: str
+    obj: str
+    theta: float
+    tilt_weight: float
+
+    @classmethod
+    def from_params(cls, s, ctx):
+        return cls(**frame_params(s, ctx, "ee", "obj"),
+                   theta=s.req("theta", cosine_value, "a cosine in [-1, 1]"),
+                   tilt_weight=s.opt("tilt_weight", 1.0, non_negative, "a number >= 0"))
+
+    def sensors(self):
+        return [SensorRequest("framepos", self.ee), SensorRequest("framepos", self.obj),
+                SensorRequest("framezaxis", self.ee), SensorRequest("framezaxis", self.obj)]
+
+    def __call__(self, batch):
+        x_ee, x_o, z_ee, z_o = (batch.get(r) for r in self.requests)
+        dist = torch.linalg.vector_norm(x_ee - x_o, dim=-1)
+        return dist + self.tilt_weight * (cosine(z_ee, z_o) - self.theta).abs()
+
+
+@register("tilt")
+@dataclass
+class Tilt(CostTerm):
+    """|cos(z_ee, z_O) - θ|: the tilt summand of paper Eq. 27 on its own, as a constraint.
+
+    Keeps the end effector's z axis at the angle θ to the object's while the distance is costed
+    on something else, e.g. a grasped cube carried to its pre-place pose (paper Eq. 29): a hand that
+    tilts there pinches the cube on its edges. Parameters and the absolute residual as in
+    ``reach``; ``obj`` may be the held cube itself.
+    """
+    ee: str
+    obj: str
+    theta: float
+
+    @classmethod
+    def from_params(cls, s, ctx):
+        return cls(**frame_params(s, ctx, "ee", "obj"),
+                   theta=s.req("theta", cosine_value, "a cosine in [-1, 1]"))
+
+    def sensors(self):
+        return [SensorRequest("framezaxis", self.ee), SensorRequest("framezaxis", self.obj)]
+
+    def __call__(self, batch):
+        z_ee, z_o = (batch.get(r) for r in self.requests)
+        return (cosine(z_ee, z_o) - self.theta).abs()
+
+
+@register("approach_cone")
+@dataclass
+class ApproachCone(CostTerm):
+    """relu(min(slope · relu(d_xy - radius), height) - (z_ee - z_O)): stay above a funnel over
+    the object.
+
+    d_xy is the horizontal distance of ``ee`` from ``obj``. Far away, the end effector must be at
+    least ``height`` above the object's centre; closer than ``radius + height / slope`` the floor
+    drops linearly, and within ``radius`` of the object's vertical axis it is the centre's height
+    itself, so a top grasp arrives from above and never sweeps in at the object's level.
+
+    Not in the paper. Without it, a reach that starts low (a cube taken from a hand carrying it
+    3 cm over the table) swept in at table height and stopped beside the cube with a finger
+    across its way, where rising costs more distance than a 12-step horizon gains. The flat
+    bottom matters too: with a pointed cone, the sampled wobble of a hand 1 cm over the cube
+    cost more the lower it went, and it hovered there.
+    """
+    ee: str
+    obj: str
+    slope: float
+    height: float
+    radius: float
+
+    @classmethod
+    def from_params(cls, s, ctx):
+        return cls(**frame_params(s, ctx, "ee", "obj"),
+                   slope=s.opt("slope", 1.0, positive, "a number > 0"),
+                   height=s.opt("height", 0.05, positive, "metres > 0"),
+                   radius=s.opt("radius", 0.0, non_negative, "metres >= 0"))
+
+    def sensors(self):
+        return [SensorRequest("framepos", self.ee), SensorRequest("framepos", self.obj)]
+
+    def __call__(self, batch):
+        x_ee, x_o = (batch.get(r) for r in self.requests)
+        d_xy = torch.linalg.vector_norm(x_ee[..., :2] - x_o[..., :2], dim=-1)
+        floor = torch.clamp(self.slope * torch.relu(d_xy - self.radius), max=self.height)
+        return torch.relu(floor - (x_ee[..., 2] - x_o[..., 2]))

@@ -1,0 +1,54 @@
+"""Helpers the cost terms share, public here rather than private to one term module: parameter
+readers (frames, axes, a cosine value) and the small tensor maths several terms use."""
+
+from __future__ import annotations
+
+import torch
+
+from shared.config import Section, number, one_of
+from shared.geometry import AXES, select_axes
+from planner_client.costs.base import RolloutBatch, TermContext
+from planner_client.sensors import SensorRequest
+
+
+def axes_param(s: Section, default: str = "xyz") -> str:
+    """The ``axes`` parameter of a term: the world axes it measures along (:data:`AXES`).
+
+    Push and pull terms default to ``xy``: robot, object and goal centres sit at different
+    heights, and the planar angle is the one that says whether the robot is behind the object.
+    """
+    return s.opt("axes", default, one_of(AXES))
+
+
+# Floor of |a|·|b| in a cosine: a robot exactly on the object, an object exactly on the goal or a
+# zero control has no direction, and must cost nothing rather than NaN.
+TINY = 1e-12
+
+
+def cosine(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
+    """cos of the angle between ``a`` and ``b`` ``[..., d]`` -> ``[...]``; 0 if either is 0.
+
+    Near zero, |a·b| <= |a||b| keeps the ratio in [-1, 1], so the cost stays bounded and
+    continuous there too.
+    """
+    den = torch.linalg.vector_norm(a, dim=-1) * torch.linalg.vector_norm(b, dim=-1)
+    return (a * b).sum(-1) / den.clamp_min(TINY)
+
+
+def cos_rog(batch: RolloutBatch, a: str, obj: str, goal: str, axes: str) -> torch.Tensor:
+    """cos θ_ROG of paper Eq. 16: angle at the object O between robot R and goal G, ``[S, T]``."""
+    x_r, x_o, x_g = (batch.get(SensorRequest("framepos", f)) for f in (a, obj, goal))
+    return cosine(select_axes(x_r - x_o, axes), select_axes(x_g - x_o, axes))
+
+
+def frame_params(s: Section, ctx: TermContext, *keys: str) -> dict[str, str]:
+    """The frame-name parameters ``keys``, each checked to exist in the model."""
+    return {k: ctx.frame(s, k) for k in keys}
+
+
+def cosine_value(value) -> float:
+    """Converter for a cosine parameter (θ of paper Eq. 27): a number in [-1, 1]."""
+    v = number(value)
+    if not -1.0 <= v <= 1.0:
+        raise ValueError("must be in [-1, 1]")
+    return v

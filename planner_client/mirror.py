@@ -1,0 +1,79 @@
+"""The state mirror: the planner's MjData, overwritten by each state the world sends.
+
+Not part of the planning problem: it is where a received state becomes the rollouts' initial
+state, plus the velocity estimate of world-driven (mocap) bodies that the rollouts predict.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import mujoco
+import numpy as np
+
+from shared.protocol import State
+from shared.scene import STATE_FIELDS, get_full_state, set_state
+
+
+@dataclass
+class MocapState:
+    """World-driven bodies: ``pos [nmocap, 3]``, ``quat [nmocap, 4]``, ``vel [nmocap, 3]``.
+
+    mjSTATE_FULLPHYSICS (the rollouts' initial state) does not include mocap poses, so they
+    travel beside it and are set in every rollout thread's MjData.
+    """
+    pos: np.ndarray
+    quat: np.ndarray
+    vel: np.ndarray
+
+    @property
+    def moving(self) -> bool:
+        return bool(np.any(self.vel))
+
+
+class Mirror:
+    """The planner's MjData, overwritten by each received state (full physics state).
+
+    It also estimates the velocity of every mocap body (objects the world moves: scripted or
+    dynamic obstacles) from the last two states, for the constant-velocity prediction of paper Eq. 22.
+    A jump faster than ``max_speed`` is a teleport (a disturbance), not motion: velocity 0.
+    """
+
+    def __init__(self, model: mujoco.MjModel, max_speed: float = 5.0):
+        self.model = model
+        self.data = mujoco.MjData(model)
+        self.x0 = np.zeros(mujoco.mj_stateSize(model, mujoco.mjtState.mjSTATE_FULLPHYSICS))
+        self.max_speed = max_speed
+        self.mocap_vel = np.zeros((model.nmocap, 3))
+        self._prev_pos = np.zeros((model.nmocap, 3))
+        self._prev_time: float | None = None
+
+    def mocap(self) -> MocapState | None:
+        """Poses and estimated velocities of the mocap bodies (None when the model has none)."""
+        if not self.model.nmocap:
+            return None
+        return MocapState(self.data.mocap_pos, self.data.mocap_quat, self.mocap_vel)
+
+    def _estimate_mocap_velocity(self, time: float) -> None:
+        pos = self.data.mocap_pos
+        if self._prev_time is not None and time > self._prev_time:
+            vel = (pos - self._prev_pos) / (time - self._prev_time)
+            vel[np.linalg.norm(vel, axis=1) > self.max_speed] = 0.0
+            self.mocap_vel[:] = vel
+        elif self._prev_time is not None:      # time went back: a new episode
+            self.mocap_vel[:] = 0.0
+        self._prev_pos[:] = pos
+        self._prev_time = time
+
+    def apply(self, state: State) -> np.ndarray:
+        """Copy ``state`` in, recompute kinematics, return the rollout initial state [nstate]."""
+        m, d = self.model, self.data
+        try:
+            set_state(m, d, {name: getattr(state, name) for name in STATE_FIELDS})
+        except ValueError as exc:
+            raise ValueError(f"state.{exc}") from None
+        d.time = state.time
+        if m.nmocap:
+            self._estimate_mocap_velocity(state.time)
+        mujoco.mj_forward(m, d)
+        return get_full_state(m, d, self.x0)

@@ -1,0 +1,36 @@
+"""What the world checks before it starts: the scenario file, and every name in it that only
+the compiled model can confirm (success-test frames, disturbance conditions, metrics frames).
+
+``m3p2i-server --check`` prints them all; ``m3p2i check`` / ``m3p2i run`` merge them with the
+planner's.
+"""
+
+from __future__ import annotations
+
+import os
+
+import mujoco
+
+from shared.check import scenario_errors as _scenario_errors
+from shared.config import ConfigError, ErrorLog
+from shared.evaluation.metrics import MetricsEvaluator
+from shared.frames import FrameResolver
+from shared.predicates import check_frames
+from shared.scenario import MoveConfig, Scenario
+
+
+def model_checks(scenario: Scenario, model: mujoco.MjModel, resolve: FrameResolver,
+                 errors: ErrorLog) -> None:
+    """The names the world resolves against its compiled model."""
+    for i, pred in enumerate(scenario.episode.success):
+        errors.call(check_frames, pred, resolve, scenario.source, f"episode.success[{i}]")
+    for i, d in enumerate(scenario.world.disturbances):
+        if isinstance(d, MoveConfig) and d.when is not None:
+            errors.call(check_frames, d.when, resolve, scenario.source,
+                        f"world.disturbances[{i}].move.when")
+    errors.call(MetricsEvaluator, scenario, model)
+
+
+def scenario_errors(name_or_path: str | os.PathLike) -> list[ConfigError]:
+    """Every error of a scenario file the world would meet."""
+    return _scenario_errors(name_or_path, model_checks)

@@ -1,0 +1,140 @@
+"""Errors up front: every error of a scenario file at once, before any process starts.
+
+``m3p2i check`` and ``m3p2i run`` merge what the world (``server.check``) and the planner
+(``planner_client.check``) find: load-time faults (types, unknown keys) and the names only the
+compiled model or the planner's registries can confirm (frames, actuators, cost terms).
+"""
+
+from __future__ import annotations
+
+import copy
+
+import pytest
+import yaml
+from typer.testing import CliRunner
+
+from planner_client import check as planner_check
+from server import check as server_check
+from shared.config import ConfigError, ConfigErrors
+from shared.frames import FrameResolver
+from shared.scenario import SCENARIO_DIR, parse_scenario, read_scenario
+from shared.scene import compile_model
+from shared.tools.cli import app
+
+
+def _nav() -> dict:
+    return yaml.safe_load((SCENARIO_DIR / "navigation.yaml").read_text())
+
+
+def _write(tmp_path, raw: dict):
+    path = tmp_path / "broken.yaml"
+    path.write_text(yaml.safe_dump(raw))
+    return path
+
+
+def _three_faults() -> dict:
+    """A misspelt frame (model check, world), an unknown cost term (planner registry) and a
+    bad weight (load time)."""
+    raw = _nav()
+    raw["episode"]["success"].append({"near": {"a": "robot", "b": "gaol", "within": 0.1}})
+    terms = raw["objectives"]["navigate"]["terms"]
+    terms[0]["weight"] = "heavy"
+    terms[1]["term"] = "contact_forse"
+    return raw
+
+
+FAULTS = ("episode.success[1].near.b: no body named 'gaol'",
+          "objectives.navigate.terms[1].term: unknown cost term",
+          "objectives.navigate.terms[0].weight: wrong type")
+
+
+def test_m3p2i_check_reports_every_fault_of_a_file_at_once(tmp_path):
+    result = CliRunner().invoke(app, ["check", str(_write(tmp_path, _three_faults()))])
+    assert result.exit_code == 2, result.output
+    for fault in FAULTS:
+        assert fault in result.output
+    assert "3 errors" in result.output
+
+
+def test_m3p2i_run_reports_every_fault_before_starting_anything(tmp_path):
+    run_dir = tmp_path / "run"
+    result = CliRunner().invoke(app, ["run", str(_write(tmp_path, _three_faults())),
+                                      "--run-dir", str(run_dir)])
+    assert result.exit_code == 2, result.output
+    for fault in FAULTS:
+        assert fault in result.output
+    assert not run_dir.exists()          # neither process was started
+    assert "planner exited" not in result.output
+
+
+def test_m3p2i_check_accepts_a_sound_file():
+    result = CliRunner().invoke(app, ["check", "navigation"])
+    assert result.exit_code == 0, result.output
+    assert result.output.strip().endswith("ok")
+
+
+@pytest.mark.parametrize("path", sorted(SCENARIO_DIR.glob("*.yaml")), ids=lambda p: p.stem)
+def test_shipped_scenarios_pass_both_checks(path):
+    assert server_check.scenario_errors(path) == []
+    assert planner_check.scenario_errors(path) == []
+
+
+def test_each_side_checks_what_it_uses(tmp_path):
+    path = _write(tmp_path, _three_faults())
+    world = "\n".join(str(e) for e in server_check.scenario_errors(path))
+    planner = "\n".join(str(e) for e in planner_check.scenario_errors(path))
+    assert FAULTS[0] in world and FAULTS[1] not in world     # the world has no cost terms
+    assert FAULTS[1] in planner and FAULTS[0] not in planner
+    assert FAULTS[2] in world and FAULTS[2] in planner       # a load error: both see it
+
+
+def test_loading_collects_every_load_time_error():
+    raw = _nav()
+    raw["episode"]["max_time"] = -1
+    raw["planner"]["samples"] = 0
+    raw["objectives"]["navigate"]["terms"][2]["weight"] = "x"
+    raw["surprise"] = 1
+    with pytest.raises(ConfigErrors) as info:
+        parse_scenario(raw, "test.yaml")
+    paths = [e.path for e in info.value.errors]
+    assert paths == ["episode.max_time", "planner.samples",
+                     "objectives.navigate.terms[2].weight", "surprise"]
+    assert str(info.value).count("test.yaml: ") == 4
+
+
+def test_one_error_is_still_a_plain_config_error():
+    raw = _nav()
+    raw["episode"]["max_time"] = -1
+    with pytest.raises(ConfigError) as info:
+        parse_scenario(raw, "test.yaml")
+    assert not isinstance(info.value, ConfigErrors)
+    assert info.value.path == "episode.max_time"
+
+
+def test_a_faulty_world_skips_the_model_checks(tmp_path):
+    # a model without the faulty object is not the file's: its frame checks would only mislead
+    raw = _nav()
+    raw["world"]["objects"][3]["shape"] = "cone"            # the goal marker
+    reading = read_scenario(_write(tmp_path, raw))
+    assert not reading.model_ok
+    errors = server_check.scenario_errors(_write(tmp_path, raw))
+    assert [e.path for e in errors] == ["world.objects[3].shape"]
+
+
+def test_observer_frames_and_pinned_actuators_are_checked_together(tmp_path):
+    raw = yaml.safe_load((SCENARIO_DIR / "push_pull_aip.yaml").read_text())
+    raw = copy.deepcopy(raw)
+    factor = next(iter(raw["observers"]))
+    observers = yaml.safe_dump(raw["observers"][factor])
+    raw["observers"][factor] = yaml.safe_load(observers.replace("box", "bocks", 1))
+    objective = next(o for o in raw["objectives"].values() if "fixed" in o)
+    objective["fixed"] = {"sucktion": 1.0}
+    errors = [str(e) for e in planner_check.scenario_errors(_write(tmp_path, raw))]
+    assert any(f"observers.{factor}" in e and "'bocks'" in e for e in errors), errors
+    assert any("fixed.sucktion: unknown actuator" in e for e in errors), errors
+
+
+def test_valid_frame_names_are_listed_once():
+    sc = read_scenario("navigation").scenario
+    names = FrameResolver(compile_model(sc), "robot").names()
+    assert names.count("robot") == 1 and len(names) == len(set(names))

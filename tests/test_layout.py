@@ -1,0 +1,120 @@
+"""The package layout's import rules (docs: README "Layout"; ARCHITECTURE section 2).
+
+``server`` and ``planner_client`` meet only over the wire: neither imports the other. ``shared``
+imports neither. Inside ``shared``, the contract (the top-level modules and ``shared.robots``)
+imports neither ``shared.evaluation`` nor ``shared.tools``, and ``shared.evaluation`` does not
+import ``shared.tools``; the two processes never import ``shared.tools`` either (it is the
+``m3p2i`` command, which starts them as processes). Every ``import`` in every module counts,
+including those inside functions.
+"""
+
+from __future__ import annotations
+
+import ast
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parent.parent
+PACKAGES = ("server", "planner_client", "shared")
+
+# (importer prefix, forbidden import prefix): a module whose dotted name starts with the first
+# may not import a module whose dotted name starts with the second.
+FORBIDDEN = (
+    ("server", "planner_client"),
+    ("server", "shared.tools"),
+    ("planner_client", "server"),
+    ("planner_client", "shared.tools"),
+    ("shared", "server"),
+    ("shared", "planner_client"),
+    ("shared.evaluation", "shared.tools"),
+)
+CONTRACT_MAY_NOT = ("shared.evaluation", "shared.tools")
+
+
+def module_name(path: Path, root: Path) -> str:
+    parts = list(path.relative_to(root).with_suffix("").parts)
+    if parts[-1] == "__init__":
+        parts.pop()
+    return ".".join(parts)
+
+
+def imports(path: Path, root: Path) -> set[str]:
+    """Dotted names of every module ``path`` imports (relative imports made absolute)."""
+    tree = ast.parse(path.read_text(), str(path))
+    package = module_name(path, root)
+    if path.name != "__init__.py":
+        package = package.rpartition(".")[0]
+    out: set[str] = set()
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Import):
+            out.update(a.name for a in node.names)
+        elif isinstance(node, ast.ImportFrom):
+            if node.level:
+                base = package.split(".")[:len(package.split(".")) - node.level + 1]
+                prefix = ".".join(base + ([node.module] if node.module else []))
+            else:
+                prefix = node.module or ""
+            out.add(prefix)
+            # `from shared import tools` imports the module shared.tools
+            out.update(f"{prefix}.{a.name}" for a in node.names)
+    return out
+
+
+def _within(name: str, prefix: str) -> bool:
+    return name == prefix or name.startswith(prefix + ".")
+
+
+def is_contract(module: str) -> bool:
+    return _within(module, "shared") and not any(
+        _within(module, p) for p in CONTRACT_MAY_NOT)
+
+
+def violations(root: Path) -> list[str]:
+    found = []
+    for package in PACKAGES:
+        for path in sorted((root / package).rglob("*.py")):
+            importer = module_name(path, root)
+            for imported in sorted(imports(path, root)):
+                rules = [(a, b) for a, b in FORBIDDEN if _within(importer, a)]
+                if is_contract(importer):
+                    rules += [(importer, p) for p in CONTRACT_MAY_NOT]
+                for _, forbidden in rules:
+                    if _within(imported, forbidden):
+                        found.append(f"{path.relative_to(root)}: {importer} imports {imported}")
+    return found
+
+
+def test_the_project_keeps_its_import_rules():
+    assert violations(ROOT) == []
+
+
+def test_every_package_is_scanned():
+    # a rule over an empty set of files would pass for the wrong reason
+    for package in PACKAGES:
+        assert list((ROOT / package).rglob("*.py")), package
+    assert (ROOT / "shared" / "tools" / "cli.py").is_file()
+    assert (ROOT / "shared" / "evaluation" / "metrics.py").is_file()
+
+
+def _write(root: Path, rel: str, text: str) -> None:
+    path = root / rel
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(text)
+
+
+def test_the_checker_finds_each_kind_of_violation(tmp_path):
+    for package in ("server", "planner_client", "shared", "shared/tools", "shared/evaluation"):
+        _write(tmp_path, f"{package}/__init__.py", "")
+    _write(tmp_path, "server/app.py", "from planner_client.loop import PlannerClient\n")
+    _write(tmp_path, "planner_client/loop.py", "def f():\n    import server.world\n")
+    _write(tmp_path, "shared/scenario.py", "from shared.tools import bench\n")
+    _write(tmp_path, "shared/scene.py", "from .evaluation.metrics import x\n")
+    _write(tmp_path, "shared/evaluation/metrics.py", "from ..tools.launch import y\n")
+    _write(tmp_path, "shared/tools/cli.py", "from shared.evaluation import episode\n"
+                                              "from shared.scenario import load_scenario\n")
+    found = "\n".join(violations(tmp_path))
+    assert "server.app imports planner_client.loop" in found
+    assert "planner_client.loop imports server.world" in found
+    assert "shared.scenario imports shared.tools" in found
+    assert "shared.scene imports shared.evaluation.metrics" in found
+    assert "shared.evaluation.metrics imports shared.tools.launch" in found
+    assert "shared.tools.cli" not in found     # the tools may import everything in shared
