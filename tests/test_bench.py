@@ -110,7 +110,7 @@ def test_summary_statistics_follow_the_paper():
     assert str(s.stats["collisions"]) == "0.0500 (0.2179)"
     assert s.stats["time"].n == 59 and s.stats["orientation_error"] is None
     cells = table_rows([s], load_paper())[0]
-    assert cells[3] == "59/61 (89-99 %), 1 killed" and cells[9] == "0.0500 (0.2179)"
+    assert cells[3] == "59/61 (88.8-99.1 %), 1 killed" and cells[9] == "0.0500 (0.2179)"
     assert "| push | push | 0-60 | 59/61" in markdown_table([cells])
 
 
@@ -150,7 +150,7 @@ def test_report_counts_the_newest_scenario_version_and_explains_failures(tmp_pat
     res = read_results(folder)
     assert sorted(int(r["seed"]) for r in res.rows) == [0, 1, 2, 3]
     text = results_report([res], load_paper())
-    assert "| pick_place | normal | 0-3 | 3/4 (30-95 %) |" in text
+    assert "| pick_place | normal | 0-3 | 3/4 (30.1-95.4 %) |" in text
     assert "- `pick_place` seed 2: timeout at 30.0 s, 0.377 m from the goal. Joint 7 at its limit." in text
     assert "CPU X, 2 cores, 2026-11-30" in text
 

@@ -104,7 +104,7 @@ class CaseSummary:
     @property
     def success_cell(self) -> str:
         lo, hi = wilson(self.successes, self.trials)
-        text = f"{self.successes}/{self.trials} ({100 * lo:.0f}-{100 * hi:.0f} %)"
+        text = f"{self.successes}/{self.trials} ({100 * lo:.1f}-{100 * hi:.1f} %)"
         return f"{text}, {self.killed} killed" if self.killed else text
 
 
