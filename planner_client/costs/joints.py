@@ -10,6 +10,7 @@ S samples, T horizon steps; each term returns ``[S, T]`` from ``jointpos`` senso
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import lru_cache
 
 import torch
 
@@ -29,6 +30,12 @@ def _joint_names(s: Section, ctx: TermContext, default: list[str], what: str) ->
         raise s.error("joints", f"no joints to cost: the robot has no {what}", list(names),
                       "at least one joint name")
     return tuple(names)
+
+
+@lru_cache(maxsize=None)
+def _constant(values: tuple[float, ...], dtype: torch.dtype) -> torch.Tensor:
+    """``values`` as a tensor ``[J]``, made once: terms run every planner iteration."""
+    return torch.tensor(values, dtype=dtype)
 
 
 def _positions(batch, requests) -> torch.Tensor:
@@ -67,8 +74,7 @@ class JointLimits(CostTerm):
 
     def __call__(self, batch):
         q = _positions(batch, self.requests)                                  # [S, T, J]
-        lo = torch.tensor(self.lower, dtype=q.dtype)
-        hi = torch.tensor(self.upper, dtype=q.dtype)
+        lo, hi = _constant(self.lower, q.dtype), _constant(self.upper, q.dtype)
         room = torch.minimum(q - lo, hi - q)                                  # [S, T, J]
         return torch.clamp(self.margin - room, min=0.0).sum(-1) / self.margin
 
@@ -96,5 +102,5 @@ class Posture(CostTerm):
 
     def __call__(self, batch):
         q = _positions(batch, self.requests)
-        d = q - torch.tensor(self.target, dtype=q.dtype)
+        d = q - _constant(self.target, q.dtype)
         return (d * d).sum(-1)
