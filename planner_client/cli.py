@@ -25,7 +25,7 @@ log = logging.getLogger("m3p2i.planner")
 @app.command()
 def main(
     scenario: str = typer.Option(..., "--scenario", "-s",
-                                 help="Scenario name (configs/scenarios/NAME.yaml) or YAML path."),
+                                 help="Scenario name (m3p2i list) or YAML path."),
     host: str = typer.Option(DEFAULT_HOST, help="Server address."),
     port: int = typer.Option(DEFAULT_PORT, help="Server's first port (control); diagnostics are "
                              "published on port+3."),

@@ -28,7 +28,7 @@ log = logging.getLogger("m3p2i.server")
 @app.command()
 def main(
     scenario: str = typer.Option(..., "--scenario", "-s",
-                                 help="Scenario name (configs/scenarios/NAME.yaml) or YAML path."),
+                                 help="Scenario name (m3p2i list) or YAML path."),
     mode: str = typer.Option("lockstep", help="lockstep: step only when the command for the "
                              "latest state arrives (deterministic). realtime: step on the wall "
                              "clock, holding the latest command."),

@@ -88,21 +88,6 @@ class ErrorLog:
             raise ConfigErrors(self.errors)
 
 
-def find_named(name_or_path: str | Path, directories: Sequence[Path], what: str) -> Path:
-    """A YAML file: the path as given, else ``NAME.yaml`` in the first directory that has it;
-    the error lists the names the last directory offers."""
-    p = Path(name_or_path)
-    if p.is_file():
-        return p
-    for d in directories:
-        candidate = Path(d) / f"{p.name}.yaml"
-        if candidate.is_file():
-            return candidate
-    known = ", ".join(sorted(x.stem for x in Path(directories[-1]).glob("*.yaml")))
-    raise ConfigError(str(name_or_path), "", f"no such {what} file or name",
-                      expected=f"a YAML path or one of: {known}")
-
-
 def load_yaml(path: str | Path) -> dict:
     """Read a YAML mapping with the safe loader; errors name the file."""
     path = Path(path)

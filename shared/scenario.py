@@ -1,6 +1,6 @@
-"""Scenario files: one YAML per scenario under ``configs/scenarios/``, parsed into typed dataclasses
-and validated once, at load. Both processes load the same file; its hash is checked in the
-handshake so that they can never silently plan for different worlds.
+"""Scenario files: one YAML per scenario (found as :mod:`shared.config_files` says), parsed into
+typed dataclasses and validated once, at load. Both processes load the same file; its hash is
+checked in the handshake so that they can never silently plan for different worlds.
 
 The schema, key by key, is documented in ``docs/scenarios.md``.
 """
@@ -15,16 +15,15 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from shared.config import (ConfigError, ErrorLog, Section, find_named, load_yaml, non_negative, number, one_of,
+from shared.config import (ConfigError, ErrorLog, Section, load_yaml, non_negative, number, one_of,
                            positive, positive_int, string_list, vector)
+from shared.config_files import find, shipped
 from shared.geometry import AXES
 from shared.predicates import Predicate, parse_predicate
 from shared.robots import ROBOTS, get_robot
 from shared.task_template import FactorTemplate, TaskTemplate, parse_task
 
-PROJECT_ROOT = Path(__file__).resolve().parent.parent
-SCENARIO_DIR = PROJECT_ROOT / "configs" / "scenarios"
-OBJECTIVES_DIR = PROJECT_ROOT / "configs" / "objectives"
+SCENARIO_DIR = shipped("scenarios")      # the scenarios shipped with m3p2i
 
 SHAPES = ("box", "cylinder", "sphere")
 _SIZE_LEN = {"box": 3, "cylinder": 2, "sphere": 1}
@@ -205,8 +204,8 @@ class Scenario:
 
 
 def find_scenario(name_or_path: str | os.PathLike) -> Path:
-    """A path as given, else ``configs/scenarios/NAME.yaml`` (cwd first, then the project)."""
-    return find_named(name_or_path, [Path.cwd() / "configs" / "scenarios", SCENARIO_DIR], "scenario")
+    """A path as given, else ``NAME.yaml`` in the user's scenario folders, then the shipped ones."""
+    return find(name_or_path, "scenarios")
 
 
 def load_scenario(name_or_path: str | os.PathLike) -> Scenario:
@@ -247,9 +246,9 @@ def read_scenario(name_or_path: str | os.PathLike) -> ScenarioReading:
 
 
 def find_objectives(name_or_path: str | os.PathLike) -> Path:
-    """A path as given, else ``configs/objectives/NAME.yaml`` (cwd first, then the project)."""
-    return find_named(name_or_path, [Path.cwd() / "configs" / "objectives", OBJECTIVES_DIR],
-                      "objectives")
+    """A path as given, else ``NAME.yaml`` in the user's objectives folders, then the shipped
+    ones."""
+    return find(name_or_path, "objectives")
 
 
 def scenario_hash(raw: dict, included: Sequence[dict] = ()) -> str:
@@ -588,10 +587,10 @@ def _planner(s: Section) -> PlannerConfig:
 
 
 def _includes(top: Section, errors: ErrorLog) -> tuple[dict[str, ObjectiveConfig], list[dict]]:
-    """``include: [NAME or path, ...]``: files of named objectives (``configs/objectives/``)
+    """``include: [NAME or path, ...]``: files of named objectives (``objectives/NAME.yaml``)
     that this scenario's objectives may ``extends``; their contents, for the hash."""
     names = errors.call(top.opt, "include", (), string_list,
-                        "a list of objective files: configs/objectives/NAME.yaml or paths",
+                        "a list of objective files: names (objectives/NAME.yaml) or paths",
                         default=())
     library: dict[str, ObjectiveConfig] = {}
     contents = []

@@ -4,6 +4,7 @@ rerun skips finished trials and that a trial past its time-out is recorded as a 
 from __future__ import annotations
 
 import csv
+from pathlib import Path
 
 import pytest
 import yaml
@@ -15,7 +16,9 @@ from shared.tools.bench_report import (load_paper, markdown_table, read_results,
                                        seed_ranges, summarize, table_rows, update_reports, wilson)
 from shared.tools.cli import app
 from shared.config import ConfigError
-from shared.scenario import PROJECT_ROOT, SCENARIO_DIR
+from shared.scenario import SCENARIO_DIR
+
+ROOT = Path(__file__).resolve().parent.parent
 
 
 def write_bench(tmp_path, cases, **top):
@@ -190,10 +193,10 @@ def test_readme_and_docs_tables_are_what_their_results_give():
     """Tables are generated from committed results files, never edited by hand:
     `m3p2i report --update README.md docs/*.md` regenerates them."""
     paper = load_paper()
-    for doc in [PROJECT_ROOT / "README.md", *sorted((PROJECT_ROOT / "docs").glob("*.md"))]:
+    for doc in [ROOT / "README.md", *sorted((ROOT / "docs").glob("*.md"))]:
         text = doc.read_text()
         assert update_reports(text, doc.parent, paper) == text, \
-            f"{doc.name}: run `m3p2i report --update {doc.relative_to(PROJECT_ROOT)}`"
+            f"{doc.name}: run `m3p2i report --update {doc.relative_to(ROOT)}`"
 
 
 @pytest.mark.slow

@@ -1,7 +1,7 @@
 """``m3p2i bench``: seeded trials of the paper's cases, in parallel, resumable, with a hard
 time-out per trial.
 
-A bench file (``configs/bench/*.yaml``) lists cases ``{case, variant, scenario, trials}``. Trial
+A bench file (``bench/NAME.yaml`` in the user's folders or shipped: :mod:`shared.config_files`) lists cases ``{case, variant, scenario, trials}``. Trial
 ``i`` of a case runs one lock-step episode (a server + planner process pair on its own free ports,
 :mod:`shared.tools.launch`) with seed ``seed + i`` for both the world's randomised start and the
 planner's sampling. Each finished trial appends one row to ``results.csv`` in the output folder
@@ -31,12 +31,11 @@ from rich.progress import (BarColumn, MofNCompleteColumn, Progress, SpinnerColum
                            TimeElapsedColumn, TimeRemainingColumn)
 
 from shared.evaluation import episode
-from shared.config import ConfigError, Section, find_named, load_yaml, positive, positive_int
+from shared.config import ConfigError, Section, load_yaml, positive, positive_int
+from shared.config_files import find
 from shared.tools.launch import EpisodeLaunch, run_episode
 from shared.evaluation.metrics import MetricsEvaluator
-from shared.scenario import PROJECT_ROOT, Scenario, find_scenario, load_scenario
-
-BENCH_DIR = PROJECT_ROOT / "configs" / "bench"
+from shared.scenario import Scenario, find_scenario, load_scenario
 
 # results.csv columns; one row per finished trial
 FIELDS = ("case", "variant", "scenario", "scenario_hash", "seed", "success", "status", "reason",
@@ -75,8 +74,8 @@ class BenchConfig:
 
 
 def find_bench(name_or_path: str | os.PathLike) -> Path:
-    """A path as given, else ``configs/bench/NAME.yaml``."""
-    return find_named(name_or_path, [BENCH_DIR], "bench")
+    """A path as given, else ``NAME.yaml`` in the user's bench folders, then the shipped ones."""
+    return find(name_or_path, "bench")
 
 
 def load_bench(name_or_path: str | os.PathLike) -> BenchConfig:
@@ -135,7 +134,7 @@ def select_cases(cfg: BenchConfig, patterns: list[str] | None = None
             path = local if local.is_file() else find_scenario(case.scenario)
         except ConfigError:
             skipped.append(SkippedCase(case, f"no scenario file {case.scenario!r} "
-                                             f"(configs/scenarios/{case.scenario}.yaml)"))
+                                             "(beside the bench file, or a name: m3p2i list)"))
             continue
         try:
             scenario = load_scenario(path)

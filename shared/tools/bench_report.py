@@ -19,9 +19,9 @@ import numpy as np
 from rich.table import Table
 
 from shared.config import ConfigError, Section, load_yaml, positive_int, vector
-from shared.scenario import PROJECT_ROOT
+from shared.config_files import shipped
 
-PAPER_RESULTS = PROJECT_ROOT / "configs" / "paper_results.yaml"
+PAPER_RESULTS = shipped("paper_results.yaml")
 TIME_OUT = "time-out"
 METRICS = ("position_error", "orientation_error", "collisions", "time")
 
