@@ -16,16 +16,19 @@ from typing import Optional
 import typer
 
 from shared.cli_common import default_run_dir, error_blocks, summary_line
-from shared.config import ConfigError
+from shared.config import ConfigError, load_yaml
+from shared.config_files import ENV_VAR, KINDS, Entry, entries, search_folders, shown
 from shared.tools.launch import EpisodeLaunch, free_port_block, run_episode
-from shared.scenario import SCENARIO_DIR, find_scenario, load_scenario
+from shared.scenario import find_scenario, load_scenario
 from shared.tools.check import scenario_errors
+from shared.tools.new import new_scenario
 
 __all__ = ["app", "free_port_block"]   # free_port_block: tests start processes with it
 
 app = typer.Typer(add_completion=False, no_args_is_help=True, help=(
     "m3p2i: reactive task and motion planning with active inference and multi-modal MPPI.\n\n"
-    "`m3p2i run navigation` runs a scenario end to end; `m3p2i list` shows the scenarios. "
+    "`m3p2i run navigation` runs a scenario end to end; `m3p2i list` shows the scenarios and "
+    "where each comes from, `m3p2i new NAME --from SCENARIO` starts your own. "
     "For two terminals use `m3p2i-server` and `m3p2i-planner` directly."))
 
 
@@ -48,7 +51,7 @@ def _load_or_exit(scenario: str):
 
 @app.command("check")
 def check(
-    scenario: str = typer.Argument(..., help="Scenario name (configs/scenarios/NAME.yaml) or path."),
+    scenario: str = typer.Argument(..., help="Scenario name (m3p2i list) or YAML path."),
 ) -> None:
     """Check SCENARIO as both processes would, without starting them: every error of the file
     at once (frames, actuators, cost terms, observers included); exit 0 when sound, 2 if not."""
@@ -58,7 +61,7 @@ def check(
 
 @app.command("run")
 def run(
-    scenario: str = typer.Argument(..., help="Scenario name (configs/scenarios/NAME.yaml) or path."),
+    scenario: str = typer.Argument(..., help="Scenario name (m3p2i list) or YAML path."),
     mode: str = typer.Option("lockstep", help="lockstep (deterministic) or realtime."),
     port: int = typer.Option(0, help="Base port (0: pick free ports)."),
     run_dir: Optional[Path] = typer.Option(None, help="Where logs go (default runs/<scenario>-<time>)."),
@@ -94,7 +97,8 @@ def run(
 
 @app.command("bench")
 def bench(
-    config: str = typer.Argument("paper", help="Bench file: configs/bench/NAME.yaml or a path."),
+    config: str = typer.Argument("paper", help="Bench file: a name (m3p2i list bench) or a "
+                                 "YAML path."),
     quick: bool = typer.Option(False, "--quick", help="A few trials per case (the file's "
                                "quick_trials)."),
     cases: Optional[str] = typer.Option(None, help="Comma-separated case names or patterns, "
@@ -273,14 +277,67 @@ def record(
 
 
 @app.command("list")
-def list_scenarios() -> None:
-    """List the scenarios shipped in configs/scenarios."""
-    for path in sorted(SCENARIO_DIR.glob("*.yaml")):
-        try:
-            sc = load_scenario(path)
-            typer.echo(f"{sc.name:24s} {sc.description}")
-        except ConfigError as exc:
-            typer.echo(f"{path.stem:24s} (invalid: {exc})")
+def list_files(
+    kind: str = typer.Argument("scenarios", help="What to list: scenarios, objectives or bench."),
+) -> None:
+    """List the scenarios (or objective or bench files) folder by folder in lookup order: the
+    folders of M3P2I_SCENARIOS, ./configs/scenarios, then the shipped ones. Where two folders
+    have a file of the same name, the earlier one is used, and both lines say so."""
+    if kind not in KINDS:
+        typer.echo(f"error: cannot list {kind!r}; one of: {', '.join(KINDS)}", err=True)
+        raise typer.Exit(2)
+    found = entries(kind)
+    # a used file -> the first file of its name that it shadows
+    shadowed = {}
+    for e in found:
+        if e.shadowed_by is not None:
+            shadowed.setdefault(e.shadowed_by, e)
+    for folder in search_folders(kind):
+        if not folder.path.is_dir():
+            if folder.origin == ENV_VAR:      # the user named it: a typo must not go unnoticed
+                typer.echo(f"{folder}: not a folder")
+            continue
+        typer.echo(f"{folder}:")
+        for e in (e for e in found if e.folder == folder):
+            note = ""
+            if e.shadowed_by is not None:
+                note = f"[not used: {shown(e.shadowed_by)} comes first] "
+            elif e.path in shadowed:
+                other = shadowed[e.path]
+                note = (f"[shadows the shipped {e.name}] " if other.folder.origin == "shipped"
+                        else f"[shadows {shown(other.path)}] ")
+            typer.echo(f"  {e.name:24s} {note}{_description(e, kind)}".rstrip())
+
+
+def _description(entry: Entry, kind: str) -> str:
+    """A file's one-line description; for a scenario, whether it loads."""
+    try:
+        if kind == "scenarios":
+            return load_scenario(entry.path).description
+        return str(load_yaml(entry.path).get("description", ""))
+    except ConfigError as exc:
+        return f"(invalid: {exc})"
+
+
+@app.command("new")
+def new(
+    name: str = typer.Argument(..., help="Name of the new scenario: the file NAME.yaml."),
+    source: str = typer.Option(..., "--from", help="Scenario to copy: a name (m3p2i list) or "
+                               "a YAML path."),
+) -> None:
+    """Write a copy of scenario SOURCE, named NAME, into your scenario folder (the first of
+    M3P2I_SCENARIOS, else ./configs/scenarios) to start from; never overwrites a file."""
+    try:
+        made = new_scenario(name, source)
+    except ConfigError as exc:
+        typer.echo(f"error: {exc}", err=True)
+        raise typer.Exit(2) from None
+    typer.echo(f"wrote {shown(made.path)}, a copy of {shown(made.source)}")
+    for e in entries("scenarios"):
+        if e.shadowed_by == made.path:
+            typer.echo(f"it shadows {shown(e.path)}"
+                       + (" (shipped)" if e.folder.origin == "shipped" else ""))
+    typer.echo(f"edit it, then: m3p2i run {name}")
 
 
 if __name__ == "__main__":
