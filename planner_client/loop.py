@@ -4,6 +4,11 @@ Connection handling: the handshake is retried until a server answers (a refusal,
 scenario, is fatal with the server's reason); a server that goes silent for ``server_timeout``
 seconds, or comes back with a new session, is handshaken again, so the planner outlives server
 restarts. Each received state is answered with one command that echoes its ``seq``.
+
+Each command carries the whole plan, dated: its first knot is for the world time at which the
+command is expected to take effect (:mod:`planner_client.timing`). Against a real-time world the
+planner plans from its prediction of the state at that time and moves its warm start by the world
+time that really passed; in lock-step that time is one step and the lead is zero.
 """
 
 from __future__ import annotations
@@ -11,18 +16,25 @@ from __future__ import annotations
 import logging
 import time
 from collections.abc import Callable
+from collections import deque
 from dataclasses import dataclass, field
 
+import numpy as np
 import zmq
 
 from shared import protocol as P
 from shared.endpoints import Endpoints, socket
 from shared.evaluation.metrics import mean_hz
+from shared.scene import get_full_state
+from shared.timed_plan import TimedPlan, held
 from planner_client.motion import Iteration, MotionPlanner
-from planner_client.mirror import Mirror
+from planner_client.mirror import Mirror, MocapState
 from planner_client.task import TaskLayer
+from planner_client.timing import LeadEstimate, predict, steps_between
 
 log = logging.getLogger("m3p2i.planner")
+
+_NEW_EPISODE = 1.0   # world time going back more than this (s) is a reset, not jitter
 
 
 class HandshakeRefused(RuntimeError):
@@ -69,6 +81,9 @@ class PlannerClient:
         self._last_ctrl = self.robot.safe_stop()
         self._answered: tuple[str, int] | None = None   # (session, seq) of the last command
         self._answer = b""
+        self._sent: deque[TimedPlan] = deque(maxlen=4)  # what the world plays, oldest first
+        self._lead: LeadEstimate | None = None
+        self._last_start: tuple[float, int] | None = None   # (t_eff, state seq) of the last plan
 
     # ------------------------------------------------------------------ handshake
 
@@ -95,6 +110,9 @@ class PlannerClient:
                 log.info("connected: %s, %s mode, dt %.3f s, session %s", reply.scenario,
                          reply.mode, reply.dt, reply.session)
                 self.welcome = reply
+                self._lead = LeadEstimate(reply.dt) if reply.mode == "realtime" else None
+                self._sent.clear()
+                self._last_start = None
                 return reply
             req.close(0)   # a REQ that got no reply cannot send again: make a fresh one
             if not warned:
@@ -152,15 +170,25 @@ class PlannerClient:
             return
         decision = self.task.decide(self.mirror.data, state.extras, state.time)
         self.planner.set_modes(decision.modes)
-        it = self.planner.iterate(x0, self.mirror.mocap())
-        # a safe stop keeps the hold_ctrl actuators where they were: a gripper keeps its grip
-        ctrl = self.robot.safe_stop(self._last_ctrl) if decision.stop else it.command
+        start, x0, mocap = self._plan_start(state, x0)
+        it = self.planner.iterate(x0, mocap)
+        if decision.stop:
+            # a safe stop keeps the hold_ctrl actuators where they were: a gripper keeps its grip
+            ctrl, plan = self.robot.safe_stop(self._last_ctrl), None
+            self._sent.append(held(ctrl, start, state.seq))
+        else:
+            ctrl, plan = it.command, it.plan
+            self._sent.append(TimedPlan(start, self.planner.dt, plan, state.seq))
         self._last_ctrl = ctrl
         plan_time = time.perf_counter() - t0
-        self._answer = P.encode(P.Command(session=state.session, seq=state.seq, ctrl=ctrl,
-                                          plan_time=plan_time, action=decision.action))
+        self._answer = P.encode(P.Command(
+            session=state.session, seq=state.seq, ctrl=ctrl, plan_time=plan_time,
+            action=decision.action, plan_ctrl=plan, plan_t0=None if plan is None else start,
+            plan_dt=None if plan is None else self.planner.dt))
         self._answered = (state.session, state.seq)
         self.push.send(self._answer)
+        steps = state.seq - self._last_start[1] if self._last_start else 0
+        self._last_start = (start, state.seq)
         self.stats.iterations += 1
         self.stats.plan_times.append(plan_time)
         key = (decision.action, tuple(decision.modes))
@@ -173,9 +201,35 @@ class PlannerClient:
             self.diag.send(P.encode(P.Diagnostics(
                 seq=state.seq, action=decision.action, alternatives=list(decision.alternatives),
                 mode_names=it.modes, mode_weights=r.mode_weights.numpy(),
-                top=it.top, plan_time=plan_time)))
+                top=it.top, plan_time=plan_time, lead=start - state.time, steps=steps)))
         if on_plan is not None:
             on_plan(state, it)
+
+    def _plan_start(self, state: P.State, x0: np.ndarray) -> tuple[float, np.ndarray, MocapState | None]:
+        """When the new plan takes effect, the state predicted for then, and the mocap bodies
+        there; the warm start is moved by the time since the last plan's start.
+
+        Real time: ``lead`` whole world steps after the state (the largest recent lag), the
+        mirror stepped over them under the plans the world is playing. Lock-step: the state's
+        own time, as received.
+        """
+        mocap = self.mirror.mocap()
+        start = state.time
+        if self._lead is not None:
+            self._lead.observe(state.lag)
+            steps = self._lead.steps()
+            if steps:
+                model, data = self.mirror.model, self.mirror.data
+                predict(model, data, list(self._sent), self.robot.safe_stop(self._last_ctrl),
+                        self.welcome.dt, steps)
+                x0 = get_full_state(model, data, self.mirror.x0)
+                start = float(data.time)
+                if mocap is not None and mocap.moving:
+                    mocap = MocapState(mocap.pos + mocap.vel * (start - state.time), mocap.quat,
+                                       mocap.vel)
+        if self._last_start is not None and start >= self._last_start[0] - _NEW_EPISODE:
+            self.planner.advance(steps_between(self._last_start[0], start, self.planner.dt))
+        return start, x0, mocap
 
     def close(self) -> None:
         self.planner.close()

@@ -24,8 +24,13 @@ class Iteration:
     result: PlanResult
     modes: list[str]
     top: np.ndarray            # [M, T, 3] robot-frame positions of the lowest-cost samples
-    command: np.ndarray        # [nu] the control to send: u0 with discrete channels resolved
+    plan: np.ndarray           # [T, nu] the fused plan U with discrete channels resolved
     dominant: str              # the mode with the largest sum of fused weights
+
+    @property
+    def command(self) -> np.ndarray:
+        """``[nu]`` the control to apply now: the plan's first step."""
+        return self.plan[0]
 
 
 class MotionPlanner:
@@ -76,19 +81,27 @@ class MotionPlanner:
         top = self.problem.layout.take(sd[best], self.problem.robot_pos).numpy().copy()
         dominant = self.modes[int(torch.argmax(result.mode_weights))]
         return Iteration(result=result, modes=list(self.modes), top=top,
-                    command=self._command(result.u0.numpy(), dominant), dominant=dominant)
+                         plan=self._resolve(result.U.numpy(), dominant), dominant=dominant)
 
-    def _command(self, u0: np.ndarray, dominant: str) -> np.ndarray:
-        """u0 with the channels the dominant mode pins (suction on/off, gripper) set to its
-        values: a blend of on and off is neither (thesis: the executed suction follows the mode
-        with the largest fused weight). Channels only other modes pin keep the fused value."""
+    @property
+    def dt(self) -> float:
+        """Seconds per planned control step (``planner.timestep``, by default the world's)."""
+        return float(self.problem.model.opt.timestep)
+
+    def advance(self, steps: float) -> None:
+        """The next iteration starts ``steps`` control steps after the last (default one)."""
+        self.mppi.advance(steps)
+
+    def _resolve(self, plan: np.ndarray, dominant: str) -> np.ndarray:
+        """The plan ``[T, nu]`` with the channels the dominant mode pins (suction on/off,
+        gripper) set to its values: a blend of on and off is neither (thesis: the executed
+        suction follows the mode with the largest fused weight). Channels only other modes pin
+        keep the fused value."""
         fixed = self.problem.objectives[dominant].fixed
-        if not fixed:
-            return u0
-        u = u0.copy()
+        plan = plan.copy()
         for ch, value in fixed.items():
-            u[ch] = value
-        return u
+            plan[:, ch] = value
+        return plan
 
     def close(self) -> None:
         self.engine.close()

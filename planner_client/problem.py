@@ -54,6 +54,9 @@ def robot_joints(scenario: Scenario, model: mujoco.MjModel) -> dict[str, JointIn
 def build_problem(scenario: Scenario, extra_sensors: list[SensorRequest] = ()) -> PlanningProblem:
     robot = get_robot(scenario.robot.model)
     spec = build_spec(scenario)
+    # planner.timestep: the rollouts step (and hold each control) this long; the world's
+    # physics is unchanged, and the world plays the plan at its own rate
+    spec.option.timestep = scenario.planner.step(scenario.world)
     base = compile_model(scenario, spec.copy())
     resolve = FrameResolver(base, robot.frame)
     actuators = actuator_names(base)

@@ -2,9 +2,10 @@
 
 Lock-step: state ``seq`` is published and the world waits for the command answering it (the
 state is re-published every ``republish`` seconds meanwhile, for late subscribers). Real-time:
-the world steps on the wall clock holding the latest command; a command older than
-``command_timeout`` is replaced by the robot's safe control (zero velocity) until a fresh one
-arrives. Bad messages are logged with their reason and dropped; nothing received is executed.
+the world steps on the wall clock playing the newest command's time-indexed plan
+(:mod:`shared.timed_plan`; a command without a plan holds its ``ctrl``); when the plan runs out,
+or no command arrived for ``command_timeout``, the robot's safe control (zero velocity) holds
+until a fresh one arrives. Bad messages are logged with their reason and dropped; nothing received is executed.
 """
 
 from __future__ import annotations
@@ -21,11 +22,15 @@ import zmq
 from shared import protocol as P
 from shared.endpoints import Endpoints, socket
 from shared.evaluation.metrics import MetricsEvaluator, describe, mean_hz
+from shared.evaluation.timing import describe_timing, timing_summary
 from shared.scenario import Scenario
+from shared.timed_plan import PlanPlayer, TimedPlan, held
 from server.episode_log import EpisodeLog, read_log
 from server.world import Outcome, SimWorld
 
 log = logging.getLogger("m3p2i.server")
+
+_KEEP_STATE_TIMES = 4096   # states whose times are kept, for the age of the commands answering them
 
 
 @dataclass
@@ -36,6 +41,7 @@ class ServerOptions:
     linger: float = 0.5               # seconds to keep publishing the final state
     realtime_factor: float = 1.0      # realtime: simulated seconds per wall second
     wait_planner: float = 0.0         # seconds to wait for the first command; 0 = forever
+    plan_every: int = 1               # lockstep: world steps played per command (a slow planner)
 
 
 class WorldServer:
@@ -60,6 +66,10 @@ class WorldServer:
         self.poller.register(self.rep, zmq.POLLIN)
         self.poller.register(self.pull, zmq.POLLIN)
         self._plan_times: list[float] = []
+        self._state_times: dict[int, float] = {}     # seq -> world time of recent states
+        self._plan_time_of: dict[int, float] = {}    # seq -> planning time, until first applied
+        self._lag = 0.0                               # of the newest command, world seconds
+        self.player = PlanPlayer()
         self._action = ""
         self.action_changes: list[tuple[float, str]] = []
         self._rejected = 0
@@ -87,26 +97,29 @@ class WorldServer:
         finally:
             outcome = self.world.outcome()
             hz = mean_hz(self._plan_times)
-            metrics = self._episode_metrics(outcome.status)
+            metrics, timing = self._episode_metrics(outcome.status)
             self.log.write("summary", status=outcome.status, time=outcome.time,
                            measures=outcome.measures, planner_hz=hz, steps=self.seq,
                            rejected=self._rejected, actions=self.action_changes,
-                           metrics=metrics)
+                           metrics=metrics, timing=timing)
             self.log.close()
             self.close()
         outcome.measures["planner_hz"] = hz
         return outcome
 
-    def _episode_metrics(self, status: str) -> dict | None:
-        """shared.evaluation.metrics on the logged steps (the log is line-buffered, so complete on
-        disk). A failure here is logged, never allowed to cost the summary record."""
+    def _episode_metrics(self, status: str) -> tuple[dict | None, dict | None]:
+        """shared.evaluation's metrics and timing of the logged steps (the log is line-buffered,
+        so complete on disk). A failure here is logged, never allowed to cost the summary."""
         try:
-            metrics = self.metrics.evaluate(read_log(self.log.path), status=status)
+            records = read_log(self.log.path)
+            metrics = self.metrics.evaluate(records, status=status)
+            timing = timing_summary(records)
         except Exception:   # noqa: BLE001 - the summary must be written whatever went wrong
             log.exception("could not compute the episode metrics")
-            return None
+            return None, None
         log.info("metrics: %s", describe(metrics))
-        return metrics.as_dict()
+        log.info("timing: %s", describe_timing(timing))
+        return metrics.as_dict(), timing
 
     def _running(self) -> bool:
         return self.world.status == "running" and not self._stop
@@ -117,7 +130,9 @@ class WorldServer:
         while self._running():
             cmd = self._poll(self.opt.republish)
             if cmd is not None and cmd.seq == self.seq:
-                self._apply(cmd)
+                self._count_plan(cmd)
+                self._play_lockstep(cmd)
+                self._note_action(cmd.action)
                 last_pub = time.monotonic()
             elif time.monotonic() - last_pub >= self.opt.republish:
                 if self.seq == 0 and self.opt.wait_planner and \
@@ -126,32 +141,74 @@ class WorldServer:
                 self._publish()
                 last_pub = time.monotonic()
 
+    def _play_lockstep(self, cmd: P.Command) -> None:
+        """``plan_every`` world steps under the command (its plan's knots by time, or its ctrl
+        held; the safe control past the plan's end), then the state is published. One step by
+        default; more emulate, deterministically, a planner that slow against a real-time world."""
+        plan = (TimedPlan(cmd.plan_t0, cmd.plan_dt, cmd.plan_ctrl, cmd.seq) if cmd.has_plan
+                else held(cmd.ctrl, float(self.world.data.time), cmd.seq))
+        for _ in range(self.opt.plan_every):
+            self._apply(plan.at(float(self.world.data.time)), cmd.seq, publish=False)
+            if not self._running():
+                break
+        self._publish()
+
     def _run_realtime(self) -> None:
         period = self.world.dt / self.opt.realtime_factor
-        latest: P.Command | None = None
         latest_at = -np.inf
         stale = True
+        ended = -1                       # seq of the last plan whose end was logged
         next_tick = time.monotonic()
         self._publish()
         while self._running():
             cmd = self._poll(max(0.0, next_tick - time.monotonic()))
             if cmd is not None:
-                latest, latest_at = cmd, time.monotonic()
+                latest_at = time.monotonic()
+                self._receive(cmd)
             now = time.monotonic()
             if now < next_tick:
                 continue
-            fresh = latest is not None and now - latest_at <= self.opt.command_timeout
+            fresh = now - latest_at <= self.opt.command_timeout
             if fresh and stale:
                 self.log.event("commands_fresh", seq=self.seq)
-            elif not fresh and not stale and latest is not None:
+            elif not fresh and not stale:
                 log.warning("no command for %.2f s: holding the robot (safe control)",
                             self.opt.command_timeout)
                 self.log.event("commands_stale", seq=self.seq, age=now - latest_at)
+                self.player.clear()
             stale = not fresh
-            self._apply(latest if fresh else None)
+            ctrl, source = self._playing() if fresh else (None, -1)
+            if ctrl is None and source >= 0 and source != ended:
+                ended = source
+                log.warning("the plan of state %d ran out at t=%.2f s: safe control until the "
+                            "next", source, self.world.data.time)
+                self.log.event("plan_ended", seq=source, time=float(self.world.data.time))
+            self._apply(ctrl, source)
             next_tick += period
             if now - next_tick > 10 * period:   # fell far behind (debugger, load): resync
                 next_tick = now
+
+    def _receive(self, cmd: P.Command) -> None:
+        """A real-time command: its lag (published as ``state.lag``) and its plan, if any; a
+        command without a plan holds its ``ctrl`` until the next one (protocol 1's meaning)."""
+        sent = self._state_times.get(cmd.seq)
+        if sent is not None:
+            self._lag = max(0.0, float(self.world.data.time) - sent)
+        self._count_plan(cmd)
+        self._note_action(cmd.action)
+        self.player.receive(TimedPlan(cmd.plan_t0, cmd.plan_dt, cmd.plan_ctrl, cmd.seq)
+                            if cmd.has_plan else held(cmd.ctrl, float(self.world.data.time), cmd.seq))
+
+    def _count_plan(self, cmd: P.Command) -> None:
+        """Its planning time counts (Hz statistics) once, on the first step it drives."""
+        if cmd.plan_time > 0:
+            self._plan_time_of[cmd.seq] = cmd.plan_time
+
+    def _playing(self) -> tuple[np.ndarray | None, int]:
+        """The control for the world's time and the state ``seq`` it was planned from;
+        ``(None, seq)`` when that plan ran out, ``(None, -1)`` before any command."""
+        ctrl, plan = self.player.control(float(self.world.data.time))
+        return ctrl, (plan.seq if plan is not None else -1)
 
     def _linger(self) -> None:
         end = time.monotonic() + self.opt.linger
@@ -161,31 +218,45 @@ class WorldServer:
 
     # ------------------------------------------------------------------ steps
 
-    def _apply(self, cmd: P.Command | None) -> None:
-        ctrl = self.world.safe_command() if cmd is None else cmd.ctrl
-        self.world.step(ctrl)
+    def _note_action(self, action: str) -> None:
+        if action != self._action:
+            self._action = action
+            self.action_changes.append((float(self.world.data.time), action))
+            self.log.event("action", time=float(self.world.data.time), action=action)
+
+    def _apply(self, ctrl: np.ndarray | None, source: int, publish: bool = True) -> None:
+        """One world step under ``ctrl`` (None: the safe control), planned from state
+        ``source`` (-1: none); the step's log record has the control's age (world seconds since
+        that state) and source, from which shared.evaluation.timing tells whether the planner
+        kept up."""
+        d = self.world.data
+        source = source if ctrl is not None else -1
+        age = float(d.time) - self._state_times.get(source, float(d.time)) if source >= 0 else 0.0
+        plan_time = self._plan_time_of.pop(source, 0.0)
+        if plan_time:
+            self._plan_times.append(plan_time)
+        self.world.step(self.world.safe_command() if ctrl is None else ctrl)
         for event in self.world.events:
             log.info("disturbance: %s moved at t=%.2f s", event["object"], event["time"])
             self.log.event("disturbance", **event)
         self.world.events.clear()
         self.seq += 1
-        if cmd is not None and cmd.plan_time > 0:
-            self._plan_times.append(cmd.plan_time)
-        if cmd is not None and cmd.action != self._action:
-            self._action = cmd.action
-            self.action_changes.append((float(self.world.data.time), cmd.action))
-            self.log.event("action", time=float(self.world.data.time), action=cmd.action)
-        d = self.world.data
         self.log.write("step", seq=self.seq, time=float(d.time), qpos=d.qpos, qvel=d.qvel,
                        act=d.act, mocap_pos=d.mocap_pos, mocap_quat=d.mocap_quat, ctrl=d.ctrl,
-                       action=cmd.action if cmd else "", safe=cmd is None,
-                       plan_time=cmd.plan_time if cmd else 0.0, extras=self.world.extras)
+                       action=self._action, safe=ctrl is None, plan_seq=source, age=age,
+                       plan_time=plan_time, extras=self.world.extras)
         if self.viewer is not None:
             self.viewer.sync()
-        self._publish()
+        if publish:
+            self._publish()
 
     def _publish(self) -> None:
-        self.pub.send(P.encode(self.world.state(self.session, self.seq)))
+        state = self.world.state(self.session, self.seq)
+        state.lag = self._lag
+        self._state_times[self.seq] = state.time
+        self._state_times.pop(self.seq - _KEEP_STATE_TIMES, None)
+        self._plan_time_of.pop(self.seq - _KEEP_STATE_TIMES, None)
+        self.pub.send(P.encode(state))
 
     def _poll(self, timeout_s: float) -> P.Command | None:
         """Serve control requests and drain commands; return the newest valid command."""

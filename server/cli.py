@@ -31,7 +31,7 @@ def main(
                                  help="Scenario name (m3p2i list) or YAML path."),
     mode: str = typer.Option("lockstep", help="lockstep: step only when the command for the "
                              "latest state arrives (deterministic). realtime: step on the wall "
-                             "clock, holding the latest command."),
+                             "clock, playing the newest command's plan."),
     host: str = typer.Option(DEFAULT_HOST, help="Address to bind (loopback by default)."),
     port: int = typer.Option(DEFAULT_PORT, help="First of three ports: control, state, command."),
     log_file: Optional[Path] = typer.Option(None, "--log", help="Episode log (JSON lines). "
@@ -42,6 +42,9 @@ def main(
     republish: float = typer.Option(0.2, min=0.001, help="lockstep: re-send the state waiting "
                                     "for its command this often (seconds), for a planner that "
                                     "subscribed late or lost it."),
+    plan_every: int = typer.Option(1, min=1, help="lockstep: world steps played per command "
+                                   "(its plan's knots by time). K > 1 emulates, repeatably, a "
+                                   "planner K times slower than a real-time world."),
     viewer: bool = typer.Option(False, help="Open MuJoCo's passive viewer (needs a display)."),
     check: bool = typer.Option(False, "--check", help="Only check the scenario (every error of "
                                "the file, model names included) and exit: 0 sound, 2 faulty."),
@@ -58,7 +61,8 @@ def main(
     sc = load_scenario(scenario)
     log_file = log_file or default_run_dir(sc.name) / "episode.jsonl"
     opts = ServerOptions(mode=mode, command_timeout=command_timeout,
-                         realtime_factor=realtime_factor, republish=republish)
+                         realtime_factor=realtime_factor, republish=republish,
+                         plan_every=plan_every)
     try:
         server = WorldServer(sc, Endpoints(host, port), log_file, opts, seed=seed)
     except ConfigError as exc:   # e.g. a metrics frame the compiled model lacks

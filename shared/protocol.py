@@ -18,7 +18,9 @@ from typing import Any
 import msgpack
 import numpy as np
 
-PROTOCOL_VERSION = 1
+PROTOCOL_VERSION = 2
+"""2 added the time-indexed plan of a command (``plan_*``), ``state.lag`` and the diagnostics' timing;
+a peer of another version is refused with both versions named (docs/protocol.md)."""
 MAX_MESSAGE_BYTES = 8 * 1024 * 1024
 """Frames above this are refused before decoding (ZMQ_MAXMSGSIZE is set to the same value)."""
 
@@ -111,18 +113,31 @@ class State:
     mocap_quat: np.ndarray
     status: str = "running"
     extras: dict[str, float] = field(default_factory=dict)
+    lag: float = 0.0          # world s from publishing the state a command answered to its arrival
     type = "state"
 
 
 @dataclass
 class Command:
-    """Planner -> server (PUSH): the control to hold, answering state ``seq`` of ``session``."""
+    """Planner -> server (PUSH): the control answering state ``seq`` of ``session``.
+
+    ``ctrl`` is the control for now (all a world that holds one control needs); the optional plan
+    is the whole planned sequence ``plan_ctrl [H, nu]`` for world times ``plan_t0 + i·plan_dt``,
+    played with zero-order hold by a world that does not wait (:mod:`shared.timed_plan`).
+    """
     session: str
     seq: int
     ctrl: np.ndarray
     plan_time: float = 0.0    # seconds the planner spent on this command (for Hz statistics)
     action: str = ""          # the task-level action being executed, for the episode log
+    plan_ctrl: np.ndarray | None = None
+    plan_t0: float | None = None
+    plan_dt: float | None = None
     type = "command"
+
+    @property
+    def has_plan(self) -> bool:
+        return self.plan_ctrl is not None
 
 
 @dataclass
@@ -138,6 +153,8 @@ class Diagnostics:
     mode_weights: np.ndarray
     top: np.ndarray
     plan_time: float
+    lead: float = 0.0         # world s the plan was predicted ahead of the state (its expected lag)
+    steps: int = 0            # world steps since the state the previous plan answered
     type = "diagnostics"
 
 
@@ -165,12 +182,14 @@ _SCHEMA: dict[str, dict[str, tuple[str, bool]]] = {
     "state": {"session": ("str", True), "seq": ("int", True), "time": ("float", True),
               "qpos": ("array", True), "qvel": ("array", True), "act": ("array", True),
               "mocap_pos": ("array", True), "mocap_quat": ("array", True),
-              "status": ("str", False), "extras": ("floatmap", False)},
+              "status": ("str", False), "extras": ("floatmap", False), "lag": ("float", False)},
     "command": {"session": ("str", True), "seq": ("int", True), "ctrl": ("array", True),
-                "plan_time": ("float", False), "action": ("str", False)},
+                "plan_time": ("float", False), "action": ("str", False),
+                "plan_ctrl": ("array", False), "plan_t0": ("float", False), "plan_dt": ("float", False)},
     "diagnostics": {"seq": ("int", True), "action": ("str", True), "alternatives": ("strlist", True),
                     "mode_names": ("strlist", True), "mode_weights": ("array", True),
-                    "top": ("array", True), "plan_time": ("float", True)},
+                    "top": ("array", True), "plan_time": ("float", True),
+                    "lead": ("float", False), "steps": ("int", False)},
     "error": {"reason": ("str", True)},
     "control": {"op": ("str", True)},
 }
@@ -182,8 +201,10 @@ _OPS = {"reset", "shutdown"}
 def encode(msg: Any) -> bytes:
     """Message dataclass -> one msgpack frame."""
     out: dict[str, Any] = {"type": msg.type, "v": PROTOCOL_VERSION}
-    for name, (kind, _) in _SCHEMA[msg.type].items():
+    for name, (kind, required) in _SCHEMA[msg.type].items():
         value = getattr(msg, name)
+        if value is None and not required:
+            continue
         if kind == "array":
             value = encode_array(np.asarray(value))
         elif kind == "floatmap":
@@ -221,9 +242,14 @@ def decode(frame: bytes, expect: str | tuple[str, ...] | None = None) -> Any:
     if expect is not None and kind not in ((expect,) if isinstance(expect, str) else expect):
         raise ProtocolError(f"unexpected message type {kind!r} here (expected {expect})")
     version = obj.get("v")
-    if version != PROTOCOL_VERSION:
+    # an error's reason is read at any version: a refused peer must learn why, not just "v3?"
+    readable_error = (kind == "error" and isinstance(version, int) and not isinstance(version, bool)
+                      and isinstance(obj.get("reason"), str))
+    if version != PROTOCOL_VERSION and not readable_error:
         raise ProtocolError(f"protocol version {version!r} not supported "
                             f"(this side speaks version {PROTOCOL_VERSION})")
+    if version != PROTOCOL_VERSION:
+        return Error(reason=obj["reason"][:4096])
     schema = _SCHEMA[kind]
     unknown = set(obj) - set(schema) - {"type", "v"}
     if unknown:
@@ -278,5 +304,22 @@ def _check_values(msg: Any) -> None:
         raise ProtocolError(f"control.op: {msg.op!r} (expected one of {sorted(_OPS)})")
     if isinstance(msg, (State, Command)) and msg.seq < 0:
         raise ProtocolError(f"{msg.type}.seq must be >= 0")
-    if isinstance(msg, Command) and msg.ctrl.ndim != 1:
-        raise ProtocolError(f"command.ctrl: expected shape [nu], got {list(msg.ctrl.shape)}")
+    if isinstance(msg, Command):
+        if msg.ctrl.ndim != 1:
+            raise ProtocolError(f"command.ctrl: expected shape [nu], got {list(msg.ctrl.shape)}")
+        _check_plan(msg)
+    if isinstance(msg, State) and msg.lag < 0:
+        raise ProtocolError("state.lag must be >= 0")
+
+
+def _check_plan(cmd: Command) -> None:
+    given = [name for name in ("plan_ctrl", "plan_t0", "plan_dt") if getattr(cmd, name) is not None]
+    if not given:
+        return
+    if len(given) != 3:
+        raise ProtocolError(f"command: a plan needs plan_ctrl, plan_t0 and plan_dt together, got {given}")
+    if cmd.plan_ctrl.ndim != 2 or cmd.plan_ctrl.shape[0] < 1 or cmd.plan_ctrl.shape[1] != cmd.ctrl.shape[0]:
+        raise ProtocolError(f"command.plan_ctrl: expected shape [H >= 1, {cmd.ctrl.shape[0]}] "
+                            f"(nu of ctrl), got {list(cmd.plan_ctrl.shape)}")
+    if cmd.plan_dt <= 0:
+        raise ProtocolError(f"command.plan_dt must be > 0, got {cmd.plan_dt}")

@@ -181,6 +181,11 @@ class PlannerConfig:
     mppi: dict[str, Any] = field(default_factory=dict)
     threads: int = 0                       # rollout threads; 0 = one per core
     aip_period: float = 0.2                # simulated seconds between active-inference ticks
+    timestep: float | None = None          # planning step (s), a multiple of the world's; None = its
+
+    def step(self, world: WorldConfig) -> float:
+        """Seconds per planned control step: ``timestep``, or the world's."""
+        return self.timestep or world.timestep
 
 
 @dataclass(frozen=True)
@@ -290,6 +295,12 @@ def _read(raw: dict, source: str, errors: ErrorLog) -> ScenarioReading:
         top.section("metrics", required=False)
     planner = errors.call(lambda: _planner(top.section("planner", required=False)),
                           default=PlannerConfig())
+    if world is not None and planner.timestep is not None:
+        ratio = planner.timestep / world.timestep
+        if abs(ratio - round(ratio)) > 1e-6 or round(ratio) < 1:
+            errors.add(ConfigError(source, "planner.timestep", "not a whole multiple of "
+                                   "world.timestep", planner.timestep,
+                                   f"{world.timestep} × 1, 2, 3, ... seconds"))
     library, included = _includes(top, errors)
     objectives = errors.call(lambda: _objectives(top.section("objectives"), errors, library),
                              default={})
@@ -581,7 +592,9 @@ def _planner(s: Section) -> PlannerConfig:
                         horizon=s.opt("horizon", 15, positive_int),
                         mppi=dict(s.section("mppi", required=False).data),
                         threads=s.opt("threads", 0, int),
-                        aip_period=s.opt("aip_period", 0.2, positive, "simulated seconds"))
+                        aip_period=s.opt("aip_period", 0.2, positive, "simulated seconds"),
+                        timestep=s.opt("timestep", None, positive, "seconds > 0, a multiple of "
+                                       "world.timestep"))
     s.done()
     return cfg
 

@@ -6,6 +6,8 @@ import pytest
 
 from shared import protocol as P
 
+V = P.PROTOCOL_VERSION
+
 
 def _state(**kw):
     base = dict(session="abcd", seq=3, time=0.15, qpos=np.arange(4.0), qvel=np.zeros(4),
@@ -29,8 +31,11 @@ def test_state_round_trip_keeps_arrays_and_fields():
     P.Hello(scenario="nav", scenario_hash="00ff"),
     P.Welcome(scenario="nav", scenario_hash="00ff", mode="lockstep", dt=0.05, nu=2, session="s"),
     P.Command(session="s", seq=7, ctrl=np.array([0.5, -0.5]), plan_time=0.02, action="move"),
+    P.Command(session="s", seq=7, ctrl=np.array([0.5, -0.5]), plan_ctrl=np.ones((12, 2)),
+              plan_t0=1.25, plan_dt=0.03),
     P.Diagnostics(seq=1, action="push", alternatives=["push", "pull"], mode_names=["push", "pull"],
-                  mode_weights=np.array([0.7, 0.3]), top=np.zeros((5, 15, 3)), plan_time=0.01),
+                  mode_weights=np.array([0.7, 0.3]), top=np.zeros((5, 15, 3)), plan_time=0.01,
+                  lead=0.03, steps=3),
     P.Error(reason="nope"),
     P.Control(op="reset"),
 ])
@@ -56,21 +61,30 @@ def _arr(a):
 @pytest.mark.parametrize("frame, reason", [
     (b"\xc1\xff\x00garbage", "not a msgpack message"),
     (msgpack.packb([1, 2, 3]), "must be a map"),
-    (_raw(type="teleport", v=1), "unknown message type"),
-    (_raw(type="error", v=99, reason="x"), "protocol version 99 not supported"),
+    (_raw(type="teleport", v=V), "unknown message type"),
+    (_raw(type="state", v=99, reason="x"), "protocol version 99 not supported"),
+    (_raw(type="hello", v=1, scenario="a", scenario_hash="h"), "protocol version 1 not supported"),
     (_raw(type="error", reason="x"), "protocol version None"),
-    (_raw(type="command", v=1, session="s", seq=1), "missing field 'ctrl'"),
-    (_raw(type="command", v=1, session="s", seq="1", ctrl=_arr([0, 0])), "expected an integer"),
-    (_raw(type="command", v=1, session="s", seq=1, ctrl=[0.0, 0.0]), "expected an array map"),
-    (_raw(type="command", v=1, session="s", seq=1, ctrl=_arr([[0, 0]])), "expected shape [nu]"),
-    (_raw(type="command", v=1, session="s", seq=1, ctrl=_arr([np.nan, 0])), "NaN or inf"),
-    (_raw(type="command", v=1, session="s", seq=1, ctrl=_arr([0, 0]), evil=1), "unknown field"),
-    (_raw(type="command", v=1, session="s", seq=1,
+    (_raw(type="command", v=V, session="s", seq=1), "missing field 'ctrl'"),
+    (_raw(type="command", v=V, session="s", seq="1", ctrl=_arr([0, 0])), "expected an integer"),
+    (_raw(type="command", v=V, session="s", seq=1, ctrl=[0.0, 0.0]), "expected an array map"),
+    (_raw(type="command", v=V, session="s", seq=1, ctrl=_arr([[0, 0]])), "expected shape [nu]"),
+    (_raw(type="command", v=V, session="s", seq=1, ctrl=_arr([np.nan, 0])), "NaN or inf"),
+    (_raw(type="command", v=V, session="s", seq=1, ctrl=_arr([0, 0]), evil=1), "unknown field"),
+    (_raw(type="command", v=V, session="s", seq=1,
           ctrl={"nd": True, "dtype": "<f8", "shape": [3], "data": b"\x00" * 8}), "needs 24"),
-    (_raw(type="command", v=1, session="s", seq=1,
+    (_raw(type="command", v=V, session="s", seq=1,
           ctrl={"nd": True, "dtype": "|O", "shape": [1], "data": b"\x00" * 8}), "unsupported dtype"),
-    (_raw(type="command", v=1, session="s", seq=-4, ctrl=_arr([0, 0])), "seq must be >= 0"),
-    (_raw(type="control", v=1, op="rm -rf"), "control.op"),
+    (_raw(type="command", v=V, session="s", seq=-4, ctrl=_arr([0, 0])), "seq must be >= 0"),
+    (_raw(type="control", v=V, op="rm -rf"), "control.op"),
+    (_raw(type="command", v=V, session="s", seq=1, ctrl=_arr([0, 0]), plan_ctrl=_arr([[0, 0]])),
+     "plan_ctrl, plan_t0 and plan_dt together"),
+    (_raw(type="command", v=V, session="s", seq=1, ctrl=_arr([0, 0]), plan_ctrl=_arr([[0, 0, 0]]),
+          plan_t0=0.0, plan_dt=0.01), "expected shape [H >= 1, 2]"),
+    (_raw(type="command", v=V, session="s", seq=1, ctrl=_arr([0, 0]), plan_ctrl=_arr([[0, 0]]),
+          plan_t0=0.0, plan_dt=0.0), "plan_dt must be > 0"),
+    (_raw(type="state", v=V, session="s", seq=1, time=0.0, qpos=_arr([0]), qvel=_arr([0]),
+          act=_arr([]), mocap_pos=_arr([]), mocap_quat=_arr([]), lag=-0.1), "lag must be >= 0"),
 ])
 def test_malformed_messages_are_refused_with_a_reason(frame, reason):
     with pytest.raises(P.ProtocolError, match=None) as info:
@@ -86,7 +100,7 @@ def test_oversize_message_is_refused_before_decoding():
 def test_oversize_array_is_refused():
     big = {"nd": True, "dtype": "<f8", "shape": [10**7], "data": b""}
     with pytest.raises(P.ProtocolError, match="over the limit"):
-        P.decode(_raw(type="command", v=1, session="s", seq=1, ctrl=big))
+        P.decode(_raw(type="command", v=V, session="s", seq=1, ctrl=big))
 
 
 def test_unexpected_type_on_a_socket_is_refused():
@@ -99,3 +113,14 @@ def test_no_pickle_extension_types_are_accepted():
     frame = msgpack.packb({"type": "error", "v": 1, "reason": msgpack.ExtType(1, b"\x80\x04")})
     with pytest.raises(P.ProtocolError):
         P.decode(frame)
+
+
+def test_a_refusal_from_a_peer_of_another_version_is_read_with_its_reason():
+    # an old or newer peer must learn why it was refused, not only that the version differs
+    back = P.decode(_raw(type="error", v=1, reason="refused: protocol version 2 not supported"))
+    assert isinstance(back, P.Error) and "version 2" in back.reason
+
+
+def test_a_command_without_a_plan_is_still_a_command():
+    back = P.decode(P.encode(P.Command(session="s", seq=1, ctrl=np.zeros(2))))
+    assert not back.has_plan and back.plan_t0 is None

@@ -88,13 +88,24 @@ def finite_costs(costs: Tensor) -> Tensor:
     return torch.nan_to_num(costs, nan=big, posinf=big, neginf=-big)
 
 
-def shift(seq: Tensor) -> Tensor:
-    """Warm start: drops step 0 and repeats the last step, ``[..., T, nu] -> [..., T, nu]``.
+def shift(seq: Tensor, steps: float = 1.0) -> Tensor:
+    """Warm start ``steps`` control steps later, ``[..., T, nu] -> [..., T, nu]``.
 
-    Repeating (as the thesis code does) keeps a constant command going at the end of the
-    horizon; a zero would brake velocity-controlled robots in every fresh plan tail.
+    New step t is the old sequence at t + steps: linearly interpolated between steps for a
+    fractional shift, the last step repeated past the end and the first held before the start
+    (a negative shift). Repeating (as the thesis code does) keeps a constant command going at the
+    end of the horizon; a zero would brake velocity-controlled robots in every fresh plan tail.
+    An integer shift is an exact copy of the kept steps.
     """
-    return torch.cat((seq[..., 1:, :], seq[..., -1:, :]), dim=-2)
+    horizon = seq.shape[-2]
+    whole = math.floor(steps)
+    frac = steps - whole
+    idx = torch.arange(horizon, device=seq.device) + whole
+    lo = seq.index_select(-2, idx.clamp(0, horizon - 1))
+    if frac == 0.0:
+        return lo
+    hi = seq.index_select(-2, (idx + 1).clamp(0, horizon - 1))
+    return torch.lerp(lo, hi, frac)
 
 
 class _Box:
@@ -334,6 +345,7 @@ class M3P2I:
         self._mu = self._u.expand(n, -1, -1).clone()            # [N, T, nu]
         self._best = self._mu.clone()                           # [N, T, nu]
         self._lam = torch.full((n + 1,), c.cfg.lambda_init, dtype=c.dtype, device=c.device)
+        self._unshifted = (self._mu, self._u, self._best)      # what advance() shifts from
         self._v: Tensor | None = None
         c.noise.reset()
 
@@ -348,15 +360,32 @@ class M3P2I:
         old = {m.name: i for i, m in enumerate(self._modes)}
         keep = [old.get(m.name) for m in modes]
         lam0 = torch.tensor(c.cfg.lambda_init, dtype=c.dtype, device=c.device)
-        mu = [self._mu[i] if i is not None else self._u for i in keep]
-        best = [self._best[i] if i is not None else self._u for i in keep]
+        def regroup(mu: Tensor, u: Tensor, best: Tensor) -> tuple[Tensor, Tensor, Tensor]:
+            return (torch.stack([mu[i] if i is not None else u for i in keep]), u,
+                    torch.stack([best[i] if i is not None else u for i in keep]))
+
         lam = [self._lam[i] if i is not None else lam0 for i in keep] + [self._lam[-1]]
         previous = self._s
         self._set_layout(modes)          # validates before anything changes
-        self._mu, self._best, self._lam = torch.stack(mu), torch.stack(best), torch.stack(lam)
+        self._mu, self._u, self._best = regroup(self._mu, self._u, self._best)
+        self._unshifted = regroup(*self._unshifted)
+        self._lam = torch.stack(lam)
         if self._s != previous:
             c.make_noise(self._s)
         self._v = None
+
+    def advance(self, steps: float) -> None:
+        """Re-times the warm start: the next iteration starts ``steps`` control steps (may be
+        fractional, or less than one) after the last one, where :meth:`update` assumed one.
+
+        A planner slower than the world calls it with the world time that really passed
+        (hydrax's re-interpolation of the plan at the new state's time), so that the means
+        are read at the times they were planned for.
+        """
+        if steps != 1.0:
+            # from the plans as update() left them, before its one-step shift: a shift of 0.3
+            # must not lose step 0
+            self._mu, self._u, self._best = (shift(x, steps) for x in self._unshifted)
 
     def sample(self) -> Tensor:
         """Returns the control sequences to roll out, ``[S, T, nu]``."""
@@ -406,6 +435,7 @@ class M3P2I:
         result = PlanResult(u0=u[0], U=u, mode_weights=mode_weights, mode_costs=beta_mode,
                             etas=eta_mode, lambdas=lam[:n].clone(), best=best, weights=w,
                             fused_eta=eta, fused_lambda=lam[n].clone())
+        self._unshifted = (mu, u, best)
         self._mu, self._u, self._best = shift(mu), shift(u), shift(best)
         return result
 

@@ -18,6 +18,7 @@ import typer
 from shared.cli_common import default_run_dir, error_blocks, summary_line
 from shared.config import ConfigError, load_yaml
 from shared.config_files import ENV_VAR, KINDS, Entry, entries, search_folders, shown
+from shared.evaluation.timing import describe_timing
 from shared.tools.launch import EpisodeLaunch, free_port_block, run_episode
 from shared.scenario import find_scenario, load_scenario
 from shared.tools.check import scenario_errors
@@ -62,7 +63,10 @@ def check(
 @app.command("run")
 def run(
     scenario: str = typer.Argument(..., help="Scenario name (m3p2i list) or YAML path."),
-    mode: str = typer.Option("lockstep", help="lockstep (deterministic) or realtime."),
+    mode: str = typer.Option("lockstep", help="lockstep (deterministic) or realtime (the world "
+                             "steps on the wall clock, playing the planner's newest plan)."),
+    plan_every: int = typer.Option(1, min=1, help="lockstep: world steps per command; K > 1 "
+                                   "emulates, repeatably, a planner K times slower than the world."),
     port: int = typer.Option(0, help="Base port (0: pick free ports)."),
     run_dir: Optional[Path] = typer.Option(None, help="Where logs go (default runs/<scenario>-<time>)."),
     timeout: float = typer.Option(900.0, help="Wall-clock seconds before the run is abandoned."),
@@ -75,7 +79,8 @@ def run(
     run_dir = run_dir or default_run_dir(sc.name)
     typer.echo(f"running {sc.name} ({mode}); logs in {run_dir}")
     result = run_episode(EpisodeLaunch(scenario=sc.source, run_dir=run_dir, seed=seed, mode=mode,
-                                       port=port, timeout=timeout, viewer=viewer, verbose=verbose))
+                                       port=port, timeout=timeout, viewer=viewer, verbose=verbose,
+                                       plan_every=plan_every))
     if result.reason == "timeout":
         typer.echo(f"error: no outcome within {timeout:.0f} s; stopping", err=True)
     elif result.reason == "interrupted":
@@ -92,6 +97,8 @@ def run(
         raise typer.Exit(1)
     measures = dict(summary.get("measures", {}), planner_hz=summary.get("planner_hz", 0.0))
     typer.echo(f"{sc.name}: " + summary_line(summary["status"], summary["time"], measures))
+    if summary.get("timing") and (mode == "realtime" or plan_every > 1):
+        typer.echo(f"timing: {describe_timing(summary['timing'])}")
     raise typer.Exit(0 if summary["status"] == "success" else 1)
 
 

@@ -80,6 +80,7 @@ class EpisodeLaunch:
     port: int = 0                   # 0: a free block
     timeout: float = 900.0          # wall-clock seconds before both processes are stopped
     threads: int = 0                # planner rollout threads (0: the scenario's / one per core)
+    plan_every: int = 1             # lockstep: world steps per command (emulates a slow planner)
     viewer: bool = False
     verbose: bool = False           # children write to this terminal instead of log files
 
@@ -89,6 +90,8 @@ class EpisodeLaunch:
                   "--log", str(self.run_dir / "episode.jsonl")]
         if self.viewer:
             server.append("--viewer")
+        if self.plan_every != 1:
+            server += ["--plan-every", str(self.plan_every)]
         planner = [sys.executable, "-m", "planner_client", *common]
         if self.threads:
             planner += ["--threads", str(self.threads)]

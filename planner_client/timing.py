@@ -1,0 +1,78 @@
+"""Keeping time against a world that does not wait: when the next plan will take effect, what
+the state will be by then, and how far the warm start must move.
+
+A real-time world keeps playing the previous plan while the planner computes. So the planner
+plans not from the state it received (time ``t_s``) but from the state the world will be in when
+the new plan arrives, ``t_eff = t_s + lead``: it predicts it by stepping its own model over the
+lead under the plan being played, and dates its plan's first knot ``t_eff``. The lead is learnt
+from ``state.lag`` (world seconds between publishing a state and the arrival of the command that
+answered it: planning plus transport, both ways). In lock-step the world waits, the lead is 0 and
+nothing here changes a thing.
+"""
+
+from __future__ import annotations
+
+import math
+from collections import deque
+from contextlib import contextmanager
+
+import mujoco
+import numpy as np
+
+from shared.timed_plan import TimedPlan, playing
+
+
+class LeadEstimate:
+    """The lead to plan ahead by: the largest of the last ``window`` lags, rounded up to whole
+    world steps. The largest, because a plan that arrives before its time waits harmlessly
+    (the previous one plays on, as predicted), while one that arrives late loses its first knots
+    and starts from a state it did not predict."""
+
+    def __init__(self, world_dt: float, window: int = 10):
+        self.world_dt = world_dt
+        self._lags: deque[float] = deque(maxlen=window)
+
+    def observe(self, lag: float) -> None:
+        if lag > 0:
+            self._lags.append(lag)
+
+    def steps(self) -> int:
+        """World steps to predict ahead (0 until a lag was observed)."""
+        if not self._lags:
+            return 0
+        return math.ceil(max(self._lags) / self.world_dt - 1e-6)
+
+
+@contextmanager
+def _timestep(model: mujoco.MjModel, dt: float):
+    saved = model.opt.timestep
+    model.opt.timestep = dt
+    try:
+        yield
+    finally:
+        model.opt.timestep = saved
+
+
+def predict(model: mujoco.MjModel, data: mujoco.MjData, plans: list[TimedPlan], safe: np.ndarray,
+            world_dt: float, steps: int) -> None:
+    """Steps ``data`` (the mirrored state) ``steps`` world steps ahead, in place, under the
+    controls the world will apply meanwhile (``plans``: the last ones sent, oldest first); at the world's timestep even when the planning
+    model's is coarser, so that the predicted state is on the world's time grid."""
+    if steps <= 0:
+        return
+    lo, hi = model.actuator_ctrlrange.T
+    limited = model.actuator_ctrllimited.astype(bool)
+    with _timestep(model, world_dt):
+        for _ in range(steps):
+            u = playing(plans, float(data.time))
+            u = safe if u is None else u
+            data.ctrl[:] = np.where(limited, np.clip(u, lo, hi), u)
+            mujoco.mj_step(model, data)
+
+
+def steps_between(t_from: float, t_to: float, dt: float) -> float:
+    """``(t_to - t_from) / dt`` control steps, snapped to a whole number within 1e-6 so that
+    lock-step iterations shift by exactly one step (float times differ in the last bits)."""
+    steps = (t_to - t_from) / dt
+    nearest = round(steps)
+    return float(nearest) if abs(steps - nearest) < 1e-6 else steps

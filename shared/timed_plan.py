@@ -1,0 +1,103 @@
+"""A control sequence indexed by world time, played between planner updates.
+
+A planner slower than the world's control loop (the normal case for an arm at 100 Hz-1 kHz)
+sends, with each command, the whole control sequence it planned and the world time its first
+control is meant for. The world (or a hardware bridge) plays it: at every control tick it applies
+the knot whose interval holds the current time, **zero-order hold** (each knot held for ``dt``,
+exactly as the planner's rollouts held it), and switches to a newer plan when the time its first
+knot is meant for arrives. When the newest plan runs out, the safe control takes over.
+
+Pure functions and a small player; no sockets. ``docs/protocol.md`` ("Playing a plan").
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+_EPS = 1e-9    # world times are sums of float timesteps: a knot boundary must not fall off by one
+
+
+@dataclass(frozen=True)
+class TimedPlan:
+    """Controls ``ctrl [H, nu]``; knot i holds over world time [t0 + i·dt, t0 + (i+1)·dt).
+
+    ``seq`` is the state the plan answers (the world uses it for the plan's age). A command
+    without a plan is the one-knot plan of its ``ctrl`` with ``dt = inf``: held from ``t0`` on.
+    """
+    t0: float
+    dt: float
+    ctrl: np.ndarray
+    seq: int = 0
+
+    def __post_init__(self) -> None:
+        if not (self.dt > 0 and math.isfinite(self.t0)):
+            raise ValueError(f"plan needs a finite t0 and dt > 0, got t0={self.t0}, dt={self.dt}")
+        if self.ctrl.ndim != 2 or self.ctrl.shape[0] < 1:
+            raise ValueError(f"plan ctrl must be [H >= 1, nu], got shape {list(self.ctrl.shape)}")
+
+    @property
+    def end(self) -> float:
+        """World time at which the last knot's interval ends."""
+        return self.t0 + self.ctrl.shape[0] * self.dt
+
+    def index(self, t: float) -> int | None:
+        """The knot holding at world time ``t``; None before ``t0`` or from :attr:`end` on."""
+        if t + _EPS < self.t0:
+            return None
+        i = int((t - self.t0) / self.dt + _EPS)
+        return i if i < self.ctrl.shape[0] else None
+
+    def at(self, t: float) -> np.ndarray | None:
+        """Zero-order hold: ``ctrl [nu]`` at world time ``t``, or None outside the plan."""
+        i = self.index(t)
+        return None if i is None else self.ctrl[i]
+
+
+def held(ctrl: np.ndarray, t: float, seq: int = 0) -> TimedPlan:
+    """A command without a plan, as a world plays it: ``ctrl [nu]`` from ``t`` on."""
+    return TimedPlan(t, math.inf, np.asarray(ctrl)[None], seq)
+
+
+def playing(plans: list[TimedPlan], t: float) -> np.ndarray | None:
+    """What a :class:`PlanPlayer` that received ``plans`` in order (``t0`` not decreasing)
+    applies at ``t``, without playing them: the newest that has started; None (the safe
+    control) when none has, or that one has run out. The planner uses it to predict the world."""
+    plan = next((p for p in reversed(plans) if t + _EPS >= p.t0), None)
+    return None if plan is None else plan.at(t)
+
+
+class PlanPlayer:
+    """Plays the plans received, each from its first knot's time.
+
+    A plan applies from its ``t0`` on: one that arrives early waits, and the running plan (the
+    safe control, before the first) goes on meanwhile: the planner predicted its start state
+    assuming exactly that. Waiting plans are queued, not replaced: a planner that answers every
+    state with a lead of a step or more would otherwise replace each waiting plan by the next
+    before its time came, and none would ever start. A plan that arrives late starts at once, at
+    the knot of the current time (its first knots are past).
+    """
+
+    def __init__(self) -> None:
+        self.active: TimedPlan | None = None
+        self.pending: list[TimedPlan] = []
+
+    def receive(self, plan: TimedPlan) -> None:
+        # a waiting plan that would start at or after the new one is older news for that time
+        self.pending = [p for p in self.pending if p.t0 < plan.t0 - _EPS] + [plan]
+
+    def clear(self) -> None:
+        self.active, self.pending = None, []
+
+    def control(self, t: float) -> tuple[np.ndarray | None, TimedPlan | None]:
+        """``(ctrl [nu], plan)`` for world time ``t``; ``(None, plan)`` when the plan that should
+        hold has run out (the caller applies the safe control), ``(None, None)`` with no plan."""
+        started = [p for p in self.pending if t + _EPS >= p.t0]
+        if started:
+            self.active = started[-1]
+            self.pending = self.pending[len(started):]
+        if self.active is None:
+            return None, None
+        return self.active.at(t), self.active
