@@ -226,3 +226,42 @@ def test_the_world_plays_a_plan_between_updates_and_the_safe_control_after_it(tm
     np.testing.assert_allclose(after[0]["ctrl"], [0.0, 0.0])       # the point robot stops
     if mode == "realtime":
         assert any(r.get("what") == "plan_ended" for r in records)
+
+
+# ------------------------------------------------------------------ decoupled rates
+
+def _navigation_with(tmp_path, timestep: float):
+    from shared.config_files import shipped
+    text = (shipped("scenarios") / "navigation.yaml").read_text()
+    path = tmp_path / "nav.yaml"
+    path.write_text(text.replace("planner:\n", f"planner:\n  timestep: {timestep}\n", 1))
+    return path
+
+
+def test_a_planning_timestep_must_be_a_whole_multiple_of_the_worlds(tmp_path):
+    from shared.config import ConfigError
+    with pytest.raises(ConfigError, match=r"planner.timestep: not a whole multiple.*0.05 × 1, 2, 3"):
+        load_scenario(str(_navigation_with(tmp_path, 0.07)))
+
+
+def test_the_rollouts_step_at_the_planning_timestep_and_the_world_at_its_own(tmp_path):
+    from planner_client.problem import build_problem
+    sc = load_scenario(str(_navigation_with(tmp_path, 0.1)))
+    assert sc.planner.step(sc.world) == 0.1
+    assert build_problem(sc).model.opt.timestep == 0.1
+    assert compile_model(sc).opt.timestep == 0.05
+
+
+# ------------------------------------------------------------------ end to end
+
+def test_a_planner_three_times_slower_than_the_world_still_navigates(tmp_path):
+    """Lock-step with --plan-every 3: the world plays each plan for three steps, the planner
+    shifts its warm start by three (navigation: not a chaotic episode)."""
+    from shared.tools.launch import EpisodeLaunch, run_episode
+    from shared.config_files import shipped
+    run = run_episode(EpisodeLaunch(scenario=str(shipped("scenarios") / "navigation.yaml"),
+                                    run_dir=tmp_path, plan_every=3, timeout=300))
+    assert run.summary is not None and run.summary["status"] == "success", run.reason
+    timing = run.summary["timing"]
+    assert timing["steps_per_plan"]["max"] == 3 and timing["safe_steps"] == 0
+    assert math.isclose(timing["age_ms"]["max"], 2 * 50.0)          # knots 0, 1, 2 of each plan
