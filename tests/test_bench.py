@@ -230,3 +230,45 @@ def test_bench_resumes_and_records_a_hung_trial(tmp_path):
     assert hung["reason"] == "timeout" and hung["success"] == "0", hung
     assert 5 <= float(hung["trial_wall"]) < 20
 
+
+
+def test_bench_modes_are_checked_and_recorded(tmp_path):
+    path = write_bench(tmp_path, [{"case": "a", "scenario": "navigation", "trials": 1,
+                                   "mode": "realtime", "plan_every": 3}])
+    with pytest.raises(ConfigError, match="only a lock-step world") as err:
+        load_bench(path)
+    assert err.value.path == "cases[0].plan_every"
+    path = write_bench(tmp_path, [{"case": "a", "scenario": "navigation", "trials": 1,
+                                   "mode": "fast"}])
+    with pytest.raises(ConfigError, match="must be one of: lockstep, realtime"):
+        load_bench(path)
+    cases = load_bench("realtime").cases
+    assert {c.mode_label for c in cases} == {"realtime", "lockstep, plan every 3"}
+
+
+def test_realtime_trials_run_last_and_alone_on_every_core(tmp_path, monkeypatch):
+    import threading
+    import time as _time
+    from shared.tools import bench as B
+
+    log, running, lock = [], [], threading.Lock()
+
+    def fake_trial(trial, opts, threads, stop):
+        with lock:
+            running.append(trial.case.mode)
+            log.append((trial.case.mode, threads, list(running)))
+        _time.sleep(0.05)
+        with lock:
+            running.remove(trial.case.mode)
+        return {"case": trial.case.case, "seed": trial.seed}
+
+    monkeypatch.setattr(B, "run_trial", fake_trial)
+    monkeypatch.setattr(B.os, "cpu_count", lambda: 4)
+    cases = [B.BenchCase("w", "", "navigation", 3), B.BenchCase("r", "", "navigation", 3, "realtime")]
+    todo = [B.Trial(c, None, None, seed) for seed in range(3) for c in cases]
+    opts = BenchOptions(out_dir=tmp_path, workers=2, timeout=10)
+    assert B.run_trials(todo, opts, ResultsFile(tmp_path / "results.csv"))
+    modes = [m for m, _, _ in log]
+    assert modes == ["lockstep"] * 3 + ["realtime"] * 3           # the waiting world first
+    assert all(t == 4 and now == ["realtime"] for m, t, now in log if m == "realtime")
+    assert all(t == 2 for m, t, _ in log if m == "lockstep")

@@ -31,7 +31,7 @@ from rich.progress import (BarColumn, MofNCompleteColumn, Progress, SpinnerColum
                            TimeElapsedColumn, TimeRemainingColumn)
 
 from shared.evaluation import episode
-from shared.config import ConfigError, Section, load_yaml, positive, positive_int
+from shared.config import ConfigError, Section, load_yaml, one_of, positive, positive_int
 from shared.config_files import find
 from shared.tools.launch import EpisodeLaunch, run_episode
 from shared.evaluation.metrics import MetricsEvaluator
@@ -40,7 +40,7 @@ from shared.scenario import Scenario, find_scenario, load_scenario
 # results.csv columns; one row per finished trial
 FIELDS = ("case", "variant", "scenario", "scenario_hash", "seed", "success", "status", "reason",
           "position_error", "orientation_error", "collisions", "time", "wall_time", "planner_hz",
-          "steps", "trial_wall", "initial", "log", "machine", "date")
+          "steps", "trial_wall", "initial", "log", "machine", "date", "mode")
 
 
 def machine() -> str:
@@ -63,6 +63,13 @@ class BenchCase:
     variant: str                 # e.g. push / pull / hybrid, normal / reactive
     scenario: str                # scenario name, or a YAML path relative to the bench file
     trials: int
+    mode: str = "lockstep"       # lockstep | realtime (run one at a time, on every core)
+    plan_every: int = 1          # lockstep: world steps per command (a slow planner, repeatably)
+
+    @property
+    def mode_label(self) -> str:
+        """As results.csv records it: ``lockstep``, ``realtime``, ``lockstep, plan every 3``."""
+        return f"lockstep, plan every {self.plan_every}" if self.plan_every > 1 else self.mode
 
 
 @dataclass(frozen=True)
@@ -86,7 +93,12 @@ def load_bench(name_or_path: str | os.PathLike) -> BenchConfig:
     for c in top.items("cases", required=True):
         case = BenchCase(case=c.req("case", str), variant=c.opt("variant", "", str),
                          scenario=c.req("scenario", str, "a scenario name or YAML path"),
-                         trials=c.req("trials", positive_int))
+                         trials=c.req("trials", positive_int),
+                         mode=c.opt("mode", "lockstep", one_of(("lockstep", "realtime"))),
+                         plan_every=c.opt("plan_every", 1, positive_int))
+        if case.plan_every > 1 and case.mode != "lockstep":
+            raise c.error("plan_every", "only a lock-step world plays a plan for a set number "
+                          "of steps", case.plan_every, "1 with mode: realtime")
         if case.case in names:
             raise c.error("case", "duplicate case name", case.case, "a unique name")
         names.add(case.case)
@@ -272,7 +284,9 @@ def run_trial(trial: Trial, opts: BenchOptions, threads: int, stop: threading.Ev
     run_dir = opts.out_dir / rel
     shutil.rmtree(run_dir, ignore_errors=True)   # a stale log of an interrupted attempt must not count
     result = run_episode(EpisodeLaunch(scenario=trial.scenario.source, run_dir=run_dir,
-                                       seed=trial.seed, timeout=opts.timeout, threads=threads), stop)
+                                       seed=trial.seed, timeout=opts.timeout, threads=threads,
+                                       mode=trial.case.mode, plan_every=trial.case.plan_every),
+                         stop)
     if result.reason == "interrupted":
         return None
     records = episode.read_log(result.log_path) if result.log_path.is_file() else []
@@ -291,19 +305,28 @@ def run_trial(trial: Trial, opts: BenchOptions, threads: int, stop: threading.Ev
         "steps": metrics["steps"], "trial_wall": round(result.wall_time, 3),
         "initial": json.dumps(initial) if initial is not None else "",
         "log": str(rel / "episode.jsonl"),
-        "machine": machine(), "date": time.strftime("%Y-%m-%d"),
+        "machine": machine(), "date": time.strftime("%Y-%m-%d"), "mode": trial.case.mode_label,
     }
 
 
 def run_trials(todo: list[Trial], opts: BenchOptions, results: ResultsFile,
                on_done: Callable[[dict], None] = lambda row: None) -> bool:
     """Run ``todo`` on ``opts.workers`` threads, each driving one trial's process pair; rows are
-    appended as trials finish. Returns False when interrupted (Ctrl-C): running trials are
-    stopped and left out of the file."""
+    appended as trials finish. Real-time trials come last, one at a time on every core: a world
+    that does not wait measures the planner's speed, which other trials would steal. Returns
+    False when interrupted (Ctrl-C): running trials are stopped and left out of the file."""
+    waiting = [t for t in todo if t.case.mode != "realtime"]
+    realtime = [t for t in todo if t.case.mode == "realtime"]
+    return (_run_pool(waiting, opts.workers, opts, results, on_done)
+            and _run_pool(realtime, 1, opts, results, on_done))
+
+
+def _run_pool(todo: list[Trial], workers: int, opts: BenchOptions, results: ResultsFile,
+              on_done: Callable[[dict], None]) -> bool:
     if not todo:
         return True
     cores = os.cpu_count() or 1
-    threads = max(1, cores // opts.workers)      # rollout threads per planner: share the cores
+    threads = max(1, cores // workers)           # rollout threads per planner: share the cores
     stop = threading.Event()
 
     def work(trial: Trial) -> dict | None:
@@ -314,7 +337,7 @@ def run_trials(todo: list[Trial], opts: BenchOptions, results: ResultsFile,
             results.append(row)
         return row
 
-    pool = ThreadPoolExecutor(max_workers=opts.workers)
+    pool = ThreadPoolExecutor(max_workers=workers)
     pending = {pool.submit(work, t) for t in todo}
     interrupted = False
     try:
