@@ -35,6 +35,7 @@ class LoopStats:
     plan_times: list[float] = field(default_factory=list)
     action_changes: list[tuple[float, str, tuple[str, ...]]] = field(default_factory=list)
     final_status: str = ""
+    safe_fallbacks: int = 0     # commands that were the safe control because there was no plan
 
     @property
     def hz(self) -> float:
@@ -69,6 +70,7 @@ class PlannerClient:
         self._last_ctrl = self.robot.safe_stop()
         self._answered: tuple[str, int] | None = None   # (session, seq) of the last command
         self._answer = b""
+        self._faults = 0        # consecutive iterations without a plan (Iteration.fault)
 
     # ------------------------------------------------------------------ handshake
 
@@ -153,8 +155,11 @@ class PlannerClient:
         decision = self.task.decide(self.mirror.data, state.extras, state.time)
         self.planner.set_modes(decision.modes)
         it = self.planner.iterate(x0, self.mirror.mocap())
-        # a safe stop keeps the hold_ctrl actuators where they were: a gripper keeps its grip
-        ctrl = self.robot.safe_stop(self._last_ctrl) if decision.stop else it.command
+        self._note_fault(it, state.time)
+        # a safe stop keeps the hold_ctrl actuators where they were: a gripper keeps its grip;
+        # without a plan (no finite cost) nothing else is safe to send
+        stop = decision.stop or it.fault is not None
+        ctrl = self.robot.safe_stop(self._last_ctrl) if stop else it.command
         self._last_ctrl = ctrl
         plan_time = time.perf_counter() - t0
         self._answer = P.encode(P.Command(session=state.session, seq=state.seq, ctrl=ctrl,
@@ -176,6 +181,20 @@ class PlannerClient:
                 top=it.top, plan_time=plan_time)))
         if on_plan is not None:
             on_plan(state, it)
+
+    def _note_fault(self, it: Iteration, time: float) -> None:
+        """Logs a run of iterations without a plan once, when it starts and when it ends."""
+        if it.fault is None:
+            if self._faults:
+                log.info("t=%.2f s: planning resumed after %d iteration(s) on the safe control",
+                         time, self._faults)
+            self._faults = 0
+            return
+        if not self._faults:
+            log.warning("t=%.2f s: %s; sending the safe control until a plan is finite again",
+                        time, it.fault)
+        self._faults += 1
+        self.stats.safe_fallbacks += 1
 
     def close(self) -> None:
         self.planner.close()

@@ -24,8 +24,10 @@ class Iteration:
     result: PlanResult
     modes: list[str]
     top: np.ndarray            # [M, T, 3] robot-frame positions of the lowest-cost samples
-    command: np.ndarray        # [nu] the control to send: u0 with discrete channels resolved
+    command: np.ndarray        # [nu] the control to send: u0 with discrete channels resolved,
+                               # or the robot's safe control when there is no plan (fault)
     dominant: str              # the mode with the largest sum of fused weights
+    fault: str | None = None   # why there is no plan this iteration (no finite cost); None: a plan
 
 
 class MotionPlanner:
@@ -75,8 +77,23 @@ class MotionPlanner:
         best = torch.topk(result.weights, min(self.top_k, S)).indices
         top = self.problem.layout.take(sd[best], self.problem.robot_pos).numpy().copy()
         dominant = self.modes[int(torch.argmax(result.mode_weights))]
+        if not result.finite:
+            # No sample had a finite cost: u0 is the previous plan, not an answer to this state.
+            return Iteration(result=result, modes=list(self.modes), top=top,
+                             command=self.problem.robot.safe_stop(), dominant=dominant,
+                             fault=self._fault(result))
         return Iteration(result=result, modes=list(self.modes), top=top,
                     command=self._command(result.u0.numpy(), dominant), dominant=dominant)
+
+    def _fault(self, result: PlanResult) -> str:
+        """Why ``result`` is no plan, naming the objectives whose costs were not finite."""
+        if bool(torch.isfinite(result.mode_costs).any()):
+            return "the fused plan is not finite"
+        bad = [name for name, rows in zip(self.modes, self.mppi.mode_slices)
+               if not bool(torch.isfinite(self._step_costs[rows]).all())]
+        what = f"objectives {bad} returned NaN or inf" if bad else "the summed costs overflowed"
+        return (f"no finite cost among the {self.mppi.num_samples} samples: {what} "
+                f"(diverged rollouts or a faulty cost term)")
 
     def _command(self, u0: np.ndarray, dominant: str) -> np.ndarray:
         """u0 with the channels the dominant mode pins (suction on/off, gripper) set to its
