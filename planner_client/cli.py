@@ -65,6 +65,8 @@ def main(
         stats = client.stats
     finally:
         client.close()
+    fallbacks = (f", {stats.safe_fallbacks} safe controls for want of a finite plan"
+                 if stats.safe_fallbacks else "")
     typer.echo(f"planner: {stats.iterations} iterations, {stats.hz:.1f} Hz, "
-               f"episode {stats.final_status or 'not finished'}")
+               f"episode {stats.final_status or 'not finished'}{fallbacks}")
     raise typer.Exit(0 if stats.final_status == "success" else 1)

@@ -47,6 +47,7 @@ class LoopStats:
     plan_times: list[float] = field(default_factory=list)
     action_changes: list[tuple[float, str, tuple[str, ...]]] = field(default_factory=list)
     final_status: str = ""
+    safe_fallbacks: int = 0     # commands that were the safe control because there was no plan
 
     @property
     def hz(self) -> float:
@@ -84,6 +85,7 @@ class PlannerClient:
         self._sent: deque[TimedPlan] = deque(maxlen=4)  # what the world plays, oldest first
         self._lead: LeadEstimate | None = None
         self._last_start: tuple[float, int] | None = None   # (t_eff, state seq) of the last plan
+        self._faults = 0        # consecutive iterations without a plan (Iteration.fault)
 
     # ------------------------------------------------------------------ handshake
 
@@ -172,8 +174,10 @@ class PlannerClient:
         self.planner.set_modes(decision.modes)
         start, x0, mocap = self._plan_start(state, x0)
         it = self.planner.iterate(x0, mocap)
-        if decision.stop:
-            # a safe stop keeps the hold_ctrl actuators where they were: a gripper keeps its grip
+        self._note_fault(it, state.time)
+        if decision.stop or it.fault is not None:
+            # a safe stop keeps the hold_ctrl actuators where they were: a gripper keeps its grip;
+            # without a plan (no finite cost) nothing else is safe to send
             ctrl, plan = self.robot.safe_stop(self._last_ctrl), None
             self._sent.append(held(ctrl, start, state.seq))
         else:
@@ -230,6 +234,20 @@ class PlannerClient:
         if self._last_start is not None and start >= self._last_start[0] - _NEW_EPISODE:
             self.planner.advance(steps_between(self._last_start[0], start, self.planner.dt))
         return start, x0, mocap
+
+    def _note_fault(self, it: Iteration, time: float) -> None:
+        """Logs a run of iterations without a plan once, when it starts and when it ends."""
+        if it.fault is None:
+            if self._faults:
+                log.info("t=%.2f s: planning resumed after %d iteration(s) on the safe control",
+                         time, self._faults)
+            self._faults = 0
+            return
+        if not self._faults:
+            log.warning("t=%.2f s: %s; sending the safe control until a plan is finite again",
+                        time, it.fault)
+        self._faults += 1
+        self.stats.safe_fallbacks += 1
 
     def close(self) -> None:
         self.planner.close()

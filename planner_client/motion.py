@@ -24,8 +24,10 @@ class Iteration:
     result: PlanResult
     modes: list[str]
     top: np.ndarray            # [M, T, 3] robot-frame positions of the lowest-cost samples
-    plan: np.ndarray           # [T, nu] the fused plan U with discrete channels resolved
+    plan: np.ndarray           # [T, nu] the fused plan U with discrete channels resolved, or
+                               # [1, nu] the robot's safe control when there is no plan (fault)
     dominant: str              # the mode with the largest sum of fused weights
+    fault: str | None = None   # why there is no plan this iteration (no finite cost); None: a plan
 
     @property
     def command(self) -> np.ndarray:
@@ -80,8 +82,23 @@ class MotionPlanner:
         best = torch.topk(result.weights, min(self.top_k, S)).indices
         top = self.problem.layout.take(sd[best], self.problem.robot_pos).numpy().copy()
         dominant = self.modes[int(torch.argmax(result.mode_weights))]
+        if not result.finite:
+            # No sample had a finite cost: u0 is the previous plan, not an answer to this state.
+            return Iteration(result=result, modes=list(self.modes), top=top,
+                             plan=self.problem.robot.safe_stop()[None], dominant=dominant,
+                             fault=self._fault(result))
         return Iteration(result=result, modes=list(self.modes), top=top,
                          plan=self._resolve(result.U.numpy(), dominant), dominant=dominant)
+
+    def _fault(self, result: PlanResult) -> str:
+        """Why ``result`` is no plan, naming the objectives whose costs were not finite."""
+        if bool(torch.isfinite(result.mode_costs).any()):
+            return "the fused plan is not finite"
+        bad = [name for name, rows in zip(self.modes, self.mppi.mode_slices)
+               if not bool(torch.isfinite(self._step_costs[rows]).all())]
+        what = f"objectives {bad} returned NaN or inf" if bad else "the summed costs overflowed"
+        return (f"no finite cost among the {self.mppi.num_samples} samples: {what} "
+                f"(diverged rollouts or a faulty cost term)")
 
     @property
     def dt(self) -> float:

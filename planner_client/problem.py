@@ -105,6 +105,14 @@ def mppi_config(sc: Scenario, m: mujoco.MjModel) -> MPPIConfig:
             raise s.error(key, "unknown planner parameter", value, f"one of: {', '.join(sorted(names))}")
         values[key] = tuple(value) if isinstance(value, list) else value
     try:
-        return MPPIConfig(**values)
+        cfg = MPPIConfig(**values)
     except (ValueError, TypeError) as exc:
         raise ConfigError(sc.source, "planner.mppi", str(exc)) from None
+    # Every mode gets planner.samples rollouts, and η counts the ones that carry weight (η ≤ K):
+    # M3P2I refuses a window it can never meet, so say it here, naming the file and the key.
+    if cfg.eta_bounds is not None and cfg.eta_bounds[0] > sc.planner.samples:
+        raise ConfigError(sc.source, "planner.mppi.eta_bounds",
+                          f"eta_l cannot be reached with planner.samples = {sc.planner.samples} "
+                          "per mode: eta counts the samples that carry weight",
+                          list(cfg.eta_bounds), f"eta_l <= {sc.planner.samples}")
+    return cfg

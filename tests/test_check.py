@@ -138,3 +138,14 @@ def test_valid_frame_names_are_listed_once():
     sc = read_scenario("navigation").scenario
     names = FrameResolver(compile_model(sc), "robot").names()
     assert names.count("robot") == 1 and len(names) == len(set(names))
+
+
+def test_an_eta_window_beyond_the_samples_per_mode_is_a_load_error(tmp_path):
+    # η counts the samples that matter: a mode of 5 samples can never reach η_l = 10
+    raw = _nav()
+    raw["planner"]["samples"] = 5
+    raw["planner"]["mppi"]["eta_bounds"] = [10.0, 30.0]
+    errors = [str(e) for e in planner_check.scenario_errors(_write(tmp_path, raw))]
+    assert len(errors) == 1, errors
+    assert "broken.yaml: planner.mppi.eta_bounds:" in errors[0]
+    assert "planner.samples = 5" in errors[0], errors

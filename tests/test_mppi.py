@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import numpy as np
@@ -392,3 +393,106 @@ def test_misuse_is_reported():
         cfg_of(savgol_window=16)
     with pytest.raises(ValueError):
         MPPI(cfg_of(eta_bounds=(3.0, 10.0)), 10)
+
+
+# --- non-finite costs and the control cost with pinned channels ----------------------------------
+
+def unpinned_costs(v: torch.Tensor) -> torch.Tensor:
+    """A state cost of channels 0 and 1 only: equal for every mode, whatever channel 2 holds."""
+    return ((v[..., :2] - t(0.5, -0.5)) ** 2).sum(-1)
+
+
+def test_control_cost_leaves_pinned_channels_out():
+    # Suction pinned on (1.0): ε is 0 there but μ is 1, so μᵀΣ⁻¹μ would charge every sample of the
+    # mode T/σ² · λ₀/2 = 187.5 for a choice the noise never made.
+    cfg = cfg_of(nu=3, noise_sigma=(0.8, 0.8, 0.2), u_min=(-1.0, -1.0, 0.0), u_max=(1.0, 1.0, 1.0),
+                 eta_bounds=(10.0, 30.0), control_cost=1.0, seed=5)
+    planner = M3P2I(cfg, [ModeSpec("off", 100, fixed={2: 0.0}), ModeSpec("on", 100, fixed={2: 1.0})])
+    shares = [float(planner.command(unpinned_costs).mode_weights[1]) for _ in range(30)]
+    assert float(planner.means[1, 0, 2]) == 1.0
+    share = sum(shares[5:]) / len(shares[5:])
+    assert 0.3 < share < 0.7, shares
+
+
+def test_nan_cost_leaves_temperatures_and_means_finite():
+    # A mode with as many samples as η_l: NaN used to become the float maximum, the bracket's top
+    # end log(d_max) + log 50 passed what exp can hold, and λ became inf, μ NaN for ever.
+    cfg = cfg_of(eta_bounds=(10.0, 30.0), seed=6)
+    planner = M3P2I(cfg, [ModeSpec("small", 10), ModeSpec("large", 40)])
+    small, _ = planner.mode_slices
+    for i in range(8):
+        c = wiggly_costs(planner.sample())
+        if i < 2:
+            c[small.start + 3, 5] = math.nan
+        result = planner.update(c)
+        assert torch.isfinite(result.lambdas).all() and torch.isfinite(result.fused_lambda)
+        assert torch.isfinite(result.U).all() and torch.isfinite(planner.means).all()
+    assert float(result.weights[small.start + 3]) >= 0.0
+
+
+def test_temperature_is_capped_for_gaps_near_the_float_maximum():
+    big = torch.finfo(F64).max
+    gaps = torch.tensor([[0.0, 1.0, 2.0, 3.0, big], [0.0, 1e300, 1e306, 1e307, 1e308]], dtype=F64)
+    for bounds in ((10.0, 30.0), (4.5, 5.0)):
+        lam = adapt_temperature(gaps, torch.ones(2, dtype=F64), bounds, 20)
+        assert torch.isfinite(lam).all() and (lam > 0).all(), lam
+        w, _, _ = softmin_weights(gaps, lam[:, None])
+        assert torch.isfinite(w).all()
+
+
+def test_minus_inf_cost_gets_no_weight():
+    # -inf is a diverged rollout, not a perfect one.
+    for planner in (M3P2I(cfg_of(eta_bounds=(3.0, 10.0)), [ModeSpec("a", 20), ModeSpec("b", 20)]),
+                    MPPI(cfg_of(), 40)):
+        c = wiggly_costs(planner.sample())
+        c[7, 3] = -math.inf
+        result = planner.update(c)
+        assert float(result.weights[7]) == 0.0
+        assert math.isclose(float(result.weights.sum()), 1.0, rel_tol=1e-12)
+        assert torch.isfinite(result.U).all()
+
+
+def test_mode_without_a_finite_cost_keeps_its_mean():
+    cfg = cfg_of(eta_bounds=(3.0, 10.0), savgol_window=5, seed=7)
+    planner = M3P2I(cfg, [ModeSpec("ok", 30), ModeSpec("broken", 30)])
+    ok, broken = planner.mode_slices
+    planner.update(wiggly_costs(planner.sample()))
+    mu = planner.means.clone()
+    c = wiggly_costs(planner.sample())
+    c[broken] = math.nan
+    result = planner.update(c)
+    assert torch.equal(planner.means[1, :-1], mu[1, 1:])          # no update, only the shift
+    assert float(result.mode_weights[1]) == 0.0 and float(result.etas[1]) == 0.0
+    assert torch.isfinite(result.weights).all() and torch.isfinite(result.lambdas).all()
+    assert not torch.equal(planner.means[0, :-1], mu[0, 1:])
+    assert result.finite                                          # the other mode has a plan
+
+
+@pytest.mark.parametrize("kind", ["m3p2i", "mppi"])
+@pytest.mark.parametrize("bad", [math.nan, math.inf, -math.inf])
+def test_no_finite_cost_at_all_is_flagged_and_changes_nothing(kind, bad):
+    cfg = cfg_of(savgol_window=5, seed=8)
+    cfg = cfg if kind == "mppi" else dataclasses.replace(cfg, eta_bounds=(3.0, 10.0))
+    planner = MPPI(cfg, 40) if kind == "mppi" else M3P2I(cfg, [ModeSpec("a", 20), ModeSpec("b", 20)])
+    plan = lambda p: p.U if kind == "mppi" else p.nominal       # noqa: E731
+    planner.update(wiggly_costs(planner.sample()))
+    before = plan(planner).clone()
+    planner.sample()
+    result = planner.update(torch.full((40, 15), bad, dtype=F64))
+    assert torch.isfinite(result.U).all() and torch.isfinite(result.weights).all()
+    assert float(result.weights.sum()) == 0.0                     # no sample is worth anything
+    assert torch.equal(plan(planner)[:-1], before[1:])
+    assert not result.finite
+    assert planner.update(wiggly_costs(planner.sample())).finite        # planning resumes
+    assert torch.isfinite(plan(planner)).all()
+
+
+def test_eta_window_a_mode_cannot_reach_is_refused():
+    cfg = cfg_of(eta_bounds=(10.0, 30.0))
+    with pytest.raises(ValueError, match=r"mode 'small'.* 5 samples.*\(10\.0, 30\.0\)"):
+        M3P2I(cfg, [ModeSpec("small", 5), ModeSpec("large", 40)])
+    M3P2I(cfg, [ModeSpec("edge", 10), ModeSpec("large", 40)])          # η_l = K: approached
+    planner = M3P2I(cfg, [ModeSpec("a", 40), ModeSpec("b", 40)])
+    with pytest.raises(ValueError, match="mode 'c'"):
+        planner.set_modes([ModeSpec("a", 40), ModeSpec("c", 8)])
+    assert [m.name for m in planner.modes] == ["a", "b"]                 # nothing changed

@@ -1,17 +1,24 @@
 """The planner's MuJoCo side: mirroring states, moving-obstacle prediction in rollouts, and
 M3P2I over real rollouts lowering the navigation cost."""
 
+import dataclasses
+import logging
+
 import mujoco
 import numpy as np
 import pytest
+import torch
 
 from shared import protocol as P
 from shared.scenario import load_scenario
 from planner_client.build import build_motion_planner
+from planner_client.loop import PlannerClient
 from planner_client.mirror import Mirror
 from planner_client.problem import build_problem
 from planner_client.rollout import RolloutEngine
 from planner_client.sensors import SensorRequest
+from planner_client.task import FixedModes
+from shared.endpoints import Endpoints
 
 
 @pytest.fixture(scope="module")
@@ -111,3 +118,66 @@ def test_pinned_channels_follow_the_dominant_mode():
     planner.set_modes(["pull", "push"])
     assert planner.iterate(x0).command[2] == 0.0                  # push still dominates
     planner.close()
+
+
+class _Outbox:
+    """Stands in for the command socket: keeps what the client sends."""
+
+    def __init__(self):
+        self.sent = []
+
+    def send(self, frame):
+        self.sent.append(P.decode(frame, expect="command"))
+
+    def close(self, linger=None):
+        pass
+
+
+class _Faulty:
+    """An objective that returns NaN everywhere while ``broken`` is set (a diverged model or a
+    faulty cost term)."""
+
+    def __init__(self, objective):
+        self.objective, self.fixed, self.broken = objective, objective.fixed, False
+
+    def __call__(self, batch):
+        costs = self.objective(batch)
+        return costs * np.nan if self.broken else costs
+
+
+def test_no_finite_cost_sends_the_safe_control_and_says_why(nav, caplog):
+    planner = build_motion_planner(nav, threads=1)
+    faulty = _Faulty(planner.problem.objectives["navigate"])
+    planner.problem.objectives["navigate"] = faulty
+    client = PlannerClient(planner, FixedModes(("navigate",)), Endpoints(port=15990), nav.name,
+                           nav.hash, diagnostics=False)
+    client.push.close(0)
+    client.push = outbox = _Outbox()
+    safe = client.robot.safe_stop()
+    model = planner.problem.model
+    plans = []
+    try:
+        def step(seq, broken):
+            faulty.broken = broken
+            state = dataclasses.replace(_state(model, 0.05 * seq), seq=seq)
+            client._step(state, lambda s, it: plans.append(it))
+            return outbox.sent[-1].ctrl
+
+        for seq in range(3):
+            assert not np.array_equal(step(seq, False), safe)       # a plan is sent
+        with caplog.at_level(logging.INFO, logger="m3p2i.planner"):
+            for seq in range(3, 7):
+                np.testing.assert_array_equal(step(seq, True), safe)
+                assert plans[-1].fault is not None
+                assert torch.isfinite(planner.mppi.nominal).all()
+                assert torch.isfinite(planner.mppi.means).all()
+            warnings = [r for r in caplog.records if r.levelno == logging.WARNING]
+            assert len(warnings) == 1, warnings                        # once, not every iteration
+            assert "no finite cost" in warnings[0].getMessage()
+            assert "safe control" in warnings[0].getMessage()
+            ctrl = step(7, False)                                      # planning resumes
+        assert plans[-1].fault is None
+        np.testing.assert_array_equal(ctrl, plans[-1].command)
+        assert any("resumed" in r.getMessage() for r in caplog.records)
+    finally:
+        client.close()

@@ -38,6 +38,10 @@ class PlanResult:
         weights: ``[S]`` fused sample weights ω̃ (paper Eq. 9).
         fused_eta: ``[]`` normaliser η of the fused weights (paper Eq. 10).
         fused_lambda: ``[]`` temperature λ of the fused weights.
+        finite: ``False`` when no sample had a finite cost (every rollout diverged, or the
+            objective returned NaN/inf) or the fused plan is not finite. All weights are then 0
+            and ``U`` is the previous plan, no answer to the current costs: the caller should
+            not send it but fall back to the robot's safe control.
     """
 
     u0: Tensor
@@ -50,6 +54,7 @@ class PlanResult:
     weights: Tensor
     fused_eta: Tensor
     fused_lambda: Tensor
+    finite: bool
 
 
 def trajectory_costs(step_costs: Tensor, discount: Tensor) -> Tensor:
@@ -65,27 +70,38 @@ def trajectory_costs(step_costs: Tensor, discount: Tensor) -> Tensor:
     return step_costs @ discount
 
 
-def control_costs(mean: Tensor, eps: Tensor, inv_var: Tensor, coef: Tensor | float) -> Tensor:
+def control_costs(mean: Tensor, eps: Tensor, inv_var: Tensor, coef: Tensor | float,
+                  keep: Tensor | None = None) -> Tensor:
     """Importance-sampling control cost  coef · Σ_t (u_tᵀΣ⁻¹u_t + 2u_tᵀΣ⁻¹ε_t)  (thesis Alg. 2 line 18,
-    thesis Eq. 2.46) with coef = λ/2 · scale and diagonal Σ.
+    thesis Eq. 2.46) with coef = λ/2 · scale and diagonal Σ, over the sampled channels only.
+
+    A pinned channel (``keep`` 0) is not sampled: its u is the pinned value, not a choice of the
+    noise, and its ε is 0. Charging uᵀΣ⁻¹u there would add the same T·u²/σ² to every sample of
+    the mode, which the mode's own weights ignore but the fused weights (paper Eqs. 9-11) do not:
+    a mode with suction pinned on would lose all weight whatever its cost.
 
     Args:
         mean: ``[S, T, nu]`` or ``[T, nu]`` sampling mean u of each sample.
         eps: ``[S, T, nu]`` noise ε = v - u actually applied (after bounds).
         inv_var: ``[nu]`` 1/σ².
         coef: scalar or ``[S]``.
+        keep: ``[S, 1, nu]`` 1 on sampled channels, 0 on pinned ones; ``None``: all sampled.
 
     Returns:
         ``[S]`` costs.
     """
+    if keep is not None:
+        mean = mean * keep      # u = 0 removes the channel's whole term, 2uᵀΣ⁻¹ε included
     return coef * (mean * (mean + 2.0 * eps) * inv_var).sum(dim=(-2, -1))
 
 
 def finite_costs(costs: Tensor) -> Tensor:
-    """Maps NaN and ±inf costs (diverged rollouts) to ±max float so they get zero weight
-    instead of poisoning the min-shift and the normaliser."""
-    big = torch.finfo(costs.dtype).max
-    return torch.nan_to_num(costs, nan=big, posinf=big, neginf=-big)
+    """Maps NaN and ±inf total costs ``[S]`` to ``+inf``: the rollout diverged (or the objective
+    failed), so it gets zero weight, like padding, and does not count as a sample in the
+    temperature adaptation. Not a large finite stand-in: its gap would enter the bracket of
+    λ (paper Alg. 3) and, near the float maximum, overflow it to λ = inf; nor ``-inf`` kept as
+    it is: a diverged rollout is no perfect one. Finite costs pass unchanged."""
+    return torch.where(torch.isfinite(costs), costs, math.inf)
 
 
 def shift(seq: Tensor, steps: float = 1.0) -> Tensor:
@@ -230,11 +246,14 @@ class MPPI:
         costs = finite_costs(costs)
         w, eta, rho = softmin_weights(costs, lam)
         u = c.finish_mean(self.U + (w[:, None, None] * eps).sum(dim=0))
+        finite = bool((eta > 0) & torch.isfinite(u).all())
         best = v[costs.argmin()]
+        if not finite:      # no finite cost (all weights 0): keep U and the best, flag the result
+            u, best = self.U, self._best
         one = torch.ones(1, dtype=c.dtype, device=c.device)
         result = PlanResult(u0=u[0], U=u, mode_weights=one, mode_costs=rho.reshape(1),
                             etas=eta.reshape(1), lambdas=one * lam, best=best[None], weights=w,
-                            fused_eta=eta, fused_lambda=one[0] * lam)
+                            fused_eta=eta, fused_lambda=one[0] * lam, finite=finite)
         self.U, self._best = shift(u), shift(best)
         return result
 
@@ -409,12 +428,17 @@ class M3P2I:
         costs = trajectory_costs(c.check_costs(step_costs, self._s), c.discount)
         if c.cfg.control_cost:
             mu_rows = self._mu.index_select(0, lay.row_mode)
-            costs = costs + control_costs(mu_rows, v - mu_rows, c.inv_var, c.control_coef)
+            costs = costs + control_costs(mu_rows, v - mu_rows, c.inv_var, c.control_coef,
+                                          self._pin_keep)
         costs = finite_costs(costs)
 
+        # Diverged rollouts are +inf like padding; a row with no finite cost at all (a mode whose
+        # rollouts all diverged, or all S of them) gets zero weights, keeps λ, μ and its best
+        # sequence, and, for the fused row, the plan (then flagged: ``finite``).
         table = costs[lay.table].masked_fill_(lay.pad, math.inf)      # [N + 1, W]
         if c.cfg.eta_bounds is not None:
-            gaps = table - table.amin(dim=-1, keepdim=True)
+            # +inf - +inf would be NaN in a row without a finite cost: shift it by 0 instead.
+            gaps = table - table.amin(dim=-1, keepdim=True).nan_to_num(posinf=0.0)
             self._lam = adapt_temperature(gaps, self._lam, c.cfg.eta_bounds, c.cfg.adapt_iters)
         lam = self._lam
 
@@ -428,13 +452,19 @@ class M3P2I:
         w, eta, _ = softmin_weights(costs, lam[n])
         u = self._u + c.cfg.alpha_u * (w[:, None, None] * (v - self._u)).sum(dim=0)
 
-        mu, u = c.finish_mean(mu), c.finish_mean(u)
+        # A mode without a finite cost keeps μ_i as it is (not smoothed again) and its best
+        # sequence (argmin of a row of +inf is merely its first sample); both are still shifted.
+        alive = (eta_mode > 0)[:, None, None]                          # [N, 1, 1]
+        mu, u = torch.where(alive, c.finish_mean(mu), self._mu), c.finish_mean(u)
         best_col = table[:n, :lay.k_max].argmin(dim=-1, keepdim=True)
-        best = v[mode_idx.gather(1, best_col).squeeze(1)]
+        best = torch.where(alive, v[mode_idx.gather(1, best_col).squeeze(1)], self._best)
+        finite = bool((eta > 0) & torch.isfinite(u).all())
+        if not finite:      # no finite cost at all (all weights 0): keep the plan, flag the result
+            u = self._u
         mode_weights = torch.zeros(n, dtype=c.dtype, device=c.device).index_add_(0, lay.row_mode, w)
         result = PlanResult(u0=u[0], U=u, mode_weights=mode_weights, mode_costs=beta_mode,
                             etas=eta_mode, lambdas=lam[:n].clone(), best=best, weights=w,
-                            fused_eta=eta, fused_lambda=lam[n].clone())
+                            fused_eta=eta, fused_lambda=lam[n].clone(), finite=finite)
         self._unshifted = (mu, u, best)
         self._mu, self._u, self._best = shift(mu), shift(u), shift(best)
         return result
@@ -459,6 +489,13 @@ class M3P2I:
             bad = [ch for ch in m.fixed if not 0 <= ch < cfg.nu]
             if bad:
                 raise ValueError(f"mode {m.name!r}: fixed channels {bad} outside 0..{cfg.nu - 1}")
+            # η_i (paper Eq. 6) counts the samples that carry weight, so η_i ≤ K_i: a window above
+            # it is never met, and adaptation would drive λ_i to its largest value every iteration.
+            # η_l = K_i is allowed (approached as λ grows). The fused row has S ≥ K_i samples.
+            if cfg.eta_bounds is not None and cfg.eta_bounds[0] > m.samples:
+                raise ValueError(f"mode {m.name!r}: {m.samples} samples cannot reach the eta window "
+                                 f"{tuple(cfg.eta_bounds)}: eta counts the samples that carry "
+                                 f"weight, so eta_l must be <= {m.samples}")
         self._modes = modes
         self._s = sum(m.samples for m in modes)
         self._layout = _Layout.build([m.samples for m in modes], c.device)

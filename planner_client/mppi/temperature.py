@@ -19,22 +19,35 @@ _LOG_LO_MARGIN = math.log(55.0)
 _LOG_HI_MARGIN = math.log(50.0)
 
 
+def _log_lambda_range(dtype: torch.dtype) -> tuple[float, float]:
+    """Bounds on log λ that keep λ a normal float of ``dtype``, one e away from the smallest
+    and the largest (exp of the bound itself may round past them)."""
+    info = torch.finfo(dtype)
+    return math.log(info.tiny) + 1.0, math.log(info.max) - 1.0
+
+
 def softmin_weights(costs: Tensor, lam: Tensor | float) -> tuple[Tensor, Tensor, Tensor]:
     """Exponentiated-cost weights with the min-cost shift.
 
     ω_k = exp(-(S_k - β)/λ) / η,  η = Σ_k exp(-(S_k - β)/λ),  β = min_k S_k   (paper Eqs. 5-7 / 9-11).
 
     Args:
-        costs: ``[..., K]`` total costs S_k; ``+inf`` entries get zero weight (padding).
-        lam: temperature λ, a float or ``[..., 1]`` tensor.
+        costs: ``[..., K]`` total costs S_k; ``+inf`` entries get zero weight (padding, diverged
+            rollouts). No NaN or ``-inf``: :func:`~planner_client.mppi.m3p2i.finite_costs` maps
+            them to ``+inf`` first.
+        lam: temperature λ > 0, finite, a float or ``[..., 1]`` tensor.
 
     Returns:
-        weights ``[..., K]`` (sum 1 per row), η ``[...]``, β ``[...]``.
+        weights ``[..., K]`` (sum 1 per row), η ``[...]``, β ``[...]``. A row without a finite
+        cost has all weights 0, η = 0 and β = ``+inf``: there is nothing to average.
     """
     beta = costs.amin(dim=-1, keepdim=True)
-    e = torch.exp(-(costs - beta) / lam)
+    # A row of +inf only would shift by inf - inf = NaN; shifting it by 0 gives e = 0 instead.
+    e = torch.exp(-(costs - beta.nan_to_num(posinf=0.0)) / lam)
     eta = e.sum(dim=-1, keepdim=True)
-    return e / eta, eta.squeeze(-1), beta.squeeze(-1)
+    # η ≥ 1 in any row with a finite cost (its minimum gives e^0 = 1 exactly), so the clamp
+    # changes nothing there and turns 0/0 into 0 in a row without one.
+    return e / eta.clamp(min=1.0), eta.squeeze(-1), beta.squeeze(-1)
 
 
 def adapt_temperature(gaps: Tensor, lam: Tensor, eta_bounds: tuple[float, float],
@@ -50,16 +63,19 @@ def adapt_temperature(gaps: Tensor, lam: Tensor, eta_bounds: tuple[float, float]
     the old λ was off: 1-5 steps for cost spreads from 1e-3 to 1e6 and windows (1.5, 2) to
     (10, 30), where the 0.9/1.2 rule needs ~80 from λ = 1 to λ = 1e6. ``max_iters`` caps it.
     A window outside the reachable range (η runs from the number of tied minima to the number of
-    finite samples) gives the bracket end closest to it.
+    finite samples) gives the bracket end closest to it. λ stays a finite, normal float whatever
+    the gaps: the bracket is capped where exp overflows or underflows (gaps near the float
+    maximum would otherwise give λ = inf, and every weight NaN).
 
     Args:
-        gaps: ``[G, K]`` cost gaps d = S - β ≥ 0 per row; ``+inf`` marks padding.
+        gaps: ``[G, K]`` cost gaps d = S - β ≥ 0 per row; ``+inf`` marks padding and diverged
+            rollouts (not samples); a row of ``+inf`` only keeps its λ.
         lam: ``[G]`` current temperatures (warm start).
         eta_bounds: ``(η_l, η_u)``.
         max_iters: cap on root-finding steps, shared by all rows.
 
     Returns:
-        ``[G]`` new temperatures.
+        ``[G]`` new temperatures, finite and > 0.
     """
     eta_l, eta_u = eta_bounds
     e = torch.exp(-gaps / lam.unsqueeze(-1))
@@ -76,8 +92,9 @@ def adapt_temperature(gaps: Tensor, lam: Tensor, eta_bounds: tuple[float, float]
     d_max = torch.where(finite, gaps, -inf).amax(dim=-1)
     n_ties = (gaps == 0).sum(dim=-1)
     n_finite = finite.sum(dim=-1)
-    lo = torch.log(d_min) - _LOG_LO_MARGIN
-    hi = torch.log(d_max) + _LOG_HI_MARGIN
+    log_min, log_max = _log_lambda_range(gaps.dtype)
+    lo = (torch.log(d_min) - _LOG_LO_MARGIN).clamp(min=log_min, max=log_max)
+    hi = (torch.log(d_max) + _LOG_HI_MARGIN).clamp(min=log_min, max=log_max)
     x = torch.log(lam)
 
     # Rows with no spread cannot be tuned; rows whose window is out of reach go to the nearest end.
