@@ -224,7 +224,7 @@ class WorldServer:
             self.action_changes.append((float(self.world.data.time), action))
             self.log.event("action", time=float(self.world.data.time), action=action)
 
-    def _apply(self, ctrl: np.ndarray | None, source: int, publish: bool = True) -> None:
+    def _apply(self, ctrl: np.ndarray | None, source: int = -1, publish: bool = True) -> None:
         """One world step under ``ctrl`` (None: the safe control), planned from state
         ``source`` (-1: none); the step's log record has the control's age (world seconds since
         that state) and source, from which shared.evaluation.timing tells whether the planner
