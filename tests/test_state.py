@@ -72,9 +72,11 @@ def test_the_server_logs_every_state_field_with_each_step(tmp_path):
 
     server = WorldServer(load_scenario("push_pull"), Endpoints(port=free_port_block()),
                          tmp_path / "episode.jsonl")
-    server._apply(None)             # one safe-stop step, as without a planner
-    server.log.close()
-    server.close()
+    try:
+        server._apply(None)         # one safe-stop step, as without a planner
+    finally:   # a server left open blocks its ZeroMQ context's clean-up, and the next test hangs
+        server.log.close()
+        server.close()
     (step,) = steps(read_log(tmp_path / "episode.jsonl"))
     assert set(STATE_FIELDS) <= set(step)
 
