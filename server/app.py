@@ -2,10 +2,10 @@
 
 Lock-step: state ``seq`` is published and the world waits for the command answering it (the
 state is re-published every ``republish`` seconds meanwhile, for late subscribers). Real-time:
-the world steps on the wall clock playing the newest command's time-indexed plan
-(:mod:`shared.timed_plan`; a command without a plan holds its ``ctrl``); when the plan runs out,
-or no command arrived for ``command_timeout``, the robot's safe control (zero velocity) holds
-until a fresh one arrives. Bad messages are logged with their reason and dropped; nothing received is executed.
+the world holds its start state until the first command, then steps on the wall clock playing
+the newest command's time-indexed plan (:mod:`shared.timed_plan`; a command without a plan holds
+its ``ctrl``); when the plan runs out, or no command arrived for ``command_timeout``, the robot's
+safe control (zero velocity) holds until a fresh one arrives. Bad messages are logged with their reason and dropped; nothing received is executed.
 """
 
 from __future__ import annotations
@@ -158,35 +158,51 @@ class WorldServer:
         latest_at = -np.inf
         stale = True
         ended = -1                       # seq of the last plan whose end was logged
+        cmd = self._first_command()
         next_tick = time.monotonic()
-        self._publish()
         while self._running():
-            cmd = self._poll(max(0.0, next_tick - time.monotonic()))
             if cmd is not None:
                 latest_at = time.monotonic()
                 self._receive(cmd)
             now = time.monotonic()
-            if now < next_tick:
-                continue
-            fresh = now - latest_at <= self.opt.command_timeout
-            if fresh and stale:
-                self.log.event("commands_fresh", seq=self.seq)
-            elif not fresh and not stale:
-                log.warning("no command for %.2f s: holding the robot (safe control)",
-                            self.opt.command_timeout)
-                self.log.event("commands_stale", seq=self.seq, age=now - latest_at)
-                self.player.clear()
-            stale = not fresh
-            ctrl, source = self._playing() if fresh else (None, -1)
-            if ctrl is None and source >= 0 and source != ended:
-                ended = source
-                log.warning("the plan of state %d ran out at t=%.2f s: safe control until the "
-                            "next", source, self.world.data.time)
-                self.log.event("plan_ended", seq=source, time=float(self.world.data.time))
-            self._apply(ctrl, source)
-            next_tick += period
-            if now - next_tick > 10 * period:   # fell far behind (debugger, load): resync
-                next_tick = now
+            if now >= next_tick:
+                fresh = now - latest_at <= self.opt.command_timeout
+                if fresh and stale:
+                    self.log.event("commands_fresh", seq=self.seq)
+                elif not fresh and not stale:
+                    log.warning("no command for %.2f s: holding the robot (safe control)",
+                                self.opt.command_timeout)
+                    self.log.event("commands_stale", seq=self.seq, age=now - latest_at)
+                    self.player.clear()
+                stale = not fresh
+                ctrl, source = self._playing() if fresh else (None, -1)
+                if ctrl is None and source >= 0 and source != ended:
+                    ended = source
+                    log.warning("the plan of state %d ran out at t=%.2f s: safe control until "
+                                "the next", source, self.world.data.time)
+                    self.log.event("plan_ended", seq=source, time=float(self.world.data.time))
+                self._apply(ctrl, source)
+                next_tick += period
+                if now - next_tick > 10 * period:   # fell far behind (debugger, load): resync
+                    next_tick = now
+            cmd = self._poll(max(0.0, next_tick - time.monotonic()))
+
+    def _first_command(self) -> P.Command | None:
+        """Holds the start state, re-published like a lock-step world's, until the first
+        command: the clock starts with the planner, so its start-up (imports, model
+        compilation) is not part of the episode. None when stopped meanwhile."""
+        self._publish()
+        started = last_pub = time.monotonic()
+        while self._running():
+            cmd = self._poll(self.opt.republish)
+            if cmd is not None:
+                return cmd
+            if time.monotonic() - last_pub >= self.opt.republish:
+                if self.opt.wait_planner and time.monotonic() - started > self.opt.wait_planner:
+                    raise TimeoutError(f"no planner command within {self.opt.wait_planner} s")
+                self._publish()
+                last_pub = time.monotonic()
+        return None
 
     def _receive(self, cmd: P.Command) -> None:
         """A real-time command: its lag (published as ``state.lag``) and its plan, if any; a

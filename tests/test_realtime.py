@@ -4,6 +4,7 @@ plan"; planner_client/timing.py)."""
 from __future__ import annotations
 
 import math
+import time
 
 import mujoco
 import numpy as np
@@ -176,6 +177,24 @@ def _connect(port: int, scenario: str):
     welcome = P.decode(req.recv())
     assert isinstance(welcome, P.Welcome), welcome
     return ctx, req, sub, push, welcome
+
+
+def test_a_realtime_world_holds_its_start_until_the_first_command(tmp_path):
+    from tests.helpers import StateWatcher
+    port = free_port_block()
+    server = start_server("navigation", port, tmp_path / "episode.jsonl", "--mode", "realtime",
+                          "--republish", "0.05")
+    watcher = StateWatcher(port)
+    try:
+        first = watcher.latest()
+        time.sleep(1.0)                   # 20 steps of a 20 Hz world, were it running
+        later = watcher.latest()
+        assert (first.seq, first.time) == (later.seq, later.time) == (0, 0.0)
+        watcher.control(port, "shutdown")
+        server.wait(20)
+    finally:
+        watcher.close()
+        stop(server)
 
 
 @pytest.mark.parametrize("mode", ["realtime", "lockstep"])
