@@ -115,6 +115,8 @@ class MotionPlanner:
         suction follows the mode with the largest fused weight). Channels only other modes pin
         keep the fused value."""
         fixed = self.problem.objectives[dominant].fixed
+        if not fixed:
+            return plan
         plan = plan.copy()
         for ch, value in fixed.items():
             plan[:, ch] = value

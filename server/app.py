@@ -126,20 +126,27 @@ class WorldServer:
 
     def _run_lockstep(self) -> None:
         self._publish()
-        last_pub = started = time.monotonic()
+        while (cmd := self._next_command(lambda c: c.seq == self.seq)) is not None:
+            self._count_plan(cmd)
+            self._play_lockstep(cmd)
+            self._note_action(cmd.action)
+
+    def _next_command(self, wanted) -> P.Command | None:
+        """The next valid command ``wanted`` accepts, the pending state re-published every
+        ``republish`` seconds meanwhile (for late subscribers); None when stopped. Before the
+        first step, ``wait_planner`` seconds without one raise."""
+        started = last_pub = time.monotonic()
         while self._running():
             cmd = self._poll(self.opt.republish)
-            if cmd is not None and cmd.seq == self.seq:
-                self._count_plan(cmd)
-                self._play_lockstep(cmd)
-                self._note_action(cmd.action)
-                last_pub = time.monotonic()
-            elif time.monotonic() - last_pub >= self.opt.republish:
+            if cmd is not None and wanted(cmd):
+                return cmd
+            if time.monotonic() - last_pub >= self.opt.republish:
                 if self.seq == 0 and self.opt.wait_planner and \
                         time.monotonic() - started > self.opt.wait_planner:
                     raise TimeoutError(f"no planner command within {self.opt.wait_planner} s")
                 self._publish()
                 last_pub = time.monotonic()
+        return None
 
     def _play_lockstep(self, cmd: P.Command) -> None:
         """``plan_every`` world steps under the command (its plan's knots by time, or its ctrl
@@ -158,7 +165,10 @@ class WorldServer:
         latest_at = -np.inf
         stale = True
         ended = -1                       # seq of the last plan whose end was logged
-        cmd = self._first_command()
+        # the clock starts with the planner: its start-up (imports, model compilation) is not
+        # part of the episode
+        self._publish()
+        cmd = self._next_command(lambda c: True)
         next_tick = time.monotonic()
         while self._running():
             if cmd is not None:
@@ -186,23 +196,6 @@ class WorldServer:
                 if now - next_tick > 10 * period:   # fell far behind (debugger, load): resync
                     next_tick = now
             cmd = self._poll(max(0.0, next_tick - time.monotonic()))
-
-    def _first_command(self) -> P.Command | None:
-        """Holds the start state, re-published like a lock-step world's, until the first
-        command: the clock starts with the planner, so its start-up (imports, model
-        compilation) is not part of the episode. None when stopped meanwhile."""
-        self._publish()
-        started = last_pub = time.monotonic()
-        while self._running():
-            cmd = self._poll(self.opt.republish)
-            if cmd is not None:
-                return cmd
-            if time.monotonic() - last_pub >= self.opt.republish:
-                if self.opt.wait_planner and time.monotonic() - started > self.opt.wait_planner:
-                    raise TimeoutError(f"no planner command within {self.opt.wait_planner} s")
-                self._publish()
-                last_pub = time.monotonic()
-        return None
 
     def _receive(self, cmd: P.Command) -> None:
         """A real-time command: its lag (published as ``state.lag``) and its plan, if any; a

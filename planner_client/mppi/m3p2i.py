@@ -360,11 +360,12 @@ class M3P2I:
         """Zero means and plans (clamped into the bounds), initial temperatures, fresh random
         stream."""
         c, n = self._c, len(self._modes)
-        self._u = c.box.project(c.zeros())                      # [T, nu]
-        self._mu = self._u.expand(n, -1, -1).clone()            # [N, T, nu]
-        self._best = self._mu.clone()                           # [N, T, nu]
+        u = c.box.project(c.zeros())                            # [T, nu]
+        mu = u.expand(n, -1, -1).clone()                        # [N, T, nu]
+        # (μ, u, best) as the last update left them; what sample() draws around is derived
+        self._unshifted = (mu, u, mu.clone())
+        self._retime(0.0)
         self._lam = torch.full((n + 1,), c.cfg.lambda_init, dtype=c.dtype, device=c.device)
-        self._unshifted = (self._mu, self._u, self._best)      # what advance() shifts from
         self._v: Tensor | None = None
         c.noise.reset()
 
@@ -379,15 +380,14 @@ class M3P2I:
         old = {m.name: i for i, m in enumerate(self._modes)}
         keep = [old.get(m.name) for m in modes]
         lam0 = torch.tensor(c.cfg.lambda_init, dtype=c.dtype, device=c.device)
-        def regroup(mu: Tensor, u: Tensor, best: Tensor) -> tuple[Tensor, Tensor, Tensor]:
-            return (torch.stack([mu[i] if i is not None else u for i in keep]), u,
-                    torch.stack([best[i] if i is not None else u for i in keep]))
-
+        mu, u, best = self._unshifted
+        mu = torch.stack([mu[i] if i is not None else u for i in keep])
+        best = torch.stack([best[i] if i is not None else u for i in keep])
         lam = [self._lam[i] if i is not None else lam0 for i in keep] + [self._lam[-1]]
         previous = self._s
         self._set_layout(modes)          # validates before anything changes
-        self._mu, self._u, self._best = regroup(self._mu, self._u, self._best)
-        self._unshifted = regroup(*self._unshifted)
+        self._unshifted = (mu, u, best)
+        self._retime(self._steps)
         self._lam = torch.stack(lam)
         if self._s != previous:
             c.make_noise(self._s)
@@ -401,10 +401,13 @@ class M3P2I:
         (hydrax's re-interpolation of the plan at the new state's time), so that the means
         are read at the times they were planned for.
         """
-        if steps != 1.0:
-            # from the plans as update() left them, before its one-step shift: a shift of 0.3
-            # must not lose step 0
-            self._mu, self._u, self._best = (shift(x, steps) for x in self._unshifted)
+        self._retime(steps)
+
+    def _retime(self, steps: float) -> None:
+        """μ_i, u and the best sequences for the next iteration: the last update's, ``steps``
+        later (always from the unshifted plans: a shift of 0.3 must not lose step 0)."""
+        self._steps = steps
+        self._mu, self._u, self._best = (shift(x, steps) for x in self._unshifted)
 
     def sample(self) -> Tensor:
         """Returns the control sequences to roll out, ``[S, T, nu]``."""
@@ -466,7 +469,7 @@ class M3P2I:
                             etas=eta_mode, lambdas=lam[:n].clone(), best=best, weights=w,
                             fused_eta=eta, fused_lambda=lam[n].clone(), finite=finite)
         self._unshifted = (mu, u, best)
-        self._mu, self._u, self._best = shift(mu), shift(u), shift(best)
+        self._retime(1.0)
         return result
 
     def command(self, evaluate: Callable[[Tensor], Tensor]) -> PlanResult:
