@@ -1,19 +1,24 @@
 """Rotation utilities shared by costs, observers and success tests.
 
-Everything is batched over leading dimensions and runs in torch, so the planner can apply it to
-rollout sensor data ``[samples, horizon, ...]`` without Python loops. NumPy arrays are accepted
-and converted with ``torch.as_tensor``: alone they keep their dtype (float64 stays float64, on the
-CPU); next to a tensor argument they take its dtype and device. The result is always a tensor.
+Everything is batched over leading dimensions, so the planner can apply it to rollout sensor data
+``[samples, horizon, ...]`` without Python loops. With a torch tensor among the arguments the
+maths runs in torch: NumPy arguments beside it take its dtype and device, and the result is a
+tensor. With NumPy arguments only it runs in NumPy and returns NumPy, so the world server (its
+success tests and observers) never imports torch, which costs it a second and a half at start-up.
 Quaternions are in MuJoCo order ``(w, x, y, z)``; rotation matrices have the frame's axes as
 columns, as MuJoCo's ``xmat`` reshaped to ``[3, 3]``.
 """
 
 from __future__ import annotations
 
-import numpy as np
-import torch
+from typing import TYPE_CHECKING
 
-ArrayLike = torch.Tensor | np.ndarray
+import numpy as np
+
+if TYPE_CHECKING:
+    import torch
+
+ArrayLike = "torch.Tensor | np.ndarray"
 
 # World axes a distance may be measured along: ``xy`` ignores height; ``xz`` and ``yz`` ignore
 # one horizontal axis (e.g. a side grasp lining up level with a cube before it moves in along y).
@@ -29,10 +34,17 @@ def select_axes(x: ArrayLike, axes: str) -> ArrayLike:
     return x if axes == "xyz" else x[..., list(AXES[axes])]
 
 
+def _is_torch(*xs: ArrayLike) -> bool:
+    """Whether any argument is a torch tensor (torch is then already imported by the caller)."""
+    return any(type(x).__module__.startswith("torch") for x in xs)
+
+
 def _tensors(*xs: ArrayLike) -> list[torch.Tensor]:
     """Inputs as tensors of one floating dtype on one device. NumPy inputs join the tensor
     inputs (dtype and device of the tensors, e.g. a float64 goal against float32 rollouts);
     with NumPy inputs only, their promoted dtype on the CPU."""
+    import torch
+
     given = [x for x in xs if isinstance(x, torch.Tensor)]
     ts = [torch.as_tensor(x) for x in xs]
     dtype = (given or ts)[0].dtype
@@ -50,6 +62,8 @@ def quat_to_rotmat(quat: ArrayLike) -> torch.Tensor:
     The quaternion is normalised first, so slightly drifted inputs (float32 sensor data) still
     give a proper rotation; its sign does not matter.
     """
+    import torch
+
     (q,) = _tensors(quat)
     q = q / q.norm(dim=-1, keepdim=True)
     w, x, y, z = q.unbind(-1)
@@ -82,8 +96,15 @@ def symmetric_orientation_error(rot_u: ArrayLike, rot_v: ArrayLike) -> torch.Ten
             broadcast, e.g. rollout orientations ``[S, T, 3, 3]`` against one goal ``[3, 3]``.
 
     Returns:
-        ``[...]`` tensor of phi values (broadcast leading shape).
+        ``[...]`` phi values (broadcast leading shape): a tensor if either argument is one,
+        else a NumPy array.
     """
+    if not _is_torch(rot_u, rot_v):
+        u, v = np.asarray(rot_u, dtype=float), np.asarray(rot_v, dtype=float)
+        cos = np.abs(np.swapaxes(u[..., :, :2], -1, -2) @ v)
+        return np.maximum(2.0 - cos.max(axis=-1).sum(axis=-1), 0.0)
+    import torch
+
     u, v = _tensors(rot_u, rot_v)
     # cos[..., a, i] = u_a . v_i for a in (1, 2)
     cos = torch.matmul(u[..., :, :2].transpose(-1, -2), v).abs()

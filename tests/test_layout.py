@@ -118,3 +118,13 @@ def test_the_checker_finds_each_kind_of_violation(tmp_path):
     assert "shared.scene imports shared.evaluation.metrics" in found
     assert "shared.evaluation.metrics imports shared.tools.launch" in found
     assert "shared.tools.cli" not in found     # the tools may import everything in shared
+
+
+def test_the_world_server_starts_without_torch():
+    # torch is the planner's: importing it would cost every server start ~1.5 s (docs/speed.md)
+    import subprocess
+    import sys
+    code = "import sys, server.cli; print(sorted(m for m in sys.modules if m.split('.')[0] == 'torch')[:3])"
+    out = subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True, text=True,
+                         check=True).stdout.strip()
+    assert out == "[]", f"server.cli imports torch: {out}"
