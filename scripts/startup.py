@@ -1,0 +1,107 @@
+"""Start-up times: world server start to serving its first state, planner start to its first
+command, measured from the episode log's wall-clock stamps.
+
+The two processes are started one after the other (as from two terminals), so neither's start-up
+slows the other's: the server first, then the planner once the server serves. The server's time
+runs from its process start to the log's ``header`` record (written when its sockets are bound
+and it starts publishing states); the planner's from its process start to the world's first
+``step`` record (its first command applied, lock-step). Both include the Python interpreter, the
+imports and the model compilation; the planner's also its handshake and first iteration.
+
+    python scripts/startup.py                        # navigation and pick_place, 5 runs each
+    python scripts/startup.py -s push_pull -n 3 --json
+"""
+
+from __future__ import annotations
+
+import json
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import typer
+from rich.console import Console
+from rich.table import Table
+
+from shared.evaluation import episode
+from shared.scenario import find_scenario
+from shared.tools.launch import free_port_block, stop_processes
+
+SCENARIOS = ("navigation", "pick_place")
+
+app = typer.Typer(add_completion=False)
+
+
+def _wait_for(log: Path, kind: str, proc: subprocess.Popen, timeout: float) -> dict:
+    """The first record of ``kind`` in ``log``, polled until ``timeout`` s or ``proc`` dies."""
+    end = time.monotonic() + timeout
+    while time.monotonic() < end:
+        if log.is_file():
+            for rec in episode.read_log(log):
+                if rec.get("kind") == kind:
+                    return rec
+        if proc.poll() is not None:
+            raise RuntimeError(f"{proc.args[2]} exited with code {proc.returncode} before a "
+                               f"{kind!r} record; see the logs next to {log}")
+        time.sleep(0.01)
+    raise RuntimeError(f"no {kind!r} record in {log} within {timeout:g} s")
+
+
+def measure_once(scenario: str, folder: Path, timeout: float = 60.0) -> dict[str, float]:
+    """One cold start of both processes: ``{"server": s, "planner": s}``."""
+    port = free_port_block()
+    log = folder / "episode.jsonl"
+    common = ["--scenario", scenario, "--port", str(port)]
+    procs = []
+    try:
+        with (folder / "server.log").open("w") as out:
+            start = time.time()
+            procs.append(subprocess.Popen(
+                [sys.executable, "-m", "server", *common, "--log", str(log)],
+                stdout=out, stderr=subprocess.STDOUT))
+            server = _wait_for(log, "header", procs[0], timeout)["wall"] - start
+        with (folder / "planner.log").open("w") as out:
+            start = time.time()
+            procs.append(subprocess.Popen([sys.executable, "-m", "planner_client", *common],
+                                          stdout=out, stderr=subprocess.STDOUT))
+            planner = _wait_for(log, "step", procs[1], timeout)["wall"] - start
+    finally:
+        stop_processes(procs)
+    return {"server": server, "planner": planner}
+
+
+@app.command()
+def main(
+    scenario: list[str] = typer.Option(list(SCENARIOS), "--scenario", "-s",
+                                       help="Scenario name or YAML path (repeatable)."),
+    runs: int = typer.Option(5, "--runs", "-n", min=1, help="Cold starts per scenario."),
+    as_json: bool = typer.Option(False, "--json", help="One JSON object per scenario."),
+) -> None:
+    """Time cold starts of the world server and the planner; print median and spread."""
+    console = Console()
+    table = Table("scenario", "server start -> serving [s]", "planner start -> first command [s]")
+    for name in scenario:
+        path = str(find_scenario(name))
+        samples: dict[str, list[float]] = {"server": [], "planner": []}
+        for i in range(runs):
+            with tempfile.TemporaryDirectory(prefix="m3p2i-startup-") as tmp:
+                for side, seconds in measure_once(path, Path(tmp)).items():
+                    samples[side].append(seconds)
+            if not as_json:
+                console.print(f"{name}: run {i + 1}/{runs}", style="dim")
+        stats = {side: {"median": statistics.median(v), "min": min(v), "max": max(v)}
+                 for side, v in samples.items()}
+        if as_json:
+            print(json.dumps({"scenario": name, "runs": runs, **stats}))
+        else:
+            table.add_row(name, *(f"{s['median']:.2f} ({s['min']:.2f}-{s['max']:.2f})"
+                                  for s in stats.values()))
+    if not as_json:
+        console.print(table)
+
+
+if __name__ == "__main__":
+    app()
