@@ -72,9 +72,10 @@ class SimWorld:
         not: a robot body, the arena, or a name the scenario does not have."""
         objects = [o.name for o in self.scenario.world.objects]
         if name not in objects:
-            body = mujoco.mj_name2id(self.model, mujoco.mjtObj.mjOBJ_BODY, name)
+            known = any(mujoco.mj_name2id(self.model, kind, name) >= 0
+                        for kind in (mujoco.mjtObj.mjOBJ_BODY, mujoco.mjtObj.mjOBJ_GEOM))
             what = (f"{name!r} is part of the robot or the arena, not a scenario object"
-                    if body >= 0 else f"unknown object {name!r}")
+                    if known else f"unknown object {name!r}")
             raise ValueError(f"{what}; objects that can be moved: {', '.join(objects) or 'none'}")
         pos = np.asarray(pos, float)
         if pos.shape != (3,) or not np.all(np.isfinite(pos)):

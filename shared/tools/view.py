@@ -144,16 +144,13 @@ class SceneDrawing:
         self._top = None
         self._path = None
         lo, hi = scene_bounds(model, data, self.shapes)
-        self.camera = camera_for(lo, hi)
+        # every new page (and the client's "reset view") starts framing the scene
+        position, look_at = camera_for(lo, hi)
+        server.initial_camera.position = tuple(position)
+        server.initial_camera.look_at = tuple(look_at)
         self.scale = float(np.linalg.norm(hi - lo))
         self._line = max(0.002, 0.0025 * self.scale)
 
-    def frame_camera(self, client) -> None:
-        """Point a browser's camera at the scene (each new page gets it)."""
-        position, look_at = self.camera
-        client.camera.up_direction = (0.0, 0.0, 1.0)
-        client.camera.position = tuple(position)
-        client.camera.look_at = tuple(look_at)
 
     def set_poses(self, data: mujoco.MjData) -> None:
         pos, quat = geom_poses(self.model, data)
@@ -263,7 +260,6 @@ class LiveView:
         self.server = viser.ViserServer(host=host, port=port, label=f"m3p2i {scenario.name}",
                                         verbose=False)
         self.drawing = SceneDrawing(self.server, self.model, self.data)
-        self.server.on_client_connect(self.drawing.frame_camera)
         self.info = PanelInfo(scenario=scenario.name)
         self.ctx = zmq.Context()
         self.state_sub = socket(self.ctx, zmq.SUB, conflate=True)
@@ -295,19 +291,26 @@ class LiveView:
         pause.on_click(lambda _: self._send(P.Control(op="pause")))
         resume.on_click(lambda _: self._send(P.Control(op="resume")))
         reset.on_click(lambda _: self._reset())
-        gui.add_markdown("Drag an object's handle to move it: the world logs it as a disturbance.")
+        movable = gui.add_checkbox("move objects", False, hint="Show a handle on each object: "
+                                   "drag it to move the object; the world logs a disturbance.")
         self.gizmos = {}
         mj_data = self.data
         for obj in self.scenario.world.objects:
             body = self.model.body(obj.name)
-            size = max(float(np.max(obj.size)) * 2.5, 0.1 * max(self.drawing.scale, 0.5) / 4)
+            # big enough to grab on a 5 cm cube, small enough not to hide a table
+            size = float(np.clip(np.max(obj.size) * 3.0, 0.08, 0.5))
             g = self.server.scene.add_transform_controls(
                 f"/drag/{obj.name}", scale=size, disable_sliders=True, depth_test=False,
-                position=mj_data.xpos[body.id], wxyz=mj_data.xquat[body.id])
+                position=mj_data.xpos[body.id], wxyz=mj_data.xquat[body.id], visible=False)
             g.dragging = False
             g.on_drag_start(lambda _, g=g: setattr(g, "dragging", True))
             g.on_drag_end(lambda _, name=obj.name, g=g: self._moved(name, g))
             self.gizmos[obj.name] = (body.id, g)
+
+        def show_handles(_) -> None:
+            for _, g in self.gizmos.values():
+                g.visible = movable.value
+        movable.on_update(show_handles)
 
     def _send(self, msg: P.Control) -> bool:
         ok, text = self.control.send(msg)
@@ -464,15 +467,15 @@ def action_timeline(actions: list[tuple[float, str]], now: float) -> str:
 
 
 def metrics_text(summary: dict | None) -> str:
+    """The episode's outcome and metrics (paper Tables I-III: errors, collisions, time) as
+    markdown; the success test's measures where the log has no metrics."""
     if summary is None:
         return "**no summary**: the log ends before the episode did"
     parts = [f"**outcome**: {summary.get('status')} at {summary.get('time', 0):.2f} s"]
-    for k, v in (summary.get("measures") or {}).items():
-        parts.append(f"{k}: {v:.4g}")
-    metrics = summary.get("metrics") or {}
-    for k, v in metrics.items():
-        if isinstance(v, (int, float)) and not isinstance(v, bool):
-            parts.append(f"{k}: {v:.4g}")
+    metrics = {k: v for k, v in (summary.get("metrics") or {}).items()
+               if isinstance(v, (int, float)) and not isinstance(v, bool) and k != "time"}
+    for k, v in (metrics or summary.get("measures") or {}).items():
+        parts.append(f"{k.replace('_', ' ')}: {v:.4g}")
     if summary.get("planner_hz"):
         parts.append(f"planner: {summary['planner_hz']:.1f} Hz")
     return "  \n".join(parts)
@@ -491,7 +494,6 @@ class ReplayView:
         self.server = viser.ViserServer(host=host, port=port, label=f"m3p2i replay {sc.name}",
                                         verbose=False)
         self.drawing = SceneDrawing(self.server, self.model, self.data)
-        self.server.on_client_connect(self.drawing.frame_camera)
         self.path = self._robot_path()
         times = replay.times
         self.stop = threading.Event()

@@ -91,11 +91,11 @@ def capsule_mesh(radius: float, half_length: float, segments: int = _SEGMENTS):
 
 
 def plane_mesh(half_x: float, half_y: float) -> tuple[np.ndarray, np.ndarray]:
-    """A rectangle in the plane's xy, both windings so it shows from either side. MuJoCo draws
+    """A rectangle in the plane's xy facing +z (the viewer draws its back too). MuJoCo draws
     an infinite plane (size 0) as a large one; so does this (10 m)."""
     hx, hy = half_x or 10.0, half_y or 10.0
     verts = np.array([[-hx, -hy, 0], [hx, -hy, 0], [hx, hy, 0], [-hx, hy, 0]], float)
-    return verts, np.array([[0, 1, 2], [0, 2, 3], [0, 2, 1], [0, 3, 2]])
+    return verts, np.array([[0, 1, 2], [0, 2, 3]])
 
 
 def geom_mesh(model: mujoco.MjModel, g: int) -> tuple[str, np.ndarray, np.ndarray]:
@@ -191,4 +191,4 @@ def camera_for(lo: np.ndarray, hi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     centre = (lo + hi) / 2
     radius = max(float(np.linalg.norm(hi - lo)) / 2, 0.3)
     direction = np.array([-1.0, -0.9, 0.9])
-    return centre + direction / np.linalg.norm(direction) * radius * 2.2, centre
+    return centre + direction / np.linalg.norm(direction) * radius * 1.9, centre
