@@ -79,13 +79,15 @@ def _add_arena(world, arena) -> None:
     """
     h, z = arena.half_size, arena.wall_height
     r = math.sqrt(0.5)
-    # quaternions turn each plane's normal (+z) to point into the arena
-    for name, pos, quat in (("wall_north", [0, h, z], [r, r, 0, 0]),
-                            ("wall_south", [0, -h, z], [r, -r, 0, 0]),
-                            ("wall_east", [h, 0, z], [r, 0, -r, 0]),
-                            ("wall_west", [-h, 0, z], [r, 0, r, 0])):
+    # quaternions turn each plane's normal (+z) to point into the arena; the drawn size is
+    # (along the wall, up) in the plane's own x, y: the east and west walls' turn about y takes
+    # the plane's x upwards, so their sizes swap (else they are drawn 8 m tall, 0.6 m wide)
+    for name, pos, quat, size in (("wall_north", [0, h, z], [r, r, 0, 0], [h, z]),
+                                  ("wall_south", [0, -h, z], [r, -r, 0, 0], [h, z]),
+                                  ("wall_east", [h, 0, z], [r, 0, -r, 0], [z, h]),
+                                  ("wall_west", [-h, 0, z], [r, 0, r, 0], [z, h])):
         body = world.add_body(name=name, pos=pos, quat=quat)
-        body.add_geom(name=name, type=mujoco.mjtGeom.mjGEOM_PLANE, size=[h, z, 0.1],
+        body.add_geom(name=name, type=mujoco.mjtGeom.mjGEOM_PLANE, size=[*size, 0.1],
                       rgba=[0.45, 0.45, 0.5, 1.0])
 
 

@@ -4,19 +4,18 @@ SwiftShader (on the CPU), no network but loopback, a fresh profile each time."""
 from __future__ import annotations
 
 import os
-import shutil
-import subprocess
-import tempfile
 from pathlib import Path
 
 import numpy as np
 import pytest
 
+from shared.tools.view import chromium_screenshot, find_chromium
+
 
 def chromium() -> str:
     """The chromium executable. Missing: a failure in CI (``.ci/run`` installs it, so its
     absence is a broken set-up), a skip that says how to install it elsewhere."""
-    exe = shutil.which("chromium") or shutil.which("chromium-browser")
+    exe = find_chromium()
     if exe:
         return exe
     if os.environ.get("CI"):
@@ -25,21 +24,12 @@ def chromium() -> str:
 
 
 def screenshot(url: str, out: Path, width: int = 1000, height: int = 700,
-               wait_ms: int = 6000, timeout: float = 120.0) -> np.ndarray:
+               wait_ms: int = 6000) -> np.ndarray:
     """Load ``url`` and return the page as an RGB array ``[height, width, 3]`` (also written
-    to ``out``). ``wait_ms`` of the page's own time lets the websocket deliver the scene."""
+    to ``out``)."""
     from PIL import Image
-    with tempfile.TemporaryDirectory() as profile:
-        cmd = [chromium(), "--headless", "--no-sandbox", "--disable-gpu", "--disable-quic",
-               "--no-first-run", "--disable-background-networking", "--disable-component-update",
-               "--disable-sync", f"--user-data-dir={profile}",
-               # WebGL on the CPU: without SwiftShader headless chromium has no WebGL at all
-               "--use-angle=swiftshader", "--enable-unsafe-swiftshader",
-               # nothing but loopback resolves: the page must load without the internet
-               "--host-resolver-rules=MAP * ~NOTFOUND, EXCLUDE 127.0.0.1",
-               f"--window-size={width},{height}", f"--virtual-time-budget={wait_ms}",
-               f"--screenshot={out}", url]
-        run = subprocess.run(cmd, capture_output=True, text=True, timeout=timeout)
+    chromium()
+    run = chromium_screenshot(url, out, width, height, wait_ms)
     assert out.is_file(), f"chromium wrote no screenshot (exit {run.returncode}):\n{run.stderr[-3000:]}"
     return np.asarray(Image.open(out).convert("RGB"))
 

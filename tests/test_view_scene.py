@@ -143,8 +143,10 @@ def test_the_camera_frames_the_scene(name):
     position, look_at = camera_for(lo, hi)
     assert np.all(look_at >= lo) and np.all(look_at <= hi)
     distance = np.linalg.norm(position - look_at)
-    size = np.linalg.norm(hi - lo)
-    assert size < distance < 3 * size                 # close enough to see, far enough for all
+    radius = np.linalg.norm(hi - lo) / 2
+    # the whole scene within the page's 75° field of view (R / sin 37.5° = 1.64 R), not lost
+    # in the distance
+    assert 1.64 * radius < distance < 3 * radius
     assert position[2] > look_at[2]                   # from above
 
 
@@ -163,3 +165,18 @@ def test_trajectories_are_coloured_by_their_mode():
 def test_weight_bar():
     assert weight_bar(0.25, width=8) == "██░░░░░░"
     assert weight_bar(1.7, width=4) == "████" and weight_bar(-1, width=4) == "░░░░"
+
+
+def test_the_arena_walls_are_drawn_along_the_walls_and_as_tall_as_configured():
+    sc = load_scenario("push_pull_corner2")
+    model = compile_model(sc)
+    data = initial_data(sc, model)
+    h, z = sc.world.arena.half_size, sc.world.arena.wall_height
+    for s in scene_shapes(model):
+        if not s.name.startswith("wall_"):
+            continue
+        world = s.vertices @ data.geom_xmat[s.geom_id].reshape(3, 3).T + data.geom_xpos[s.geom_id]
+        np.testing.assert_allclose(world[:, 2].min(), 0.0, atol=1e-9)      # from the floor
+        np.testing.assert_allclose(world[:, 2].max(), 2 * z, atol=1e-9)    # up to 2 x wall_height
+        span = np.ptp(world[:, :2], axis=0)
+        np.testing.assert_allclose(sorted(span), [0.0, 2 * h], atol=1e-9)  # the arena's side

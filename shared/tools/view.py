@@ -14,6 +14,9 @@ from __future__ import annotations
 
 import json
 import logging
+import shutil
+import subprocess
+import tempfile
 import threading
 import time
 from collections import deque
@@ -574,3 +577,30 @@ class ReplayView:
 def _load(model: mujoco.MjModel, data: mujoco.MjData, step: dict) -> None:
     from shared.evaluation.replay import load_step
     load_step(model, data, step)
+
+
+# ------------------------------------------------------------------------------ screenshots
+
+def find_chromium() -> str | None:
+    """Debian's ``chromium`` (or ``chromium-browser``) on the PATH, or None."""
+    return shutil.which("chromium") or shutil.which("chromium-browser")
+
+
+def chromium_screenshot(url: str, out: Path, width: int = 1000, height: int = 700,
+                        wait_ms: int = 6000, timeout: float = 120.0) -> subprocess.CompletedProcess:
+    """Load ``url`` in headless chromium and write a PNG of the page to ``out``, after
+    ``wait_ms`` of the page's time (the websocket delivers the scene meanwhile). WebGL is
+    drawn on the CPU (SwiftShader), with a fresh profile, and no host but 127.0.0.1 resolves:
+    the page must load with no network. Used by the tests and scripts/view_screenshots.py."""
+    exe = find_chromium()
+    if exe is None:
+        raise FileNotFoundError("no chromium on the PATH (apt-get install chromium)")
+    with tempfile.TemporaryDirectory() as profile:
+        cmd = [exe, "--headless", "--no-sandbox", "--disable-gpu", "--disable-quic",
+               "--no-first-run", "--disable-background-networking", "--disable-component-update",
+               "--disable-sync", f"--user-data-dir={profile}",
+               "--use-angle=swiftshader", "--enable-unsafe-swiftshader",
+               "--host-resolver-rules=MAP * ~NOTFOUND, EXCLUDE 127.0.0.1",
+               f"--window-size={width},{height}", f"--virtual-time-budget={wait_ms}",
+               f"--screenshot={out}", url]
+        return subprocess.run(cmd, capture_output=True, text=True, timeout=timeout)

@@ -171,11 +171,12 @@ def geom_poses(model: mujoco.MjModel, data: mujoco.MjData) -> tuple[np.ndarray, 
 
 
 def scene_bounds(model: mujoco.MjModel, data: mujoco.MjData, shapes: list[GeomShape]) -> tuple[np.ndarray, np.ndarray]:
-    """Lower and upper corners ``[3]`` of what is worth framing: every drawn geom but planes
-    (an arena's floor would frame 10 m of nothing around a table)."""
+    """Lower and upper corners ``[3]`` of what is worth framing: every drawn geom but the
+    ground (a plane facing up: a floor would frame 10 m of nothing around a table); an arena's
+    walls count."""
     points = []
     for s in shapes:
-        if s.kind == "plane":
+        if s.kind == "plane" and data.geom_xmat[s.geom_id][8] > 0.99:
             continue
         g = s.geom_id
         points.append(s.vertices @ data.geom_xmat[g].reshape(3, 3).T + data.geom_xpos[g])
