@@ -476,7 +476,8 @@ def metrics_text(summary: dict | None) -> str:
         return "**no summary**: the log ends before the episode did"
     parts = [f"**outcome**: {summary.get('status')} at {summary.get('time', 0):.2f} s"]
     metrics = {k: v for k, v in (summary.get("metrics") or {}).items()
-               if isinstance(v, (int, float)) and not isinstance(v, bool) and k != "time"}
+               if isinstance(v, (int, float)) and not isinstance(v, bool)
+               and k not in ("time", "wall_time", "planner_hz", "steps")}
     for k, v in (metrics or summary.get("measures") or {}).items():
         parts.append(f"{k.replace('_', ' ')}: {v:.4g}")
     if summary.get("planner_hz"):
