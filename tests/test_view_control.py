@@ -167,3 +167,40 @@ def test_diagnostics_name_each_trajectorys_mode():
     d.top_modes = np.array([0, 1])
     with pytest.raises(P.ProtocolError, match="top_modes"):
         P.decode(P.encode(d))
+
+
+def test_a_replay_reads_the_log_and_the_recorded_diagnostics(world):
+    """What ``m3p2i view --log`` shows at a time: the logged state, the newest recorded
+    diagnostics at or before it, the action running then."""
+    import json
+
+    from shared.tools.view import action_timeline, diagnostics_record, load_replay, metrics_text
+    server = world("navigation")
+    for action in ("go", "go", "wait", "wait"):
+        server._note_action(action)
+        server._apply(None)
+    server.log.close()
+    diag = P.Diagnostics(seq=2, action="wait", alternatives=["wait"], mode_names=["wait"],
+                         mode_weights=np.array([1.0]), top=np.ones((2, 3, 3)), plan_time=0.05,
+                         top_modes=np.array([0, 0]))
+    log_dir = server.log.path.parent
+    (log_dir / "diagnostics.jsonl").write_text(json.dumps(diagnostics_record(diag)) + "\n")
+    replay = load_replay(server.log.path)
+    assert [s["seq"] for s in replay.steps] == [1, 2, 3, 4]
+    assert [a for _, a in replay.actions] == ["go", "wait"]
+    assert replay.diagnostics_at(1) is None                 # none recorded yet then
+    assert replay.diagnostics_at(3)["top_modes"] == [0, 0]  # the newest before
+    dt = server.world.dt
+    assert "**▶" in action_timeline(replay.actions, 2.5 * dt).splitlines()[1]
+    assert "no summary" in metrics_text(replay.summary)     # the log was cut before its end
+
+
+def test_m3p2i_view_says_what_it_needs(tmp_path):
+    from typer.testing import CliRunner
+
+    from shared.tools.cli import app
+    runner = CliRunner()
+    result = runner.invoke(app, ["view"])
+    assert result.exit_code == 2 and "give a SCENARIO for a live view, or --log" in result.output
+    result = runner.invoke(app, ["view", "--log", str(tmp_path / "nowhere")])
+    assert result.exit_code == 2 and "no episode log at" in result.output
