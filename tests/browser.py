@@ -24,7 +24,7 @@ def chromium() -> str:
 
 
 def screenshot(url: str, out: Path, width: int = 1000, height: int = 700,
-               wait_ms: int = 6000) -> np.ndarray:
+               wait_ms: int = 3000) -> np.ndarray:
     """Load ``url`` and return the page as an RGB array ``[height, width, 3]`` (also written
     to ``out``)."""
     from PIL import Image

@@ -16,6 +16,11 @@ import time
 import numpy as np
 import pytest
 
+import zmq
+
+from shared import protocol as P
+from shared.endpoints import Endpoints
+from shared.tools.view import ControlClient
 from tests.browser import chromium, hue_share, screenshot
 from tests.helpers import ENV, _sigint_as_in_a_terminal, stop
 from shared.tools.launch import free_port_block
@@ -75,14 +80,25 @@ def live(tmp_path_factory):
     chromium()
     tmp = tmp_path_factory.mktemp("view")
     run_dir = tmp / "run"
-    proc, url = _start(["run", "pick_place", "--view", "--run-dir", str(run_dir), "--timeout", "600"])
+    port = free_port_block()
+    proc, url = _start(["run", "pick_place", "--view", "--run-dir", str(run_dir), "--timeout", "600",
+                        "--port", str(port)])
     try:
-        # the planner is running once its diagnostics are being recorded
-        end = time.monotonic() + 120
-        diags = run_dir / "diagnostics.jsonl"
-        while time.monotonic() < end and not (diags.is_file() and diags.stat().st_size > 0):
-            time.sleep(0.2)
+        # paused, the lock-step world holds its state and the planner, having answered it,
+        # stops planning: the browser gets the cores (2 here) to draw the page
+        control = ControlClient(zmq.Context.instance(), Endpoints(port=port), timeout=30)
+        ok, reply = control.send(P.Control(op="pause"))
+        assert ok, reply
         image = screenshot(url, tmp / "live.png")
+        # resumed, the world steps: the view records what the planner publishes and the log
+        # gets the steps the replay shows
+        ok, reply = control.send(P.Control(op="resume"))
+        assert ok, reply
+        end = time.monotonic() + 120
+        diags, log = run_dir / "diagnostics.jsonl", run_dir / "episode.jsonl"
+        while time.monotonic() < end and not (
+                diags.is_file() and diags.stat().st_size > 0 and '"kind": "step"' in log.read_text()):
+            time.sleep(0.2)
     finally:
         proc.send_signal(signal.SIGINT)          # m3p2i run stops all its processes
         try:
