@@ -37,6 +37,7 @@ from planner_client.timing import LeadEstimate, predict, steps_between
 log = logging.getLogger("m3p2i.planner")
 
 _NEW_EPISODE = 1.0   # world time going back more than this (s) is a reset, not jitter
+_HANDSHAKE_FAILURES = 5   # failed secure handshakes in a row that mean a key problem
 
 
 class HandshakeRefused(RuntimeError):
@@ -99,7 +100,7 @@ class PlannerClient:
         self._lead: LeadEstimate | None = None
         self._last_start: tuple[float, int] | None = None   # (t_eff, state seq) of the last plan
         self._faults = 0        # consecutive iterations without a plan (Iteration.fault)
-        self._handshake_warned = False
+        self._handshake_failures = 0   # in a row, since the last reply
 
     # ------------------------------------------------------------------ handshake
 
@@ -154,9 +155,10 @@ class PlannerClient:
 
     def _await_reply(self, req: zmq.Socket, monitor: HandshakeMonitor, retry: float) -> bool:
         """Whether the world answered within ``retry`` seconds. A world that refused our key,
-        or that speaks another security mechanism, never answers: that raises at once with
-        the fix, instead of waiting for ever; another handshake failure (e.g. a wrong world
-        public key) is logged and retried."""
+        or that speaks another security mechanism, never answers: that raises with the fix
+        instead of waiting for ever. libzmq does not always say which (a peer that hangs up
+        mid-handshake is reported without detail), so a few failed handshakes in a row raise
+        too; a world still starting up refuses connections, it does not fail handshakes."""
         poller = zmq.Poller()
         poller.register(req, zmq.POLLIN)
         poller.register(monitor.mon, zmq.POLLIN)
@@ -164,8 +166,10 @@ class PlannerClient:
         while (left := end - time.monotonic()) > 0:
             events = dict(poller.poll(int(left * 1000) + 1))
             if req in events:
+                self._handshake_failures = 0
                 return True
             for event, value in monitor.failures():
+                self._handshake_failures += 1
                 why = describe_handshake_failure(event, value)
                 if event == zmq.EVENT_HANDSHAKE_FAILED_AUTH:
                     raise HandshakeRefused(
@@ -174,18 +178,15 @@ class PlannerClient:
                                         f"must be in the world's DIR/world/planners/ (copy "
                                         f"DIR/planner/planner.key there and restart the "
                                         f"world)" if self.keys else "start it with --keys DIR"))
-                if event == zmq.EVENT_HANDSHAKE_FAILED_PROTOCOL and value == 0x11000002:
+                mismatch = event == zmq.EVENT_HANDSHAKE_FAILED_PROTOCOL and value == 0x11000002
+                if mismatch or self._handshake_failures >= _HANDSHAKE_FAILURES:
                     raise HandshakeRefused(
-                        f"security mismatch with the world at {self.endpoints.control}: "
-                        + ("this planner uses CURVE keys, the world none" if self.keys else
-                           "the world requires CURVE keys: start the planner with --keys DIR "
-                           "(the planner/ part of `m3p2i keys DIR`)"))
-                if not self._handshake_warned:
-                    self._handshake_warned = True
-                    log.error("secure handshake with the world at %s failed: %s; is "
-                              "DIR/planner/world.key the world's public key, and does the "
-                              "world use keys? retrying",
-                              self.endpoints.control, why)
+                        f"no secure handshake with the world at {self.endpoints.control} "
+                        f"({why}): " + (
+                            "either DIR/planner/world.key is not this world's public key, or "
+                            "the world runs without keys" if self.keys else
+                            "the world requires CURVE keys: start the planner with --keys DIR "
+                            "(the planner/ part of `m3p2i keys DIR`)"))
         return False
 
     # ------------------------------------------------------------------ loop
