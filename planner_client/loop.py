@@ -37,7 +37,8 @@ from planner_client.timing import LeadEstimate, predict, steps_between
 log = logging.getLogger("m3p2i.planner")
 
 _NEW_EPISODE = 1.0   # world time going back more than this (s) is a reset, not jitter
-_HANDSHAKE_FAILURES = 5   # failed secure handshakes in a row that mean a key problem
+_HANDSHAKE_FAILURES = 20  # failed handshakes in a row, no reply between: a key problem (a
+                          # wrong key fails ~10 times a second; a restarting world not so)
 
 
 class HandshakeRefused(RuntimeError):

@@ -330,7 +330,7 @@ class WorldServer:
             sampled = self._refused <= 10 or self._refused % 100 == 0   # a peer retrying
             if sampled and not logged:
                 log.warning("refused a peer (%d so far): %s", self._refused, reason)
-            if sampled or self._refused <= 100:
+            if self._refused <= 100 or self._refused % 100 == 0:
                 self.log.event("peer_refused", reason=reason, count=self._refused)
 
     def _reject(self, reason: str) -> None:

@@ -21,6 +21,8 @@ from shared.scenario import load_scenario
 from shared.security import (ExposureError, HandshakeMonitor, curve_client, is_loopback,
                              keys_for_cli, load_planner_keys, load_world_keys, make_keys)
 from shared.tools.cli import app as m3p2i
+from shared.tools.launch import EpisodeLaunch
+from shared.tools.video import DiagnosticsRecorder, read_tops
 from tests.helpers import StateWatcher, free_port_block, start_planner, start_server, stop, \
     wait_episode
 
@@ -233,6 +235,10 @@ def test_navigation_over_curve_reaches_the_goal_while_a_planner_with_another_key
     port = free_port_block()
     log = tmp_path / "episode.jsonl"
     server = start_server("navigation", port, log, "--keys", str(keys))
+    # the diagnostics go to subscribers with the planner's keys only
+    recorders = {"keyed": DiagnosticsRecorder(port, tmp_path / "keyed.jsonl",
+                                              keys=load_planner_keys(keys)),
+                 "keyless": DiagnosticsRecorder(port, tmp_path / "keyless.jsonl")}
     # three planners at once: each binds its diagnostics (port + 3) on an address of its own
     # (all of 127.0.0.0/8 is loopback on Linux)
     refused = start_planner("navigation", port, "--keys", str(intruder),
@@ -246,6 +252,8 @@ def test_navigation_over_curve_reaches_the_goal_while_a_planner_with_another_key
         planner_out, _ = planner.communicate(timeout=30)
     finally:
         stop(server, planner, refused, keyless)
+        for r in recorders.values():
+            r.close()
     assert refused.returncode == 3, refused_out
     assert "refused this planner's key" in refused_out and "DIR/world/planners" in refused_out
     assert keyless.returncode == 3, keyless_out
@@ -257,3 +265,11 @@ def test_navigation_over_curve_reaches_the_goal_while_a_planner_with_another_key
     assert records[-1]["measures"]["distance robot-goal"] <= 0.1
     assert sum(r.get("what") == "handshake" for r in records) == 1
     assert any(r.get("what") == "peer_refused" for r in records)
+    assert len(read_tops(tmp_path / "keyed.jsonl")) > 10
+    assert read_tops(tmp_path / "keyless.jsonl") == {}
+
+
+def test_m3p2i_run_passes_the_keys_to_both_processes(tmp_path, keys):
+    launch = EpisodeLaunch(scenario="navigation", run_dir=tmp_path, keys=keys)
+    for cmd in launch.commands(5555).values():
+        assert cmd[cmd.index("--keys") + 1] == str(keys)

@@ -317,8 +317,9 @@ def keys_command(
     the planner trusts; viewers/: other diagnostics subscribers). Secret keys are mode 0600.
     Copy FOLDER/planner to the planner's machine and FOLDER/world to the world's, then start
     `m3p2i-server --host 0.0.0.0 --keys FOLDER` and `m3p2i-planner --host WORLD --keys FOLDER`.
-    More planners: `m3p2i keys OTHER` and copy OTHER/planner/planner.key into
-    FOLDER/world/planners/ under a name of its own."""
+    Another planner: `m3p2i keys OTHER`, copy OTHER/planner/planner.key into
+    FOLDER/world/planners/ (under a name of its own) and FOLDER/world/world.key over
+    OTHER/planner/world.key; the world reads its allow list when it starts."""
     from shared.security import make_keys
     try:
         written = make_keys(folder)
