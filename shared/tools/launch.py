@@ -88,9 +88,12 @@ class EpisodeLaunch:
     verbose: bool = False           # children write to this terminal instead of log files
     view: bool = False              # serve the browser view (m3p2i view) beside the episode
     view_port: int = 0              # its page's port (0: a free one)
+    keys: Path | None = None        # CURVE key folder (m3p2i keys): both processes use it
 
     def commands(self, port: int) -> dict[str, list[str]]:
         common = ["--scenario", self.scenario, "--port", str(port), "--seed", str(self.seed)]
+        if self.keys is not None:
+            common += ["--keys", str(self.keys)]
         server = [sys.executable, "-m", "server", *common, "--mode", self.mode,
                   "--log", str(self.run_dir / "episode.jsonl")]
         if self.viewer:
@@ -105,8 +108,9 @@ class EpisodeLaunch:
     def view_command(self, port: int, view_port: int) -> list[str]:
         """The browser view of this episode: it also records the planner's diagnostics beside
         the episode log, so that ``m3p2i view --log`` replays the trajectories too."""
-        return [sys.executable, "-m", "shared.tools", "view", self.scenario, "--port", str(port),
-                "--view-port", str(view_port), "--record", str(self.run_dir / "diagnostics.jsonl")]
+        cmd = [sys.executable, "-m", "shared.tools", "view", self.scenario, "--port", str(port),
+               "--view-port", str(view_port), "--record", str(self.run_dir / "diagnostics.jsonl")]
+        return cmd + (["--keys", str(self.keys)] if self.keys is not None else [])
 
 
 def run_episode(launch: EpisodeLaunch, stop: threading.Event | None = None,

@@ -34,6 +34,7 @@ from shared.frames import FrameResolver
 from shared.robots import get_robot
 from shared.scenario import Scenario
 from shared.scene import compile_model, initial_data, set_state
+from shared.security import PlannerKeys, curve_client
 from shared.tools.view_scene import GeomShape, camera_for, geom_poses, scene_bounds, scene_shapes
 
 log = logging.getLogger("m3p2i.view")
@@ -194,14 +195,17 @@ class ControlClient:
     """Sends ``control`` ops to the world's control socket, a fresh REQ each time (so a world
     that restarted or does not answer never wedges the view); returns the reply's text."""
 
-    def __init__(self, ctx: zmq.Context, endpoints: Endpoints, timeout: float = 2.0):
-        self.ctx, self.endpoints, self.timeout = ctx, endpoints, timeout
+    def __init__(self, ctx: zmq.Context, endpoints: Endpoints, timeout: float = 2.0,
+                 keys: PlannerKeys | None = None):
+        self.ctx, self.endpoints, self.timeout, self.keys = ctx, endpoints, timeout, keys
         self._lock = threading.Lock()
 
     def send(self, msg: P.Control) -> tuple[bool, str]:
         """(accepted, what happened)."""
         with self._lock:
             req = socket(self.ctx, zmq.REQ)
+            if self.keys is not None:     # CURVE: the planner's pair, checking the world's key
+                curve_client(req, self.keys.own, self.keys.world)
             try:
                 req.connect(self.endpoints.control)
                 req.send(P.encode(msg))
@@ -254,7 +258,7 @@ class LiveView:
     """Draws the running world and planner; serves until :meth:`close` (or ``stop`` is set)."""
 
     def __init__(self, scenario: Scenario, endpoints: Endpoints, host: str, port: int,
-                 record: Path | None = None):
+                 record: Path | None = None, keys: PlannerKeys | None = None):
         viser = import_viser()
         self.scenario = scenario
         self.model = compile_model(scenario)
@@ -267,11 +271,16 @@ class LiveView:
         self.ctx = zmq.Context()
         self.state_sub = socket(self.ctx, zmq.SUB, conflate=True)
         self.state_sub.setsockopt(zmq.SUBSCRIBE, b"")
-        self.state_sub.connect(endpoints.state)
         self.diag_sub = socket(self.ctx, zmq.SUB, conflate=True)
         self.diag_sub.setsockopt(zmq.SUBSCRIBE, b"")
+        if keys is not None:
+            # CURVE, as a tool beside the planner: the planner's pair; the world's key checked
+            # on the state socket, the planner's own on its diagnostics socket
+            curve_client(self.state_sub, keys.own, keys.world)
+            curve_client(self.diag_sub, keys.own, keys.own.public)
+        self.state_sub.connect(endpoints.state)
         self.diag_sub.connect(endpoints.diagnostics)
-        self.control = ControlClient(self.ctx, endpoints)
+        self.control = ControlClient(self.ctx, endpoints, keys=keys)
         self.record = DiagnosticsLog(record) if record else None
         self._path: list[np.ndarray] = []
         self._session = ""
