@@ -204,3 +204,34 @@ def test_m3p2i_view_says_what_it_needs(tmp_path):
     assert result.exit_code == 2 and "give a SCENARIO for a live view, or --log" in result.output
     result = runner.invoke(app, ["view", "--log", str(tmp_path / "nowhere")])
     assert result.exit_code == 2 and "no episode log at" in result.output
+
+
+def test_the_views_controls_pass_a_keyed_world(tmp_path):
+    """Under CURVE (m3p2i run --keys) the view speaks with the planner's key pair: a world
+    that allows only that key takes its ops."""
+    import threading
+
+    from shared.security import load_planner_keys, load_world_keys, make_keys
+    from shared.tools.view import ControlClient
+    make_keys(tmp_path / "keys")
+    port = free_port_block()
+    server = WorldServer(load_scenario("pick_place"), Endpoints(port=port), tmp_path / "e.jsonl",
+                         keys=load_world_keys(tmp_path / "keys"))
+    client = ControlClient(zmq.Context.instance(), Endpoints(port=port), timeout=10,
+                           keys=load_planner_keys(tmp_path / "keys"))
+    replies = []
+    sender = threading.Thread(target=lambda: replies.append(client.send(P.Control(
+        op="move", object="cube_b", pos=np.array([0.2, 0.2, 1.1])))))
+    try:
+        sender.start()
+        for _ in range(200):
+            server._poll(0.05)
+            if replies:
+                break
+        sender.join(10)
+    finally:
+        server.log.close()
+        server.close()
+    assert replies == [(True, "move: done")]
+    np.testing.assert_allclose(server.world.data.xpos[server.world.model.body("cube_b").id],
+                               [0.2, 0.2, 1.1])
