@@ -271,7 +271,8 @@ class PlannerClient:
             self.diag.send(P.encode(P.Diagnostics(
                 seq=state.seq, action=decision.action, alternatives=list(decision.alternatives),
                 mode_names=it.modes, mode_weights=r.mode_weights.numpy(),
-                top=it.top, plan_time=plan_time, lead=start - state.time, steps=steps)))
+                top=it.top, plan_time=plan_time, lead=start - state.time, steps=steps,
+                top_modes=it.top_modes)))
         if on_plan is not None:
             on_plan(state, it)
 

@@ -23,7 +23,8 @@ from planner_client.rollout import RolloutEngine
 class Iteration:
     result: PlanResult
     modes: list[str]
-    top: np.ndarray            # [M, T, 3] robot-frame positions of the lowest-cost samples
+    top: np.ndarray            # [M, T, 3] robot-frame positions of each mode's lowest-cost samples
+    top_modes: np.ndarray      # [M] the mode (index in modes) of each of them
     plan: np.ndarray           # [T, nu] the fused plan U with discrete channels resolved, or
                                # [1, nu] the robot's safe control when there is no plan (fault)
     dominant: str              # the mode with the largest sum of fused weights
@@ -79,16 +80,28 @@ class MotionPlanner:
             batch = RolloutBatch(sd[rows], V[rows], self.problem.layout, self.problem.model.opt.timestep)
             self._step_costs[rows] = self.problem.objectives[name](batch)
         result = self.mppi.update(self._step_costs)
-        best = torch.topk(result.weights, min(self.top_k, S)).indices
+        best, top_modes = self._best_per_mode()
         top = self.problem.layout.take(sd[best], self.problem.robot_pos).numpy().copy()
         dominant = self.modes[int(torch.argmax(result.mode_weights))]
         if not result.finite:
             # No sample had a finite cost: u0 is the previous plan, not an answer to this state.
-            return Iteration(result=result, modes=list(self.modes), top=top,
+            return Iteration(result=result, modes=list(self.modes), top=top, top_modes=top_modes,
                              plan=self.problem.robot.safe_stop()[None], dominant=dominant,
                              fault=self._fault(result))
-        return Iteration(result=result, modes=list(self.modes), top=top,
+        return Iteration(result=result, modes=list(self.modes), top=top, top_modes=top_modes,
                          plan=self._resolve(result.U.numpy(), dominant), dominant=dominant)
+
+    def _best_per_mode(self) -> tuple[torch.Tensor, np.ndarray]:
+        """Indices of each mode's ``top_k`` lowest-cost samples and their mode numbers: by the
+        fused weights alone a viewer would see only the dominant mode's."""
+        picks, modes = [], []
+        for i, rows in enumerate(self.mppi.mode_slices):
+            cost = self._step_costs[rows].sum(1)
+            cost = torch.nan_to_num(cost, nan=torch.inf)
+            k = min(self.top_k, cost.shape[0])
+            picks.append(torch.topk(cost, k, largest=False).indices + rows.start)
+            modes += [i] * k
+        return torch.cat(picks), np.array(modes, dtype=np.int64)
 
     def _fault(self, result: PlanResult) -> str:
         """Why ``result`` is no plan, naming the objectives whose costs were not finite."""

@@ -90,6 +90,7 @@ class WorldServer:
         self.action_changes: list[tuple[float, str]] = []
         self._rejected = 0
         self._stop = False
+        self._paused = False              # control op pause: the world neither steps nor waits out time
         self.log.write("header", scenario=scenario.name, scenario_hash=scenario.hash,
                        source=scenario.source, mode=self.opt.mode, dt=self.world.dt,
                        session=self.session, nq=self.world.model.nq, nu=self.world.model.nu,
@@ -155,10 +156,11 @@ class WorldServer:
         started = last_pub = time.monotonic()
         while self._running():
             cmd = self._poll(self.opt.republish)
-            if cmd is not None and wanted(cmd):
+            # paused: the command is dropped; the planner sends it again for the re-published state
+            if cmd is not None and wanted(cmd) and not self._paused:
                 return cmd
             if time.monotonic() - last_pub >= self.opt.republish:
-                if self.seq == 0 and self.opt.wait_planner and \
+                if self.seq == 0 and self.opt.wait_planner and not self._paused and \
                         time.monotonic() - started > self.opt.wait_planner:
                     raise TimeoutError(f"no planner command within {self.opt.wait_planner} s")
                 self._publish()
@@ -192,6 +194,16 @@ class WorldServer:
                 latest_at = time.monotonic()
                 self._receive(cmd)
             now = time.monotonic()
+            if self._paused:
+                # the world's clock stands still (plans are dated in world time, so they stay
+                # valid); the state is re-published so the planner does not take the world for lost
+                if now >= next_tick:
+                    self._publish()
+                    next_tick = now + self.opt.republish
+                cmd = self._poll(max(0.0, min(next_tick - now, self.opt.republish)))
+                if not self._paused:
+                    next_tick = time.monotonic()
+                continue
             if now >= next_tick:
                 fresh = now - latest_at <= self.opt.command_timeout
                 if fresh and stale:
@@ -349,15 +361,7 @@ class WorldServer:
             self.rep.send(P.encode(P.Error(reason=f"refused: {exc}")))
             return
         if isinstance(msg, P.Control):
-            self.log.event("control", op=msg.op)
-            if msg.op == "shutdown":
-                self._stop = True
-                self.world.status = "stopped"
-            elif msg.op == "reset":
-                self.world.reset()
-                self.seq += 1
-                self._publish()
-            self.rep.send(P.encode(msg))
+            self._control(msg)
             return
         if msg.scenario_hash != self.scenario.hash:
             reason = (f"scenario mismatch: the server runs {self.scenario.name!r} "
@@ -373,6 +377,39 @@ class WorldServer:
             scenario=self.scenario.name, scenario_hash=self.scenario.hash, mode=self.opt.mode,
             dt=self.world.dt, nu=int(self.world.model.nu), session=self.session)))
         self._publish()
+
+    def _control(self, msg: P.Control) -> None:
+        """A control op: echoed when done, answered with ``error`` and its reason when refused
+        (an unknown or robot body to move); either way logged."""
+        if msg.op == "move":
+            try:
+                event = self.world.move_object(msg.object, msg.pos, msg.quat)
+            except ValueError as exc:
+                log.warning("control move refused: %s", exc)
+                self.log.event("control_refused", op=msg.op, object=msg.object, reason=str(exc))
+                self.rep.send(P.encode(P.Error(reason=f"move refused: {exc}")))
+                return
+            log.info("disturbance: %s moved by a control op at t=%.2f s", msg.object, event["time"])
+            self.log.event("control", op=msg.op, object=msg.object)
+            self.log.event("disturbance", **event)
+            # a new state: a lock-step world waits for the command answering the moved one
+            self.seq += 1
+            self._publish()
+        else:
+            self.log.event("control", op=msg.op)
+        if msg.op == "shutdown":
+            self._stop = True
+            self.world.status = "stopped"
+        elif msg.op == "reset":
+            self.world.reset()
+            self.seq += 1
+            self._publish()
+        elif msg.op in ("pause", "resume"):
+            if self._paused != (msg.op == "pause"):
+                log.info("world %s at t=%.2f s", "paused" if msg.op == "pause" else "resumed",
+                         self.world.data.time)
+            self._paused = msg.op == "pause"
+        self.rep.send(P.encode(msg))
 
     def close(self) -> None:
         for m in self.monitors.values():

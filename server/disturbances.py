@@ -37,17 +37,23 @@ class ObjectHandle:
     def pos(self, data: mujoco.MjData) -> np.ndarray:
         return data.mocap_pos[self.mocap] if self.mocap >= 0 else data.qpos[self.qpos:self.qpos + 3]
 
-    def set(self, data: mujoco.MjData, pos=None, yaw: float | None = None) -> None:
+    def set(self, data: mujoco.MjData, pos=None, yaw: float | None = None, quat=None) -> None:
+        """Move to ``pos`` and turn to ``yaw`` (degrees about z) or ``quat`` (w, x, y, z,
+        normalised here); a free object's velocity is zeroed."""
+        if quat is not None:
+            quat = np.asarray(quat, float) / np.linalg.norm(quat)
+        elif yaw is not None:
+            quat = _yaw_quat(yaw)
         if self.mocap >= 0:
             if pos is not None:
                 data.mocap_pos[self.mocap] = pos
-            if yaw is not None:
-                data.mocap_quat[self.mocap] = _yaw_quat(yaw)
+            if quat is not None:
+                data.mocap_quat[self.mocap] = quat
             return
         if pos is not None:
             data.qpos[self.qpos:self.qpos + 3] = pos
-        if yaw is not None:
-            data.qpos[self.qpos + 3:self.qpos + 7] = _yaw_quat(yaw)
+        if quat is not None:
+            data.qpos[self.qpos + 3:self.qpos + 7] = quat
         data.qvel[self.dof:self.dof + 6] = 0.0
 
 

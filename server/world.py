@@ -19,7 +19,7 @@ from shared.protocol import State
 from shared.robots import get_robot
 from shared.scenario import Scenario
 from shared.scene import compile_model, reset_data
-from server.disturbances import Disturbances
+from server.disturbances import Disturbances, ObjectHandle
 
 
 @dataclass
@@ -65,6 +65,27 @@ class SimWorld:
         self._success_since: float | None = None
         if self.battery:
             self.extras["battery"] = self.battery.initial
+
+    def move_object(self, name: str, pos, quat=None) -> dict:
+        """Put scenario object ``name`` at ``pos`` (and ``quat``, w x y z) now, as a user's
+        disturbance (``control`` op ``move``); returns the event to log. A ValueError says why
+        not: a robot body, the arena, or a name the scenario does not have."""
+        objects = [o.name for o in self.scenario.world.objects]
+        if name not in objects:
+            known = any(mujoco.mj_name2id(self.model, kind, name) >= 0
+                        for kind in (mujoco.mjtObj.mjOBJ_BODY, mujoco.mjtObj.mjOBJ_GEOM))
+            what = (f"{name!r} is part of the robot or the arena, not a scenario object"
+                    if known else f"unknown object {name!r}")
+            raise ValueError(f"{what}; objects that can be moved: {', '.join(objects) or 'none'}")
+        pos = np.asarray(pos, float)
+        if pos.shape != (3,) or not np.all(np.isfinite(pos)):
+            raise ValueError(f"object {name!r}: pos must be 3 finite numbers, got {pos.tolist()}")
+        ObjectHandle(self.model, name).set(self.data, pos, quat=quat)
+        mujoco.mj_forward(self.model, self.data)
+        event = {"object": name, "pos": pos.tolist(), "time": float(self.data.time), "source": "control"}
+        if quat is not None:
+            event["quat"] = (np.asarray(quat, float) / np.linalg.norm(quat)).tolist()
+        return event
 
     def safe_command(self) -> np.ndarray:
         """The robot's safe control, its ``hold_ctrl`` actuators kept at their last command."""

@@ -144,7 +144,8 @@ class Command:
 class Diagnostics:
     """Planner -> viewers (PUB): what the planner is thinking, for viewers and recorders.
 
-    ``top`` are the positions ([M, T, 3]) of the best sampled trajectories' robot frame.
+    ``top`` are the positions ([M, T, 3]) of the best sampled trajectories' robot frame;
+    ``top_modes`` ([M], optional) the index in ``mode_names`` of each one's mode.
     """
     seq: int
     action: str
@@ -155,6 +156,7 @@ class Diagnostics:
     plan_time: float
     lead: float = 0.0         # world s the plan was predicted ahead of the state (its expected lag)
     steps: int = 0            # world steps since the state the previous plan answered
+    top_modes: np.ndarray | None = None
     type = "diagnostics"
 
 
@@ -167,8 +169,14 @@ class Error:
 
 @dataclass
 class Control:
-    """Launcher/tools -> server (control socket): ``reset`` the episode or ``shutdown``."""
+    """Launcher/tools -> server (control socket): ``reset`` the episode, ``shutdown``,
+    ``pause`` / ``resume`` the world's clock, or ``move`` a scenario object to ``pos [3]``
+    (world frame, m) and optionally ``quat [4]`` (w, x, y, z): a disturbance from a tool such as
+    ``m3p2i view``. The world echoes an accepted op and answers ``error`` with the reason else."""
     op: str
+    object: str | None = None
+    pos: np.ndarray | None = None
+    quat: np.ndarray | None = None
     type = "control"
 
 
@@ -189,13 +197,15 @@ _SCHEMA: dict[str, dict[str, tuple[str, bool]]] = {
     "diagnostics": {"seq": ("int", True), "action": ("str", True), "alternatives": ("strlist", True),
                     "mode_names": ("strlist", True), "mode_weights": ("array", True),
                     "top": ("array", True), "plan_time": ("float", True),
-                    "lead": ("float", False), "steps": ("int", False)},
+                    "lead": ("float", False), "steps": ("int", False),
+                    "top_modes": ("array", False)},
     "error": {"reason": ("str", True)},
-    "control": {"op": ("str", True)},
+    "control": {"op": ("str", True), "object": ("str", False), "pos": ("array", False),
+                "quat": ("array", False)},
 }
 _STATUSES = {"running", "success", "timeout", "stopped"}
 _MODES = {"lockstep", "realtime"}
-_OPS = {"reset", "shutdown"}
+_OPS = {"reset", "shutdown", "pause", "resume", "move"}
 
 
 def encode(msg: Any) -> bytes:
@@ -300,14 +310,18 @@ def _check_values(msg: Any) -> None:
         raise ProtocolError(f"state.status: {msg.status!r} (expected one of {sorted(_STATUSES)})")
     if isinstance(msg, Welcome) and msg.mode not in _MODES:
         raise ProtocolError(f"welcome.mode: {msg.mode!r} (expected one of {sorted(_MODES)})")
-    if isinstance(msg, Control) and msg.op not in _OPS:
-        raise ProtocolError(f"control.op: {msg.op!r} (expected one of {sorted(_OPS)})")
+    if isinstance(msg, Control):
+        _check_control(msg)
     if isinstance(msg, (State, Command)) and msg.seq < 0:
         raise ProtocolError(f"{msg.type}.seq must be >= 0")
     if isinstance(msg, Command):
         if msg.ctrl.ndim != 1:
             raise ProtocolError(f"command.ctrl: expected shape [nu], got {list(msg.ctrl.shape)}")
         _check_plan(msg)
+    if isinstance(msg, Diagnostics) and msg.top_modes is not None and \
+            msg.top_modes.shape != msg.top.shape[:1]:
+        raise ProtocolError(f"diagnostics.top_modes: expected shape [{msg.top.shape[0]}] (one "
+                            f"per trajectory of top), got {list(msg.top_modes.shape)}")
     if isinstance(msg, State) and msg.lag < 0:
         raise ProtocolError("state.lag must be >= 0")
 
@@ -323,3 +337,22 @@ def _check_plan(cmd: Command) -> None:
                             f"(nu of ctrl), got {list(cmd.plan_ctrl.shape)}")
     if cmd.plan_dt <= 0:
         raise ProtocolError(f"command.plan_dt must be > 0, got {cmd.plan_dt}")
+
+
+def _check_control(msg: Control) -> None:
+    """``move`` needs ``object`` and ``pos [3]`` (``quat [4]``, non-zero, optional); the other
+    ops carry none of them (a stray field means a confused sender)."""
+    if msg.op not in _OPS:
+        raise ProtocolError(f"control.op: {msg.op!r} (expected one of {sorted(_OPS)})")
+    if msg.op != "move":
+        extra = [n for n in ("object", "pos", "quat") if getattr(msg, n) is not None]
+        if extra:
+            raise ProtocolError(f"control.op {msg.op!r} takes no {', '.join(extra)} (only 'move' does)")
+        return
+    if not msg.object or msg.pos is None:
+        raise ProtocolError("control.op 'move' needs 'object' (a scenario object's name) and 'pos' [3]")
+    if msg.pos.shape != (3,):
+        raise ProtocolError(f"control.pos: expected shape [3] (x, y, z in m), got {list(msg.pos.shape)}")
+    if msg.quat is not None and (msg.quat.shape != (4,) or not np.linalg.norm(msg.quat) > 1e-9):
+        raise ProtocolError(f"control.quat: expected a non-zero quaternion [4] (w, x, y, z), got "
+                            f"{np.asarray(msg.quat).tolist()}")

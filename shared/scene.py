@@ -70,6 +70,28 @@ def initial_data(scenario: Scenario, model: mujoco.MjModel) -> mujoco.MjData:
     return data
 
 
+def scene_framing(model: mujoco.MjModel, data: mujoco.MjData) -> tuple[np.ndarray, float]:
+    """Centre ``[3]`` and radius of what a camera should frame, after kinematics: every geom
+    by its bounding sphere, a wall (a plane not facing up) by its drawn size; the ground (a
+    plane facing up) is left out, or a Panda on its table would be a speck on 10 m of floor."""
+    lo, hi = np.full(3, np.inf), np.full(3, -np.inf)
+    for g in range(model.ngeom):
+        pos, rot = data.geom_xpos[g], data.geom_xmat[g].reshape(3, 3)
+        if model.geom_type[g] == mujoco.mjtGeom.mjGEOM_PLANE:
+            if rot[2, 2] > 0.99:
+                continue
+            sx, sy = model.geom_size[g][:2]
+            corners = np.array([[x, y, 0.0] for x in (-sx, sx) for y in (-sy, sy)])
+            points = corners @ rot.T + pos
+        else:
+            r = model.geom_rbound[g]
+            points = np.array([pos - r, pos + r])
+        lo, hi = np.minimum(lo, points.min(0)), np.maximum(hi, points.max(0))
+    if not np.all(np.isfinite(lo)):
+        return np.zeros(3), 1.0
+    return (lo + hi) / 2, max(float(np.linalg.norm(hi - lo)) / 2, 0.1)
+
+
 def _add_arena(world, arena) -> None:
     """Four walls as planes facing inward at ±half_size.
 
@@ -79,13 +101,15 @@ def _add_arena(world, arena) -> None:
     """
     h, z = arena.half_size, arena.wall_height
     r = math.sqrt(0.5)
-    # quaternions turn each plane's normal (+z) to point into the arena
-    for name, pos, quat in (("wall_north", [0, h, z], [r, r, 0, 0]),
-                            ("wall_south", [0, -h, z], [r, -r, 0, 0]),
-                            ("wall_east", [h, 0, z], [r, 0, -r, 0]),
-                            ("wall_west", [-h, 0, z], [r, 0, r, 0])):
+    # quaternions turn each plane's normal (+z) to point into the arena; the drawn size is
+    # (along the wall, up) in the plane's own x, y: the east and west walls' turn about y takes
+    # the plane's x upwards, so their sizes swap (else they are drawn 8 m tall, 0.6 m wide)
+    for name, pos, quat, size in (("wall_north", [0, h, z], [r, r, 0, 0], [h, z]),
+                                  ("wall_south", [0, -h, z], [r, -r, 0, 0], [h, z]),
+                                  ("wall_east", [h, 0, z], [r, 0, -r, 0], [z, h]),
+                                  ("wall_west", [-h, 0, z], [r, 0, r, 0], [z, h])):
         body = world.add_body(name=name, pos=pos, quat=quat)
-        body.add_geom(name=name, type=mujoco.mjtGeom.mjGEOM_PLANE, size=[h, z, 0.1],
+        body.add_geom(name=name, type=mujoco.mjtGeom.mjGEOM_PLANE, size=[*size, 0.1],
                       rgba=[0.45, 0.45, 0.5, 1.0])
 
 

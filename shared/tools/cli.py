@@ -71,6 +71,9 @@ def run(
     run_dir: Optional[Path] = typer.Option(None, help="Where logs go (default runs/<scenario>-<time>)."),
     timeout: float = typer.Option(900.0, help="Wall-clock seconds before the run is abandoned."),
     viewer: bool = typer.Option(False, help="Open the MuJoCo viewer on the server."),
+    view: bool = typer.Option(False, "--view", help="Serve the browser view (m3p2i view) of the "
+                              "episode and print its URL; needs m3p2i[view]."),
+    view_port: int = typer.Option(0, help="With --view: the page's port (0: a free one)."),
     seed: int = typer.Option(0, help="Seed of the randomised start and of the planner's sampling."),
     verbose: bool = typer.Option(False, "--verbose", "-v", help="Show both processes' output."),
     keys: Optional[Path] = typer.Option(None, help="CURVE key folder (m3p2i keys DIR): both "
@@ -81,9 +84,15 @@ def run(
     _keys_or_exit(keys)
     run_dir = run_dir or default_run_dir(sc.name)
     typer.echo(f"running {sc.name} ({mode}); logs in {run_dir}")
-    result = run_episode(EpisodeLaunch(scenario=sc.source, run_dir=run_dir, seed=seed, mode=mode,
-                                       port=port, timeout=timeout, viewer=viewer, verbose=verbose,
-                                       plan_every=plan_every, keys=keys))
+    try:
+        result = run_episode(EpisodeLaunch(scenario=sc.source, run_dir=run_dir, seed=seed,
+                                           mode=mode, port=port, timeout=timeout, viewer=viewer,
+                                           verbose=verbose, plan_every=plan_every, view=view,
+                                           view_port=view_port, keys=keys),
+                             on_view=lambda url: typer.echo(f"view: {url}"))
+    except RuntimeError as exc:      # the view could not serve its page
+        typer.echo(f"error: {exc}", err=True)
+        raise typer.Exit(2) from None
     if result.reason == "timeout":
         typer.echo(f"error: no outcome within {timeout:.0f} s; stopping", err=True)
     elif result.reason == "interrupted":
@@ -288,6 +297,65 @@ def record(
         typer.echo(f"error: {exc}", err=True)
         raise typer.Exit(1) from None
     typer.echo(f"wrote {out}")
+
+
+@app.command("view")
+def view(
+    scenario: Optional[str] = typer.Argument(None, help="Scenario the world runs (name or path), "
+                                             "for a live view; leave out with --log."),
+    log: Optional[Path] = typer.Option(None, help="Replay this episode log (or run folder) "
+                                       "instead: a time slider, the actions, the metrics."),
+    host: str = typer.Option("127.0.0.1", help="Address of the world and the planner."),
+    port: int = typer.Option(5555, help="The world's first port (as m3p2i-server --port); the "
+                             "state is on PORT+1, the planner's diagnostics on PORT+3."),
+    view_port: int = typer.Option(8080, help="Port of the page (the next free one if taken)."),
+    public: bool = typer.Option(False, "--public", help="Serve the page on every network "
+                                "interface, not only loopback. Anyone who reaches it can pause, "
+                                "reset and disturb the world: only on a network you trust."),
+    record: Optional[Path] = typer.Option(None, help="Live: also write the planner's diagnostics "
+                                          "(trajectories, mode weights) to this file, for a replay "
+                                          "(as diagnostics.jsonl beside the episode log)."),
+    duration: Optional[float] = typer.Option(None, help="Stop after this many seconds "
+                                             "(default: until Ctrl-C)."),
+    keys: Optional[Path] = typer.Option(None, help="CURVE key folder of the planner's side "
+                                        "(m3p2i keys DIR), for a world and planner run with "
+                                        "--keys: the view connects with the planner's key pair."),
+) -> None:
+    """Show a world and its planner in a browser: the scene from the scenario's model, the
+    planner's best sampled trajectories coloured by mode, the executed path, the action and its
+    alternatives, mode weights, rates, battery; pause, resume, reset, and drag objects to disturb
+    the world. Read-only otherwise: the planner never waits for it.
+
+    Live: `m3p2i view pick_place --port 5555` beside a running server and planner (or
+    `m3p2i run pick_place --view`). Replay: `m3p2i view --log runs/pick_place-.../`."""
+    from shared.endpoints import Endpoints
+    from shared.tools import view as V
+    if (scenario is None) == (log is None):
+        typer.echo("error: give a SCENARIO for a live view, or --log to replay an episode", err=True)
+        raise typer.Exit(2)
+    bind = "0.0.0.0" if public else "127.0.0.1"
+    try:
+        if log is not None:
+            try:
+                shown = V.ReplayView(V.load_replay(log), bind, view_port)
+            except (ConfigError, FileNotFoundError, ValueError) as exc:
+                typer.echo(f"error: {exc}", err=True)
+                raise typer.Exit(2) from None
+        else:
+            sc = _load_or_exit(scenario)
+            shown = V.LiveView(sc, Endpoints(host, port), bind, view_port, record=record,
+                               keys=_keys_or_exit(keys))
+    except ImportError as exc:
+        typer.echo(f"error: {exc}", err=True)
+        raise typer.Exit(2) from None
+    typer.echo(f"view: {shown.url}")
+    sys.stdout.flush()
+    try:
+        shown.serve(duration)
+    except KeyboardInterrupt:
+        pass
+    finally:
+        shown.close()
 
 
 def _keys_or_exit(keys: Optional[Path]):

@@ -11,6 +11,9 @@ import subprocess
 import sys
 import threading
 import time
+import urllib.error
+import urllib.request
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -83,6 +86,8 @@ class EpisodeLaunch:
     plan_every: int = 1             # lockstep: world steps per command (emulates a slow planner)
     viewer: bool = False
     verbose: bool = False           # children write to this terminal instead of log files
+    view: bool = False              # serve the browser view (m3p2i view) beside the episode
+    view_port: int = 0              # its page's port (0: a free one)
     keys: Path | None = None        # CURVE key folder (m3p2i keys): both processes use it
 
     def commands(self, port: int) -> dict[str, list[str]]:
@@ -100,10 +105,20 @@ class EpisodeLaunch:
             planner += ["--threads", str(self.threads)]
         return {"server": server, "planner": planner}
 
+    def view_command(self, port: int, view_port: int) -> list[str]:
+        """The browser view of this episode: it also records the planner's diagnostics beside
+        the episode log, so that ``m3p2i view --log`` replays the trajectories too."""
+        cmd = [sys.executable, "-m", "shared.tools", "view", self.scenario, "--port", str(port),
+               "--view-port", str(view_port), "--record", str(self.run_dir / "diagnostics.jsonl")]
+        return cmd + (["--keys", str(self.keys)] if self.keys is not None else [])
 
-def run_episode(launch: EpisodeLaunch, stop: threading.Event | None = None) -> EpisodeRun:
-    """Run one episode to its end, its time-out, a planner crash, Ctrl-C or ``stop``; both
-    processes are always gone on return (terminated, then killed after 5 s)."""
+
+def run_episode(launch: EpisodeLaunch, stop: threading.Event | None = None,
+                on_view: Callable[[str], None] | None = None) -> EpisodeRun:
+    """Run one episode to its end, its time-out, a planner crash, Ctrl-C or ``stop``; all
+    processes are always gone on return (terminated, then killed after 5 s). With
+    ``launch.view`` the browser view starts first (so it sees the episode from its first state)
+    and ``on_view`` gets its URL once the page is served."""
     launch.run_dir.mkdir(parents=True, exist_ok=True)
     port = launch.port or free_port_block()
     log_path = launch.run_dir / "episode.jsonl"
@@ -111,6 +126,16 @@ def run_episode(launch: EpisodeLaunch, stop: threading.Event | None = None) -> E
     reason = ""
     started = time.monotonic()
     try:
+        if launch.view:
+            view_port = launch.view_port or free_port_block(count=1)
+            out = None if launch.verbose else (launch.run_dir / "view.log").open("w")
+            outs["view"] = out
+            procs["view"] = subprocess.Popen(launch.view_command(port, view_port), stdout=out,
+                                             stderr=subprocess.STDOUT if out else None)
+            url = f"http://{DEFAULT_HOST}:{view_port}/"
+            wait_served(url, procs["view"], launch.run_dir / "view.log")
+            if on_view is not None:
+                on_view(url)
         for name, cmd in launch.commands(port).items():
             out = None if launch.verbose else (launch.run_dir / f"{name}.log").open("w")
             outs[name] = out
@@ -137,6 +162,24 @@ def run_episode(launch: EpisodeLaunch, stop: threading.Event | None = None) -> E
                 out.close()
     return EpisodeRun(log_path=log_path, summary=read_summary(log_path), reason=reason,
                       wall_time=time.monotonic() - started)
+
+
+def wait_served(url: str, proc: subprocess.Popen, log_file: Path, timeout: float = 120.0) -> None:
+    """Return once ``url`` answers HTTP 200; RuntimeError if ``proc`` exits first (its log
+    named) or after ``timeout`` seconds."""
+    end = time.monotonic() + timeout
+    while time.monotonic() < end:
+        if proc.poll() is not None:
+            raise RuntimeError(f"the view exited with code {proc.returncode} before serving "
+                               f"its page; see {log_file}")
+        try:
+            with urllib.request.urlopen(url, timeout=2) as reply:
+                if reply.status == 200:
+                    return
+        except (urllib.error.URLError, OSError):
+            pass
+        time.sleep(0.2)
+    raise RuntimeError(f"the view did not serve {url} within {timeout:.0f} s; see {log_file}")
 
 
 def stop_processes(procs) -> None:
