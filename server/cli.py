@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import logging
 import os
+import signal
 from pathlib import Path
 from typing import Optional
 
@@ -74,9 +75,16 @@ def main(
             server.viewer = mujoco.viewer.launch_passive(server.world.model, server.world.data)
         else:
             log.warning("no display found: running without the viewer")
+    # a supervisor (systemd, the launcher's stop, a soak test's restart) stops the world with
+    # SIGTERM: end the episode as Ctrl-C does, so the log still gets its summary
+    signal.signal(signal.SIGTERM, _interrupt)
     outcome = server.run()
     if server.viewer is not None:
         server.viewer.close()
     typer.echo(summary_line(outcome.status, outcome.time, outcome.measures))
     typer.echo(f"episode log: {log_file}")
     raise typer.Exit(0 if outcome.status == "success" else 1)
+
+
+def _interrupt(signum, frame) -> None:
+    raise KeyboardInterrupt(f"signal {signum}")
