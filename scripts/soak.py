@@ -403,8 +403,8 @@ class Soak:
         for p in (self.world, self.planner):
             if p.driving_from is None:
                 first = first_driven_after(self.steps_since(p.active), p.active)
-                if first is not None:
-                    p.driving_from = first["wall"] + 5.0   # after warm-up
+                if first is not None:   # after warm-up (the planner's first iterations allocate)
+                    p.driving_from = first["wall"] + (5.0 if p.role == "planner" else 1.0)
         if self.world.popen.poll() is not None and self.world.returncode is None:
             self.world.returncode = self.world.popen.returncode
             if len(self.worlds) < self.cfg.max_episodes and not self.closing:
@@ -693,10 +693,12 @@ def main(
                              "garbage) and of the worlds' and planners' seeds."),
     scenario: str = typer.Option("navigation", help="Scenario name or YAML path."),
     command_timeout: float = typer.Option(0.5, help="The world's --command-timeout (s)."),
-    takeover: float = typer.Option(3.0, help="Bound (s) from a replacement planner's start (or "
-                                   "SIGCONT, or a new world's start) to its first applied command."),
+    takeover: float = typer.Option(3.0, help="Bound (s) to the first step driven by a new "
+                                   "command: from a planner's SIGKILL (its hot spare is told to "
+                                   "go at once), a SIGCONT, a new world's start, a flood's end."),
     rss_bound: float = typer.Option(50.0, help="Allowed resident-memory growth per process "
-                                    "(MiB), from 5 s after it first drove the robot to its end."),
+                                    "(MiB), from 5 s (a planner) or 1 s (a world) after it first "
+                                    "drove the robot, or was driven, to its end."),
     gap_min: float = typer.Option(4.0, help="Least seconds between two faults."),
     gap_max: float = typer.Option(10.0, help="Most seconds between two faults."),
     out: Optional[Path] = typer.Option(None, help="Folder for the episode logs and process "
@@ -704,15 +706,18 @@ def main(
     results: Optional[Path] = typer.Option(None, help="Results JSON (default OUT/soak.json)."),
     report: Optional[Path] = typer.Option(None, help="Only print the table of this results "
                                           "file (no run)."),
-    update_file: Optional[Path] = typer.Option(None, "--update", help="With --report: "
-                                               "regenerate the '<!-- soak PATH -->' blocks of "
-                                               "this Markdown file from their results files."),
+    update_file: Optional[Path] = typer.Option(None, "--update", help="Regenerate the "
+                                               "'<!-- soak PATH -->' blocks of this Markdown "
+                                               "file from their results files (no run)."),
 ) -> None:
     """Run real-time episodes back to back under injected faults (planner SIGKILL and
     replacement, world restart, command-socket garbage, planner SIGSTOP past the command
     time-out) and check that the robot was never driven by a stale command, replacements took
     over in time, the world never died, every log is complete, and memory stayed bounded.
-    Exit status 0 only when every check holds."""
+    Exit status 0 only when every check holds; 2 for bad options.
+
+    Example: nice -n 10 python scripts/soak.py --duration 600 --results docs/soak/soak-600s.json;
+    then python scripts/soak.py --report docs/soak/soak-600s.json --update README.md"""
     if report is not None or update_file is not None:
         if update_file is not None:
             update_file.write_text(update(update_file.read_text(), update_file.parent))
