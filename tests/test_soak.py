@@ -14,7 +14,7 @@ from pathlib import Path
 import pytest
 
 from server.episode_log import read_log
-from tests.helpers import ENV, free_port_block, start_server, stop, wait_until
+from tests.helpers import ENV, StateWatcher, free_port_block, start_server, stop
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -140,11 +140,13 @@ def test_world_writes_its_summary_on_sigterm(tmp_path):
     port = free_port_block()
     log = tmp_path / "episode.jsonl"
     server = start_server("navigation", port, log, "--mode", "realtime")
+    watcher = StateWatcher(port)
     try:
-        assert wait_until(lambda: log.is_file() and read_log(log), timeout=60), "no log header"
+        watcher.latest(timeout=60)            # serving: its episode loop runs
         server.send_signal(signal.SIGTERM)
         out, _ = server.communicate(timeout=15)
     finally:
+        watcher.close()
         stop(server)
     assert server.returncode == 1, out
     records = read_log(log)
