@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+from collections.abc import Callable
 
 import torch
 
@@ -46,7 +47,13 @@ def build_task(scenario: Scenario, planner: MotionPlanner) -> TaskLayer:
 
 
 def build_client(scenario: Scenario, endpoints: Endpoints, threads: int = 0,
-                 seed: int | None = None, **options) -> PlannerClient:
+                 seed: int | None = None, before_connect: Callable[[], None] | None = None,
+                 **options) -> PlannerClient:
+    """The planner client of ``scenario``; ``before_connect`` runs once the planner and task
+    are built (the slow part: imports, model compilation) and before any socket is opened:
+    a hot spare waits there."""
     planner = build_motion_planner(scenario, threads, seed)
     task = build_task(scenario, planner)
+    if before_connect is not None:
+        before_connect()
     return PlannerClient(planner, task, endpoints, scenario.name, scenario.hash, **options)

@@ -215,12 +215,13 @@ class WorldServer:
                     self.player.clear()
                 stale = not fresh
                 ctrl, source = self._playing() if fresh else (None, -1)
+                cmd_age = now - latest_at if latest_at > -np.inf else None
                 if ctrl is None and source >= 0 and source != ended:
                     ended = source
                     log.warning("the plan of state %d ran out at t=%.2f s: safe control until "
                                 "the next", source, self.world.data.time)
                     self.log.event("plan_ended", seq=source, time=float(self.world.data.time))
-                self._apply(ctrl, source)
+                self._apply(ctrl, source, cmd_age=cmd_age)
                 next_tick += period
                 if now - next_tick > 10 * period:   # fell far behind (debugger, load): resync
                     next_tick = now
@@ -262,11 +263,15 @@ class WorldServer:
             self.action_changes.append((float(self.world.data.time), action))
             self.log.event("action", time=float(self.world.data.time), action=action)
 
-    def _apply(self, ctrl: np.ndarray | None, source: int = -1, publish: bool = True) -> None:
+    def _apply(self, ctrl: np.ndarray | None, source: int = -1, publish: bool = True,
+               cmd_age: float | None = None) -> None:
         """One world step under ``ctrl`` (None: the safe control), planned from state
         ``source`` (-1: none); the step's log record has the control's age (world seconds since
         that state) and source, from which shared.evaluation.timing tells whether the planner
-        kept up."""
+        kept up. Real time also records ``cmd_age``: wall seconds from the newest command's
+        arrival to the moment this step's control was chosen (what the stale-command watchdog
+        compares with ``command_timeout``; None before the first command and in lock-step), so
+        a soak test can prove from the log that no stale command drove the robot."""
         d = self.world.data
         source = source if ctrl is not None else -1
         age = float(d.time) - self._state_times.get(source, float(d.time)) if source >= 0 else 0.0
@@ -282,7 +287,7 @@ class WorldServer:
         self.log.write("step", seq=self.seq, time=float(d.time), qpos=d.qpos, qvel=d.qvel,
                        act=d.act, mocap_pos=d.mocap_pos, mocap_quat=d.mocap_quat, ctrl=d.ctrl,
                        action=self._action, safe=ctrl is None, plan_seq=source, age=age,
-                       plan_time=plan_time, extras=self.world.extras)
+                       plan_time=plan_time, cmd_age=cmd_age, extras=self.world.extras)
         if self.viewer is not None:
             self.viewer.sync()
         if publish:

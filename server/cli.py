@@ -5,6 +5,7 @@ from __future__ import annotations
 import logging
 import math
 import os
+import signal
 from pathlib import Path
 from typing import Optional
 
@@ -95,6 +96,9 @@ def main(
             frame_viewer(server.viewer, server.world.model, server.world.data)
         else:
             log.warning("no display found: running without the viewer")
+    # a supervisor (systemd, the launcher's stop, a soak test's restart) stops the world with
+    # SIGTERM: end the episode as Ctrl-C does, so the log still gets its summary
+    signal.signal(signal.SIGTERM, _interrupt)
     outcome = server.run()
     if server.viewer is not None:
         server.viewer.close()
@@ -125,3 +129,7 @@ def _security(hosts: dict[str, str], keys: Optional[Path], insecure: bool):
     except (ExposureError, ConfigError) as exc:
         typer.echo(f"error: {exc}", err=True)
         raise typer.Exit(2) from None
+
+
+def _interrupt(signum, frame) -> None:
+    raise KeyboardInterrupt(f"signal {signum}")

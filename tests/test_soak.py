@@ -1,0 +1,172 @@
+"""The soak and fault test (scripts/soak.py): its checks catch each fault they claim to, the world
+closes its log on SIGTERM (how the soak restarts it), and a 60 s soak of real-time episodes
+under every kind of fault passes every check."""
+
+from __future__ import annotations
+
+import importlib.util
+import json
+import signal
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from server.episode_log import read_log
+from tests.helpers import ENV, StateWatcher, free_port_block, start_server, stop
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def _load_soak():
+    spec = importlib.util.spec_from_file_location("soak_script", ROOT / "scripts" / "soak.py")
+    module = importlib.util.module_from_spec(spec)
+    sys.modules["soak_script"] = module      # dataclasses look their module up by name
+    spec.loader.exec_module(module)
+    return module
+
+
+soak = _load_soak()
+CFG = soak.SoakConfig(command_timeout=0.5, takeover=3.0, slack=0.25, rss_bound=50.0)
+
+
+def _step(wall, safe=False, cmd_age=0.05, ctrl=(0.5, 0.5)):
+    return {"kind": "step", "wall": wall, "safe": safe, "cmd_age": cmd_age, "ctrl": list(ctrl)}
+
+
+def _clean():
+    """A world held still from 100.8 s (killed planner at 100.0, time-out 0.5 s) until the
+    replacement's first command drives it at 101.5 s; a flood's garbage all rejected."""
+    steps = [_step(99.0 + 0.05 * i) for i in range(20)]                 # driven
+    steps += [_step(100.55 + 0.05 * i, safe=True, cmd_age=None if i % 2 else 0.6)
+              for i in range(19)]                                        # held still
+    steps += [_step(101.5 + 0.05 * i) for i in range(10)]                # replacement drives
+    world = {"role": "world", "log": "episode-0001.jsonl", "steps": steps, "complete": True,
+             "returncode": 0, "stopped_on_purpose": False, "rejected": 150, "rss_growth": 1.0}
+    kill = soak.Fault("kill", at=100.0, world=1, outage=100.0, resumed=100.01, recovered=101.5)
+    flood = soak.Fault("flood", at=102.0, world=1, resumed=102.1, recovered=102.2)
+    planners = [{"role": "planner", "rss_growth": 2.0}]
+    sent = {"floods": 1, "frames": 200, "rejectable": 150, "wrong_session": 50}
+    return [kill, flood], [world], planners, sent
+
+
+def _verdicts(faults, worlds, planners, sent):
+    return {c.name: c.ok for c in soak.evaluate(CFG, faults, worlds, planners, sent)}
+
+
+def test_soak_checks_pass_a_clean_run():
+    verdicts = _verdicts(*_clean())
+    assert all(verdicts.values()), verdicts
+
+
+def _stale(faults, worlds, planners, sent):
+    worlds[0]["steps"][5]["cmd_age"] = 0.51
+
+
+def _driven_while_down(faults, worlds, planners, sent):
+    worlds[0]["steps"][30].update(safe=False, cmd_age=0.05)   # 101.05 s: planner dead since 100.0 s
+
+
+def _slow_takeover(faults, worlds, planners, sent):
+    for s in worlds[0]["steps"][39:]:            # the replacement's first command 1.7 s later
+        s["wall"] += 1.7
+    faults[0].recovered = 103.2
+
+
+def _never_recovered(faults, worlds, planners, sent):
+    faults[1].recovered = None
+
+
+def _world_died(faults, worlds, planners, sent):
+    worlds[0]["returncode"] = -11
+
+
+def _torn_log(faults, worlds, planners, sent):
+    worlds[0]["complete"] = False
+
+
+def _forged_applied(faults, worlds, planners, sent):
+    worlds[0]["steps"][3]["ctrl"] = list(soak.FORGED_CTRL)
+
+
+def _garbage_unlogged(faults, worlds, planners, sent):
+    worlds[0]["rejected"] = 149
+
+
+def _memory_leak(faults, worlds, planners, sent):
+    planners[0]["rss_growth"] = 51.0
+
+
+@pytest.mark.parametrize("fault, check", [
+    (_stale, "no stale command applied"),
+    (_driven_while_down, "safe control while the planner was down"),
+    (_slow_takeover, "killed planner replaced within 3 s"),
+    (_never_recovered, "planner drove on after a flood within 3 s"),
+    (_world_died, "the world never died"),
+    (_torn_log, "every episode log complete with its summary"),
+    (_forged_applied, "garbage rejected, none applied"),
+    (_garbage_unlogged, "garbage rejected, none applied"),
+    (_memory_leak, "memory growth <= 50 MiB per process"),
+])
+def test_soak_checks_catch_each_violation(fault, check):
+    case = _clean()
+    fault(*case)
+    verdicts = _verdicts(*case)
+    assert not verdicts[check], verdicts
+    assert sum(not ok for ok in verdicts.values()) == 1, verdicts   # that one only
+
+
+def test_soak_table_is_rendered_into_its_markers(tmp_path):
+    faults, worlds, planners, sent = _clean()
+    results = {"checks": [c.__dict__ for c in soak.evaluate(CFG, faults, worlds, planners, sent)],
+               "faults": {"kill": {"injected": 1, "survived": 1}}, "episodes": {"success": 1},
+               "config": {"scenario": "navigation", "seed": 0}, "worlds": worlds, "steps": 49,
+               "command": "python scripts/soak.py --duration 1", "date": "2026-11-30 18:00 UTC",
+               "wall_s": 1.0, "machine": "test CPU, 2 cores"}
+    (tmp_path / "soak.json").write_text(json.dumps(results))
+    text = "intro\n<!-- soak soak.json -->\nold table\n<!-- end of soak -->\nrest\n"
+    new = soak.update(text, tmp_path)
+    assert "old table" not in new and new.startswith("intro\n") and new.endswith("rest\n")
+    assert "| no stale command applied | yes |" in new and "kill 1/1" in new
+    assert soak.update(new, tmp_path) == new          # regenerating changes nothing
+    with pytest.raises(Exception, match="no '<!-- soak PATH -->'"):
+        soak.update("no markers here", tmp_path)
+
+
+def test_world_writes_its_summary_on_sigterm(tmp_path):
+    """A supervisor (and the soak's world restart) stops the world with SIGTERM: the episode
+    log must still end with its summary, as after Ctrl-C."""
+    port = free_port_block()
+    log = tmp_path / "episode.jsonl"
+    server = start_server("navigation", port, log, "--mode", "realtime")
+    watcher = StateWatcher(port)
+    try:
+        watcher.latest(timeout=60)            # serving: its episode loop runs
+        server.send_signal(signal.SIGTERM)
+        out, _ = server.communicate(timeout=15)
+    finally:
+        watcher.close()
+        stop(server)
+    assert server.returncode == 1, out
+    records = read_log(log)
+    assert records[0]["kind"] == "header"
+    assert records[-1]["kind"] == "summary" and records[-1]["status"] == "stopped", records[-1]
+
+
+@pytest.mark.slow
+def test_sixty_second_soak_passes_every_check(tmp_path):
+    """Real-time navigation episodes for 60 s under every kind of fault (planner SIGKILL and
+    its hot spare, world restart, command-socket garbage, planner SIGSTOP past the time-out)."""
+    results = tmp_path / "soak.json"
+    run = subprocess.run([sys.executable, str(ROOT / "scripts" / "soak.py"), "--duration", "60",
+                          "--gap-min", "3", "--gap-max", "5", "--seed", "1",
+                          "--out", str(tmp_path / "logs"), "--results", str(results)],
+                         capture_output=True, text=True, timeout=400, env=ENV, cwd=ROOT)
+    assert run.returncode == 0, run.stdout[-6000:] + run.stderr[-3000:]
+    res = json.loads(results.read_text())
+    assert res["ok"] and all(c["ok"] for c in res["checks"]), res["checks"]
+    for kind, n in res["faults"].items():
+        assert n["injected"] >= 1 and n["survived"] == n["injected"], (kind, n)
+    assert res["episodes"].get("success", 0) >= 1, res["episodes"]
+    assert res["steps"] > 200
