@@ -80,11 +80,49 @@ def warp_limits(model: mujoco.MjModel) -> list[str]:
     if model.nv > 60 and model.opt.jacobian == mujoco.mjtJacobian.mjJAC_DENSE:
         problems.append(f"option jacobian mjJAC_DENSE with nv = {model.nv} (MJWarp: dense only "
                         "up to nv = 60; use sparse or auto)")
+    problems += _adhesion_with_distance_sensors(model)
     for part in _UNCOPIED_STATE:
         n = mujoco.mj_stateSize(model, getattr(mujoco.mjtState, f"mjSTATE_{part}"))
         if n:
             problems.append(f"{n} values of {part.lower()} state (the warp backend starts each "
                             f"rollout from {', '.join(p.lower() for p in COPIED_STATE)} only)")
+    return problems
+
+
+def _adhesion_with_distance_sensors(model: mujoco.MjModel) -> list[str]:
+    """Adhesion (body-transmission) actuators on a body that a distance sensor also measures.
+
+    MJWarp 4.0.0 adds the geom pairs of GEOMDIST/GEOMNORMAL/GEOMFROMTO sensors to its contact
+    buffer as distance-only entries, and its body transmission averages the adhesion force over
+    every contact of the body, those included. Measured on push_pull (the suction actuator on the
+    robot, four robot-wall distance sensors): 16 such entries beside the 2 real robot-box
+    contacts, so the box felt 11 N of the actuator's 100 N (MuJoCo: 100 N), and rollouts with
+    suction on drifted up to 0.35 m from mujoco.rollout's within 0.75 s.
+    """
+    O, S = mujoco.mjtObj, mujoco.mjtSensor
+    dist_types = {int(S.mjSENS_GEOMDIST), int(S.mjSENS_GEOMNORMAL), int(S.mjSENS_GEOMFROMTO)}
+
+    def bodies(objtype: int, objid: int) -> set[int]:
+        if objtype == int(O.mjOBJ_BODY):
+            return {objid}
+        if objtype == int(O.mjOBJ_GEOM):
+            return {int(model.geom_bodyid[objid])}
+        return set()
+
+    problems = []
+    for a in np.flatnonzero(model.actuator_trntype == int(mujoco.mjtTrn.mjTRN_BODY)):
+        body = int(model.actuator_trnid[a, 0])
+        sensors = [_name(model, O.mjOBJ_SENSOR, int(s), "sensor")
+                   for s in range(model.nsensor) if int(model.sensor_type[s]) in dist_types
+                   and body in bodies(int(model.sensor_objtype[s]), int(model.sensor_objid[s]))
+                   | bodies(int(model.sensor_reftype[s]), int(model.sensor_refid[s]))]
+        if sensors:
+            problems.append(
+                f"{_name(model, O.mjOBJ_ACTUATOR, int(a), 'actuator')} (adhesion on body "
+                f"{model.body(body).name!r}) with distance sensors of that body "
+                f"({', '.join(sensors)}): MJWarp counts the sensors' distance-only contacts in "
+                "the adhesion's average and weakens it (measured on push_pull: 11 N instead of "
+                "100 N)")
     return problems
 
 
