@@ -169,3 +169,11 @@ def test_warp_navigation_episode_succeeds_on_cpu(tmp_path):
     summary = read_log(log)[-1]
     assert summary["status"] == "success"
     assert summary["measures"]["distance robot-goal"] <= 0.1
+
+
+def test_planner_check_reports_warp_limits(tmp_path):
+    """m3p2i check / m3p2i-planner --check meet the limits before anything starts."""
+    from planner_client.check import scenario_errors
+    errors = scenario_errors(_scenario_with(tmp_path, "push_pull", backend="warp", device="cpu"))
+    assert [e.path for e in errors] == ["planner.backend"] and "suction" in str(errors[0])
+    assert scenario_errors(_scenario_with(tmp_path, "navigation", backend="warp")) == []

@@ -31,7 +31,8 @@ from planner_client.backends.warp_limits import buffer_sizes, check_warp
 log = logging.getLogger("m3p2i.planner")
 
 
-def _import_warp(source: str):
+def import_warp(source: str = ""):
+    """``(warp, mujoco_warp)``, or a :class:`ConfigError` saying to install m3p2i[gpu]."""
     try:
         import warp as wp
         import mujoco_warp as mjw
@@ -73,7 +74,7 @@ class WarpBackend:
     def __init__(self, model: mujoco.MjModel, *, samples: int = 0, horizon: int = 0,
                  device: str = "cuda:0", nconmax: int | None = None, njmax: int | None = None,
                  source: str = ""):
-        wp, mjw = _import_warp(source)
+        wp, mjw = import_warp(source)
         self._wp, self._mjw = wp, mjw
         check_warp(model, source)
         try:
