@@ -58,7 +58,7 @@ class MotionPlanner:
                           device=self.device)
         self.modes = list(modes)
         self._step_costs: torch.Tensor | None = None
-        self.last_samples: np.ndarray | None = None     # [S, T, nu] of the last iterate()
+        self._last_V: torch.Tensor | None = None         # [S, T, nu] of the last iterate()
 
     def _mode(self, name: str) -> ModeSpec:
         return ModeSpec(name=name, samples=self.samples, fixed=self.problem.objectives[name].fixed)
@@ -73,7 +73,7 @@ class MotionPlanner:
         """One iteration from the full physics state ``x0 [nstate]`` and the mocap bodies'
         ``mocap`` state; moving ones go at constant velocity through the rollouts (paper Eq. 22)."""
         V = self.mppi.sample()                                    # [S, T, nu]
-        self.last_samples = V.cpu().numpy()                       # the same memory on the CPU
+        self._last_V = V
         path = None
         if mocap is not None:
             self.engine.set_mocap(mocap.pos, mocap.quat)
@@ -100,6 +100,13 @@ class MotionPlanner:
                              fault=self._fault(result))
         return Iteration(result=result, modes=list(self.modes), top=top,
                          plan=self._resolve(result.U.numpy(), dominant), dominant=dominant)
+
+    @property
+    def last_samples(self) -> np.ndarray | None:
+        """``[S, T, nu]`` controls of the last iteration's rollouts (on the CPU the sampler's
+        buffer itself, which the next iteration overwrites; from a GPU a copy, made only when
+        asked for: the planner itself never moves them off the device)."""
+        return None if self._last_V is None else self._last_V.cpu().numpy()
 
     def _fault(self, result: PlanResult) -> str:
         """Why ``result`` is no plan, naming the objectives whose costs were not finite."""
