@@ -81,7 +81,8 @@ class WarpBackend:
             self.wp_device = wp.get_device(device)
         except (RuntimeError, ValueError):
             have = ", ".join(d.alias for d in wp.get_devices())
-            raise ConfigError(source, "planner.device", "Warp has no such device (planner.device, or --device)", device,
+            raise ConfigError(source, "planner.device",
+                              "Warp has no such device (planner.device, or --device)", device,
                               f"one of: {have}") from None
         self.device = torch.device(wp.device_to_torch(self.wp_device))
         self.model = model
