@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import logging
+from pathlib import Path
 from typing import Optional
 
 import typer
@@ -11,13 +12,16 @@ from shared.cli_common import print_errors, setup_logging
 from shared.config import ConfigError
 from shared.endpoints import DEFAULT_HOST, DEFAULT_PORT, Endpoints
 from shared.scenario import load_scenario
+from shared.security import ExposureError, keys_for_cli, load_planner_keys
 
 app = typer.Typer(add_completion=False, help=(
     "Run the planner: mirror the world server's state into batched MuJoCo rollouts, choose the "
     "task's modes (fixed, or by active inference), run M3P2I and send commands back.\n\n"
     "Start `m3p2i-server` with the same scenario first (either order works: the planner waits). "
+    "Across machines give both sides `--keys DIR` (made by `m3p2i keys DIR`): ZeroMQ CURVE, "
+    "authenticated and encrypted. "
     "Exit code: 0 when the episode ends in success, 1 otherwise, 2 on a configuration error, "
-    "3 when the server refuses the handshake."))
+    "3 when the server refuses the handshake (scenario, protocol version or key)."))
 
 log = logging.getLogger("m3p2i.planner")
 
@@ -26,9 +30,20 @@ log = logging.getLogger("m3p2i.planner")
 def main(
     scenario: str = typer.Option(..., "--scenario", "-s",
                                  help="Scenario name (m3p2i list) or YAML path."),
-    host: str = typer.Option(DEFAULT_HOST, help="Server address."),
+    host: str = typer.Option(DEFAULT_HOST, help="Server address. A network address needs "
+                             "--keys, or --insecure."),
     port: int = typer.Option(DEFAULT_PORT, help="Server's first port (control); diagnostics are "
                              "published on port+3."),
+    diagnostics_host: str = typer.Option(DEFAULT_HOST, help="Address on this machine to bind "
+                                         "the diagnostics (port+3) to; a network address "
+                                         "needs --keys, or --insecure."),
+    keys: Optional[Path] = typer.Option(None, help="CURVE key folder made by `m3p2i keys DIR` "
+                                        "(its planner/ part): every socket authenticated and "
+                                        "encrypted; the world must hold the public key in "
+                                        "DIR/planner/world.key and allow this planner's."),
+    insecure: bool = typer.Option(False, "--insecure", help="Allow a network address without "
+                                  "keys (an isolated, trusted network only; warned at every "
+                                  "start)."),
     threads: int = typer.Option(0, help="Rollout threads (0: the scenario's planner.threads, "
                                 "else one per core)."),
     server_timeout: float = typer.Option(2.0, help="Seconds of silence before reconnecting."),
@@ -50,6 +65,9 @@ def main(
     verbose: bool = typer.Option(False, "--verbose", "-v"),
 ) -> None:
     setup_logging(verbose, "m3p2i.planner")
+    if not check:   # before anything else: an exposed robot is refused at once
+        planner_keys = _security({"--host": host, "--diagnostics-host": diagnostics_host},
+                                 keys, insecure)
     from planner_client.check import scenario_errors
     errors = scenario_errors(scenario)     # every error of the file, before anything starts
     print_errors(errors, err=not check)
@@ -70,7 +88,9 @@ def main(
     try:
         sc = load_scenario(scenario)
         client = build_client(sc, Endpoints(host, port), threads=threads, seed=seed,
-                              backend=backend, device=device, server_timeout=server_timeout, exit_on_done=not keep_running)
+                              backend=backend, device=device,
+                              server_timeout=server_timeout, exit_on_done=not keep_running,
+                              keys=planner_keys, diagnostics_host=diagnostics_host)
     except ConfigError as exc:
         typer.echo(f"error: {exc}", err=True)
         raise typer.Exit(2) from None
@@ -88,3 +108,13 @@ def main(
     typer.echo(f"planner: {stats.iterations} iterations, {stats.hz:.1f} Hz, "
                f"episode {stats.final_status or 'not finished'}{fallbacks}")
     raise typer.Exit(0 if stats.final_status == "success" else 1)
+
+
+def _security(hosts: dict[str, str], keys: Optional[Path], insecure: bool):
+    """The planner's CURVE keys (None without --keys); exit 2 for a network address without keys
+    (unless --insecure: then a warning) or for keys that cannot be used."""
+    try:
+        return keys_for_cli(hosts, keys, insecure, load_planner_keys, log.warning)
+    except (ExposureError, ConfigError) as exc:
+        typer.echo(f"error: {exc}", err=True)
+        raise typer.Exit(2) from None

@@ -26,6 +26,8 @@ from shared import protocol as P
 from shared.endpoints import Endpoints, socket
 from shared.evaluation.metrics import mean_hz
 from shared.scene import get_full_state
+from shared.security import Authenticator, HandshakeMonitor, PlannerKeys, curve_client, \
+    curve_server, describe_handshake_failure
 from shared.timed_plan import TimedPlan, held
 from planner_client.motion import Iteration, MotionPlanner
 from planner_client.mirror import Mirror, MocapState
@@ -35,6 +37,8 @@ from planner_client.timing import LeadEstimate, predict, steps_between
 log = logging.getLogger("m3p2i.planner")
 
 _NEW_EPISODE = 1.0   # world time going back more than this (s) is a reset, not jitter
+_HANDSHAKE_FAILURES = 20  # failed handshakes in a row, no reply between: a key problem (a
+                          # wrong key fails ~10 times a second; a restarting world not so)
 
 
 class HandshakeRefused(RuntimeError):
@@ -57,7 +61,8 @@ class LoopStats:
 class PlannerClient:
     def __init__(self, planner: MotionPlanner, task: TaskLayer, endpoints: Endpoints,
                  scenario_name: str, scenario_hash: str, server_timeout: float = 2.0,
-                 exit_on_done: bool = True, diagnostics: bool = True):
+                 exit_on_done: bool = True, diagnostics: bool = True,
+                 keys: PlannerKeys | None = None, diagnostics_host: str | None = None):
         self.planner = planner
         self.task = task
         self.endpoints = endpoints
@@ -65,16 +70,26 @@ class PlannerClient:
         self.server_timeout = server_timeout
         self.exit_on_done = exit_on_done
         self.mirror = Mirror(planner.problem.model)
+        self.keys = keys
         self.ctx = zmq.Context()
         self.sub = socket(self.ctx, zmq.SUB, conflate=True)   # only the newest state matters
         self.sub.setsockopt(zmq.SUBSCRIBE, b"")
+        self._secure(self.sub)
         self.sub.connect(endpoints.state)
         self.push = socket(self.ctx, zmq.PUSH, conflate=True)  # never queue stale commands
+        self._secure(self.push)
         self.push.connect(endpoints.command)
         self.diag = None
+        self.auth = None
         if diagnostics:
             self.diag = socket(self.ctx, zmq.PUB)
-            self.diag.bind(endpoints.diagnostics)
+            if keys is not None:   # the planner is the CURVE server of its diagnostics
+                self.auth = Authenticator(self.ctx, keys.viewers, "the planner's diagnostics")
+                curve_server(self.diag, keys.own)
+            # bound on this machine (loopback unless told): the world's address, the default,
+            # is another machine's when the two run apart
+            self.diag.bind(Endpoints(diagnostics_host or endpoints.host,
+                                     endpoints.port).diagnostics)
         self.welcome: P.Welcome | None = None
         self.stats = LoopStats()
         self._action: tuple[str, tuple[str, ...]] | None = None
@@ -86,6 +101,7 @@ class PlannerClient:
         self._lead: LeadEstimate | None = None
         self._last_start: tuple[float, int] | None = None   # (t_eff, state seq) of the last plan
         self._faults = 0        # consecutive iterations without a plan (Iteration.fault)
+        self._handshake_failures = 0   # in a row, since the last reply
 
     # ------------------------------------------------------------------ handshake
 
@@ -95,9 +111,18 @@ class PlannerClient:
         warned = False
         while True:
             req = socket(self.ctx, zmq.REQ)
+            self._secure(req)
+            monitor = HandshakeMonitor(req)
             req.connect(self.endpoints.control)
             req.send(P.encode(self.hello))
-            if req.poll(int(retry * 1000)):
+            try:
+                answered = self._await_reply(req, monitor, retry)
+            except HandshakeRefused:
+                req.close(0)   # an open socket would block the context's termination
+                raise
+            finally:
+                monitor.close()
+            if answered:
                 frame = req.recv()
                 req.close(0)
                 try:
@@ -123,6 +148,47 @@ class PlannerClient:
             if give_up is not None and time.monotonic() - start > give_up:
                 raise TimeoutError(f"no server answered at {self.endpoints.control} "
                                    f"within {give_up:.0f} s")
+
+    def _secure(self, sock: zmq.Socket) -> None:
+        """A socket to the world: a CURVE client holding the world's public key, with keys."""
+        if self.keys is not None:
+            curve_client(sock, self.keys.own, self.keys.world)
+
+    def _await_reply(self, req: zmq.Socket, monitor: HandshakeMonitor, retry: float) -> bool:
+        """Whether the world answered within ``retry`` seconds. A world that refused our key,
+        or that speaks another security mechanism, never answers: that raises with the fix
+        instead of waiting for ever. libzmq does not always say which (a peer that hangs up
+        mid-handshake is reported without detail), so a few failed handshakes in a row raise
+        too; a world still starting up refuses connections, it does not fail handshakes."""
+        poller = zmq.Poller()
+        poller.register(req, zmq.POLLIN)
+        poller.register(monitor.mon, zmq.POLLIN)
+        end = time.monotonic() + retry
+        while (left := end - time.monotonic()) > 0:
+            events = dict(poller.poll(int(left * 1000) + 1))
+            if req in events:
+                self._handshake_failures = 0
+                return True
+            for event, value in monitor.failures():
+                self._handshake_failures += 1
+                why = describe_handshake_failure(event, value)
+                if event == zmq.EVENT_HANDSHAKE_FAILED_AUTH:
+                    raise HandshakeRefused(
+                        f"the world at {self.endpoints.control} refused this planner's key "
+                        f"({why}): " + (f"its public key {self.keys.own.public.decode()} "
+                                        f"must be in the world's DIR/world/planners/ (copy "
+                                        f"DIR/planner/planner.key there and restart the "
+                                        f"world)" if self.keys else "start it with --keys DIR"))
+                mismatch = event == zmq.EVENT_HANDSHAKE_FAILED_PROTOCOL and value == 0x11000002
+                if mismatch or self._handshake_failures >= _HANDSHAKE_FAILURES:
+                    raise HandshakeRefused(
+                        f"no secure handshake with the world at {self.endpoints.control} "
+                        f"({why}): " + (
+                            "either DIR/planner/world.key is not this world's public key, or "
+                            "the world runs without keys" if self.keys else
+                            "the world requires CURVE keys: start the planner with --keys DIR "
+                            "(the planner/ part of `m3p2i keys DIR`)"))
+        return False
 
     # ------------------------------------------------------------------ loop
 
@@ -254,4 +320,6 @@ class PlannerClient:
         for s in (self.sub, self.push, self.diag):
             if s is not None:
                 s.close(0)
+        if self.auth is not None:
+            self.auth.stop()
         self.ctx.term()

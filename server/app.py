@@ -24,6 +24,8 @@ from shared.endpoints import Endpoints, socket
 from shared.evaluation.metrics import MetricsEvaluator, describe, mean_hz
 from shared.evaluation.timing import describe_timing, timing_summary
 from shared.scenario import Scenario
+from shared.security import Authenticator, HandshakeMonitor, WorldKeys, curve_server, \
+    describe_handshake_failure
 from shared.timed_plan import PlanPlayer, TimedPlan, held
 from server.episode_log import EpisodeLog, read_log
 from server.world import Outcome, SimWorld
@@ -46,7 +48,8 @@ class ServerOptions:
 
 class WorldServer:
     def __init__(self, scenario: Scenario, endpoints: Endpoints, log_path: Path,
-                 options: ServerOptions | None = None, viewer=None, seed: int = 0):
+                 options: ServerOptions | None = None, viewer=None, seed: int = 0,
+                 keys: WorldKeys | None = None):
         self.scenario = scenario
         self.opt = options or ServerOptions()
         self.world = SimWorld(scenario, seed)
@@ -59,12 +62,25 @@ class WorldServer:
         self.rep = socket(self.ctx, zmq.REP)
         self.pub = socket(self.ctx, zmq.PUB)
         self.pull = socket(self.ctx, zmq.PULL)
+        # CURVE: the world is the server of all three sockets; ZAP (a thread) accepts only the
+        # allow-listed planner keys, so a refused peer gets no state, no welcome, no say
+        self.auth = Authenticator(self.ctx, keys.allowed, "the world") if keys else None
+        self._sockets = {"control": self.rep, "state": self.pub, "command": self.pull}
+        for s in self._sockets.values():
+            if keys is not None:
+                curve_server(s, keys.own)
+        # failed handshakes (a peer without keys, or with another world key) never reach ZAP:
+        # only the socket monitor tells, and the world must say why nobody is answering
+        self.monitors = {name: HandshakeMonitor(s) for name, s in self._sockets.items()}
         for s, addr in ((self.rep, endpoints.control), (self.pub, endpoints.state),
                         (self.pull, endpoints.command)):
             s.bind(addr)
         self.poller = zmq.Poller()
         self.poller.register(self.rep, zmq.POLLIN)
         self.poller.register(self.pull, zmq.POLLIN)
+        for m in self.monitors.values():
+            self.poller.register(m.mon, zmq.POLLIN)
+        self._refused = 0
         self._plan_times: list[float] = []
         self._state_times: dict[int, float] = {}     # seq -> world time of recent states
         self._plan_time_of: dict[int, float] = {}    # seq -> planning time, until first applied
@@ -77,14 +93,15 @@ class WorldServer:
         self.log.write("header", scenario=scenario.name, scenario_hash=scenario.hash,
                        source=scenario.source, mode=self.opt.mode, dt=self.world.dt,
                        session=self.session, nq=self.world.model.nq, nu=self.world.model.nu,
-                       seed=seed, initial=self.world.initial)
+                       seed=seed, initial=self.world.initial, curve=keys is not None)
 
     # ------------------------------------------------------------------ loop
 
     def run(self) -> Outcome:
         """Serve one episode; always closes the log with a summary, even on Ctrl-C."""
-        log.info("serving %s (%s mode) on %s", self.scenario.name, self.opt.mode,
-                 self.rep.getsockopt_string(zmq.LAST_ENDPOINT))
+        log.info("serving %s (%s mode) on %s%s", self.scenario.name, self.opt.mode,
+                 self.rep.getsockopt_string(zmq.LAST_ENDPOINT),
+                 ", CURVE: only allow-listed planner keys" if self.auth else "")
         try:
             if self.opt.mode == "lockstep":
                 self._run_lockstep()
@@ -271,6 +288,7 @@ class WorldServer:
         """Serve control requests and drain commands; return the newest valid command."""
         newest = None
         events = dict(self.poller.poll(int(timeout_s * 1000)))
+        self._note_refusals()
         if self.rep in events:
             self._serve_control()
         if self.pull in events:
@@ -295,6 +313,25 @@ class WorldServer:
             return self._reject(f"command.ctrl has shape {list(cmd.ctrl.shape)}, "
                                 f"the model needs [{self.world.model.nu}]")
         return cmd
+
+    def _note_refusals(self) -> None:
+        """Peers that security refused, into the episode log: a key outside the allow list
+        (the ZAP thread already logged it with the peer's address), a peer without keys or one
+        holding another world public key (logged here, from the socket monitors)."""
+        found = [(f"key {r.key} from {r.address} is not in the allow list", True)
+                 for r in (self.auth.refusals() if self.auth else [])]
+        for name, m in self.monitors.items():
+            for event, value in m.failures():
+                if event != zmq.EVENT_HANDSHAKE_FAILED_AUTH:   # AUTH: the ZAP refusal above
+                    found.append((f"handshake on the {name} socket failed: "
+                                  f"{describe_handshake_failure(event, value)}", False))
+        for reason, logged in found:
+            self._refused += 1
+            sampled = self._refused <= 10 or self._refused % 100 == 0   # a peer retrying
+            if sampled and not logged:
+                log.warning("refused a peer (%d so far): %s", self._refused, reason)
+            if self._refused <= 100 or self._refused % 100 == 0:
+                self.log.event("peer_refused", reason=reason, count=self._refused)
 
     def _reject(self, reason: str) -> None:
         self._rejected += 1
@@ -338,6 +375,10 @@ class WorldServer:
         self._publish()
 
     def close(self) -> None:
+        for m in self.monitors.values():
+            m.close()
         for s in (self.rep, self.pub, self.pull):
             s.close(0)
+        if self.auth is not None:
+            self.auth.stop()
         self.ctx.term()

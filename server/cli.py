@@ -13,6 +13,7 @@ from shared.cli_common import default_run_dir, print_errors, setup_logging, summ
 from shared.config import ConfigError
 from shared.endpoints import DEFAULT_HOST, DEFAULT_PORT, Endpoints
 from shared.scenario import load_scenario
+from shared.security import ExposureError, keys_for_cli, load_world_keys
 from server.app import ServerOptions, WorldServer
 from server.check import scenario_errors
 
@@ -20,6 +21,9 @@ app = typer.Typer(add_completion=False, help=(
     "Run the world: a MuJoCo simulation of a scenario that publishes its state over ZeroMQ and "
     "applies the planner's commands.\n\n"
     "Start it, then start `m3p2i-planner` with the same scenario in a second terminal. "
+    "Across machines: `m3p2i keys DIR`, then `--host 0.0.0.0 --keys DIR` here and "
+    "`--host THIS_MACHINE --keys DIR` on the planner (ZeroMQ CURVE: authenticated, "
+    "encrypted). "
     "Exit code: 0 on success, 1 on time-out or stop, 2 on a configuration error."))
 
 log = logging.getLogger("m3p2i.server")
@@ -32,7 +36,15 @@ def main(
     mode: str = typer.Option("lockstep", help="lockstep: step only when the command for the "
                              "latest state arrives (deterministic). realtime: step on the wall "
                              "clock, playing the newest command's plan."),
-    host: str = typer.Option(DEFAULT_HOST, help="Address to bind (loopback by default)."),
+    host: str = typer.Option(DEFAULT_HOST, help="Address to bind (loopback by default). A "
+                             "network address (e.g. 0.0.0.0) needs --keys, or --insecure."),
+    keys: Optional[Path] = typer.Option(None, help="CURVE key folder made by `m3p2i keys DIR` "
+                                        "(its world/ part): every socket authenticated and "
+                                        "encrypted; only planners whose public keys are in "
+                                        "DIR/world/planners/ are accepted."),
+    insecure: bool = typer.Option(False, "--insecure", help="Allow a network --host without "
+                                  "keys: anyone who reaches the ports can drive the robot. "
+                                  "An isolated, trusted network only; warned at every start."),
     port: int = typer.Option(DEFAULT_PORT, help="First of three ports: control, state, command."),
     log_file: Optional[Path] = typer.Option(None, "--log", help="Episode log (JSON lines). "
                                             "Default: runs/<scenario>-<time>/episode.jsonl"),
@@ -54,6 +66,8 @@ def main(
     setup_logging(verbose, "m3p2i.server")
     if mode not in ("lockstep", "realtime"):
         raise typer.BadParameter("must be 'lockstep' or 'realtime'", param_hint="--mode")
+    if not check:   # before anything else: an exposed robot is refused at once
+        world_keys = _security({"--host": host}, keys, insecure)
     errors = scenario_errors(scenario)     # every error of the file, before anything starts
     print_errors(errors, err=not check)
     if errors or check:
@@ -64,7 +78,8 @@ def main(
                          realtime_factor=realtime_factor, republish=republish,
                          plan_every=plan_every)
     try:
-        server = WorldServer(sc, Endpoints(host, port), log_file, opts, seed=seed)
+        server = WorldServer(sc, Endpoints(host, port), log_file, opts, seed=seed,
+                             keys=world_keys)
     except ConfigError as exc:   # e.g. a metrics frame the compiled model lacks
         typer.echo(f"error: {exc}", err=True)
         raise typer.Exit(2) from None
@@ -80,3 +95,13 @@ def main(
     typer.echo(summary_line(outcome.status, outcome.time, outcome.measures))
     typer.echo(f"episode log: {log_file}")
     raise typer.Exit(0 if outcome.status == "success" else 1)
+
+
+def _security(hosts: dict[str, str], keys: Optional[Path], insecure: bool):
+    """The world's CURVE keys (None without --keys); exit 2 for a network address without keys
+    (unless --insecure: then a warning) or for keys that cannot be used."""
+    try:
+        return keys_for_cli(hosts, keys, insecure, load_world_keys, log.warning)
+    except (ExposureError, ConfigError) as exc:
+        typer.echo(f"error: {exc}", err=True)
+        raise typer.Exit(2) from None

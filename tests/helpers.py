@@ -14,6 +14,7 @@ import zmq
 from shared import protocol as P
 from shared.tools.cli import free_port_block
 from shared.endpoints import Endpoints
+from shared.security import PlannerKeys, curve_client
 from shared.tools.launch import stop_processes
 
 ENV = {**os.environ, "PYTHONUNBUFFERED": "1"}
@@ -65,14 +66,21 @@ def stop(*procs: subprocess.Popen) -> None:
 
 
 class StateWatcher:
-    """Subscribes to the world's state stream like a planner would (without commanding)."""
+    """Subscribes to the world's state stream like a planner would (without commanding);
+    with ``keys``, over CURVE with the planner's key pair."""
 
-    def __init__(self, port: int):
+    def __init__(self, port: int, keys: PlannerKeys | None = None):
+        self.keys = keys
         self.ctx = zmq.Context()
         self.sub = self.ctx.socket(zmq.SUB)
         self.sub.setsockopt(zmq.SUBSCRIBE, b"")
         self.sub.setsockopt(zmq.CONFLATE, 1)
+        self._secure(self.sub)
         self.sub.connect(Endpoints(port=port).state)
+
+    def _secure(self, sock: zmq.Socket) -> None:
+        if self.keys is not None:
+            curve_client(sock, self.keys.own, self.keys.world)
 
     def latest(self, timeout: float = 30.0) -> P.State:
         if not self.sub.poll(int(timeout * 1000)):
@@ -82,6 +90,7 @@ class StateWatcher:
     def control(self, port: int, op: str) -> None:
         req = self.ctx.socket(zmq.REQ)
         req.setsockopt(zmq.LINGER, 0)
+        self._secure(req)
         req.connect(Endpoints(port=port).control)
         req.send(P.encode(P.Control(op=op)))
         req.poll(2000)

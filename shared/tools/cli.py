@@ -73,14 +73,17 @@ def run(
     viewer: bool = typer.Option(False, help="Open the MuJoCo viewer on the server."),
     seed: int = typer.Option(0, help="Seed of the randomised start and of the planner's sampling."),
     verbose: bool = typer.Option(False, "--verbose", "-v", help="Show both processes' output."),
+    keys: Optional[Path] = typer.Option(None, help="CURVE key folder (m3p2i keys DIR): both "
+                                        "processes authenticate and encrypt every socket."),
 ) -> None:
     """Run one episode of SCENARIO with server and planner; exit 0 on success."""
     sc = _load_or_exit(scenario)
+    _keys_or_exit(keys)
     run_dir = run_dir or default_run_dir(sc.name)
     typer.echo(f"running {sc.name} ({mode}); logs in {run_dir}")
     result = run_episode(EpisodeLaunch(scenario=sc.source, run_dir=run_dir, seed=seed, mode=mode,
                                        port=port, timeout=timeout, viewer=viewer, verbose=verbose,
-                                       plan_every=plan_every))
+                                       plan_every=plan_every, keys=keys))
     if result.reason == "timeout":
         typer.echo(f"error: no outcome within {timeout:.0f} s; stopping", err=True)
     elif result.reason == "interrupted":
@@ -249,6 +252,8 @@ def record(
     height: int = typer.Option(360, help="Frame height in pixels."),
     fps: float = typer.Option(20.0, help="Frames per second of the video."),
     speed: float = typer.Option(1.0, help="Simulated seconds per video second."),
+    keys: Optional[Path] = typer.Option(None, help="CURVE key folder (m3p2i keys DIR) for both "
+                                        "processes and the recorder."),
 ) -> None:
     """Record an episode offscreen (EGL or OSMesa) to GIF/MP4, with the planner's best sampled
     trajectories drawn in green."""
@@ -263,13 +268,15 @@ def record(
         raise typer.Exit(3) from None
     if log is None:
         sc = _load_or_exit(scenario)
+        planner_keys = _keys_or_exit(keys)
         run_dir = run_dir or default_run_dir(sc.name)
         run_dir.mkdir(parents=True, exist_ok=True)
         port = free_port_block()
-        recorder = video.DiagnosticsRecorder(port, run_dir / video.DIAGNOSTICS_FILE)
+        recorder = video.DiagnosticsRecorder(port, run_dir / video.DIAGNOSTICS_FILE,
+                                             keys=planner_keys)
         try:
             result = run_episode(EpisodeLaunch(scenario=sc.source, run_dir=run_dir, seed=seed,
-                                               port=port, timeout=timeout))
+                                               port=port, timeout=timeout, keys=keys))
         finally:
             recorder.close()
         status = result.summary["status"] if result.summary else result.reason or "no summary"
@@ -281,6 +288,48 @@ def record(
         typer.echo(f"error: {exc}", err=True)
         raise typer.Exit(1) from None
     typer.echo(f"wrote {out}")
+
+
+def _keys_or_exit(keys: Optional[Path]):
+    """Both sides' keys checked before either process starts (a bad key folder is one clear
+    error here, not two processes failing); the planner's (tools use its pair), or None."""
+    if keys is None:
+        return None
+    from shared.security import load_planner_keys, load_world_keys
+    try:
+        load_world_keys(keys)
+        return load_planner_keys(keys)
+    except ConfigError as exc:
+        typer.echo(f"error: {exc}", err=True)
+        raise typer.Exit(2) from None
+
+
+@app.command("keys")
+def keys_command(
+    folder: Path = typer.Argument(..., help="Folder to create the keys in (made if missing; "
+                                  "existing keys are never replaced)."),
+) -> None:
+    """Make CURVE key pairs for the world and the planner, to run them on two machines with
+    every socket authenticated and encrypted (ZeroMQ CURVE).
+
+    Writes FOLDER/world/ (world.key_secret, world.key, planners/planner.key: the planners the
+    world accepts) and FOLDER/planner/ (planner.key_secret, planner.key, world.key: the world
+    the planner trusts; viewers/: other diagnostics subscribers). Secret keys are mode 0600.
+    Copy FOLDER/planner to the planner's machine and FOLDER/world to the world's, then start
+    `m3p2i-server --host 0.0.0.0 --keys FOLDER` and `m3p2i-planner --host WORLD --keys FOLDER`.
+    Another planner: `m3p2i keys OTHER`, copy OTHER/planner/planner.key into
+    FOLDER/world/planners/ (under a name of its own) and FOLDER/world/world.key over
+    OTHER/planner/world.key; the world reads its allow list when it starts."""
+    from shared.security import make_keys
+    try:
+        written = make_keys(folder)
+    except ConfigError as exc:
+        typer.echo(f"error: {exc}", err=True)
+        raise typer.Exit(2) from None
+    for path in written:
+        typer.echo(f"wrote {path} ({oct(path.stat().st_mode & 0o777)[2:]})")
+    typer.echo(f"world machine: {folder / 'world'} (keep world.key_secret there only); "
+               f"planner machine: {folder / 'planner'}")
 
 
 @app.command("list")

@@ -83,9 +83,12 @@ class EpisodeLaunch:
     plan_every: int = 1             # lockstep: world steps per command (emulates a slow planner)
     viewer: bool = False
     verbose: bool = False           # children write to this terminal instead of log files
+    keys: Path | None = None        # CURVE key folder (m3p2i keys): both processes use it
 
     def commands(self, port: int) -> dict[str, list[str]]:
         common = ["--scenario", self.scenario, "--port", str(port), "--seed", str(self.seed)]
+        if self.keys is not None:
+            common += ["--keys", str(self.keys)]
         server = [sys.executable, "-m", "server", *common, "--mode", self.mode,
                   "--log", str(self.run_dir / "episode.jsonl")]
         if self.viewer:

@@ -29,6 +29,7 @@ from shared.evaluation import episode
 from shared import protocol as P
 from shared.config import ConfigError
 from shared.endpoints import Endpoints, socket
+from shared.security import PlannerKeys, curve_client
 
 GL_BACKENDS = ("egl", "osmesa")
 DIAGNOSTICS_FILE = "diagnostics.jsonl"
@@ -64,12 +65,15 @@ class DiagnosticsRecorder:
     thread, until :meth:`close`. Start it before the planner: PUB/SUB drops what is sent before
     the subscription is in place."""
 
-    def __init__(self, port: int, path: Path, host: str = "127.0.0.1"):
+    def __init__(self, port: int, path: Path, host: str = "127.0.0.1",
+                 keys: PlannerKeys | None = None):
         self.path = path
         self._stop = threading.Event()
         self._ctx = zmq.Context()
         self._sub = socket(self._ctx, zmq.SUB)      # the project's size limit and no linger
         self._sub.setsockopt(zmq.SUBSCRIBE, b"")
+        if keys is not None:   # a tool beside the planner: its key pair, the planner as server
+            curve_client(self._sub, keys.own, keys.own.public)
         self._sub.connect(Endpoints(host, port).diagnostics)
         self._thread = threading.Thread(target=self._run, daemon=True)
         self._thread.start()
