@@ -10,6 +10,7 @@ import torch
 from shared.endpoints import Endpoints
 from shared.predicates import check_frames
 from shared.scenario import Scenario
+from planner_client.backends import make_backend
 from planner_client.loop import PlannerClient
 from planner_client.motion import MotionPlanner
 from planner_client.problem import build_problem, mppi_config
@@ -18,8 +19,10 @@ from planner_client.observers import SymbolicObserver
 from planner_client.task import ActiveInferenceTask, FixedModes, TaskLayer
 
 
-def build_motion_planner(scenario: Scenario, threads: int = 0,
-                         seed: int | None = None) -> MotionPlanner:
+def build_motion_planner(scenario: Scenario, threads: int = 0, seed: int | None = None,
+                         backend: str | None = None, device: str | None = None) -> MotionPlanner:
+    """The scenario's motion planner; ``backend`` and ``device`` override ``planner.backend``
+    and ``planner.device`` (the warp backend checks the model against MJWarp's limits here)."""
     # The planner's tensors are small ([S, T, ·] with S·T ~ 3000): torch's intra-op threads gain
     # nothing there, and their spinning steals the cores mujoco.rollout's pool needs (measured:
     # 12.5 ms -> 7.6 ms per navigation iteration on 2 cores).
@@ -29,8 +32,16 @@ def build_motion_planner(scenario: Scenario, threads: int = 0,
     cfg = mppi_config(scenario, problem.model)
     if seed is not None:
         cfg = dataclasses.replace(cfg, seed=seed)
-    return MotionPlanner(problem, cfg, scenario.planner.samples, modes,
-                         nthread=threads or scenario.planner.threads)
+    pc = scenario.planner
+    nthread = threads or pc.threads
+    engine = None
+    if (backend or pc.backend) != "mujoco":
+        # every mode rolls out planner.samples: the worlds are allocated for all of them now
+        engine = make_backend(backend or pc.backend, problem.model,
+                              samples=len(modes) * pc.samples, horizon=pc.horizon,
+                              nthread=nthread, device=device or pc.device, nconmax=pc.nconmax,
+                              njmax=pc.njmax, source=scenario.source)
+    return MotionPlanner(problem, cfg, pc.samples, modes, nthread=nthread, backend=engine)
 
 
 def build_task(scenario: Scenario, planner: MotionPlanner) -> TaskLayer:
@@ -47,12 +58,12 @@ def build_task(scenario: Scenario, planner: MotionPlanner) -> TaskLayer:
 
 
 def build_client(scenario: Scenario, endpoints: Endpoints, threads: int = 0,
-                 seed: int | None = None, before_connect: Callable[[], None] | None = None,
-                 **options) -> PlannerClient:
+                 seed: int | None = None, backend: str | None = None, device: str | None = None,
+                 before_connect: Callable[[], None] | None = None, **options) -> PlannerClient:
     """The planner client of ``scenario``; ``before_connect`` runs once the planner and task
     are built (the slow part: imports, model compilation) and before any socket is opened:
     a hot spare waits there."""
-    planner = build_motion_planner(scenario, threads, seed)
+    planner = build_motion_planner(scenario, threads, seed, backend, device)
     task = build_task(scenario, planner)
     if before_connect is not None:
         before_connect()

@@ -17,7 +17,7 @@ from shared.config import ConfigError, ErrorLog
 from shared.frames import FrameResolver
 from shared.predicates import check_frames
 from shared.scenario import Scenario
-from planner_client.problem import actuator_names, build_objectives, mppi_config
+from planner_client.problem import actuator_names, build_objectives, build_problem, mppi_config
 
 
 def model_checks(scenario: Scenario, model: mujoco.MjModel, resolve: FrameResolver,
@@ -28,6 +28,17 @@ def model_checks(scenario: Scenario, model: mujoco.MjModel, resolve: FrameResolv
     for factor, cfg in scenario.observers.items():
         for _, pred in cfg.rules:
             errors.call(check_frames, pred, resolve, scenario.source, f"observers.{factor}")
+    if scenario.planner.backend == "warp" and not errors.errors:
+        errors.call(warp_checks, scenario)
+
+
+def warp_checks(scenario: Scenario) -> None:
+    """planner.backend: warp: the m3p2i[gpu] extra is installed and MJWarp can roll out the
+    planner's model (with the sensors its costs add); compiles no kernels."""
+    from planner_client.backends.warp import import_warp
+    from planner_client.backends.warp_limits import check_warp
+    import_warp(scenario.source)
+    check_warp(build_problem(scenario).model, scenario.source)
 
 
 def scenario_errors(name_or_path: str | os.PathLike) -> list[ConfigError]:

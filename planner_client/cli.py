@@ -52,6 +52,14 @@ def main(
                                       "exiting when the episode ends."),
     seed: Optional[int] = typer.Option(None, help="Sampling seed (default: planner.mppi.seed of "
                                        "the scenario)."),
+    backend: Optional[str] = typer.Option(
+        None, help="Rollout backend, overriding the scenario's planner.backend: 'mujoco' "
+        "(mujoco.rollout's thread pool on the CPU, the default) or 'warp' (MuJoCo Warp, from the "
+        "m3p2i\\[gpu] extra: thousands of samples on a GPU; it compiles its kernels on first use, "
+        "cached in ~/.cache/warp)."),
+    device: Optional[str] = typer.Option(
+        None, help="The warp backend's device, overriding planner.device: cuda:0 (default), "
+        "cuda:N, or cpu (slow, for tests without a GPU)."),
     check: bool = typer.Option(False, "--check", help="Only check the scenario (every error of "
                                "the file, cost terms and model names included) and exit: 0 "
                                "sound, 2 faulty."),
@@ -72,10 +80,21 @@ def main(
     if errors or check:
         raise typer.Exit(2 if errors else 0)
     from planner_client.build import build_client
+    from shared.scenario import ROLLOUT_BACKENDS, rollout_device
+    if backend is not None and backend not in ROLLOUT_BACKENDS:
+        typer.echo(f"error: --backend {backend!r}: expected one of {', '.join(ROLLOUT_BACKENDS)}",
+                   err=True)
+        raise typer.Exit(2)
+    try:
+        device = device if device is None else rollout_device(device)
+    except ValueError as exc:
+        typer.echo(f"error: --device {device!r}: {exc}", err=True)
+        raise typer.Exit(2) from None
     from planner_client.loop import HandshakeRefused
     try:
         sc = load_scenario(scenario)
         client = build_client(sc, Endpoints(host, port), threads=threads, seed=seed,
+                              backend=backend, device=device,
                               server_timeout=server_timeout, exit_on_done=not keep_running,
                               keys=planner_keys, diagnostics_host=diagnostics_host,
                               before_connect=_await_go if standby else None)

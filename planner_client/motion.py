@@ -1,22 +1,27 @@
 """One planner iteration: sample (M3P2I) -> batched MuJoCo rollout -> per-mode costs -> update.
 
-This is the hot loop. Per iteration it does one ``mujoco.rollout`` of all ``[S, T, nu]``
-samples, one objective evaluation per mode on that mode's rows of ``sensordata [S, T, ·]``
-(tensor views, no copies), and the M3P2I update; no Python loop over samples or time steps.
+This is the hot loop. Per iteration it does one rollout of all ``[S, T, nu]`` samples through
+the rollout backend (``mujoco.rollout``'s pool by default, MuJoCo Warp optionally: see
+planner_client/backends/), one objective evaluation per mode on that mode's rows of
+``sensordata [S, T, ·]`` (tensor views, no copies), and the M3P2I update; no Python loop over
+samples or time steps. Sampling, costs and the update run on the backend's device; only the
+plan and the diagnostics come back to the host.
 """
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 
 import numpy as np
 import torch
 
+from planner_client.backends import RolloutBackend
+from planner_client.backends.mujoco_pool import MujocoPoolBackend
 from planner_client.costs import RolloutBatch
 from planner_client.mppi import M3P2I, MPPIConfig, ModeSpec, PlanResult
 from planner_client.mirror import MocapState
 from planner_client.problem import PlanningProblem
-from planner_client.rollout import RolloutEngine
 
 
 @dataclass
@@ -40,16 +45,21 @@ class MotionPlanner:
     """M3P2I over the problem's objectives; the active modes are objective names."""
 
     def __init__(self, problem: PlanningProblem, cfg: MPPIConfig, samples: int,
-                 modes: list[str], nthread: int = 0, top_k: int = 5):
+                 modes: list[str], nthread: int = 0, top_k: int = 5,
+                 backend: RolloutBackend | None = None):
+        """``backend``: where rollouts run (default: ``mujoco.rollout``'s pool with ``nthread``
+        threads on ``problem.model``); the M3P2I state lives on its device."""
         self.problem = problem
         self.cfg = cfg
         self.samples = samples
         self.top_k = top_k
-        self.engine = RolloutEngine(problem.model, nthread)
-        self.mppi = M3P2I(cfg, [self._mode(m) for m in modes], dtype=torch.float64)
+        self.engine = backend if backend is not None else MujocoPoolBackend(problem.model, nthread)
+        self.device = self.engine.device
+        self.mppi = M3P2I(cfg, [self._mode(m) for m in modes], dtype=torch.float64,
+                          device=self.device)
         self.modes = list(modes)
         self._step_costs: torch.Tensor | None = None
-        self.last_samples: np.ndarray | None = None     # [S, T, nu] of the last iterate()
+        self._last_V: torch.Tensor | None = None         # [S, T, nu] of the last iterate()
 
     def _mode(self, name: str) -> ModeSpec:
         return ModeSpec(name=name, samples=self.samples, fixed=self.problem.objectives[name].fixed)
@@ -64,24 +74,25 @@ class MotionPlanner:
         """One iteration from the full physics state ``x0 [nstate]`` and the mocap bodies'
         ``mocap`` state; moving ones go at constant velocity through the rollouts (paper Eq. 22)."""
         V = self.mppi.sample()                                    # [S, T, nu]
-        self.last_samples = V.numpy()
+        self._last_V = V
         path = None
         if mocap is not None:
             self.engine.set_mocap(mocap.pos, mocap.quat)
             if mocap.moving:
                 steps = np.arange(V.shape[1])[:, None, None] * self.problem.model.opt.timestep
                 path = mocap.pos[None] + mocap.vel[None] * steps  # [T, nmocap, 3]
-        _, sensordata = self.engine.run(x0, self.last_samples, path)
-        sd = torch.from_numpy(sensordata)                         # [S, T, nsensordata], no copy
+        sd = self.engine.sensors(x0, V, path)                     # [S, T, nsensordata]
         S, T = V.shape[:2]
         if self._step_costs is None or self._step_costs.shape != (S, T):
-            self._step_costs = torch.empty(S, T, dtype=V.dtype)
+            self._step_costs = torch.empty(S, T, dtype=V.dtype, device=V.device)
         for name, rows in zip(self.modes, self.mppi.mode_slices):
             batch = RolloutBatch(sd[rows], V[rows], self.problem.layout, self.problem.model.opt.timestep)
             self._step_costs[rows] = self.problem.objectives[name](batch)
         result = self.mppi.update(self._step_costs)
         best, top_modes = self._best_per_mode()
-        top = self.problem.layout.take(sd[best], self.problem.robot_pos).numpy().copy()
+        top = self.problem.layout.take(sd[best], self.problem.robot_pos).cpu().numpy().copy()
+        if self.device.type != "cpu":
+            result = _to_host(result)
         dominant = self.modes[int(torch.argmax(result.mode_weights))]
         if not result.finite:
             # No sample had a finite cost: u0 is the previous plan, not an answer to this state.
@@ -102,6 +113,13 @@ class MotionPlanner:
             picks.append(torch.topk(cost, k, largest=False).indices + rows.start)
             modes += [i] * k
         return torch.cat(picks), np.array(modes, dtype=np.int64)
+
+    @property
+    def last_samples(self) -> np.ndarray | None:
+        """``[S, T, nu]`` controls of the last iteration's rollouts (on the CPU the sampler's
+        buffer itself, which the next iteration overwrites; from a GPU a copy, made only when
+        asked for: the planner itself never moves them off the device)."""
+        return None if self._last_V is None else self._last_V.cpu().numpy()
 
     def _fault(self, result: PlanResult) -> str:
         """Why ``result`` is no plan, naming the objectives whose costs were not finite."""
@@ -137,3 +155,10 @@ class MotionPlanner:
 
     def close(self) -> None:
         self.engine.close()
+
+
+def _to_host(result: PlanResult) -> PlanResult:
+    """``result`` with its tensors copied to the CPU: the plan and diagnostics the loop sends."""
+    return dataclasses.replace(result, **{
+        f.name: getattr(result, f.name).cpu() for f in dataclasses.fields(result)
+        if isinstance(getattr(result, f.name), torch.Tensor)})

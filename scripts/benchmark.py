@@ -10,21 +10,33 @@ the planner's model, with the sensors its costs read, is reported beside it
     python scripts/benchmark.py                      # table
     python scripts/benchmark.py --json               # one JSON object per line per case
     python scripts/benchmark.py -s navigation -n 300
+
+With ``--backend warp`` the planner rolls out with MuJoCo Warp (the m3p2i[gpu] extra) on
+``--device`` (cuda:0, or cpu: slow, for machines without a GPU), and ``--samples`` sets the
+samples per mode (a list runs each); ``rollout + sensors`` is then the MJWarp rollout, and the
+bare rollout stays ``mujoco.rollout`` on the CPU cores, so ``ratio`` < 1 is a speed-up over it.
+A scenario MJWarp cannot roll out is reported and skipped. The first run of a model compiles
+MJWarp's kernels (minutes on a CPU; cached in ~/.cache/warp); untimed warm-up calls absorb it.
+
+    python scripts/benchmark.py --backend warp --device cuda:0 --samples 1024,4096,16384
 """
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import os
 import time
 
 import mujoco
 import numpy as np
+import torch
 import typer
 from mujoco import rollout as mj_rollout
 from rich.console import Console
 from rich.table import Table
 
+from shared.config import ConfigError
 from shared.scenario import load_scenario
 from shared.scene import compile_model, get_full_state, initial_data
 from planner_client.build import build_motion_planner
@@ -34,7 +46,8 @@ SCENARIOS = ("navigation", "push_pull", "pick_place")
 app = typer.Typer(add_completion=False)
 
 
-def measure(scenario, iterations: int, nthread: int, rounds: int = 4) -> dict:
+def measure(scenario, iterations: int, nthread: int, rounds: int = 4, backend: str = "mujoco",
+            device: str = "cuda:0") -> dict:
     """Median planner iteration and median bare rollouts, measured in alternating blocks.
 
     The planner runs closed loop (its u0 applied to its own copy of the world). The bare rollouts
@@ -43,7 +56,7 @@ def measure(scenario, iterations: int, nthread: int, rounds: int = 4) -> dict:
     model (with the sensors its costs read). Blocks alternate ``rounds`` times so background load
     hits all three alike; each pool is used only in its own block so idle threads never compete.
     """
-    planner = build_motion_planner(scenario, nthread)
+    planner = build_motion_planner(scenario, nthread, backend=backend, device=device)
     model = planner.problem.model
     data = initial_data(scenario, model)      # the scenario's start pose (the Panda's ready pose)
     world = compile_model(scenario)
@@ -77,7 +90,7 @@ def measure(scenario, iterations: int, nthread: int, rounds: int = 4) -> dict:
 
     def sensor_rollout():
         x0, ctrl = work[next(counter) % len(work)]
-        planner.engine.run(x0, ctrl)
+        planner.engine.sensors(x0, torch.from_numpy(ctrl).to(planner.device))
 
     try:
         with mj_rollout.Rollout(nthread=nthread) as pool:
@@ -93,7 +106,8 @@ def measure(scenario, iterations: int, nthread: int, rounds: int = 4) -> dict:
             "ratio_to_rollout": round(med["plan"] / med["world"], 3),
             "ratio_to_sensor_rollout": round(med["plan"] / med["sensors"], 3),
             "iteration_ms": round(med["plan"] * 1e3, 3), "rollout_ms": round(med["world"] * 1e3, 3),
-            "sensor_rollout_ms": round(med["sensors"] * 1e3, 3), "threads": nthread}
+            "sensor_rollout_ms": round(med["sensors"] * 1e3, 3), "threads": nthread,
+            "backend": backend, "device": device if backend == "warp" else "cpu"}
 
 
 @app.command()
@@ -102,16 +116,36 @@ def main(
     iterations: int = typer.Option(200, "--iterations", "-n", help="Timed planner iterations."),
     threads: int = typer.Option(0, help="Rollout threads (0: one per core)."),
     as_json: bool = typer.Option(False, "--json", help="One JSON object per line per case."),
+    backend: str = typer.Option("mujoco", help="Rollout backend: mujoco (mujoco.rollout on the "
+                                "CPU) or warp (MuJoCo Warp, the m3p2i\\[gpu] extra)."),
+    device: str = typer.Option("cuda:0", help="The warp backend's device: cuda:N or cpu."),
+    samples: str = typer.Option("", help="Samples per mode, comma-separated (1024,4096,16384): "
+                                "one case each; default: the scenario's planner.samples."),
 ) -> None:
     nthread = threads or os.cpu_count() or 1
+    try:
+        counts = [int(v) for v in samples.split(",") if v.strip()] or [None]
+    except ValueError:
+        raise typer.BadParameter(f"{samples!r}: expected integers separated by commas",
+                                 param_hint="--samples") from None
     rows = []
     for name in scenario:
-        row = measure(load_scenario(name), iterations, nthread)
-        rows.append(row)
-        if as_json:
-            print(json.dumps(row), flush=True)
+        for count in counts:
+            sc = load_scenario(name)
+            if count is not None:
+                sc = dataclasses.replace(sc, planner=dataclasses.replace(sc.planner, samples=count))
+            try:
+                row = measure(sc, iterations, nthread, backend=backend, device=device)
+            except ConfigError as exc:
+                print(f"{name}: skipped: {exc}", flush=True)
+                break
+            rows.append(row)
+            if as_json:
+                print(json.dumps(row), flush=True)
     if not as_json:
-        table = Table(title=f"planner speed ({nthread} rollout threads, median of {iterations})")
+        where = (f"{backend} backend on {device}" if backend == "warp"
+                 else f"{nthread} rollout threads")
+        table = Table(title=f"planner speed ({where}, median of {iterations})")
         for col in ("scenario", "samples x horizon", "planner Hz", "iteration ms",
                     "bare rollout ms", "ratio", "rollout + sensors ms", "ratio to it"):
             table.add_column(col, justify="right")

@@ -10,6 +10,7 @@ from __future__ import annotations
 import hashlib
 import json
 import os
+import re
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -173,6 +174,18 @@ class ObjectiveConfig:
     fixed: dict[str, float] = field(default_factory=dict)   # actuator name -> pinned control
 
 
+# Rollout backends (planner.backend): "mujoco" is mujoco.rollout's thread pool on the CPU, the
+# default; "warp" is MuJoCo Warp (the m3p2i[gpu] extra) on planner.device.
+ROLLOUT_BACKENDS = ("mujoco", "warp")
+
+
+def rollout_device(value: Any) -> str:
+    """Converter for a warp device name: ``cpu``, ``cuda`` or ``cuda:N``."""
+    if not isinstance(value, str) or not re.fullmatch(r"cpu|cuda(:\d+)?", value):
+        raise ValueError("must be cpu, cuda or cuda:N")
+    return value
+
+
 @dataclass(frozen=True)
 class PlannerConfig:
     """Motion-planner parameters; ``mppi`` keys are checked by the planner against MPPIConfig."""
@@ -182,6 +195,10 @@ class PlannerConfig:
     threads: int = 0                       # rollout threads; 0 = one per core
     aip_period: float = 0.2                # simulated seconds between active-inference ticks
     timestep: float | None = None          # planning step (s), a multiple of the world's; None = its
+    backend: str = "mujoco"                # rollouts: "mujoco" (mujoco.rollout pool) or "warp" (MJWarp)
+    device: str = "cuda:0"                 # the warp backend's device: "cpu" or "cuda[:N]"
+    nconmax: int | None = None             # warp: contacts per world; None = estimated at start
+    njmax: int | None = None               # warp: constraint rows per world; None = estimated
 
     def step(self, world: WorldConfig) -> float:
         """Seconds per planned control step: ``timestep``, or the world's."""
@@ -594,7 +611,11 @@ def _planner(s: Section) -> PlannerConfig:
                         threads=s.opt("threads", 0, int),
                         aip_period=s.opt("aip_period", 0.2, positive, "simulated seconds"),
                         timestep=s.opt("timestep", None, positive, "seconds > 0, a multiple of "
-                                       "world.timestep"))
+                                       "world.timestep"),
+                        backend=s.opt("backend", "mujoco", one_of(ROLLOUT_BACKENDS)),
+                        device=s.opt("device", "cuda:0", rollout_device, "cpu, cuda or cuda:N"),
+                        nconmax=s.opt("nconmax", None, positive_int, "contacts per world"),
+                        njmax=s.opt("njmax", None, positive_int, "constraint rows per world"))
     s.done()
     return cfg
 

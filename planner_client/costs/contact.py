@@ -42,7 +42,8 @@ class Collision(CostTerm):
 
     def __call__(self, batch):
         if not self.obstacles:
-            return torch.zeros(batch.controls.shape[:2], dtype=batch.sensordata.dtype)
+            return torch.zeros(batch.controls.shape[:2], dtype=batch.sensordata.dtype,
+                               device=batch.sensordata.device)
         d = batch.layout.take_all(batch.sensordata, self.requests)        # [S, T, n_obstacles]
         return torch.clamp(self.margin - d, min=0.0).sum(-1) / self.margin
 
@@ -79,7 +80,8 @@ class ContactForce(CostTerm):
 
     def __call__(self, batch):
         if not self.obstacles:
-            return torch.zeros(batch.controls.shape[:2], dtype=batch.sensordata.dtype)
+            return torch.zeros(batch.controls.shape[:2], dtype=batch.sensordata.dtype,
+                               device=batch.sensordata.device)
         f = batch.layout.take_all(batch.sensordata, self.requests)         # [S, T, 3 n_obstacles]
         f = f.unflatten(-1, (len(self.requests), 3))                       # [S, T, n_obstacles, 3]
         return torch.linalg.vector_norm(f, dim=-1).sum(-1)

@@ -33,9 +33,10 @@ def _joint_names(s: Section, ctx: TermContext, default: list[str], what: str) ->
 
 
 @lru_cache(maxsize=None)
-def _constant(values: tuple[float, ...], dtype: torch.dtype) -> torch.Tensor:
-    """``values`` as a tensor ``[J]``, made once: terms run every planner iteration."""
-    return torch.tensor(values, dtype=dtype)
+def _constant(values: tuple[float, ...], dtype: torch.dtype,
+              device: torch.device = torch.device("cpu")) -> torch.Tensor:
+    """``values`` as a tensor ``[J]`` on ``device``, made once: terms run every planner iteration."""
+    return torch.tensor(values, dtype=dtype, device=device)
 
 
 def _positions(batch, requests) -> torch.Tensor:
@@ -74,7 +75,7 @@ class JointLimits(CostTerm):
 
     def __call__(self, batch):
         q = _positions(batch, self.requests)                                  # [S, T, J]
-        lo, hi = _constant(self.lower, q.dtype), _constant(self.upper, q.dtype)
+        lo, hi = _constant(self.lower, q.dtype, q.device), _constant(self.upper, q.dtype, q.device)
         room = torch.minimum(q - lo, hi - q)                                  # [S, T, J]
         return torch.clamp(self.margin - room, min=0.0).sum(-1) / self.margin
 
@@ -102,5 +103,5 @@ class Posture(CostTerm):
 
     def __call__(self, batch):
         q = _positions(batch, self.requests)
-        d = q - _constant(self.target, q.dtype)
+        d = q - _constant(self.target, q.dtype, q.device)
         return (d * d).sum(-1)

@@ -39,15 +39,17 @@ class Objective:
     def __call__(self, batch: RolloutBatch) -> torch.Tensor:
         out = None
         for wt in self.terms:
-            c = wt.term(batch) * self._step_weights(wt, batch.controls.shape[1], batch.sensordata.dtype)
+            c = wt.term(batch) * self._step_weights(wt, batch.controls.shape[1], batch.sensordata.dtype,
+                                                    batch.sensordata.device)
             out = c if out is None else out.add_(c)
         return out
 
-    def _step_weights(self, wt: WeightedTerm, horizon: int, dtype: torch.dtype) -> torch.Tensor:
+    def _step_weights(self, wt: WeightedTerm, horizon: int, dtype: torch.dtype,
+                      device: torch.device = torch.device("cpu")) -> torch.Tensor:
         """weight · mask over the horizon ``[T]``, cached: one multiply per term per iteration."""
-        key = (id(wt), horizon, dtype)
+        key = (id(wt), horizon, dtype, device)
         if key not in self._masks:
-            mask = torch.full((horizon,), wt.weight, dtype=dtype)
+            mask = torch.full((horizon,), wt.weight, dtype=dtype, device=device)
             if wt.when == "running":
                 mask[-1] = 0.0
             elif wt.when == "terminal":
