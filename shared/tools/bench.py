@@ -177,6 +177,18 @@ def select_cases(cfg: BenchConfig, patterns: list[str] | None = None, sweep: Swe
     return ready, skipped
 
 
+def check_variants(ready: list[ReadyCase], workers: int,
+                   check: Callable[[str], list[str]]) -> list[str]:
+    """Every message ``check`` (:func:`shared.tools.check.scenario_errors`: both processes'
+    ``--check``) gives for the sweep variants among ``ready``, ``workers`` at a time; each
+    message names the variant's file and the overrides."""
+    variants = [rc for rc in ready if rc.overrides]
+    with ThreadPoolExecutor(max_workers=max(1, workers)) as pool:
+        found = list(pool.map(lambda rc: check(rc.scenario.source), variants))
+    return [f"{rc.case.case} with --set {', '.join(f'{k}={v}' for k, v in rc.overrides.items())}: "
+            f"{m}" for rc, messages in zip(variants, found) for m in messages]
+
+
 def _variant(case: BenchCase, scenario: Scenario, path: Path, overrides: dict,
              variant_dir: Path) -> ReadyCase:
     """``scenario`` with ``overrides``: checked by the loader as if the user had written them in

@@ -167,6 +167,8 @@ def _run(todo: list[Trial], capacity: int, opts: BenchOptions, results: ResultsF
                     row = failure_row(trial, cancelled.get(ref, ("the Ray task was cancelled",))[0])
                 except RayError as exc:
                     row = failure_row(trial, f"the Ray task failed: {_first_line(exc)}")
+                if ref in cancelled:       # it may have stopped its trial and returned
+                    row, files = failure_row(trial, cancelled[ref][0]), {}
                 _write_logs(opts.out_dir, trial, files)
                 results.append(row)
                 on_done(row)

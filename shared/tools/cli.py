@@ -156,6 +156,15 @@ def bench(
     except ConfigError as exc:
         typer.echo(f"error: {exc}", err=True)
         raise typer.Exit(2) from None
+    if swept.keys:
+        # the loader checked each variant's keys and values; what only the processes resolve
+        # (planner.mppi keys, cost-term parameters) is checked by them now, not trial by trial
+        console.print(f"checking {len(ready)} scenario variants (both processes' --check)")
+        problems = B.check_variants(ready, workers or os.cpu_count() or 1, scenario_errors)
+        if problems:
+            for message in problems:
+                typer.echo(f"error: {message}", err=True)
+            raise typer.Exit(2)
     opts = B.BenchOptions(out_dir=out_dir, workers=workers or os.cpu_count() or 1,
                           timeout=timeout or cfg.timeout, trials=trials, quick=quick, seed=seed)
     results = B.ResultsFile(out_dir / "results.csv")
