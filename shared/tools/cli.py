@@ -232,6 +232,9 @@ def report(
                                                 "regenerated in place (repeatable)."),
     check: bool = typer.Option(False, "--check", help="With --update: change nothing; exit 1 "
                                "when a block differs from what its results give."),
+    plots: Optional[Path] = typer.Option(None, "--plots", help="Folder for the sweep plots of "
+                                         "RESULTS (sweep-KEY.png: success and time against "
+                                         "each swept key's value, one line per case)."),
 ) -> None:
     """Tables from bench results: success with its 95 % Wilson interval, the paper's metrics,
     the machine and date of the trials, every failure with its note (failures.yaml beside
@@ -243,7 +246,12 @@ def report(
     try:
         paper = R.load_paper()
         if results:
-            typer.echo(R.results_report([R.read_results(p) for p in results], paper), nl=False)
+            read = [R.read_results(p) for p in results]
+            typer.echo(R.results_report(read, paper), nl=False)
+            if plots is not None:
+                from shared.tools.sweep import plot_sweep
+                for path in plot_sweep([r for res in read for r in res.rows], plots):
+                    typer.echo(f"wrote {path}")
         stale = []
         for doc in update or []:
             text = doc.read_text()
