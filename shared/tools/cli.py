@@ -125,7 +125,7 @@ def bench(
                                              "runs), e.g. --set planner.samples=50,100,200. "
                                              "Adds to or replaces the file's sweep: section."),
     ray: bool = typer.Option(False, "--ray", help="Run the trials as Ray tasks on a local Ray "
-                             "instance of --workers CPUs (needs m3p2i[cluster])."),
+                             "instance of --workers CPUs (needs Ray: the 'cluster' extra of m3p2i)."),
     ray_address: Optional[str] = typer.Option(None, help="Run the trials on the Ray cluster at "
                                               "this address (e.g. ray://head:10001 or auto); "
                                               "every node needs m3p2i installed."),
@@ -172,7 +172,9 @@ def bench(
     planned, todo = B.plan_trials(ready, cfg, opts, done)
     for s in skipped:
         console.print(f"[yellow]skipped[/] {s.case.case}: {s.reason}")
-    console.print(f"{len(planned)} trials in {len(ready)} cases, {len(planned) - len(todo)} already "
+    variants = len(swept.variants())
+    shape = f"{len(ready) // variants} cases × {variants} variants" if swept.keys else f"{len(ready)} cases"
+    console.print(f"{len(planned)} trials in {shape}, {len(planned) - len(todo)} already "
                   f"in {results.path}, {len(todo)} to run on {opts.workers} workers "
                   f"(time-out {opts.timeout:.0f} s each)")
     cluster = None
