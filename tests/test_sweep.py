@@ -88,17 +88,18 @@ def test_a_bad_set_is_the_loaders_error_before_any_trial(tmp_path, setting, mess
     assert not (out / "results.csv").exists() and not (out / "logs").exists()
 
 
-def _row(case, samples, seed, success, time="", reason="", hz="50.0"):
+def _row(case, samples, seed, success, time="", reason="", hz="50.0", hits=""):
     return {"case": case, "variant": "v", "scenario": case, "scenario_hash": f"h{samples}",
             "seed": seed, "success": success, "status": "success" if success else "timeout",
             "reason": reason, "time": time, "planner_hz": hz, "machine": "CPU X, 2 cores",
-            "date": "2026-11-30", "overrides": f'{{"planner.samples": {samples}}}'}
+            "date": "2026-11-30", "overrides": f'{{"planner.samples": {samples}}}',
+            "collisions": hits}
 
 
 def test_sweep_tables_and_plot_per_key(tmp_path):
     results = ResultsFile(tmp_path / "results.csv")
     for r in [_row("push", 200, 0, True, 4.0), _row("push", 200, 1, True, 6.0),
-              _row("push", 25, 0, False), _row("push", 25, 1, True, 8.0),
+              _row("push", 25, 0, False, hits="1"), _row("push", 25, 1, True, 8.0, hits="0"),
               _row("pull", 25, 0, False, reason="timeout", hz=""), _row("pull", 25, 1, False)]:
         results.append(r)
     rows = list(csv.DictReader((tmp_path / "results.csv").open()))
@@ -108,8 +109,8 @@ def test_sweep_tables_and_plot_per_key(tmp_path):
         ("push", 25, 1, 2), ("push", 200, 2, 2), ("pull", 25, 0, 2)]
     assert points[1].time == (5.0, 1.0)
     text = sweep_report(rows)
-    assert "| push | 25 | 2 | 1/2 (9-91 %) | 8.00 (0.00) | 50.0 |" in text
-    assert "| pull | 25 | 2 | 0/2 (0-66 %) | — | 50.0 |" in text
+    assert "| push | 25 | 2 | 1/2 (9-91 %) | 8.00 (0.00) | 0.50 | 50.0 |" in text
+    assert "| pull | 25 | 2 | 0/2 (0-66 %) | — | — | 50.0 |" in text
     # a report of the file gives the same tables: variants are side by side, not versions
     assert text in results_report([read_results(tmp_path)], {})
     (png,) = plot_sweep(rows, tmp_path / "plots")

@@ -173,6 +173,7 @@ class SweepPoint:
     successes: int
     time: tuple[float, float] | None      # mean, std over the successful trials
     planner_hz: float | None
+    collisions: float | None = None       # mean over the trials that ended by themselves
 
 
 def swept_keys(rows: list[dict[str, str]]) -> list[str]:
@@ -207,12 +208,14 @@ def sweep_points(rows: list[dict[str, str]], key: str) -> list[SweepPoint]:
             won = [r for r in mine if r["success"] == "1" and not r["reason"]]
             times = [float(r["time"]) for r in won if r["time"]]
             hz = [float(r["planner_hz"]) for r in mine if r["planner_hz"] and not r["reason"]]
+            hits = [float(r["collisions"]) for r in mine if r.get("collisions") and not r["reason"]]
             time = None
             if times:
                 mean = sum(times) / len(times)
                 time = (mean, math.sqrt(sum((t - mean) ** 2 for t in times) / len(times)))
             out.append(SweepPoint(case, values[v], len(mine), len(won), time,
-                                  sum(hz) / len(hz) if hz else None))
+                                  sum(hz) / len(hz) if hz else None,
+                                  sum(hits) / len(hits) if hits else None))
     return out
 
 
@@ -220,26 +223,30 @@ def _is_number(v: Any) -> bool:
     return isinstance(v, (int, float)) and not isinstance(v, bool)
 
 
-SWEEP_HEADERS = ("case", "value", "trials", "success (95 % interval)", "time [s]", "planner Hz")
+SWEEP_HEADERS = ("case", "value", "trials", "success (95 % interval)", "time [s]", "collisions",
+                 "planner Hz")
 
 
 def sweep_table(points: list[SweepPoint], key: str) -> str:
     """Markdown table of one key's points."""
     from shared.tools.bench_report import wilson
     head = ("case", key, *SWEEP_HEADERS[2:])
-    lines = ["| " + " | ".join(head) + " |", "|---|---:|---:|---:|---:|---:|"]
+    lines = ["| " + " | ".join(head) + " |", "|---|" + "---:|" * (len(head) - 1)]
     for p in points:
         lo, hi = wilson(p.successes, p.trials)
         time = f"{p.time[0]:.2f} ({p.time[1]:.2f})" if p.time else "—"
         hz = f"{p.planner_hz:.1f}" if p.planner_hz is not None else "—"
+        hits = f"{p.collisions:.2f}" if p.collisions is not None else "—"
         lines.append(f"| {p.case} | {_show(p.value)} | {p.trials} | {p.successes}/{p.trials} "
-                     f"({100 * lo:.0f}-{100 * hi:.0f} %) | {time} | {hz} |")
+                     f"({100 * lo:.0f}-{100 * hi:.0f} %) | {time} | {hits} | {hz} |")
     return "\n".join(lines)
 
 
 SWEEP_LEGEND = ("Per case and value of the swept key, over the seeds (and the other swept keys' "
                 "values): success with its 95 % Wilson interval; time: mean (std) simulated "
-                "seconds to success, over the successful trials; planner Hz: mean planner "
+                "seconds to success, over the successful trials; collisions: mean contacts per trial "
+                "with what the scenario's metric counts (the moving obstacle), over the trials "
+                "that ended by themselves (— : not measured); planner Hz: mean planner "
                 "iterations per wall-clock second.")
 
 
