@@ -34,6 +34,7 @@ DETERMINISTIC = ("case", "variant", "scenario", "scenario_hash", "seed", "succes
 @pytest.fixture(scope="module")
 def local_ray():
     os.environ.setdefault("RAY_USAGE_STATS_ENABLED", "0")
+    os.environ.setdefault("RAY_process_group_cleanup_enabled", "1")   # as bench_ray.connect
     ray.init(num_cpus=2, include_dashboard=False, log_to_driver=False)
     yield BR.connect(None, 2)
     ray.shutdown()
@@ -113,6 +114,14 @@ def _planner_of(scenario_name: str) -> list[int]:
     return out
 
 
+def _alive(pid: int) -> bool:
+    """Running, not a zombie waiting for its parent to read its status."""
+    try:
+        return Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0] != "Z"
+    except OSError:
+        return False
+
+
 def _plan(tmp_path, cases, timeout: float):
     cfg = B.load_bench(write_bench(tmp_path, cases))
     ready, _ = B.select_cases(cfg)
@@ -144,6 +153,12 @@ def test_a_killed_task_is_a_failure_row_and_the_bench_finishes(tmp_path, local_r
         assert killed is not None, "the endless trial never started"
         bench.join(120)
         assert not bench.is_alive() and outcome["ok"]
+        # Ray takes the dead worker's process group, the trial's two processes, with it
+        deadline = time.monotonic() + 30
+        while any(Path(f"/proc/{pid}").exists() and _alive(pid) for pid in orphans) \
+                and time.monotonic() < deadline:
+            time.sleep(0.2)
+        assert not [pid for pid in orphans if _alive(pid)], "the trial's processes outlived it"
     finally:
         for pid in orphans:                        # its server and planner outlive the worker
             try:

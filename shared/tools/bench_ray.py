@@ -56,6 +56,9 @@ def connect(address: str | None, cpus: int) -> Cluster:
     """Join the Ray cluster at ``address``, or start a local instance of ``cpus`` CPUs; an
     instance this process already started (``ray.init`` in a test) is used as it is."""
     os.environ.setdefault("RAY_USAGE_STATS_ENABLED", "0")     # no network at run time
+    # a local instance: a worker that dies (killed, cancelled by force) takes its process group
+    # with it, i.e. the trial's world and planner, instead of leaving them running
+    os.environ.setdefault("RAY_process_group_cleanup_enabled", "1")
     try:
         import ray
     except ImportError:
