@@ -141,9 +141,9 @@ def bench(
 
     from shared.tools import bench as B
     from shared.tools import bench_report as R
+    from shared.tools import sweep as S
     # piped or logged output gets the whole table instead of 80 columns of wrapped cells
     console = Console(width=None if sys.stdout.isatty() else 200)
-    from shared.tools import sweep as S
     try:
         cfg = B.load_bench(config)
         # --quick has its own folder: its trials are seeds 0-1 of the full run's, but its
@@ -190,7 +190,7 @@ def bench(
         task = bar.add_task("bench", total=len(todo))
 
         def done(row: dict) -> None:
-            label = f" [{S.label(S.from_cell(row['overrides']))}]" if row.get("overrides") else ""
+            label = f" ({S.label(S.from_cell(row['overrides']))})" if row.get("overrides") else ""
             bar.update(task, advance=1, description=f"{row['case']}{label} seed {row['seed']}: "
                                                     f"{row['reason'] or row['status']}")
         if cluster is not None:
