@@ -21,9 +21,11 @@ import platform
 import shutil
 import threading
 import time
+
+import yaml
 from collections.abc import Callable
 from concurrent.futures import FIRST_COMPLETED, ThreadPoolExecutor, wait
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 from rich.console import Console
@@ -35,12 +37,13 @@ from shared.config import ConfigError, Section, load_yaml, one_of, positive, pos
 from shared.config_files import find
 from shared.tools.launch import EpisodeLaunch, run_episode
 from shared.evaluation.metrics import MetricsEvaluator
-from shared.scenario import Scenario, find_scenario, load_scenario
+from shared.scenario import Scenario, find_scenario, load_scenario, parse_scenario
+from shared.tools.sweep import Sweep, apply_overrides, file_label, parse_sweep_section, to_cell
 
 # results.csv columns; one row per finished trial
 FIELDS = ("case", "variant", "scenario", "scenario_hash", "seed", "success", "status", "reason",
           "position_error", "orientation_error", "collisions", "time", "wall_time", "planner_hz",
-          "steps", "trial_wall", "initial", "log", "machine", "date", "mode")
+          "steps", "trial_wall", "initial", "log", "machine", "date", "mode", "overrides")
 
 
 def machine() -> str:
@@ -78,6 +81,7 @@ class BenchConfig:
     cases: tuple[BenchCase, ...]
     timeout: float = 600.0       # wall-clock seconds per trial
     quick_trials: int = 2        # trials per case with --quick
+    sweep: Sweep = Sweep()       # every case runs once per combination of these values
 
 
 def find_bench(name_or_path: str | os.PathLike) -> Path:
@@ -108,7 +112,9 @@ def load_bench(name_or_path: str | os.PathLike) -> BenchConfig:
         raise top.error("cases", "needs at least one case", [])
     cfg = BenchConfig(source=str(path), cases=tuple(cases),
                       timeout=top.opt("timeout", 600.0, positive, "wall-clock seconds > 0"),
-                      quick_trials=top.opt("quick_trials", 2, positive_int))
+                      quick_trials=top.opt("quick_trials", 2, positive_int),
+                      sweep=parse_sweep_section(top.opt("sweep", None), str(path))
+                      if top.has("sweep") else Sweep())
     top.done()
     return cfg
 
@@ -120,6 +126,7 @@ class ReadyCase:
     case: BenchCase
     scenario: Scenario
     evaluator: MetricsEvaluator          # the scenario's metrics, frames resolved
+    overrides: dict = field(default_factory=dict)   # of a sweep: {key: value}
 
 
 @dataclass(frozen=True)
@@ -128,16 +135,22 @@ class SkippedCase:
     reason: str
 
 
-def select_cases(cfg: BenchConfig, patterns: list[str] | None = None
-                 ) -> tuple[list[ReadyCase], list[SkippedCase]]:
+def select_cases(cfg: BenchConfig, patterns: list[str] | None = None, sweep: Sweep | None = None,
+                 variant_dir: Path | None = None) -> tuple[list[ReadyCase], list[SkippedCase]]:
     """The cases matching ``patterns`` (fnmatch, e.g. ``corner*``; all when None) whose scenario
-    loads and compiles; the others with the reason (scenario file missing or invalid)."""
+    loads and compiles; the others with the reason (scenario file missing or invalid).
+
+    With a sweep (``sweep``, else the bench file's), each case becomes one ready case per
+    combination of values: its scenario with the overrides, read by the scenario loader (a bad
+    key or value raises its :class:`ConfigError`: the user's ``--set`` is wrong, not the case)
+    and written to ``variant_dir`` (both processes of a trial load that file)."""
     chosen = list(cfg.cases)
     if patterns:
         chosen = [c for c in cfg.cases if any(fnmatch.fnmatchcase(c.case, p) for p in patterns)]
         if not chosen:
             raise ConfigError(cfg.source, "cases", "no case matches --cases", patterns,
                               f"names or patterns of: {', '.join(c.case for c in cfg.cases)}")
+    sweep = cfg.sweep if sweep is None else sweep
     ready, skipped = [], []
     base = Path(cfg.source).parent
     for case in chosen:
@@ -150,10 +163,47 @@ def select_cases(cfg: BenchConfig, patterns: list[str] | None = None
             continue
         try:
             scenario = load_scenario(path)
-            ready.append(ReadyCase(case, scenario, MetricsEvaluator(scenario)))
+            evaluator = MetricsEvaluator(scenario)
         except (ConfigError, ValueError) as exc:   # ValueError: the model does not compile
             skipped.append(SkippedCase(case, f"invalid scenario: {exc}"))
+            continue
+        if not sweep.keys:
+            ready.append(ReadyCase(case, scenario, evaluator))
+            continue
+        if variant_dir is None:
+            raise ValueError("a sweep needs a folder for its scenario variants")
+        for overrides in sweep.variants():
+            ready.append(_variant(case, scenario, path, overrides, variant_dir))
     return ready, skipped
+
+
+def check_variants(ready: list[ReadyCase], workers: int,
+                   check: Callable[[str], list[str]]) -> list[str]:
+    """Every message ``check`` (:func:`shared.tools.check.scenario_errors`: both processes'
+    ``--check``) gives for the sweep variants among ``ready``, ``workers`` at a time; each
+    message names the variant's file and the overrides."""
+    variants = [rc for rc in ready if rc.overrides]
+    with ThreadPoolExecutor(max_workers=max(1, workers)) as pool:
+        found = list(pool.map(lambda rc: check(rc.scenario.source), variants))
+    return [f"{rc.case.case} with --set {', '.join(f'{k}={v}' for k, v in rc.overrides.items())}: "
+            f"{m}" for rc, messages in zip(variants, found) for m in messages]
+
+
+def _variant(case: BenchCase, scenario: Scenario, path: Path, overrides: dict,
+             variant_dir: Path) -> ReadyCase:
+    """``scenario`` with ``overrides``: checked by the loader as if the user had written them in
+    ``path`` (so its error names that file and the key), then written to ``variant_dir`` under
+    the scenario's own name, for both processes to load."""
+    raw = apply_overrides(scenario.raw, overrides)
+    raw.setdefault("name", scenario.name)            # the file name must not rename it
+    parse_scenario(raw, f"{path} with --set {', '.join(f'{k}={v}' for k, v in overrides.items())}")
+    out = variant_dir / f"{case.case}@{file_label(overrides)}" / Path(path).name
+    out.parent.mkdir(parents=True, exist_ok=True)
+    text = yaml.safe_dump(raw, sort_keys=False)
+    if not out.is_file() or out.read_text() != text:
+        out.write_text(text)
+    variant = load_scenario(out)
+    return ReadyCase(case, variant, MetricsEvaluator(variant), dict(overrides))
 
 
 # ------------------------------------------------------------------------------------- results
@@ -246,6 +296,13 @@ class Trial:
     scenario: Scenario
     evaluator: MetricsEvaluator
     seed: int
+    overrides: dict = field(default_factory=dict)    # of a sweep: {key: value}
+
+    @property
+    def log_dir(self) -> Path:
+        """Where its logs go, relative to the bench's output folder."""
+        name = self.case.case + (f"@{file_label(self.overrides)}" if self.overrides else "")
+        return Path("logs") / name / f"seed-{self.seed:03d}"
 
 
 @dataclass(frozen=True)
@@ -266,7 +323,8 @@ def plan_trials(ready: list[ReadyCase], cfg: BenchConfig, opts: BenchOptions,
     for i in range(max(_trials(rc.case, cfg, opts) for rc in ready) if ready else 0):
         for rc in ready:
             if i < _trials(rc.case, cfg, opts):
-                planned.append(Trial(rc.case, rc.scenario, rc.evaluator, opts.seed + i))
+                planned.append(Trial(rc.case, rc.scenario, rc.evaluator, opts.seed + i,
+                                     rc.overrides))
     todo = [t for t in planned if trial_key(t.case.case, t.seed, t.scenario.hash) not in done]
     return planned, todo
 
@@ -280,7 +338,7 @@ def _trials(case: BenchCase, cfg: BenchConfig, opts: BenchOptions) -> int:
 def run_trial(trial: Trial, opts: BenchOptions, threads: int, stop: threading.Event) -> dict | None:
     """Run one trial and return its row; None when the bench was interrupted (not recorded, so
     a rerun runs it again)."""
-    rel = Path("logs") / trial.case.case / f"seed-{trial.seed:03d}"
+    rel = trial.log_dir
     run_dir = opts.out_dir / rel
     shutil.rmtree(run_dir, ignore_errors=True)   # a stale log of an interrupted attempt must not count
     result = run_episode(EpisodeLaunch(scenario=trial.scenario.source, run_dir=run_dir,
@@ -306,6 +364,7 @@ def run_trial(trial: Trial, opts: BenchOptions, threads: int, stop: threading.Ev
         "initial": json.dumps(initial) if initial is not None else "",
         "log": str(rel / "episode.jsonl"),
         "machine": machine(), "date": time.strftime("%Y-%m-%d"), "mode": trial.case.mode_label,
+        "overrides": to_cell(trial.overrides),
     }
 
 

@@ -237,8 +237,10 @@ def read_results(path: str | Path) -> Results:
                           "its output folder")
     with csv_path.open(newline="") as f:
         rows = list(csv.DictReader(f))
-    newest = {r["case"]: r["scenario_hash"] for r in rows}
-    latest = {(r["case"], int(r["seed"])): r for r in rows if r["scenario_hash"] == newest[r["case"]]}
+    # a sweep's variants (same case, other overrides) are versions side by side, not in turn
+    newest = {(r["case"], r.get("overrides") or ""): r["scenario_hash"] for r in rows}
+    latest = {(r["case"], r.get("overrides") or "", int(r["seed"])): r for r in rows
+              if r["scenario_hash"] == newest[(r["case"], r.get("overrides") or "")]}
     notes: dict[tuple[str, int], str] = {}
     notes_path = csv_path.parent / NOTES_FILE
     if notes_path.is_file():
@@ -263,7 +265,11 @@ def _failure_line(r: dict[str, str], notes: dict[tuple[str, int], str]) -> str:
 def results_report(results: list[Results], paper: dict[str, PaperRow]) -> str:
     """The Markdown a README or doc shows for some results files: one table (a row per case and
     file), the machines and dates the trials ran on, and every failure with its note."""
+    from shared.tools.sweep import swept_keys, sweep_report
     rows, failures, machines, dates = [], [], set(), set()
+    swept = [r for res in results for r in res.rows if swept_keys([r])]
+    if swept:     # a sweep: one table per key; its failures are what the rates count
+        return sweep_report(swept) + _trials_ran_on(swept)
     for res in results:
         rows += table_rows(summarize(res.rows, res.cases), paper)
         failures += [_failure_line(r, res.notes) for r in res.rows if r["success"] != "1"]
@@ -274,6 +280,12 @@ def results_report(results: list[Results], paper: dict[str, PaperRow]) -> str:
     if failures:
         parts += ["", "Failures:", ""] + failures
     return "\n".join(parts) + "\n"
+
+
+def _trials_ran_on(rows: list[dict[str, str]]) -> str:
+    machines = sorted({r.get("machine") or "machine not recorded" for r in rows})
+    dates = sorted({r.get("date") or "date not recorded" for r in rows})
+    return f"\nTrials ran on {'; '.join(machines)}, {', '.join(dates)}.\n"
 
 
 def update_reports(text: str, base: Path, paper: dict[str, PaperRow]) -> str:

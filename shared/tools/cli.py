@@ -132,24 +132,51 @@ def bench(
     timeout: Optional[float] = typer.Option(None, help="Wall-clock seconds per trial before "
                                             "both processes are killed (default: the file's)."),
     seed: int = typer.Option(0, help="Seed of trial 0; trial i uses seed + i."),
+    set_: Optional[list[str]] = typer.Option(None, "--set", help="Sweep a scenario key over "
+                                             "values: KEY=V1,V2,... (repeatable; the product "
+                                             "runs), e.g. --set planner.samples=50,100,200. "
+                                             "Adds to or replaces the file's sweep: section."),
+    ray: bool = typer.Option(False, "--ray", help="Run the trials as Ray tasks on a local Ray "
+                             "instance of --workers CPUs (needs Ray: the 'cluster' extra of m3p2i)."),
+    ray_address: Optional[str] = typer.Option(None, help="Run the trials on the Ray cluster at "
+                                              "this address (e.g. ray://head:10001 or auto); "
+                                              "every node needs m3p2i installed."),
+    cpus_per_trial: int = typer.Option(1, min=1, help="With Ray: CPUs each trial declares, and "
+                                       "the planner's rollout threads."),
 ) -> None:
-    """Run seeded trials of every case (Tables I-III), resumable; print and write the summary."""
+    """Run seeded trials of every case (Tables I-III), resumable; print and write the summary.
+
+    With --set or a sweep: section, every case runs once per combination of the values; the
+    summary adds one table and one plot (sweep-KEY.png) per swept key. With --ray or
+    --ray-address the same trials run as Ray tasks; results and logs come back to OUT."""
     from rich.console import Console
 
     from shared.tools import bench as B
     from shared.tools import bench_report as R
+    from shared.tools import sweep as S
     # piped or logged output gets the whole table instead of 80 columns of wrapped cells
     console = Console(width=None if sys.stdout.isatty() else 200)
     try:
         cfg = B.load_bench(config)
-        ready, skipped = B.select_cases(cfg, [c.strip() for c in cases.split(",")] if cases else None)
+        # --quick has its own folder: its trials are seeds 0-1 of the full run's, but its
+        # summary must not replace the full run's summary.md
+        out_dir = out or Path("runs") / "bench" / (Path(cfg.source).stem + ("-quick" if quick else ""))
+        swept = cfg.sweep.merged(S.parse_set(set_)) if set_ else cfg.sweep
+        ready, skipped = B.select_cases(cfg, [c.strip() for c in cases.split(",")] if cases else None,
+                                        swept, out_dir / "scenarios")
         paper = R.load_paper()
     except ConfigError as exc:
         typer.echo(f"error: {exc}", err=True)
         raise typer.Exit(2) from None
-    # --quick has its own folder: its trials are seeds 0-1 of the full run's, but its summary
-    # must not replace the full run's summary.md
-    out_dir = out or Path("runs") / "bench" / (Path(cfg.source).stem + ("-quick" if quick else ""))
+    if swept.keys:
+        # the loader checked each variant's keys and values; what only the processes resolve
+        # (planner.mppi keys, cost-term parameters) is checked by them now, not trial by trial
+        console.print(f"checking {len(ready)} scenario variants (both processes' --check)")
+        problems = B.check_variants(ready, workers or os.cpu_count() or 1, scenario_errors)
+        if problems:
+            for message in problems:
+                typer.echo(f"error: {message}", err=True)
+            raise typer.Exit(2)
     opts = B.BenchOptions(out_dir=out_dir, workers=workers or os.cpu_count() or 1,
                           timeout=timeout or cfg.timeout, trials=trials, quick=quick, seed=seed)
     results = B.ResultsFile(out_dir / "results.csv")
@@ -157,24 +184,53 @@ def bench(
     planned, todo = B.plan_trials(ready, cfg, opts, done)
     for s in skipped:
         console.print(f"[yellow]skipped[/] {s.case.case}: {s.reason}")
-    console.print(f"{len(planned)} trials in {len(ready)} cases, {len(planned) - len(todo)} already "
+    variants = len(swept.variants())
+    shape = f"{len(ready) // variants} cases × {variants} variants" if swept.keys else f"{len(ready)} cases"
+    console.print(f"{len(planned)} trials in {shape}, {len(planned) - len(todo)} already "
                   f"in {results.path}, {len(todo)} to run on {opts.workers} workers "
                   f"(time-out {opts.timeout:.0f} s each)")
+    cluster = None
+    if ray or ray_address:
+        from shared.tools import bench_ray
+        try:
+            cluster = bench_ray.connect(ray_address, opts.workers)
+        except bench_ray.RayUnavailable as exc:
+            typer.echo(f"error: {exc}", err=True)
+            raise typer.Exit(2) from None
+        console.print(f"Ray: {cluster.describe()}, {cpus_per_trial} CPU(s) per trial")
     with B.progress(console) as bar:
         task = bar.add_task("bench", total=len(todo))
-        finished = B.run_trials(todo, opts, results, on_done=lambda row: bar.update(
-            task, advance=1, description=f"{row['case']} seed {row['seed']}: "
-                                         f"{row['reason'] or row['status']}"))
+
+        def done(row: dict) -> None:
+            label = f" ({S.label(S.from_cell(row['overrides']))})" if row.get("overrides") else ""
+            bar.update(task, advance=1, description=f"{row['case']}{label} seed {row['seed']}: "
+                                                    f"{row['reason'] or row['status']}")
+        if cluster is not None:
+            finished = bench_ray.run_trials(todo, opts, results, cluster, cpus_per_trial, done)
+        else:
+            finished = B.run_trials(todo, opts, results, on_done=done)
     keys = {B.trial_key(t.case.case, t.seed, t.scenario.hash) for t in planned}
     rows = B.latest_rows(results.rows(), keys)
-    table = R.table_rows(R.summarize(rows, [rc.case.case for rc in ready]), paper)
+    # a sweep's variants are rows of their own: "push (samples=50)"
+    labelled = [{**r, "case": S.variant_case(r)} for r in rows]
+    order = [S.variant_case({"case": rc.case.case, "overrides": S.to_cell(rc.overrides)})
+             for rc in ready]
+    table = R.table_rows(R.summarize(labelled, order), paper)
     title = f"m3p2i bench {Path(cfg.source).stem}{' --quick' if quick else ''}"
     console.print(R.rich_table(table, title))
     header = (f"# {title}\n\n{time.strftime('%Y-%m-%d %H:%M')}, {os.cpu_count()} cores; "
               f"results: `{results.path}`")
     out_dir.mkdir(parents=True, exist_ok=True)
-    (out_dir / "summary.md").write_text(R.markdown_report(
-        table, [(s.case.case, s.reason) for s in skipped], header))
+    text = R.markdown_report(table, [(s.case.case, s.reason) for s in skipped], header)
+    if swept.keys:
+        text += "\n" + S.sweep_report(rows)
+        console.print(S.sweep_report(rows), markup=False)
+        try:
+            for path in S.plot_sweep(rows, out_dir):
+                console.print(f"plot: {path}")
+        except ImportError:
+            console.print("[yellow]no sweep plot[/]: it needs matplotlib: pip install 'm3p2i[plots]'")
+    (out_dir / "summary.md").write_text(text)
     console.print(f"summary: {out_dir / 'summary.md'}")
     if not finished:
         console.print("interrupted: finished trials are kept; run the same command to resume")
@@ -190,6 +246,9 @@ def report(
                                                 "regenerated in place (repeatable)."),
     check: bool = typer.Option(False, "--check", help="With --update: change nothing; exit 1 "
                                "when a block differs from what its results give."),
+    plots: Optional[Path] = typer.Option(None, "--plots", help="Folder for the sweep plots of "
+                                         "RESULTS (sweep-KEY.png: success and time against "
+                                         "each swept key's value, one line per case)."),
 ) -> None:
     """Tables from bench results: success with its 95 % Wilson interval, the paper's metrics,
     the machine and date of the trials, every failure with its note (failures.yaml beside
@@ -201,7 +260,12 @@ def report(
     try:
         paper = R.load_paper()
         if results:
-            typer.echo(R.results_report([R.read_results(p) for p in results], paper), nl=False)
+            read = [R.read_results(p) for p in results]
+            typer.echo(R.results_report(read, paper), nl=False)
+            if plots is not None:
+                from shared.tools.sweep import plot_sweep
+                for path in plot_sweep([r for res in read for r in res.rows], plots):
+                    typer.echo(f"wrote {path}")
         stale = []
         for doc in update or []:
             text = doc.read_text()
