@@ -3,6 +3,7 @@ SwiftShader (on the CPU), no network but loopback, a fresh profile each time."""
 
 from __future__ import annotations
 
+import io
 import os
 from pathlib import Path
 
@@ -24,14 +25,27 @@ def chromium() -> str:
 
 
 def screenshot(url: str, out: Path, width: int = 1000, height: int = 700,
-               wait_ms: int = 3000) -> np.ndarray:
+               wait_ms: int = 3000, check=None) -> np.ndarray:
     """Load ``url`` and return the page as an RGB array ``[height, width, 3]`` (also written
-    to ``out``)."""
+    to ``out``). With ``check`` (an image -> None that raises AssertionError), the page is
+    photographed again each second until the check passes or two minutes end: a loaded
+    machine draws the scene late, and the caller checks the last image."""
     from PIL import Image
     chromium()
-    run = chromium_screenshot(url, out, width, height, wait_ms)
+
+    def as_image(png: bytes) -> np.ndarray:
+        return np.asarray(Image.open(io.BytesIO(png)).convert("RGB"))
+
+    def ready(png: bytes) -> bool:
+        try:
+            check(as_image(png))
+        except AssertionError:
+            return False
+        return True
+
+    run = chromium_screenshot(url, out, width, height, wait_ms, ready=ready if check else None)
     assert out.is_file(), f"chromium wrote no screenshot (exit {run.returncode}):\n{run.stderr[-3000:]}"
-    return np.asarray(Image.open(out).convert("RGB"))
+    return as_image(out.read_bytes())
 
 
 def colour_share(image: np.ndarray, rgb, tol: float = 40.0) -> float:

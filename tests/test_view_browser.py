@@ -89,7 +89,7 @@ def live(tmp_path_factory):
         control = ControlClient(zmq.Context.instance(), Endpoints(port=port), timeout=30)
         ok, reply = control.send(P.Control(op="pause"))
         assert ok, reply
-        image = screenshot(url, tmp / "live.png")
+        image = screenshot(url, tmp / "live.png", check=_check_pick_place)
         # resumed, the world steps: the view records what the planner publishes and the log
         # gets the steps the replay shows
         ok, reply = control.send(P.Control(op="resume"))
@@ -125,7 +125,7 @@ def test_the_replay_page_draws_the_logged_episode(live):
     proc, url = _start(["view", "--log", str(run_dir), "--view-port", str(free_port_block(count=1)),
                         "--duration", "300"])
     try:
-        image = screenshot(url, tmp / "replay.png")
+        image = screenshot(url, tmp / "replay.png", check=_check_pick_place)
     finally:
         stop(proc)
     _check_pick_place(image)

@@ -597,20 +597,80 @@ def find_chromium() -> str | None:
 
 
 def chromium_screenshot(url: str, out: Path, width: int = 1000, height: int = 700,
-                        wait_ms: int = 6000, timeout: float = 120.0) -> subprocess.CompletedProcess:
-    """Load ``url`` in headless chromium and write a PNG of the page to ``out``, after
-    ``wait_ms`` of the page's time (the websocket delivers the scene meanwhile). WebGL is
-    drawn on the CPU (SwiftShader), with a fresh profile, and no host but 127.0.0.1 resolves:
-    the page must load with no network. Used by the tests and scripts/view_screenshots.py."""
+                        wait_ms: int = 6000, timeout: float = 120.0,
+                        ready=None) -> subprocess.CompletedProcess:
+    """Load ``url`` in headless chromium and write a PNG of the page to ``out``, ``wait_ms``
+    of wall-clock time after asking for it (the websocket delivers the scene meanwhile); with
+    ``ready`` (PNG bytes -> bool), again each second until it holds or ``timeout`` ends, for a
+    loaded machine that draws slowly. WebGL
+    is drawn on the CPU (SwiftShader), with a fresh profile, and no host but 127.0.0.1
+    resolves: the page must load with no network. Used by the tests and
+    scripts/view_screenshots.py.
+
+    Driven over the DevTools protocol rather than with ``--screenshot``: that one waits for a
+    *virtual* time budget, which only runs while the page is idle, and a page fed by a
+    websocket seldom is (measured here: 7 s to over 2 min for the same page)."""
+    import base64
+    import urllib.request
+
+    from websockets.sync.client import connect
+
     exe = find_chromium()
     if exe is None:
         raise FileNotFoundError("no chromium on the PATH (apt-get install chromium)")
-    with tempfile.TemporaryDirectory() as profile:
+    deadline = time.monotonic() + timeout
+    with tempfile.TemporaryDirectory() as profile, \
+            tempfile.TemporaryFile("w+") as err:
         cmd = [exe, "--headless", "--no-sandbox", "--disable-gpu", "--disable-quic",
                "--no-first-run", "--disable-background-networking", "--disable-component-update",
                "--disable-sync", f"--user-data-dir={profile}",
                "--use-angle=swiftshader", "--enable-unsafe-swiftshader",
                "--host-resolver-rules=MAP * ~NOTFOUND, EXCLUDE 127.0.0.1",
-               f"--window-size={width},{height}", f"--virtual-time-budget={wait_ms}",
-               f"--screenshot={out}", url]
-        return subprocess.run(cmd, capture_output=True, text=True, timeout=timeout)
+               f"--window-size={width},{height}", "--remote-debugging-address=127.0.0.1",
+               "--remote-debugging-port=0", "about:blank"]
+        proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=err)
+        returncode = 1
+        try:
+            port_file = Path(profile) / "DevToolsActivePort"   # chromium writes its port here
+            while not (port_file.is_file() and port_file.read_text().strip()):
+                if proc.poll() is not None or time.monotonic() > deadline:
+                    raise RuntimeError("chromium did not open its DevTools port")
+                time.sleep(0.05)
+            port = int(port_file.read_text().split()[0])
+            no_proxy = urllib.request.build_opener(urllib.request.ProxyHandler({}))
+            targets = json.loads(no_proxy.open(f"http://127.0.0.1:{port}/json/list", timeout=10).read())
+            page = next(t for t in targets if t.get("type") == "page")
+            with connect(page["webSocketDebuggerUrl"], proxy=None, max_size=None,
+                         open_timeout=10) as ws:
+                calls = iter(range(1, 1 << 30))
+
+                def call(method: str, **params) -> dict:
+                    n = next(calls)
+                    ws.send(json.dumps({"id": n, "method": method, "params": params}))
+                    while True:          # events arrive between the answers: skip them
+                        msg = json.loads(ws.recv(timeout=max(1.0, deadline - time.monotonic())))
+                        if msg.get("id") == n:
+                            if "error" in msg:
+                                raise RuntimeError(f"{method}: {msg['error']}")
+                            return msg.get("result", {})
+
+                call("Page.navigate", url=url)
+                time.sleep(wait_ms / 1000)
+                png = base64.b64decode(call("Page.captureScreenshot", format="png")["data"])
+                while ready is not None and not ready(png) and time.monotonic() + 1 < deadline:
+                    time.sleep(1.0)
+                    png = base64.b64decode(call("Page.captureScreenshot", format="png")["data"])
+            Path(out).write_bytes(png)
+            returncode = 0
+        except (OSError, RuntimeError, StopIteration, TimeoutError) as exc:
+            err.write(f"\nscreenshot failed: {exc!r}\n")
+        finally:
+            proc.terminate()
+            try:
+                proc.wait(10)
+            except subprocess.TimeoutExpired:
+                proc.kill()
+                proc.wait()
+            err.seek(0)
+            stderr = err.read()
+    return subprocess.CompletedProcess(cmd, returncode, "", stderr)
