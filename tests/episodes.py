@@ -58,14 +58,11 @@ def with_max_time(scenario: str, max_time: float, folder: Path) -> Path:
     return path
 
 
-def run_episodes(specs: list[tuple[str, str | Path, int]], out: Path, workers: int = 3,
+def run_episodes(specs: list[tuple[str, str | Path, int]], out: Path, workers: int = 2,
                  timeout: float = 600.0) -> dict[tuple[str, int], Episode]:
-    """Run ``(label, scenario, seed)`` episodes, ``workers`` at a time; keyed by (label, seed).
-    A trial the harness had to kill (time-out, crash) fails the test with its reason.
-
-    Three at a time on two cores (one rollout thread each): lock-step episodes do not depend
-    on load, and the third keeps both cores busy while the last long episodes finish, where
-    two workers left one core idle for up to half an episode."""
+    """Run ``(label, scenario, seed)`` episodes, ``workers`` at a time, in the order given;
+    keyed by (label, seed). A trial the harness had to kill (time-out, crash) fails the test
+    with its reason."""
     trials = []
     for label, scenario, seed in specs:
         sc = load_scenario(scenario)

@@ -12,7 +12,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from tests.episodes import run_episodes, with_max_time
+from tests.episodes import with_max_time
 
 pytestmark = pytest.mark.slow
 
@@ -27,16 +27,20 @@ HYBRID_SEEDS = (0, 1, 2)
 PUSH_SEEDS = tuple(range(8))
 
 
-@pytest.fixture(scope="module")
-def episodes(tmp_path_factory):
-    out = tmp_path_factory.mktemp("push_pull")
+def episode_specs(out):
+    """This module's episodes, for the session's one pool (tests/conftest.py)."""
     push_corner2 = with_max_time("push_corner2", CORNER2_PUSH_TIME, out)
-    specs = [(name, name, seed) for name in ("push", "pull", "push_dynamic_obstacle",
-                                             "pull_dynamic_obstacle", "push_pull_corner1",
-                                             "push_pull_aip") for seed in PAIR]
-    specs += [("push_pull_corner2", "push_pull_corner2", seed) for seed in HYBRID_SEEDS]
+    specs = [("push_pull_corner2", "push_pull_corner2", seed) for seed in HYBRID_SEEDS]
     specs += [("push_corner2", push_corner2, seed) for seed in PUSH_SEEDS]
-    return run_episodes(specs, out)
+    specs += [(name, name, seed) for name in ("push", "pull", "push_dynamic_obstacle",
+                                              "pull_dynamic_obstacle", "push_pull_corner1",
+                                              "push_pull_aip") for seed in PAIR]
+    return specs
+
+
+@pytest.fixture(scope="module")
+def episodes(lockstep_episodes):
+    return lockstep_episodes
 
 
 def _runs(episodes, name: str, seeds=PAIR) -> list:

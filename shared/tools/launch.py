@@ -9,6 +9,7 @@ from __future__ import annotations
 import socket as pysocket
 import subprocess
 import sys
+import random
 import threading
 import time
 import urllib.error
@@ -25,6 +26,7 @@ from shared.endpoints import DEFAULT_HOST
 # overlapping blocks.
 _handed_out: set[int] = set()
 _ports_lock = threading.Lock()
+_random = random.Random()     # its own: tests and planners seed the global one
 
 
 def free_port_block(host: str = DEFAULT_HOST, count: int = 4) -> int:
@@ -37,11 +39,13 @@ def free_port_block(host: str = DEFAULT_HOST, count: int = 4) -> int:
 
 
 def _find_free_block(host: str, count: int) -> int:
-    for _ in range(50):
-        with pysocket.socket() as s:
-            s.bind((host, 0))
-            base = s.getsockname()[1]
-        if base + count >= 65535 or _handed_out.intersection(range(base, base + count)):
+    # Below the kernel's ephemeral range: a port picked there ("free right now") can be taken
+    # as the source port of any outgoing connection before our server binds it (seen in CI:
+    # a planner's diagnostics port in use); below it only listening servers compete.
+    low, _ = _ephemeral_range()
+    for _ in range(200):
+        base = _random.randrange(10000, max(10001, low - count))
+        if _handed_out.intersection(range(base, base + count)):
             continue
         ok = True
         for p in range(base, base + count):
@@ -54,6 +58,15 @@ def _find_free_block(host: str, count: int) -> int:
         if ok:
             return base
     raise RuntimeError("no block of free ports found")
+
+
+def _ephemeral_range() -> tuple[int, int]:
+    """The kernel's range for outgoing connections' source ports (Linux; else IANA's)."""
+    try:
+        low, high = Path("/proc/sys/net/ipv4/ip_local_port_range").read_text().split()
+        return int(low), int(high)
+    except (OSError, ValueError):
+        return 49152, 65535
 
 
 def read_summary(log_path: Path) -> dict | None:
