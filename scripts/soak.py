@@ -37,7 +37,6 @@ from __future__ import annotations
 
 import json
 import os
-import platform
 import random
 import re
 import signal
@@ -57,6 +56,7 @@ from shared import protocol as P
 from shared.endpoints import Endpoints, socket
 from shared.evaluation import episode
 from shared.scenario import find_scenario
+from shared.tools.bench import machine
 from shared.tools.launch import free_port_block, stop_processes
 
 FAULTS = ("kill", "restart", "flood", "pause")
@@ -635,19 +635,6 @@ class Soak:
             "worlds": [{k: v for k, v in w.items() if k != "steps"} for w in worlds],
             "planners": planners,
         }
-
-
-def machine() -> str:
-    """CPU model and core count, for the table's caption."""
-    model = platform.processor() or platform.machine()
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                model = line.split(":", 1)[1].strip()
-                break
-    except OSError:
-        pass
-    return f"{model}, {os.cpu_count()} cores"
 
 
 # ---------------------------------------------------------------- reporting
