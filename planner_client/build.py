@@ -63,8 +63,14 @@ def build_client(scenario: Scenario, endpoints: Endpoints, threads: int = 0,
     """The planner client of ``scenario``; ``before_connect`` runs once the planner and task
     are built (the slow part: imports, model compilation) and before any socket is opened:
     a hot spare waits there."""
-    planner = build_motion_planner(scenario, threads, seed, backend, device)
-    task = build_task(scenario, planner)
+    def renew(episode_seed: int | None):
+        planner = build_motion_planner(scenario, threads,
+                                       seed if episode_seed is None else episode_seed,
+                                       backend, device)
+        return planner, build_task(scenario, planner)
+
+    planner, task = renew(None)
     if before_connect is not None:
         before_connect()
-    return PlannerClient(planner, task, endpoints, scenario.name, scenario.hash, **options)
+    return PlannerClient(planner, task, endpoints, scenario.name, scenario.hash, renew=renew,
+                         **options)

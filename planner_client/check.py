@@ -1,6 +1,7 @@
 """What the planner checks before it starts: the scenario file, and every name in it that only
 the compiled model or the planner's registries can confirm (cost terms and their frames and
-actuators, pinned controls, observers' frames, ``planner.mppi`` keys).
+actuators, pinned controls, observers' frames, ``planner.mppi`` keys, ``planner.model``'s
+bodies).
 
 ``m3p2i-planner --check`` prints them all; ``m3p2i check`` / ``m3p2i run`` merge them with the
 world's.
@@ -17,7 +18,9 @@ from shared.config import ConfigError, ErrorLog
 from shared.frames import FrameResolver
 from shared.predicates import check_frames
 from shared.scenario import Scenario
-from planner_client.problem import actuator_names, build_objectives, build_problem, mppi_config
+from shared.scene import build_spec
+from planner_client.problem import (actuator_names, apply_planning_model, build_objectives,
+                                    build_problem, mppi_config)
 
 
 def model_checks(scenario: Scenario, model: mujoco.MjModel, resolve: FrameResolver,
@@ -25,6 +28,7 @@ def model_checks(scenario: Scenario, model: mujoco.MjModel, resolve: FrameResolv
     """What the planner resolves against its compiled model and registries."""
     errors.call(build_objectives, scenario, resolve, actuator_names(model))
     errors.call(mppi_config, scenario, model)
+    errors.call(apply_planning_model, build_spec(scenario), scenario.planner.model, scenario.source)
     for factor, cfg in scenario.observers.items():
         for _, pred in cfg.rules:
             errors.call(check_frames, pred, resolve, scenario.source, f"observers.{factor}")

@@ -58,13 +58,23 @@ class LoopStats:
         return mean_hz(self.plan_times)
 
 
+Renew = Callable[[int | None], tuple[MotionPlanner, TaskLayer]]
+"""Builds the planner and task layer afresh for a new episode, sampling with the given seed
+(None: the planner's own)."""
+
+
 class PlannerClient:
     def __init__(self, planner: MotionPlanner, task: TaskLayer, endpoints: Endpoints,
                  scenario_name: str, scenario_hash: str, server_timeout: float = 2.0,
                  exit_on_done: bool = True, diagnostics: bool = True,
-                 keys: PlannerKeys | None = None, diagnostics_host: str | None = None):
+                 keys: PlannerKeys | None = None, diagnostics_host: str | None = None,
+                 renew: Renew | None = None):
+        """``renew``: when given, each new session of the world after the first (a new episode:
+        a world reset with a seed, or restarted) gets a planner and task layer as a fresh
+        process would build them, so no warm start, belief or random stream carries over."""
         self.planner = planner
         self.task = task
+        self.renew = renew
         self.endpoints = endpoints
         self.hello = P.Hello(scenario=scenario_name, scenario_hash=scenario_hash)
         self.server_timeout = server_timeout
@@ -136,6 +146,8 @@ class PlannerClient:
                                            f"nu={self.planner.problem.model.nu}")
                 log.info("connected: %s, %s mode, dt %.3f s, session %s", reply.scenario,
                          reply.mode, reply.dt, reply.session)
+                if self.welcome is not None and reply.session != self.welcome.session:
+                    self._new_episode(reply.seed)
                 self.welcome = reply
                 self._lead = LeadEstimate(reply.dt) if reply.mode == "realtime" else None
                 self._sent.clear()
@@ -148,6 +160,20 @@ class PlannerClient:
             if give_up is not None and time.monotonic() - start > give_up:
                 raise TimeoutError(f"no server answered at {self.endpoints.control} "
                                    f"within {give_up:.0f} s")
+
+    def _new_episode(self, seed: int | None) -> None:
+        """Start over for a new episode of the world (``renew``), sampling with the world's
+        episode seed when it sends one."""
+        if self.renew is None:
+            return
+        log.info("new episode%s: planner and task layer rebuilt",
+                 f" (seed {seed})" if seed is not None else "")
+        self.planner.close()
+        self.planner, self.task = self.renew(seed)
+        self.mirror = Mirror(self.planner.problem.model)
+        self._action = None
+        self._last_ctrl = self.robot.safe_stop()
+        self._faults = 0
 
     def _secure(self, sock: zmq.Socket) -> None:
         """A socket to the world: a CURVE client holding the world's public key, with keys."""
@@ -211,7 +237,8 @@ class PlannerClient:
                 continue
             last_state_at = time.monotonic()
             if state.session != self.welcome.session:
-                log.info("server restarted (new session %s); handshaking again", state.session)
+                log.info("new session %s (the world restarted or began a new episode); handshaking again",
+                         state.session)
                 self.handshake()
                 continue
             if state.status != "running":

@@ -16,7 +16,7 @@ import mujoco
 from shared.config import ConfigError, ErrorLog, Section
 from shared.frames import FrameResolver
 from shared.robots import RobotSpec, get_robot
-from shared.scenario import Scenario
+from shared.scenario import PlanningModel, Scenario
 from shared.scene import build_spec, compile_model, initial_data, obstacle_names
 from planner_client.costs import JointInfo, Objective, TermContext, build_objective
 from planner_client.mppi import MPPIConfig
@@ -57,6 +57,7 @@ def build_problem(scenario: Scenario, extra_sensors: list[SensorRequest] = ()) -
     # planner.timestep: the rollouts step (and hold each control) this long; the world's
     # physics is unchanged, and the world plays the plan at its own rate
     spec.option.timestep = scenario.planner.step(scenario.world)
+    apply_planning_model(spec, scenario.planner.model, scenario.source)
     base = compile_model(scenario, spec.copy())
     resolve = FrameResolver(base, robot.frame)
     actuators = actuator_names(base)
@@ -67,6 +68,36 @@ def build_problem(scenario: Scenario, extra_sensors: list[SensorRequest] = ()) -
     model = compile_model(scenario, spec)
     return PlanningProblem(scenario, robot, model, objectives, SensorLayout(model, requests),
                            robot_pos, actuators, FrameResolver(model, robot.frame))
+
+
+_SOLVERS = {"Newton": mujoco.mjtSolver.mjSOL_NEWTON, "CG": mujoco.mjtSolver.mjSOL_CG,
+            "PGS": mujoco.mjtSolver.mjSOL_PGS}
+_CONES = {"pyramidal": mujoco.mjtCone.mjCONE_PYRAMIDAL, "elliptic": mujoco.mjtCone.mjCONE_ELLIPTIC}
+_INTEGRATORS = {"Euler": mujoco.mjtIntegrator.mjINT_EULER,
+                "implicitfast": mujoco.mjtIntegrator.mjINT_IMPLICITFAST,
+                "implicit": mujoco.mjtIntegrator.mjINT_IMPLICIT, "RK4": mujoco.mjtIntegrator.mjINT_RK4}
+
+
+def apply_planning_model(spec: mujoco.MjSpec, cfg: PlanningModel, source: str) -> None:
+    """``planner.model`` on the planner's spec (the world's is never touched); a body of
+    ``exclude`` that the model lacks raises ConfigError naming the pair."""
+    opt = spec.option
+    for key, table in (("solver", _SOLVERS), ("cone", _CONES), ("integrator", _INTEGRATORS)):
+        if getattr(cfg, key) is not None:
+            setattr(opt, key, table[getattr(cfg, key)])
+    for key in ("iterations", "ls_iterations", "tolerance", "noslip_iterations"):
+        if getattr(cfg, key) is not None:
+            setattr(opt, key, getattr(cfg, key))
+    if cfg.condim is not None:
+        for geom in spec.geoms:
+            geom.condim = cfg.condim
+    bodies = [b.name for b in spec.bodies]
+    for i, (a, b) in enumerate(cfg.exclude):
+        for name in (a, b):
+            if name not in bodies:
+                raise ConfigError(source, f"planner.model.exclude[{i}]", "unknown body", name,
+                                  f"one of: {', '.join(bodies)}")
+        spec.add_exclude(bodyname1=a, bodyname2=b)
 
 
 def actuator_names(model: mujoco.MjModel) -> list[str]:

@@ -1,11 +1,18 @@
 """Planner speed: iterations per second, and the ratio of one iteration to a bare rollout.
 
 For each scenario the planner runs closed loop in-process (its u0 applied to a copy of the world)
-and each iteration (sample -> mujoco.rollout -> costs -> M3P2I update) is timed. The physical limit
-is one bare ``mujoco.rollout`` of the same S x T steps of the world model (no planner sensors, same
-thread count, persistent pool); ``ratio_to_rollout`` = iteration time / that. The same rollout of
-the planner's model, with the sensors its costs read, is reported beside it
-(``ratio_to_sensor_rollout``): the difference between the two is what the sensors cost.
+and each iteration (sample -> mujoco.rollout -> costs -> M3P2I update) is timed against bare
+``mujoco.rollout`` calls replaying the planner's own samples and start states (same thread count,
+persistent pool):
+
+- ``ratio_to_rollout``: to the world model over the same horizon in seconds (each control held
+  for ``planner.timestep / world.timestep`` world steps): what planning costs against simulating
+  the world itself. Below 1 when the planner's own model (``planner.model``, ``planner.timestep``)
+  is cheaper than the world's.
+- ``ratio_to_own_rollout``: to the planner's own model (its options and timestep) without the
+  sensors its costs read: what an iteration adds to its own bare rollout.
+- ``ratio_to_sensor_rollout``: to the planner's own model with those sensors: the difference to
+  the previous one is what the sensors cost.
 
     python scripts/benchmark.py                      # table
     python scripts/benchmark.py --json               # one JSON object per line per case
@@ -38,8 +45,9 @@ from rich.table import Table
 
 from shared.config import ConfigError
 from shared.scenario import load_scenario
-from shared.scene import compile_model, get_full_state, initial_data
+from shared.scene import build_spec, compile_model, get_full_state, initial_data
 from planner_client.build import build_motion_planner
+from planner_client.problem import apply_planning_model
 
 SCENARIOS = ("navigation", "push_pull", "pick_place")
 
@@ -52,18 +60,25 @@ def measure(scenario, iterations: int, nthread: int, rounds: int = 4, backend: s
 
     The planner runs closed loop (its u0 applied to its own copy of the world). The bare rollouts
     replay exactly the planner's own work: the [S, T] samples and start states of its last
-    iterations, on the world model (no planner sensors: the physical limit) and on the planner's
-    model (with the sensors its costs read). Blocks alternate ``rounds`` times so background load
-    hits all three alike; each pool is used only in its own block so idle threads never compete.
+    iterations, on the world model over the same seconds (no planner sensors), on the planner's
+    own model without sensors, and on it with the sensors its costs read. Blocks alternate
+    ``rounds`` times so background load hits all alike; each pool is used only in its own block
+    so idle threads never compete.
     """
     planner = build_motion_planner(scenario, nthread, backend=backend, device=device)
     model = planner.problem.model
     data = initial_data(scenario, model)      # the scenario's start pose (the Panda's ready pose)
     world = compile_model(scenario)
+    own_spec = build_spec(scenario)
+    own_spec.option.timestep = model.opt.timestep
+    apply_planning_model(own_spec, scenario.planner.model, scenario.source)
+    own = compile_model(scenario, own_spec)
+    hold = round(model.opt.timestep / world.opt.timestep)   # world steps per planned step
     samples, horizon = planner.mppi.num_samples, scenario.planner.horizon
     pool_data = [mujoco.MjData(world) for _ in range(nthread)]
+    own_data = [mujoco.MjData(own) for _ in range(nthread)]
     work: list[tuple[np.ndarray, np.ndarray]] = []     # (planner x0, samples) of recent iterations
-    times: dict[str, list[float]] = {"plan": [], "world": [], "sensors": []}
+    times: dict[str, list[float]] = {"plan": [], "world": [], "own": [], "sensors": []}
     block = max(1, iterations // rounds)
 
     def timed(key, fn):
@@ -86,7 +101,12 @@ def measure(scenario, iterations: int, nthread: int, rounds: int = 4, backend: s
     def world_rollout():
         # sensors add no state, so the planner's x0 is a valid world state
         x0, ctrl = work[next(counter) % len(work)]
-        pool.rollout(world, pool_data, x0[None], ctrl, nstep=horizon)
+        pool.rollout(world, pool_data, x0[None], np.repeat(ctrl, hold, axis=1),
+                     nstep=horizon * hold)
+
+    def own_rollout():
+        x0, ctrl = work[next(counter) % len(work)]
+        pool.rollout(own, own_data, x0[None], ctrl, nstep=horizon)
 
     def sensor_rollout():
         x0, ctrl = work[next(counter) % len(work)]
@@ -97,15 +117,20 @@ def measure(scenario, iterations: int, nthread: int, rounds: int = 4, backend: s
             for _ in range(rounds):
                 timed("plan", plan_step)
                 timed("world", world_rollout)
+                timed("own", own_rollout)
                 timed("sensors", sensor_rollout)
     finally:
         planner.close()
     med = {k: float(np.median(v)) for k, v in times.items()}
     return {"scenario": scenario.name, "samples": samples, "horizon": horizon,
             "hz": round(1.0 / med["plan"], 2),
+            "planning_step": float(model.opt.timestep), "world_step": float(world.opt.timestep),
+            "planning_model": scenario.planner.model.as_dict(),
             "ratio_to_rollout": round(med["plan"] / med["world"], 3),
+            "ratio_to_own_rollout": round(med["plan"] / med["own"], 3),
             "ratio_to_sensor_rollout": round(med["plan"] / med["sensors"], 3),
             "iteration_ms": round(med["plan"] * 1e3, 3), "rollout_ms": round(med["world"] * 1e3, 3),
+            "own_rollout_ms": round(med["own"] * 1e3, 3),
             "sensor_rollout_ms": round(med["sensors"] * 1e3, 3), "threads": nthread,
             "backend": backend, "device": device if backend == "warp" else "cpu"}
 
@@ -147,12 +172,14 @@ def main(
                  else f"{nthread} rollout threads")
         table = Table(title=f"planner speed ({where}, median of {iterations})")
         for col in ("scenario", "samples x horizon", "planner Hz", "iteration ms",
-                    "bare rollout ms", "ratio", "rollout + sensors ms", "ratio to it"):
+                    "world rollout ms", "ratio", "own rollout ms", "ratio to it",
+                    "own + sensors ms", "ratio to it"):
             table.add_column(col, justify="right")
         for r in rows:
             table.add_row(r["scenario"], f"{r['samples']} x {r['horizon']}", f"{r['hz']:.1f}",
                           f"{r['iteration_ms']:.2f}", f"{r['rollout_ms']:.2f}",
-                          f"{r['ratio_to_rollout']:.2f}", f"{r['sensor_rollout_ms']:.2f}",
+                          f"{r['ratio_to_rollout']:.2f}", f"{r['own_rollout_ms']:.2f}",
+                          f"{r['ratio_to_own_rollout']:.2f}", f"{r['sensor_rollout_ms']:.2f}",
                           f"{r['ratio_to_sensor_rollout']:.2f}")
         Console().print(table)
 

@@ -21,6 +21,7 @@ import zmq
 
 from shared import protocol as P
 from shared.endpoints import Endpoints, socket
+from shared.evaluation.episode import episode_log_path
 from shared.evaluation.metrics import MetricsEvaluator, describe, mean_hz
 from shared.evaluation.timing import describe_timing, timing_summary
 from shared.scenario import Scenario
@@ -44,6 +45,7 @@ class ServerOptions:
     realtime_factor: float = 1.0      # realtime: simulated seconds per wall second
     wait_planner: float = 0.0         # seconds to wait for the first command; 0 = forever
     plan_every: int = 1               # lockstep: world steps played per command (a slow planner)
+    keep_serving: bool = False        # after an episode, wait for a seeded reset (warm bench workers)
 
 
 class WorldServer:
@@ -52,12 +54,8 @@ class WorldServer:
                  keys: WorldKeys | None = None):
         self.scenario = scenario
         self.opt = options or ServerOptions()
-        self.world = SimWorld(scenario, seed)
-        self.metrics = MetricsEvaluator(scenario, self.world.model)   # bad metric frames fail here
-        self.session = secrets.token_hex(4)
-        self.seq = 0
+        self.log_template = str(log_path)
         self.viewer = viewer
-        self.log = EpisodeLog(log_path)
         self.ctx = zmq.Context()
         self.rep = socket(self.ctx, zmq.REP)
         self.pub = socket(self.ctx, zmq.PUB)
@@ -65,6 +63,7 @@ class WorldServer:
         # CURVE: the world is the server of all three sockets; ZAP (a thread) accepts only the
         # allow-listed planner keys, so a refused peer gets no state, no welcome, no say
         self.auth = Authenticator(self.ctx, keys.allowed, "the world") if keys else None
+        self.curve = keys is not None
         self._sockets = {"control": self.rep, "state": self.pub, "command": self.pull}
         for s in self._sockets.values():
             if keys is not None:
@@ -81,6 +80,20 @@ class WorldServer:
         for m in self.monitors.values():
             self.poller.register(m.mon, zmq.POLLIN)
         self._refused = 0
+        self._rejected = 0
+        self._stop = False
+        self._next_seed: int | None = None   # a seeded reset asked for this episode next
+        self._begin_episode(seed)
+
+    def _begin_episode(self, seed: int) -> None:
+        """A new episode from ``seed``'s start: a fresh world (as a new process would build it),
+        a new session (the planner re-handshakes and starts over) and its own episode log."""
+        self.world = SimWorld(self.scenario, seed)
+        self.metrics = MetricsEvaluator(self.scenario, self.world.model)   # bad frames fail here
+        self.session = secrets.token_hex(4)
+        self.seed = seed
+        self.seq = 0
+        self._over = False                # the summary is written; a kept world waits for a reset
         self._plan_times: list[float] = []
         self._state_times: dict[int, float] = {}     # seq -> world time of recent states
         self._plan_time_of: dict[int, float] = {}    # seq -> planning time, until first applied
@@ -88,31 +101,46 @@ class WorldServer:
         self.player = PlanPlayer()
         self._action = ""
         self.action_changes: list[tuple[float, str]] = []
-        self._rejected = 0
-        self._stop = False
         self._paused = False              # control op pause: the world neither steps nor waits out time
-        self.log.write("header", scenario=scenario.name, scenario_hash=scenario.hash,
-                       source=scenario.source, mode=self.opt.mode, dt=self.world.dt,
+        self.log = EpisodeLog(episode_log_path(self.log_template, seed))
+        self.log.write("header", scenario=self.scenario.name, scenario_hash=self.scenario.hash,
+                       source=self.scenario.source, mode=self.opt.mode, dt=self.world.dt,
                        session=self.session, nq=self.world.model.nq, nu=self.world.model.nu,
-                       seed=seed, initial=self.world.initial, curve=keys is not None)
+                       seed=seed, initial=self.world.initial, curve=self.curve)
 
     # ------------------------------------------------------------------ loop
 
     def run(self) -> Outcome:
-        """Serve one episode; always closes the log with a summary, even on Ctrl-C."""
+        """Serve one episode (with ``keep_serving``, one after another until ``shutdown``);
+        each log is always closed with its summary, even on Ctrl-C. Returns the last outcome."""
         log.info("serving %s (%s mode) on %s%s", self.scenario.name, self.opt.mode,
                  self.rep.getsockopt_string(zmq.LAST_ENDPOINT),
                  ", CURVE: only allow-listed planner keys" if self.auth else "")
+        try:
+            while True:
+                outcome = self._serve_episode()
+                if not self.opt.keep_serving or not self._await_next_episode():
+                    return outcome
+                self._begin_episode(self._next_seed)
+                self._next_seed = None
+        finally:
+            self.close()
+
+    def _serve_episode(self) -> Outcome:
         try:
             if self.opt.mode == "lockstep":
                 self._run_lockstep()
             else:
                 self._run_realtime()
-            self._linger()
+            if not self.opt.keep_serving:   # a kept world publishes its final state until the next
+                self._linger()
         except KeyboardInterrupt:
+            self._stop = True
             self.world.status = "stopped"
             log.info("interrupted")
         finally:
+            if self.world.status == "running":   # ended by a seeded reset
+                self.world.status = "stopped"
             outcome = self.world.outcome()
             hz = mean_hz(self._plan_times)
             metrics, timing = self._episode_metrics(outcome.status)
@@ -121,9 +149,21 @@ class WorldServer:
                            rejected=self._rejected, actions=self.action_changes,
                            metrics=metrics, timing=timing)
             self.log.close()
-            self.close()
+            self._over = True
         outcome.measures["planner_hz"] = hz
         return outcome
+
+    def _await_next_episode(self) -> bool:
+        """Between episodes of a kept world: publish the final state (so planners know the
+        episode is over) and serve control until a reset (True) or a shutdown (False)."""
+        log.info("episode over (%s): waiting for a reset with the next seed", self.world.status)
+        while not self._stop and self._next_seed is None:
+            self._publish()
+            try:
+                self._poll(self.opt.republish)
+            except KeyboardInterrupt:
+                return False
+        return self._next_seed is not None and not self._stop
 
     def _episode_metrics(self, status: str) -> tuple[dict | None, dict | None]:
         """shared.evaluation's metrics and timing of the logged steps (the log is line-buffered,
@@ -140,7 +180,7 @@ class WorldServer:
         return metrics.as_dict(), timing
 
     def _running(self) -> bool:
-        return self.world.status == "running" and not self._stop
+        return self.world.status == "running" and not self._stop and self._next_seed is None
 
     def _run_lockstep(self) -> None:
         self._publish()
@@ -380,7 +420,8 @@ class WorldServer:
         log.info("planner connected (%s)", msg.client)
         self.rep.send(P.encode(P.Welcome(
             scenario=self.scenario.name, scenario_hash=self.scenario.hash, mode=self.opt.mode,
-            dt=self.world.dt, nu=int(self.world.model.nu), session=self.session)))
+            dt=self.world.dt, nu=int(self.world.model.nu), session=self.session,
+            seed=self.seed if self.opt.keep_serving else None)))
         self._publish()
 
     def _control(self, msg: P.Control) -> None:
@@ -400,11 +441,20 @@ class WorldServer:
             # a new state: a lock-step world waits for the command answering the moved one
             self.seq += 1
             self._publish()
+        elif msg.op == "reset" and msg.seed is not None and not self.opt.keep_serving:
+            reason = ("a reset with a seed begins a new episode, and this world serves one: "
+                      "start it with --keep-serving")
+            self.log.event("control_refused", op=msg.op, reason=reason)
+            self.rep.send(P.encode(P.Error(reason=f"reset refused: {reason}")))
+            return
         else:
-            self.log.event("control", op=msg.op)
+            self.log.event("control", op=msg.op, **({"seed": msg.seed} if msg.seed is not None else {}))
         if msg.op == "shutdown":
             self._stop = True
             self.world.status = "stopped"
+        elif msg.op == "reset" and self.opt.keep_serving and (msg.seed is not None or self._over):
+            # run() ends this episode and begins the seed's (after one: the same seed again)
+            self._next_seed = self.seed if msg.seed is None else msg.seed
         elif msg.op == "reset":
             self.world.reset()
             self.seq += 1

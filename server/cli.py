@@ -49,8 +49,10 @@ def main(
                                   "keys: anyone who reaches the ports can drive the robot. "
                                   "An isolated, trusted network only; warned at every start."),
     port: int = typer.Option(DEFAULT_PORT, help="First of three ports: control, state, command."),
-    log_file: Optional[Path] = typer.Option(None, "--log", help="Episode log (JSON lines). "
-                                            "Default: runs/<scenario>-<time>/episode.jsonl"),
+    log_file: Optional[Path] = typer.Option(None, "--log", help="Episode log (JSON lines); "
+                                            "'{seed}' in it (e.g. seed-{seed:03d}) becomes the "
+                                            "episode's seed. Default: "
+                                            "runs/<scenario>-<time>/episode.jsonl"),
     command_timeout: float = typer.Option(0.5, help="realtime: seconds after which a missing "
                                           "command makes the robot hold still."),
     realtime_factor: float = typer.Option(1.0, help="realtime: simulated seconds per wall second."),
@@ -60,6 +62,11 @@ def main(
     plan_every: int = typer.Option(1, min=1, help="lockstep: world steps played per command "
                                    "(its plan's knots by time). K > 1 emulates, repeatably, a "
                                    "planner K times slower than a real-time world."),
+    keep_serving: bool = typer.Option(False, help="After the episode, keep the sockets open and "
+                                      "wait for a control 'reset' with a seed, which begins "
+                                      "the next episode (new session, new log: --log must "
+                                      "hold '{seed}'); 'shutdown' exits. What warm bench "
+                                      "workers use; pair it with m3p2i-planner --keep-running."),
     viewer: bool = typer.Option(False, help="Open MuJoCo's passive viewer (needs a display)."),
     check: bool = typer.Option(False, "--check", help="Only check the scenario (every error of "
                                "the file, model names included) and exit: 0 sound, 2 faulty."),
@@ -75,11 +82,20 @@ def main(
     print_errors(errors, err=not check)
     if errors or check:
         raise typer.Exit(2 if errors else 0)
+    if keep_serving and (log_file is None or "{seed" not in str(log_file)):
+        typer.echo("error: --keep-serving needs a --log holding '{seed}' (e.g. "
+                   "runs/x/seed-{seed:03d}/episode.jsonl): each episode gets its own log",
+                   err=True)
+        raise typer.Exit(2)
+    if keep_serving and viewer:
+        typer.echo("error: --keep-serving builds a new world for each episode; MuJoCo's viewer "
+                   "shows one: use `m3p2i view` (the browser view) instead", err=True)
+        raise typer.Exit(2)
     sc = load_scenario(scenario)
     log_file = log_file or default_run_dir(sc.name) / "episode.jsonl"
     opts = ServerOptions(mode=mode, command_timeout=command_timeout,
                          realtime_factor=realtime_factor, republish=republish,
-                         plan_every=plan_every)
+                         plan_every=plan_every, keep_serving=keep_serving)
     try:
         server = WorldServer(sc, Endpoints(host, port), log_file, opts, seed=seed,
                              keys=world_keys)
@@ -103,7 +119,7 @@ def main(
     if server.viewer is not None:
         server.viewer.close()
     typer.echo(summary_line(outcome.status, outcome.time, outcome.measures))
-    typer.echo(f"episode log: {log_file}")
+    typer.echo(f"episode log: {server.log.path}")
     raise typer.Exit(0 if outcome.status == "success" else 1)
 
 

@@ -91,6 +91,7 @@ class Welcome:
     dt: float                 # seconds of simulated time per world step
     nu: int                   # length of Command.ctrl
     session: str              # changes when the server restarts; commands echo it
+    seed: int | None = None   # a kept world's episode seed: the planner reseeds its sampling with it
     type = "welcome"
 
 
@@ -172,11 +173,14 @@ class Control:
     """Launcher/tools -> server (control socket): ``reset`` the episode, ``shutdown``,
     ``pause`` / ``resume`` the world's clock, or ``move`` a scenario object to ``pos [3]``
     (world frame, m) and optionally ``quat [4]`` (w, x, y, z): a disturbance from a tool such as
-    ``m3p2i view``. The world echoes an accepted op and answers ``error`` with the reason else."""
+    ``m3p2i view``. ``reset`` with ``seed`` ends the episode and begins a new one from that
+    seed's start (a world started with ``--keep-serving`` only: warm bench workers). The world
+    echoes an accepted op and answers ``error`` with the reason else."""
     op: str
     object: str | None = None
     pos: np.ndarray | None = None
     quat: np.ndarray | None = None
+    seed: int | None = None
     type = "control"
 
 
@@ -186,7 +190,8 @@ MESSAGES = {cls.type: cls for cls in (Hello, Welcome, State, Command, Diagnostic
 _SCHEMA: dict[str, dict[str, tuple[str, bool]]] = {
     "hello": {"scenario": ("str", True), "scenario_hash": ("str", True), "client": ("str", False)},
     "welcome": {"scenario": ("str", True), "scenario_hash": ("str", True), "mode": ("str", True),
-                "dt": ("float", True), "nu": ("int", True), "session": ("str", True)},
+                "dt": ("float", True), "nu": ("int", True), "session": ("str", True),
+                "seed": ("int", False)},
     "state": {"session": ("str", True), "seq": ("int", True), "time": ("float", True),
               "qpos": ("array", True), "qvel": ("array", True), "act": ("array", True),
               "mocap_pos": ("array", True), "mocap_quat": ("array", True),
@@ -201,7 +206,7 @@ _SCHEMA: dict[str, dict[str, tuple[str, bool]]] = {
                     "top_modes": ("array", False)},
     "error": {"reason": ("str", True)},
     "control": {"op": ("str", True), "object": ("str", False), "pos": ("array", False),
-                "quat": ("array", False)},
+                "quat": ("array", False), "seed": ("int", False)},
 }
 _STATUSES = {"running", "success", "timeout", "stopped"}
 _MODES = {"lockstep", "realtime"}
@@ -340,10 +345,15 @@ def _check_plan(cmd: Command) -> None:
 
 
 def _check_control(msg: Control) -> None:
-    """``move`` needs ``object`` and ``pos [3]`` (``quat [4]``, non-zero, optional); the other
-    ops carry none of them (a stray field means a confused sender)."""
+    """``move`` needs ``object`` and ``pos [3]`` (``quat [4]``, non-zero, optional); ``reset``
+    may carry a ``seed`` (0 <= seed < 2**32); the other ops carry none of them (a stray field
+    means a confused sender)."""
     if msg.op not in _OPS:
         raise ProtocolError(f"control.op: {msg.op!r} (expected one of {sorted(_OPS)})")
+    if msg.seed is not None and msg.op != "reset":
+        raise ProtocolError(f"control.op {msg.op!r} takes no seed (only 'reset' does)")
+    if msg.seed is not None and not 0 <= msg.seed < 2**32:
+        raise ProtocolError(f"control.seed: {msg.seed} (expected 0 <= seed < 2**32)")
     if msg.op != "move":
         extra = [n for n in ("object", "pos", "quat") if getattr(msg, n) is not None]
         if extra:

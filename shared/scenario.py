@@ -187,6 +187,34 @@ def rollout_device(value: Any) -> str:
 
 
 @dataclass(frozen=True)
+class PlanningModel:
+    """``planner.model``: options of the planner's own copy of the model (its rollouts), never
+    the world's; None keeps the world model's value. A planner may roll out a cheaper model
+    than the world simulates, as long as its plans still work on the world."""
+    solver: str | None = None              # Newton | CG | PGS
+    iterations: int | None = None          # constraint solver iterations
+    ls_iterations: int | None = None       # line-search iterations (Newton, CG)
+    tolerance: float | None = None         # solver tolerance; 0 disables early termination
+    cone: str | None = None                # pyramidal | elliptic friction cones
+    noslip_iterations: int | None = None   # 0 disables the no-slip solver
+    integrator: str | None = None          # Euler | implicitfast | implicit | RK4
+    condim: int | None = None              # every geom's contact dimensionality (1, 3, 4, 6)
+    exclude: tuple[tuple[str, str], ...] = ()   # body pairs whose contacts the rollouts skip
+
+    def as_dict(self) -> dict[str, Any]:
+        """The keys set, as written in YAML (for logs and benchmark rows)."""
+        out = {k: v for k, v in self.__dict__.items() if v is not None and k != "exclude"}
+        if self.exclude:
+            out["exclude"] = [list(pair) for pair in self.exclude]
+        return out
+
+
+SOLVERS = ("Newton", "CG", "PGS")
+CONES = ("pyramidal", "elliptic")
+INTEGRATORS = ("Euler", "implicitfast", "implicit", "RK4")
+
+
+@dataclass(frozen=True)
 class PlannerConfig:
     """Motion-planner parameters; ``mppi`` keys are checked by the planner against MPPIConfig."""
     samples: int = 200
@@ -199,6 +227,7 @@ class PlannerConfig:
     device: str = "cuda:0"                 # the warp backend's device: "cpu" or "cuda[:N]"
     nconmax: int | None = None             # warp: contacts per world; None = estimated at start
     njmax: int | None = None               # warp: constraint rows per world; None = estimated
+    model: PlanningModel = PlanningModel()  # the rollout model's own options
 
     def step(self, world: WorldConfig) -> float:
         """Seconds per planned control step: ``timestep``, or the world's."""
@@ -615,9 +644,47 @@ def _planner(s: Section) -> PlannerConfig:
                         backend=s.opt("backend", "mujoco", one_of(ROLLOUT_BACKENDS)),
                         device=s.opt("device", "cuda:0", rollout_device, "cpu, cuda or cuda:N"),
                         nconmax=s.opt("nconmax", None, positive_int, "contacts per world"),
-                        njmax=s.opt("njmax", None, positive_int, "constraint rows per world"))
+                        njmax=s.opt("njmax", None, positive_int, "constraint rows per world"),
+                        model=_planning_model(s.section("model", required=False)))
     s.done()
     return cfg
+
+
+def _planning_model(s: Section) -> PlanningModel:
+    cfg = PlanningModel(
+        solver=s.opt("solver", None, one_of(SOLVERS)),
+        iterations=s.opt("iterations", None, positive_int),
+        ls_iterations=s.opt("ls_iterations", None, positive_int),
+        tolerance=s.opt("tolerance", None, non_negative, "a number >= 0 (0: no early stop)"),
+        cone=s.opt("cone", None, one_of(CONES)),
+        noslip_iterations=s.opt("noslip_iterations", None, _count, "an integer >= 0"),
+        integrator=s.opt("integrator", None, one_of(INTEGRATORS)),
+        condim=s.opt("condim", None, _one_of_ints((1, 3, 4, 6)), "1, 3, 4 or 6"),
+        exclude=tuple(s.opt("exclude", (), _body_pairs, "a list of [body, body] pairs")))
+    s.done()
+    return cfg
+
+
+def _count(value: Any) -> int:
+    if isinstance(value, bool) or not isinstance(value, int) or value < 0:
+        raise ValueError("must be an integer >= 0")
+    return value
+
+
+def _one_of_ints(choices: tuple[int, ...]):
+    def convert(value: Any) -> int:
+        if isinstance(value, bool) or value not in choices:
+            raise ValueError(f"must be one of: {', '.join(map(str, choices))}")
+        return value
+    return convert
+
+
+def _body_pairs(value: Any) -> list[tuple[str, str]]:
+    if not isinstance(value, list) or not all(
+            isinstance(p, list) and len(p) == 2 and all(isinstance(b, str) for b in p)
+            for p in value):
+        raise ValueError("wrong type")
+    return [(a, b) for a, b in value]
 
 
 def _includes(top: Section, errors: ErrorLog) -> tuple[dict[str, ObjectiveConfig], list[dict]]:

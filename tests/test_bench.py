@@ -253,7 +253,7 @@ def test_realtime_trials_run_last_and_alone_on_every_core(tmp_path, monkeypatch)
 
     log, running, lock = [], [], threading.Lock()
 
-    def fake_trial(trial, opts, threads, stop):
+    def fake_trial(trial, opts, threads, stop, slot=None):
         with lock:
             running.append(trial.case.mode)
             log.append((trial.case.mode, threads, list(running)))

@@ -24,6 +24,39 @@ def read_log(path: str | Path) -> list[dict]:
     return records
 
 
+def episode_log_path(template: str | Path, seed: int) -> Path:
+    """The log of ``seed``'s episode: ``{seed}`` (or e.g. ``{seed:03d}``) in ``template``
+    replaced, so that a world serving several episodes (``--keep-serving``) writes each to its
+    own file; a template without it is the path itself."""
+    template = str(template)
+    return Path(template.format(seed=seed) if "{seed" in template else template)
+
+
+def has_summary(path: str | Path) -> bool:
+    """Whether the log's last complete line is its ``summary`` (the episode is over and fully
+    written); read from the end, so a waiting caller can ask often."""
+    try:
+        with Path(path).open("rb") as f:
+            f.seek(0, 2)
+            size = f.tell()
+            block = min(size, 4096)
+            while True:
+                f.seek(size - block)
+                tail = f.read(block)
+                if not tail.endswith(b"\n"):
+                    return False            # a line still being written
+                lines = tail[:-1].rsplit(b"\n", 1)
+                if len(lines) == 2 or block == size:
+                    break
+                block = min(size, block * 4)
+    except OSError:
+        return False
+    try:
+        return json.loads(lines[-1]).get("kind") == "summary"
+    except (json.JSONDecodeError, AttributeError):
+        return False
+
+
 def header(records: list[dict]) -> dict:
     """The ``header`` record (the first one); an empty dict for a log cut before it."""
     return records[0] if records and records[0].get("kind") == "header" else {}

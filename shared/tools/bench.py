@@ -2,9 +2,11 @@
 time-out per trial.
 
 A bench file (``bench/NAME.yaml`` in the user's folders or shipped: :mod:`shared.config_files`) lists cases ``{case, variant, scenario, trials}``. Trial
-``i`` of a case runs one lock-step episode (a server + planner process pair on its own free ports,
-:mod:`shared.tools.launch`) with seed ``seed + i`` for both the world's randomised start and the
-planner's sampling. Each finished trial appends one row to ``results.csv`` in the output folder
+``i`` of a case runs one lock-step episode with seed ``seed + i`` for both the world's randomised
+start and the planner's sampling, on a server + planner process pair on its own free ports. Each
+worker keeps its pair across the trials of a case, beginning each with a seeded reset
+(:mod:`shared.tools.warm`: same results as a fresh pair, without its start-up); ``fresh``
+starts two new processes per trial (:mod:`shared.tools.launch`). Each finished trial appends one row to ``results.csv`` in the output folder
 (flushed and synced before the next row), its episode log stays in ``logs/CASE/seed-NNN/``; a
 rerun skips every (case, seed) already in the file for the same scenario content (hash), so an
 interrupted bench resumes where it stopped. A trial past its time-out is killed and recorded as a
@@ -14,17 +16,19 @@ failure with reason ``timeout``.
 from __future__ import annotations
 
 import csv
+import dataclasses
 import fnmatch
 import json
 import os
 import platform
 import shutil
+import queue
 import threading
 import time
 
 import yaml
 from collections.abc import Callable
-from concurrent.futures import FIRST_COMPLETED, ThreadPoolExecutor, wait
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -39,6 +43,7 @@ from shared.tools.launch import EpisodeLaunch, run_episode
 from shared.evaluation.metrics import MetricsEvaluator
 from shared.scenario import Scenario, find_scenario, load_scenario, parse_scenario
 from shared.tools.sweep import Sweep, apply_overrides, file_label, parse_sweep_section, to_cell
+from shared.tools.warm import PairSlot
 
 # results.csv columns; one row per finished trial
 FIELDS = ("case", "variant", "scenario", "scenario_hash", "seed", "success", "status", "reason",
@@ -301,8 +306,13 @@ class Trial:
     @property
     def log_dir(self) -> Path:
         """Where its logs go, relative to the bench's output folder."""
+        return self.case_dir / f"seed-{self.seed:03d}"
+
+    @property
+    def case_dir(self) -> Path:
+        """The logs of its case (a sweep variant's own), relative to the output folder."""
         name = self.case.case + (f"@{file_label(self.overrides)}" if self.overrides else "")
-        return Path("logs") / name / f"seed-{self.seed:03d}"
+        return Path("logs") / name
 
 
 @dataclass(frozen=True)
@@ -313,12 +323,14 @@ class BenchOptions:
     trials: int | None = None            # per case; None: the case's (or quick_trials)
     quick: bool = False
     seed: int = 0                        # seed of trial 0; trial i uses seed + i
+    fresh: bool = False                  # two new processes per trial instead of warm pairs
 
 
 def plan_trials(ready: list[ReadyCase], cfg: BenchConfig, opts: BenchOptions,
                 done: set[tuple[str, int, str]]) -> tuple[list[Trial], list[Trial]]:
-    """(all trials of this run, those still to run). Seed-major order, so an interrupted bench
-    has results for every case rather than all trials of the first ones."""
+    """(all trials of this run, those still to run), seed-major. Workers start on the first
+    cases and then keep to their case while it has trials (its warm pair serves them), so an
+    interrupted bench has results for as many cases as there are workers, and more."""
     planned = []
     for i in range(max(_trials(rc.case, cfg, opts) for rc in ready) if ready else 0):
         for rc in ready:
@@ -335,16 +347,24 @@ def _trials(case: BenchCase, cfg: BenchConfig, opts: BenchOptions) -> int:
     return min(cfg.quick_trials, case.trials) if opts.quick else case.trials
 
 
-def run_trial(trial: Trial, opts: BenchOptions, threads: int, stop: threading.Event) -> dict | None:
+def run_trial(trial: Trial, opts: BenchOptions, threads: int, stop: threading.Event,
+              slot: PairSlot | None = None) -> dict | None:
     """Run one trial and return its row; None when the bench was interrupted (not recorded, so
-    a rerun runs it again)."""
+    a rerun runs it again). With ``slot``, in the worker's warm pair for the trial's case."""
     rel = trial.log_dir
     run_dir = opts.out_dir / rel
-    shutil.rmtree(run_dir, ignore_errors=True)   # a stale log of an interrupted attempt must not count
-    result = run_episode(EpisodeLaunch(scenario=trial.scenario.source, run_dir=run_dir,
-                                       seed=trial.seed, timeout=opts.timeout, threads=threads,
-                                       mode=trial.case.mode, plan_every=trial.case.plan_every),
-                         stop)
+    launch = EpisodeLaunch(scenario=trial.scenario.source, run_dir=run_dir, seed=trial.seed,
+                           timeout=opts.timeout, threads=threads, mode=trial.case.mode,
+                           plan_every=trial.case.plan_every)
+    if slot is not None:
+        case_dir = opts.out_dir / trial.case_dir
+        pair = slot.get(pair_key(trial), dataclasses.replace(
+            launch, run_dir=case_dir / "pairs" / f"seed-{trial.seed:03d}",
+            log=str(case_dir / "seed-{seed:03d}" / "episode.jsonl")))
+        result = pair.run(trial.seed, opts.timeout, stop)
+    else:
+        shutil.rmtree(run_dir, ignore_errors=True)   # a stale log of an interrupted attempt must not count
+        result = run_episode(launch, stop)
     if result.reason == "interrupted":
         return None
     records = episode.read_log(result.log_path) if result.log_path.is_file() else []
@@ -368,16 +388,41 @@ def run_trial(trial: Trial, opts: BenchOptions, threads: int, stop: threading.Ev
     }
 
 
+def pair_key(trial: Trial) -> tuple:
+    """Trials with the same key can share a warm pair: same scenario file, processes' options
+    and log folder."""
+    return (trial.case_dir, trial.case.scenario, trial.case.mode, trial.case.plan_every)
+
+
 def run_trials(todo: list[Trial], opts: BenchOptions, results: ResultsFile,
                on_done: Callable[[dict], None] = lambda row: None) -> bool:
-    """Run ``todo`` on ``opts.workers`` threads, each driving one trial's process pair; rows are
-    appended as trials finish. Real-time trials come last, one at a time on every core: a world
+    """Run ``todo`` on ``opts.workers`` threads, each driving one process pair (kept across
+    the trials of a case unless ``opts.fresh``); rows are appended as trials finish. Real-time trials come last, one at a time on every core: a world
     that does not wait measures the planner's speed, which other trials would steal. Returns
     False when interrupted (Ctrl-C): running trials are stopped and left out of the file."""
     waiting = [t for t in todo if t.case.mode != "realtime"]
     realtime = [t for t in todo if t.case.mode == "realtime"]
     return (_run_pool(waiting, opts.workers, opts, results, on_done)
             and _run_pool(realtime, 1, opts, results, on_done))
+
+
+class _TrialQueue:
+    """The trials still to run, in order; a worker takes the first of its pair's case when one
+    is left (so a warm pair serves a case to its end), else the first of all."""
+
+    def __init__(self, trials: list[Trial]):
+        self._trials = list(trials)
+        self._lock = threading.Lock()
+
+    def take(self, key: tuple | None) -> Trial | None:
+        with self._lock:
+            if not self._trials:
+                return None
+            i = next((i for i, t in enumerate(self._trials) if pair_key(t) == key), 0)
+            return self._trials.pop(i)
+
+
+_WORKER_DONE = object()
 
 
 def _run_pool(todo: list[Trial], workers: int, opts: BenchOptions, results: ResultsFile,
@@ -387,33 +432,50 @@ def _run_pool(todo: list[Trial], workers: int, opts: BenchOptions, results: Resu
     cores = os.cpu_count() or 1
     threads = max(1, cores // workers)           # rollout threads per planner: share the cores
     stop = threading.Event()
+    trials = _TrialQueue(todo)
+    finished: queue.Queue = queue.Queue()        # rows, exceptions and _WORKER_DONE
 
-    def work(trial: Trial) -> dict | None:
-        if stop.is_set():
-            return None
-        row = run_trial(trial, opts, threads, stop)
-        if row is not None:
-            results.append(row)
-        return row
-
-    pool = ThreadPoolExecutor(max_workers=workers)
-    pending = {pool.submit(work, t) for t in todo}
-    interrupted = False
-    try:
-        while pending:
-            finished, pending = wait(pending, timeout=0.5, return_when=FIRST_COMPLETED)
-            for fut in finished:
-                row = fut.result()
+    def work() -> None:
+        slot = None if opts.fresh else PairSlot()
+        try:
+            while not stop.is_set() and (trial := trials.take(slot and slot.key)) is not None:
+                row = run_trial(trial, opts, threads, stop, slot)
                 if row is not None:
-                    on_done(row)
+                    results.append(row)
+                    finished.put(row)
+        except BaseException as exc:   # noqa: BLE001 - raised again in the calling thread
+            finished.put(exc)
+        finally:
+            if slot is not None:
+                slot.close()
+            finished.put(_WORKER_DONE)
+
+    pool = [threading.Thread(target=work, name=f"bench-worker-{i}", daemon=True)
+            for i in range(min(workers, len(todo)))]
+    for t in pool:
+        t.start()
+    running, interrupted, error = len(pool), False, None
+    try:
+        while running:
+            try:
+                item = finished.get(timeout=0.5)
+            except queue.Empty:
+                continue
+            if item is _WORKER_DONE:
+                running -= 1
+            elif isinstance(item, BaseException):
+                error = error or item
+                stop.set()
+            else:
+                on_done(item)
     except KeyboardInterrupt:
         interrupted = True
     finally:
-        if pending:   # Ctrl-C or an error: stop the running trials, drop the queued ones
-            stop.set()
-            for fut in pending:
-                fut.cancel()
-        pool.shutdown(wait=True)
+        stop.set()                   # the running trials stop, the queued ones never start
+        for t in pool:
+            t.join()
+    if error is not None:
+        raise error
     return not interrupted
 
 

@@ -102,18 +102,24 @@ class EpisodeLaunch:
     view: bool = False              # serve the browser view (m3p2i view) beside the episode
     view_port: int = 0              # its page's port (0: a free one)
     keys: Path | None = None        # CURVE key folder (m3p2i keys): both processes use it
+    keep_serving: bool = False      # a warm pair (shared.tools.warm): episodes until shut down,
+    log: str = ""                   # each logged to this template ('{seed}' in it)
 
     def commands(self, port: int) -> dict[str, list[str]]:
         common = ["--scenario", self.scenario, "--port", str(port), "--seed", str(self.seed)]
         if self.keys is not None:
             common += ["--keys", str(self.keys)]
         server = [sys.executable, "-m", "server", *common, "--mode", self.mode,
-                  "--log", str(self.run_dir / "episode.jsonl")]
+                  "--log", self.log or str(self.run_dir / "episode.jsonl")]
+        if self.keep_serving:
+            server.append("--keep-serving")
         if self.viewer:
             server.append("--viewer")
         if self.plan_every != 1:
             server += ["--plan-every", str(self.plan_every)]
         planner = [sys.executable, "-m", "planner_client", *common]
+        if self.keep_serving:
+            planner.append("--keep-running")
         if self.threads:
             planner += ["--threads", str(self.threads)]
         return {"server": server, "planner": planner}
