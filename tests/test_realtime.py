@@ -9,6 +9,7 @@ import time
 import mujoco
 import numpy as np
 import pytest
+import yaml
 import torch
 import zmq
 
@@ -251,9 +252,10 @@ def test_the_world_plays_a_plan_between_updates_and_the_safe_control_after_it(tm
 
 def _navigation_with(tmp_path, timestep: float):
     from shared.config_files import shipped
-    text = (shipped("scenarios") / "navigation.yaml").read_text()
+    raw = yaml.safe_load((shipped("scenarios") / "navigation.yaml").read_text())
+    raw["planner"]["timestep"] = timestep
     path = tmp_path / "nav.yaml"
-    path.write_text(text.replace("planner:\n", f"planner:\n  timestep: {timestep}\n", 1))
+    path.write_text(yaml.safe_dump(raw))
     return path
 
 
