@@ -26,6 +26,14 @@ A scenario MJWarp cannot roll out is reported and skipped. The first run of a mo
 MJWarp's kernels (minutes on a CPU; cached in ~/.cache/warp); untimed warm-up calls absorb it.
 
     python scripts/benchmark.py --backend warp --device cuda:0 --samples 1024,4096,16384
+
+``--runs N`` repeats the whole measurement (the spread between runs is machine noise: other
+processes, frequency scaling); ``--out FILE`` keeps every row with the command, date and
+machine, and ``--report FILE --update docs/speed.md`` regenerates that file's
+``<!-- benchmark PATH -->`` blocks (median and range over the runs) from it:
+
+    python scripts/benchmark.py --runs 5 --out docs/speed/benchmark.json
+    python scripts/benchmark.py --report docs/speed/benchmark.json --update docs/speed.md
 """
 
 from __future__ import annotations
@@ -33,7 +41,12 @@ from __future__ import annotations
 import dataclasses
 import json
 import os
+import re
+import statistics
+import sys
 import time
+from pathlib import Path
+from typing import Optional
 
 import mujoco
 import numpy as np
@@ -46,6 +59,7 @@ from rich.table import Table
 from shared.config import ConfigError
 from shared.scenario import load_scenario
 from shared.scene import build_spec, compile_model, get_full_state, initial_data
+from shared.tools.bench import machine
 from planner_client.build import build_motion_planner
 from planner_client.problem import apply_planning_model
 
@@ -135,6 +149,54 @@ def measure(scenario, iterations: int, nthread: int, rounds: int = 4, backend: s
             "backend": backend, "device": device if backend == "warp" else "cpu"}
 
 
+def spread(values: list[float], digits: int) -> str:
+    """``median (min-max)`` of a figure over the runs; the median alone for one run."""
+    med = f"{statistics.median(values):.{digits}f}"
+    if len(values) == 1:
+        return med
+    return f"{med} ({min(values):.{digits}f}-{max(values):.{digits}f})"
+
+
+def markdown(results: dict, source: str) -> str:
+    """The speed table of a results file (``--out``): one row per case, median and range over
+    its runs, then how and where it was measured."""
+    cases: dict[tuple, list[dict]] = {}
+    for row in results["rows"]:
+        cases.setdefault((row["scenario"], row["samples"], row["horizon"]), []).append(row)
+    lines = ["| scenario | samples × horizon × step | planner Hz | iteration ms | ratio to the "
+             "world's rollout | ratio to its own rollout | to its own + sensors |",
+             "|---|---|---:|---:|---:|---:|---:|"]
+    for (name, samples, horizon), rows in cases.items():
+        col = lambda key: [r[key] for r in rows]   # noqa: E731 - one table's columns
+        lines.append(f"| `{name}` | {samples} × {horizon} × {rows[0]['planning_step']:g} s | "
+                     f"{spread(col('hz'), 1)} | {spread(col('iteration_ms'), 2)} | "
+                     f"{spread(col('ratio_to_rollout'), 2)} | "
+                     f"{spread(col('ratio_to_own_rollout'), 2)} | "
+                     f"{spread(col('ratio_to_sensor_rollout'), 2)} |")
+    lines += ["", f"Median (min-max) over {results['runs']} runs of `{results['command']}`, "
+              f"{results['date']}, {results['machine']}, {results['threads']} rollout threads, "
+              f"median of {results['iterations']} iterations per run; from `{source}`."]
+    return "\n".join(lines)
+
+
+_BLOCK = re.compile(r"(<!-- benchmark (?P<path>[^>]*?) -->\n)(?P<body>.*?)(<!-- end of benchmark -->)",
+                    re.S)
+
+
+def update(text: str, base: Path) -> str:
+    """``text`` with every ``<!-- benchmark PATH -->`` block regenerated from its results file
+    (PATH relative to ``base``)."""
+    def fill(m: re.Match) -> str:
+        path = m["path"].strip()
+        results = json.loads((base / path).read_text())
+        return m.group(1) + markdown(results, path) + "\n" + m.group(4)
+    new, n = _BLOCK.subn(fill, text)
+    if not n:
+        raise typer.BadParameter("no '<!-- benchmark PATH -->' ... '<!-- end of benchmark -->' "
+                                 "block found", param_hint="--update")
+    return new
+
+
 @app.command()
 def main(
     scenario: list[str] = typer.Option(list(SCENARIOS), "--scenario", "-s", help="Scenarios to run."),
@@ -146,7 +208,21 @@ def main(
     device: str = typer.Option("cuda:0", help="The warp backend's device: cuda:N or cpu."),
     samples: str = typer.Option("", help="Samples per mode, comma-separated (1024,4096,16384): "
                                 "one case each; default: the scenario's planner.samples."),
+    runs: int = typer.Option(1, min=1, help="Repeat the whole measurement this many times."),
+    out: Optional[Path] = typer.Option(None, help="Write every row, with the command, date and "
+                                       "machine, to this JSON file."),
+    report: Optional[Path] = typer.Option(None, help="Measure nothing: regenerate the "
+                                          "'<!-- benchmark PATH -->' blocks of --update from "
+                                          "the results files they name."),
+    update_file: Optional[Path] = typer.Option(None, "--update", help="Markdown file whose "
+                                               "benchmark blocks --report regenerates."),
 ) -> None:
+    if report is not None or update_file is not None:
+        if update_file is None:
+            raise typer.BadParameter("--report needs --update FILE", param_hint="--update")
+        update_file.write_text(update(update_file.read_text(), update_file.parent))
+        typer.echo(f"updated {update_file}")
+        return
     nthread = threads or os.cpu_count() or 1
     try:
         counts = [int(v) for v in samples.split(",") if v.strip()] or [None]
@@ -154,19 +230,27 @@ def main(
         raise typer.BadParameter(f"{samples!r}: expected integers separated by commas",
                                  param_hint="--samples") from None
     rows = []
-    for name in scenario:
-        for count in counts:
-            sc = load_scenario(name)
-            if count is not None:
-                sc = dataclasses.replace(sc, planner=dataclasses.replace(sc.planner, samples=count))
-            try:
-                row = measure(sc, iterations, nthread, backend=backend, device=device)
-            except ConfigError as exc:
-                print(f"{name}: skipped: {exc}", flush=True)
-                break
-            rows.append(row)
-            if as_json:
-                print(json.dumps(row), flush=True)
+    for run in range(runs):
+        for name in scenario:
+            for count in counts:
+                sc = load_scenario(name)
+                if count is not None:
+                    sc = dataclasses.replace(sc, planner=dataclasses.replace(sc.planner, samples=count))
+                try:
+                    row = measure(sc, iterations, nthread, backend=backend, device=device)
+                except ConfigError as exc:
+                    print(f"{name}: skipped: {exc}", flush=True)
+                    break
+                rows.append({**row, "run": run})
+                if as_json:
+                    print(json.dumps(row), flush=True)
+    if out is not None:
+        out.parent.mkdir(parents=True, exist_ok=True)
+        out.write_text(json.dumps({
+            "command": "python scripts/benchmark.py " + " ".join(sys.argv[1:]),
+            "date": time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime()), "machine": machine(),
+            "threads": nthread, "iterations": iterations, "runs": runs, "rows": rows}, indent=1))
+        typer.echo(f"results: {out}")
     if not as_json:
         where = (f"{backend} backend on {device}" if backend == "warp"
                  else f"{nthread} rollout threads")

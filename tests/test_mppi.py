@@ -496,3 +496,28 @@ def test_eta_window_a_mode_cannot_reach_is_refused():
     with pytest.raises(ValueError, match="mode 'c'"):
         planner.set_modes([ModeSpec("a", 40), ModeSpec("c", 8)])
     assert [m.name for m in planner.modes] == ["a", "b"]                 # nothing changed
+
+
+def test_the_samplers_tables_come_from_the_cache_once_computed(tmp_path, monkeypatch):
+    from planner_client.mppi import cache
+    from planner_client.mppi.sampling import halton_uniforms
+    monkeypatch.setenv("M3P2I_CACHE", str(tmp_path / "cache"))
+    calls = []
+
+    def compute():
+        calls.append(1)
+        return np.arange(6.0).reshape(2, 3)
+    first = cache.cached_table("t-2x3", (2, 3), compute)
+    again = cache.cached_table("t-2x3", (2, 3), compute)
+    assert calls == [1] and np.array_equal(first, again)
+    # a file that does not read back as the table is recomputed (and rewritten)
+    (path,) = (tmp_path / "cache").glob("t-2x3-*.npy")
+    path.write_bytes(b"not an array")
+    assert np.array_equal(cache.cached_table("t-2x3", (2, 3), compute), first) and calls == [1, 1]
+    # the cached Halton points are SciPy's, bit for bit
+    from scipy.stats import qmc
+    assert np.array_equal(halton_uniforms(16, 5, 3), qmc.Halton(d=5, scramble=True, seed=3).random(16))
+    assert np.array_equal(halton_uniforms(16, 5, 3), qmc.Halton(d=5, scramble=True, seed=3).random(16))
+    # a cache that cannot be written only costs the computation
+    monkeypatch.setenv("M3P2I_CACHE", "/proc/m3p2i-no-such-dir")
+    assert np.array_equal(cache.cached_table("t-2x3", (2, 3), compute), first)

@@ -29,10 +29,9 @@ import math
 
 import numpy as np
 import torch
-from scipy.interpolate import make_interp_spline
-from scipy.stats import qmc
 from torch import Tensor
 
+from .cache import cached_table
 from .config import MPPIConfig
 
 # Keeps ndtri finite if a rotated Halton point lands on 0 or 1 exactly.
@@ -52,15 +51,22 @@ def spline_basis(horizon: int, knot_every: int, degree: int) -> np.ndarray:
     n_knots = math.ceil((horizon - 1) / knot_every) + 1
     if n_knots == 1:
         return np.ones((horizon, 1))
-    knot_t = np.arange(n_knots) * knot_every
     k = min(degree, n_knots - 1)
-    return make_interp_spline(knot_t, np.eye(n_knots), k=k, axis=0)(np.arange(horizon))
+
+    def compute() -> np.ndarray:
+        from scipy.interpolate import make_interp_spline
+        knot_t = np.arange(n_knots) * knot_every
+        return make_interp_spline(knot_t, np.eye(n_knots), k=k, axis=0)(np.arange(horizon))
+    return cached_table(f"spline-T{horizon}-every{knot_every}-k{k}", (horizon, n_knots), compute)
 
 
 def halton_uniforms(samples: int, dims: int, seed: int) -> np.ndarray:
     """``[samples, dims]`` scrambled Halton points in (0, 1); scrambling removes the strong
     correlations plain Halton has between high-prime dimensions (many channels × knots)."""
-    return np.ascontiguousarray(qmc.Halton(d=dims, scramble=True, seed=seed).random(samples))
+    def compute() -> np.ndarray:
+        from scipy.stats import qmc
+        return qmc.Halton(d=dims, scramble=True, seed=seed).random(samples)
+    return cached_table(f"halton-{samples}x{dims}-seed{seed}", (samples, dims), compute)
 
 
 class GaussianNoise:
