@@ -22,7 +22,8 @@ app = typer.Typer(add_completion=False, help=(
     "Across machines give both sides `--keys DIR` (made by `m3p2i keys DIR`): ZeroMQ CURVE, "
     "authenticated and encrypted. "
     "Exit code: 0 when the episode ends in success, 1 otherwise, 2 on a configuration error, "
-    "3 when the server refuses the handshake (scenario, protocol version or key)."))
+    "3 when the server refuses the handshake (scenario, protocol version or key) or its first "
+    "state has other sizes than the scenario's model (`m3p2i layout SCENARIO` prints them)."))
 
 log = logging.getLogger("m3p2i.planner")
 
@@ -90,7 +91,7 @@ def main(
     except ValueError as exc:
         typer.echo(f"error: --device {device!r}: {exc}", err=True)
         raise typer.Exit(2) from None
-    from planner_client.loop import HandshakeRefused
+    from planner_client.loop import HandshakeRefused, LayoutMismatch
     try:
         sc = load_scenario(scenario)
         client = build_client(sc, Endpoints(host, port), threads=threads, seed=seed,
@@ -105,6 +106,9 @@ def main(
         stats = client.run()
     except HandshakeRefused as exc:
         typer.echo(f"error: the server refused the handshake: {exc}", err=True)
+        raise typer.Exit(3) from None
+    except LayoutMismatch as exc:
+        typer.echo(f"error: {exc.explain(scenario)}", err=True)
         raise typer.Exit(3) from None
     except KeyboardInterrupt:
         stats = client.stats

@@ -1,9 +1,11 @@
 """The planner client's loop (paper Alg. 1): state in -> task layer -> M3P2I -> command out.
 
 Connection handling: the handshake is retried until a server answers (a refusal, e.g. another
-scenario, is fatal with the server's reason); a server that goes silent for ``server_timeout``
-seconds, or comes back with a new session, is handshaken again, so the planner outlives server
-restarts. Each received state is answered with one command that echoes its ``seq``.
+scenario, is fatal with the server's reason); the first state after a handshake whose arrays have
+other sizes than the planner's model is fatal too (:class:`LayoutMismatch`: a bridge of another
+layout). A server that goes silent for ``server_timeout`` seconds, or comes back with a new
+session, is handshaken again, so the planner outlives server restarts. Each received state is
+answered with one command that echoes its ``seq``.
 
 Each command carries the whole plan, dated: its first knot is for the world time at which the
 command is expected to take effect (:mod:`planner_client.timing`). Against a real-time world the
@@ -25,7 +27,8 @@ import zmq
 from shared import protocol as P
 from shared.endpoints import Endpoints, socket
 from shared.evaluation.metrics import mean_hz
-from shared.scene import get_full_state
+from shared.layout import StateSizes
+from shared.scene import STATE_FIELDS, get_full_state
 from shared.security import Authenticator, HandshakeMonitor, PlannerKeys, curve_client, \
     curve_server, describe_handshake_failure
 from shared.timed_plan import TimedPlan, held
@@ -43,6 +46,22 @@ _HANDSHAKE_FAILURES = 20  # failed handshakes in a row, no reply between: a key 
 
 class HandshakeRefused(RuntimeError):
     """The server refused us (scenario or protocol mismatch); retrying cannot help."""
+
+
+class LayoutMismatch(RuntimeError):
+    """The world's first state after a handshake has other array sizes than the planner's model
+    of the scenario: a bridge of another layout (retrying cannot help). ``mismatches`` names
+    each array that differs."""
+
+    def __init__(self, scenario: str, mismatches: list[str]):
+        self.scenario, self.mismatches = scenario, mismatches
+        super().__init__(self.explain(scenario))
+
+    def explain(self, scenario_ref: str) -> str:
+        """The message, with ``m3p2i layout scenario_ref`` as where to find the right layout."""
+        return (f"the world's state does not fit the planner's model of {self.scenario}: "
+                f"{'; '.join(self.mismatches)}. `m3p2i layout {scenario_ref}` prints the "
+                f"layout a world must send, index by index")
 
 
 @dataclass
@@ -112,6 +131,7 @@ class PlannerClient:
         self._last_start: tuple[float, int] | None = None   # (t_eff, state seq) of the last plan
         self._faults = 0        # consecutive iterations without a plan (Iteration.fault)
         self._handshake_failures = 0   # in a row, since the last reply
+        self._layout_checked = False   # whether a state since the last handshake was checked
 
     # ------------------------------------------------------------------ handshake
 
@@ -149,6 +169,7 @@ class PlannerClient:
                 if self.welcome is not None and reply.session != self.welcome.session:
                     self._new_episode(reply.seed)
                 self.welcome = reply
+                self._layout_checked = False
                 self._lead = LeadEstimate(reply.dt) if reply.mode == "realtime" else None
                 self._sent.clear()
                 self._last_start = None
@@ -241,6 +262,8 @@ class PlannerClient:
                          state.session)
                 self.handshake()
                 continue
+            if not self._layout_checked:
+                self._check_layout(state)
             if state.status != "running":
                 self.stats.final_status = state.status
                 log.info("episode over: %s at t=%.2f s", state.status, state.time)
@@ -255,6 +278,15 @@ class PlannerClient:
                 continue
             self._step(state, on_plan)
         return self.stats
+
+    def _check_layout(self, state: P.State) -> None:
+        """Raise :class:`LayoutMismatch` when the first state of a session does not fit the
+        planner's model (a bridge sending another layout: every state would be dropped)."""
+        mismatches = StateSizes.of(self.planner.problem.model).mismatches(
+            {name: getattr(state, name) for name in STATE_FIELDS})
+        if mismatches:
+            raise LayoutMismatch(self.hello.scenario, mismatches)
+        self._layout_checked = True
 
     def _step(self, state: P.State, on_plan) -> None:
         t0 = time.perf_counter()

@@ -25,6 +25,8 @@ class RobotSpec:
         frame: body (or site, prefixed ``site:``) whose pose is "the robot" for costs/observers.
         description: one line for ``--help`` and error messages.
         ctrl_names: actuator names in control-vector order (checked against the MJCF).
+        ctrl_units: the unit of each control, in ``ctrl_names`` order, for bridges
+            (``m3p2i layout``): ``m/s``, ``rad/s``, ``m``, ``fraction`` (0..1), ``ignored``.
         safe_ctrl: the control that holds the robot still (zero velocity for velocity actuators);
             applied by the server when commands go stale, and by the planner when the task is
             done or has failed.
@@ -38,6 +40,7 @@ class RobotSpec:
     frame: str
     description: str
     ctrl_names: tuple[str, ...]
+    ctrl_units: tuple[str, ...]
     safe_ctrl: tuple[float, ...]
     hold_ctrl: tuple[str, ...] = ()
 
@@ -62,6 +65,9 @@ ROBOTS: dict[str, RobotSpec] = {}
 def register(spec: RobotSpec) -> RobotSpec:
     if spec.name in ROBOTS:
         raise ValueError(f"robot {spec.name!r} registered twice")
+    if len(spec.ctrl_units) != len(spec.ctrl_names):
+        raise ValueError(f"robot {spec.name!r}: {len(spec.ctrl_units)} ctrl_units for "
+                         f"{len(spec.ctrl_names)} ctrl_names; one unit per control")
     ROBOTS[spec.name] = spec
     return spec
 
@@ -79,6 +85,7 @@ register(RobotSpec(
     frame="robot",
     description="omnidirectional point robot: velocity actuators on x and y (thesis code)",
     ctrl_names=("vel_x", "vel_y"),
+    ctrl_units=("m/s", "m/s"),
     safe_ctrl=(0.0, 0.0),
 ))
 
@@ -89,6 +96,7 @@ register(RobotSpec(
     description="point robot with the pull suction: world velocities vel_x, vel_y (m/s) and "
                 "suction in [0, 1] (adhesion actuator, 250 N at 1)",
     ctrl_names=("vel_x", "vel_y", "suction"),
+    ctrl_units=("m/s", "m/s", "fraction"),
     safe_ctrl=(0.0, 0.0, 0.0),
 ))
 
@@ -99,6 +107,7 @@ register(RobotSpec(
     description="non-holonomic differential drive: body-frame forward speed (m/s) and yaw rate "
                 "(rad/s); lateral_grip is the passive tyre grip, its control value is ignored",
     ctrl_names=("forward", "yaw_rate", "lateral_grip"),
+    ctrl_units=("m/s", "rad/s", "ignored"),
     safe_ctrl=(0.0, 0.0, 0.0),
 ))
 
@@ -109,6 +118,7 @@ register(RobotSpec(
     description="Franka Emika Panda on the table: joint velocities j1..j7 (rad/s) and gripper "
                 "opening width (m, 0 closed .. 0.08 open)",
     ctrl_names=("j1", "j2", "j3", "j4", "j5", "j6", "j7", "gripper"),
+    ctrl_units=("rad/s",) * 7 + ("m",),
     safe_ctrl=(0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0),
     hold_ctrl=("gripper",),
 ))

@@ -29,7 +29,8 @@ __all__ = ["app", "free_port_block"]   # free_port_block: tests start processes 
 app = typer.Typer(add_completion=False, no_args_is_help=True, help=(
     "m3p2i: reactive task and motion planning with active inference and multi-modal MPPI.\n\n"
     "`m3p2i run navigation` runs a scenario end to end; `m3p2i list` shows the scenarios and "
-    "where each comes from, `m3p2i new NAME --from SCENARIO` starts your own. "
+    "where each comes from, `m3p2i new NAME --from SCENARIO` starts your own; "
+    "`m3p2i layout SCENARIO` prints what a hardware bridge must send and accept. "
     "For two terminals use `m3p2i-server` and `m3p2i-planner` directly."))
 
 
@@ -58,6 +59,39 @@ def check(
     at once (frames, actuators, cost terms, observers included); exit 0 when sound, 2 if not."""
     sc = _load_or_exit(scenario)
     typer.echo(f"{sc.source}: ok")
+
+
+@app.command("layout")
+def layout(
+    scenario: str = typer.Argument(..., help="Scenario name (m3p2i list) or YAML path."),
+    as_json: bool = typer.Option(False, "--json", help="Print one JSON object instead of "
+                                 "tables (keys: scenario, scenario_hash, robot, dt, sizes, nu, "
+                                 "qpos, qvel, act, mocap, ctrl, extras), for bridges and tools "
+                                 "in other languages."),
+) -> None:
+    """Print what a world (a hardware bridge) must send and accept for SCENARIO, by name:
+    each index of state.qpos and state.qvel with its joint, component, unit and frame; each
+    row of mocap_pos/mocap_quat with its body; each index of command.ctrl with its actuator,
+    unit, range and safe value; the state.extras the scenario needs.
+
+    The planner stops (exit code 3) when a world's first state has other sizes than these."""
+    import json
+
+    from rich.console import Console
+
+    from shared.layout import bridge_layout
+    from shared.scene import compile_model
+    from shared.tools.layout_table import print_layout
+    try:
+        sc = load_scenario(scenario)
+        found = bridge_layout(sc, compile_model(sc))
+    except (ConfigError, ValueError) as exc:
+        typer.echo(f"error: {exc}", err=True)
+        raise typer.Exit(2) from None
+    if as_json:
+        typer.echo(json.dumps(found.to_dict(), indent=1))
+        return
+    print_layout(found, Console(width=None if sys.stdout.isatty() else 200))
 
 
 @app.command("run")
