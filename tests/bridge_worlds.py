@@ -37,6 +37,18 @@ class KinematicBase(Bridge):
         self.data.qvel[:2] = self.velocity
 
 
+class RecordingBase(KinematicBase):
+    """:class:`KinematicBase` that keeps every control it sent, for the safety checks."""
+
+    def __init__(self, scenario, seed=0):
+        self.sent: list[np.ndarray] = []
+        super().__init__(scenario, seed)
+
+    def actuate(self, ctrl: np.ndarray) -> None:
+        self.sent.append(ctrl.copy())
+        super().actuate(ctrl)
+
+
 class NotAWorld:
     """A class that is no :class:`server.interface.World` (for the ``--world`` error)."""
 

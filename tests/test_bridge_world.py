@@ -1,6 +1,10 @@
 """Hardware bridges: a world written against docs/protocol.md alone, and a user's World class
 served by ``m3p2i-server --world`` (docs/bridge.md), each driving the real planner process to
-the navigation goal in lock-step."""
+the navigation goal in lock-step.
+
+The two episodes share one planner process (``--keep-running``: it handshakes again with each
+new world on its port), as a planner outlives a bridge restart; its start-up is most of the
+time an episode takes here."""
 
 from __future__ import annotations
 
@@ -23,7 +27,10 @@ from shared.scenario import load_scenario
 from shared.scene import compile_model, initial_data
 from shared.tools.launch import free_port_block
 from tests.bridge_worlds import KinematicBase
-from tests.helpers import ENV, start_planner, stop, wait_episode
+from typer.testing import CliRunner
+
+from server.cli import app as server_app
+from tests.helpers import ENV, start_planner, stop
 
 ROOT = Path(__file__).resolve().parent.parent
 GOAL = np.array([-3.0, 3.0])        # configs/scenarios/navigation.yaml: episode.success
@@ -114,47 +121,57 @@ def raw_bridge(port: int, scenario_hash: str, dt: float, mocap_pos: list, mocap_
         ctx.term()
 
 
-def test_a_bridge_written_from_the_protocol_spec_drives_the_planner_to_the_goal():
+@pytest.fixture(scope="module")
+def planner():
+    """A navigation planner on a free port block, planning for whichever world is there."""
+    port = free_port_block()
+    proc = start_planner("navigation", port, "--keep-running")
+    try:
+        yield port, proc
+    finally:
+        stop(proc)
+
+
+def _alive(proc: subprocess.Popen) -> None:
+    if proc.poll() is not None:
+        raise AssertionError(f"the planner exited (code {proc.returncode}):\n{proc.communicate()[0]}")
+
+
+def test_a_bridge_written_from_the_protocol_spec_drives_the_planner_to_the_goal(planner):
+    port, proc = planner
     sc = load_scenario("navigation")
     model = compile_model(sc)
     start = initial_data(sc, model)
     assert model.nq == 2 and model.nu == 2   # the bridge's kinematic robot is this model's
-    port = free_port_block()
     result: dict = {}
     bridge = threading.Thread(target=raw_bridge, daemon=True, args=(
         port, sc.hash, float(model.opt.timestep), start.mocap_pos.tolist(),
         start.mocap_quat.tolist(), result))
     bridge.start()
-    planner = start_planner("navigation", port)
-    try:
-        bridge.join(90)
-        assert not bridge.is_alive(), "the bridge's episode did not end"
-        assert result["status"] == "success", (result, planner.poll())
-        assert np.linalg.norm(result["qpos"] - GOAL) <= WITHIN
-        assert result["handshakes"] == 1
-        out = planner.communicate(timeout=20)[0]
-        assert planner.returncode == 0, out
-        assert "episode over: success" in out
-    finally:
-        stop(planner)
+    bridge.join(90)
+    _alive(proc)
+    assert not bridge.is_alive(), "the bridge's episode did not end"
+    assert result["status"] == "success", result
+    assert np.linalg.norm(result["qpos"] - GOAL) <= WITHIN
+    assert result["handshakes"] == 1
 
 
 # ------------------------------------------------------------------ --world: a user's class
 
-def test_a_user_world_class_is_served_with_world(tmp_path):
-    port = free_port_block()
+def test_a_user_world_class_is_served_with_world(planner, tmp_path):
+    port, proc = planner
     log = tmp_path / "episode.jsonl"
     server = subprocess.Popen(
         [sys.executable, "-m", "server", "--scenario", "navigation", "--port", str(port),
          "--log", str(log), "--world", "tests.bridge_worlds:KinematicBase"],
         cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, env=ENV)
-    planner = start_planner("navigation", port)
     try:
-        out = wait_episode(server, planner, timeout=90)
+        out = server.communicate(timeout=90)[0]
+        _alive(proc)
         assert server.returncode == 0, out
         assert out.startswith("success") or "\nsuccess" in out, out
     finally:
-        stop(server, planner)
+        stop(server)
     records = read_log(log)
     assert records[0]["world"] == "tests.bridge_worlds:KinematicBase"
     summary = records[-1]
@@ -167,6 +184,74 @@ def test_a_user_world_class_is_served_with_world(tmp_path):
     np.testing.assert_allclose(np.diff(qpos, axis=0), ctrl[1:] * dt, atol=1e-12)
     np.testing.assert_allclose(qpos[0], ctrl[0] * dt, atol=1e-12)      # from the origin
     assert np.abs(ctrl).max() <= 1.5
+
+
+# ------------------------------------------------------------------ real time: the safe stops
+
+def test_a_realtime_bridge_is_stopped_on_stale_commands_on_pause_and_at_the_end(tmp_path):
+    from server.app import ServerOptions, WorldServer
+    from shared import protocol as P
+    from shared.endpoints import Endpoints
+    from tests.bridge_worlds import RecordingBase
+
+    port = free_port_block()
+    server = WorldServer(load_scenario("navigation"), Endpoints(port=port), tmp_path / "e.jsonl",
+                         ServerOptions(mode="realtime", command_timeout=0.2, republish=0.05),
+                         world=RecordingBase)
+    world = server.world
+    runner = threading.Thread(target=server.run, daemon=True)
+    runner.start()
+    ctx = zmq.Context()
+    req, push = ctx.socket(zmq.REQ), ctx.socket(zmq.PUSH)
+    for s, addr in ((req, Endpoints(port=port).control), (push, Endpoints(port=port).command)):
+        s.setsockopt(zmq.LINGER, 0)
+        s.connect(addr)
+
+    def ask(msg):
+        req.send(P.encode(msg))
+        assert req.poll(10000), "the world did not answer"
+        return P.decode(req.recv())
+
+    go = np.array([1.0, 0.0])
+    try:
+        sc = load_scenario("navigation")
+        session = ask(P.Hello(scenario=sc.name, scenario_hash=sc.hash)).session
+
+        def drive(seconds: float) -> None:
+            end = time.monotonic() + seconds
+            while time.monotonic() < end:
+                push.send(P.encode(P.Command(session=session, seq=0, ctrl=go)))
+                time.sleep(0.02)
+
+        drive(0.3)
+        assert any(np.array_equal(c, go) for c in world.sent)
+        assert isinstance(ask(P.Control(op="pause")), P.Control)
+        np.testing.assert_array_equal(world.sent[-1], [0.0, 0.0])     # stopped before the echo
+        assert isinstance(ask(P.Control(op="resume")), P.Control)
+        drive(0.3)
+        time.sleep(0.6)                   # commands stale after 0.2 s: the watchdog's safe control
+        stale_x = world.data.qpos[0]
+        np.testing.assert_array_equal(world.sent[-1], [0.0, 0.0])
+        time.sleep(0.2)
+        assert world.data.qpos[0] == stale_x > 0.0                     # it moved, then held still
+        ask(P.Control(op="shutdown"))
+        runner.join(10)
+        assert not runner.is_alive()
+    finally:
+        req.close(0)
+        push.close(0)
+        ctx.term()
+        if runner.is_alive():
+            server._stop = True
+            runner.join(10)
+    np.testing.assert_array_equal(world.sent[-1], [0.0, 0.0])         # the episode's end
+    records = read_log(tmp_path / "e.jsonl")
+    assert [r["what"] for r in records if r.get("what", "").startswith("commands_")] == \
+        ["commands_fresh", "commands_stale"]
+    stale_at = next(i for i, r in enumerate(records) if r.get("what") == "commands_stale")
+    after = [r for r in records[stale_at:] if r["kind"] == "step"]
+    assert after and all(r["safe"] and r["ctrl"] == [0.0, 0.0] for r in after)
+    assert records[-1]["status"] == "stopped"
 
 
 # ------------------------------------------------------------------ --world: bad values
@@ -189,11 +274,11 @@ def test_world_loads_the_class_it_names():
 
 
 def test_the_server_refuses_a_bad_world_before_it_starts(tmp_path):
-    out = subprocess.run([sys.executable, "-m", "server", "--scenario", "navigation",
-                          "--log", str(tmp_path / "e.jsonl"), "--world", "tests.bridge_worlds:NotAWorld"],
-                         cwd=ROOT, capture_output=True, text=True, env=ENV, timeout=60)
-    assert out.returncode == 2
-    assert "tests.bridge_worlds:NotAWorld" in out.stderr and "not a subclass" in out.stderr
+    result = CliRunner().invoke(server_app, ["--scenario", "navigation", "--log",
+                                             str(tmp_path / "e.jsonl"), "--world",
+                                             "tests.bridge_worlds:NotAWorld"])
+    assert result.exit_code == 2
+    assert "tests.bridge_worlds:NotAWorld" in result.output and "not a subclass" in result.output
     assert not (tmp_path / "e.jsonl").exists()
 
 
