@@ -73,7 +73,8 @@ def main(
                                       "workers use; pair it with m3p2i-planner --keep-running."),
     viewer: bool = typer.Option(False, help="Open MuJoCo's passive viewer (needs a display)."),
     check: bool = typer.Option(False, "--check", help="Only check the scenario (every error of "
-                               "the file, model names included) and exit: 0 sound, 2 faulty."),
+                               "the file, model names included) and --world's class, and exit: "
+                               "0 sound, 2 faulty."),
     seed: int = typer.Option(0, help="Seed of the scenario's randomised start (world.randomize)."),
     world: Optional[str] = typer.Option(None, "--world", help="The world to serve instead of "
                                         "the MuJoCo simulation: package.module:Class naming a "
@@ -88,10 +89,15 @@ def main(
         raise typer.BadParameter("must be 'lockstep' or 'realtime'", param_hint="--mode")
     if not check:   # before anything else: an exposed robot is refused at once
         world_keys = _security({"--host": host}, keys, insecure)
+    try:                                   # --check checks it too
+        world_class, world_error = (SimWorld if world is None else load_world_class(world)), None
+    except WorldLoadError as exc:
+        world_class, world_error = None, exc
+        typer.echo(f"error: {exc}", err=True)
     errors = scenario_errors(scenario)     # every error of the file, before anything starts
     print_errors(errors, err=not check)
-    if errors or check:
-        raise typer.Exit(2 if errors else 0)
+    if errors or world_error or check:
+        raise typer.Exit(2 if errors or world_error else 0)
     if keep_serving and (log_file is None or "{seed" not in str(log_file)):
         typer.echo("error: --keep-serving needs a --log holding '{seed}' (e.g. "
                    "runs/x/seed-{seed:03d}/episode.jsonl): each episode gets its own log",
@@ -101,11 +107,6 @@ def main(
         typer.echo("error: --keep-serving builds a new world for each episode; MuJoCo's viewer "
                    "shows one: use `m3p2i view` (the browser view) instead", err=True)
         raise typer.Exit(2)
-    try:
-        world_class = SimWorld if world is None else load_world_class(world)
-    except WorldLoadError as exc:
-        typer.echo(f"error: {exc}", err=True)
-        raise typer.Exit(2) from None
     sc = load_scenario(scenario)
     log_file = log_file or default_run_dir(sc.name) / "episode.jsonl"
     opts = ServerOptions(mode=mode, command_timeout=command_timeout,

@@ -280,6 +280,11 @@ def test_the_server_refuses_a_bad_world_before_it_starts(tmp_path):
     assert result.exit_code == 2
     assert "tests.bridge_worlds:NotAWorld" in result.output and "not a subclass" in result.output
     assert not (tmp_path / "e.jsonl").exists()
+    checked = CliRunner().invoke(server_app, ["--scenario", "navigation", "--check", "--world",
+                                              "tests.bridge_worlds:Missing"])
+    assert checked.exit_code == 2 and "has no 'Missing'" in checked.output
+    assert CliRunner().invoke(server_app, ["--scenario", "navigation", "--check", "--world",
+                                           "tests.bridge_worlds:KinematicBase"]).exit_code == 0
 
 
 def test_the_kinematic_base_follows_the_bridge_contract():
