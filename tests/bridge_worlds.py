@@ -49,6 +49,15 @@ class RecordingBase(KinematicBase):
         super().actuate(ctrl)
 
 
+class LosingTrack(RecordingBase):
+    """:class:`RecordingBase` whose motion capture loses the robot after five steps."""
+
+    def sense(self) -> None:
+        if self._steps > 5:
+            raise WorldError("motion capture lost the base")
+        super().sense()
+
+
 class NotAWorld:
     """A class that is no :class:`server.interface.World` (for the ``--world`` error)."""
 

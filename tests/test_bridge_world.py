@@ -254,6 +254,48 @@ def test_a_realtime_bridge_is_stopped_on_stale_commands_on_pause_and_at_the_end(
     assert records[-1]["status"] == "stopped"
 
 
+def test_a_bridge_that_fails_mid_episode_is_stopped_and_its_log_summarised(tmp_path):
+    from server.app import ServerOptions, WorldServer
+    from server.interface import WorldError
+    from shared import protocol as P
+    from shared.endpoints import Endpoints
+    from tests.bridge_worlds import LosingTrack
+
+    port = free_port_block()
+    server = WorldServer(load_scenario("navigation"), Endpoints(port=port), tmp_path / "e.jsonl",
+                         ServerOptions(mode="realtime"), world=LosingTrack)
+    world, failure = server.world, []
+
+    def run() -> None:
+        try:
+            server.run()
+        except WorldError as exc:
+            failure.append(exc)
+
+    runner = threading.Thread(target=run, daemon=True)
+    runner.start()
+    ctx = zmq.Context()
+    push = ctx.socket(zmq.PUSH)
+    push.setsockopt(zmq.LINGER, 0)
+    push.connect(Endpoints(port=port).command)
+    try:
+        end = time.monotonic() + 5
+        while runner.is_alive() and time.monotonic() < end:
+            push.send(P.encode(P.Command(session=server.session, seq=0, ctrl=np.array([1.0, 0.0]))))
+            time.sleep(0.02)
+        runner.join(5)
+        assert not runner.is_alive()
+    finally:
+        push.close(0)
+        ctx.term()
+        if runner.is_alive():
+            server._stop = True
+    assert [str(e) for e in failure] == ["motion capture lost the base"]
+    np.testing.assert_array_equal(world.sent[-1], [0.0, 0.0])         # the safe stop
+    summary = read_log(tmp_path / "e.jsonl")[-1]
+    assert summary["kind"] == "summary" and summary["status"] == "stopped"
+
+
 # ------------------------------------------------------------------ --world: bad values
 
 @pytest.mark.parametrize("value, expected", [
