@@ -6,6 +6,10 @@ the world holds its start state until the first command, then steps on the wall 
 the newest command's time-indexed plan (:mod:`shared.timed_plan`; a command without a plan holds
 its ``ctrl``); when the plan runs out, or no command arrived for ``command_timeout``, the robot's
 safe control (zero velocity) holds until a fresh one arrives. Bad messages are logged with their reason and dropped; nothing received is executed.
+
+The world is anything implementing :class:`server.interface.World` (the simulated
+:class:`server.world.SimWorld` by default, a user's bridge with ``--world``): this loop only
+calls its methods, never MuJoCo's data.
 """
 
 from __future__ import annotations
@@ -29,7 +33,8 @@ from shared.security import Authenticator, HandshakeMonitor, WorldKeys, curve_se
     describe_handshake_failure
 from shared.timed_plan import PlanPlayer, TimedPlan, held
 from server.episode_log import EpisodeLog, read_log
-from server.world import Outcome, SimWorld
+from server.interface import Outcome, World, WorldState, world_name
+from server.world import SimWorld
 
 log = logging.getLogger("m3p2i.server")
 
@@ -51,8 +56,10 @@ class ServerOptions:
 class WorldServer:
     def __init__(self, scenario: Scenario, endpoints: Endpoints, log_path: Path,
                  options: ServerOptions | None = None, viewer=None, seed: int = 0,
-                 keys: WorldKeys | None = None):
+                 keys: WorldKeys | None = None, world: type[World] = SimWorld):
         self.scenario = scenario
+        self.world_class = world          # built afresh for each episode: world(scenario, seed)
+        self.world: World | None = None
         self.opt = options or ServerOptions()
         self.log_template = str(log_path)
         self.viewer = viewer
@@ -88,7 +95,10 @@ class WorldServer:
     def _begin_episode(self, seed: int) -> None:
         """A new episode from ``seed``'s start: a fresh world (as a new process would build it),
         a new session (the planner re-handshakes and starts over) and its own episode log."""
-        self.world = SimWorld(self.scenario, seed)
+        if self.world is not None:
+            self.world.close()
+        self.world = self.world_class(self.scenario, seed)
+        self.world.reset()
         self.metrics = MetricsEvaluator(self.scenario, self.world.model)   # bad frames fail here
         self.session = secrets.token_hex(4)
         self.seed = seed
@@ -106,7 +116,8 @@ class WorldServer:
         self.log.write("header", scenario=self.scenario.name, scenario_hash=self.scenario.hash,
                        source=self.scenario.source, mode=self.opt.mode, dt=self.world.dt,
                        session=self.session, nq=self.world.model.nq, nu=self.world.model.nu,
-                       seed=seed, initial=self.world.initial, curve=self.curve)
+                       seed=seed, initial=self.world.initial, curve=self.curve,
+                       world=world_name(self.world_class))
 
     # ------------------------------------------------------------------ loop
 
@@ -139,6 +150,7 @@ class WorldServer:
             self.world.status = "stopped"
             log.info("interrupted")
         finally:
+            self._stop_world()                   # a robot holds still whatever ended the episode
             if self.world.status == "running":   # ended by a seeded reset
                 self.world.status = "stopped"
             outcome = self.world.outcome()
@@ -152,6 +164,14 @@ class WorldServer:
             self._over = True
         outcome.measures["planner_hz"] = hz
         return outcome
+
+    def _stop_world(self) -> None:
+        """The world's safe stop; its failure is logged loudly, and the summary still written."""
+        try:
+            self.world.stop()
+        except Exception as exc:   # noqa: BLE001 - the operator must hear of it, and the log end
+            log.exception("the world's safe stop failed: the robot may still be moving")
+            self.log.event("stop_failed", reason=f"{type(exc).__name__}: {exc}")
 
     def _await_next_episode(self) -> bool:
         """Between episodes of a kept world: publish the final state (so planners know the
@@ -212,9 +232,9 @@ class WorldServer:
         held; the safe control past the plan's end), then the state is published. One step by
         default; more emulate, deterministically, a planner that slow against a real-time world."""
         plan = (TimedPlan(cmd.plan_t0, cmd.plan_dt, cmd.plan_ctrl, cmd.seq) if cmd.has_plan
-                else held(cmd.ctrl, float(self.world.data.time), cmd.seq))
+                else held(cmd.ctrl, self.world.time, cmd.seq))
         for _ in range(self.opt.plan_every):
-            self._apply(plan.at(float(self.world.data.time)), cmd.seq, publish=False)
+            self._apply(plan.at(self.world.time), cmd.seq, publish=False)
             if not self._running():
                 break
         self._publish()
@@ -259,8 +279,8 @@ class WorldServer:
                 if ctrl is None and source >= 0 and source != ended:
                     ended = source
                     log.warning("the plan of state %d ran out at t=%.2f s: safe control until "
-                                "the next", source, self.world.data.time)
-                    self.log.event("plan_ended", seq=source, time=float(self.world.data.time))
+                                "the next", source, self.world.time)
+                    self.log.event("plan_ended", seq=source, time=self.world.time)
                 self._apply(ctrl, source, cmd_age=cmd_age)
                 next_tick += period
                 if now - next_tick > 10 * period:   # fell far behind (debugger, load): resync
@@ -272,11 +292,11 @@ class WorldServer:
         command without a plan holds its ``ctrl`` until the next one (protocol 1's meaning)."""
         sent = self._state_times.get(cmd.seq)
         if sent is not None:
-            self._lag = max(0.0, float(self.world.data.time) - sent)
+            self._lag = max(0.0, self.world.time - sent)
         self._count_plan(cmd)
         self._note_action(cmd.action)
         self.player.receive(TimedPlan(cmd.plan_t0, cmd.plan_dt, cmd.plan_ctrl, cmd.seq)
-                            if cmd.has_plan else held(cmd.ctrl, float(self.world.data.time), cmd.seq))
+                            if cmd.has_plan else held(cmd.ctrl, self.world.time, cmd.seq))
 
     def _count_plan(self, cmd: P.Command) -> None:
         """Its planning time counts (Hz statistics) once, on the first step it drives."""
@@ -286,7 +306,7 @@ class WorldServer:
     def _playing(self) -> tuple[np.ndarray | None, int]:
         """The control for the world's time and the state ``seq`` it was planned from;
         ``(None, seq)`` when that plan ran out, ``(None, -1)`` before any command."""
-        ctrl, plan = self.player.control(float(self.world.data.time))
+        ctrl, plan = self.player.control(self.world.time)
         return ctrl, (plan.seq if plan is not None else -1)
 
     def _linger(self) -> None:
@@ -300,8 +320,8 @@ class WorldServer:
     def _note_action(self, action: str) -> None:
         if action != self._action:
             self._action = action
-            self.action_changes.append((float(self.world.data.time), action))
-            self.log.event("action", time=float(self.world.data.time), action=action)
+            self.action_changes.append((self.world.time, action))
+            self.log.event("action", time=self.world.time, action=action)
 
     def _apply(self, ctrl: np.ndarray | None, source: int = -1, publish: bool = True,
                cmd_age: float | None = None) -> None:
@@ -312,9 +332,9 @@ class WorldServer:
         arrival to the moment this step's control was chosen (what the stale-command watchdog
         compares with ``command_timeout``; None before the first command and in lock-step), so
         a soak test can prove from the log that no stale command drove the robot."""
-        d = self.world.data
+        now = self.world.time
         source = source if ctrl is not None else -1
-        age = float(d.time) - self._state_times.get(source, float(d.time)) if source >= 0 else 0.0
+        age = now - self._state_times.get(source, now) if source >= 0 else 0.0
         plan_time = self._plan_time_of.pop(source, 0.0)
         if plan_time:
             self._plan_times.append(plan_time)
@@ -324,18 +344,22 @@ class WorldServer:
             self.log.event("disturbance", **event)
         self.world.events.clear()
         self.seq += 1
-        self.log.write("step", seq=self.seq, time=float(d.time), qpos=d.qpos, qvel=d.qvel,
-                       act=d.act, mocap_pos=d.mocap_pos, mocap_quat=d.mocap_quat, ctrl=d.ctrl,
-                       action=self._action, safe=ctrl is None, plan_seq=source, age=age,
+        s = self.world.state()
+        self.log.write("step", seq=self.seq, time=s.time, qpos=s.qpos, qvel=s.qvel,
+                       act=s.act, mocap_pos=s.mocap_pos, mocap_quat=s.mocap_quat,
+                       ctrl=self.world.ctrl, action=self._action, safe=ctrl is None, plan_seq=source, age=age,
                        plan_time=plan_time, cmd_age=cmd_age, extras=self.world.extras)
         if self.viewer is not None:
             self.viewer.sync()
         if publish:
-            self._publish()
+            self._publish(s)
 
-    def _publish(self) -> None:
-        state = self.world.state(self.session, self.seq)
-        state.lag = self._lag
+    def _publish(self, s: WorldState | None = None) -> None:
+        """The world's state (``s``, or the current one) as state ``seq``."""
+        s = self.world.state() if s is None else s
+        state = P.State(session=self.session, seq=self.seq, time=s.time, qpos=s.qpos,
+                        qvel=s.qvel, act=s.act, mocap_pos=s.mocap_pos, mocap_quat=s.mocap_quat,
+                        status=self.world.status, extras=dict(self.world.extras), lag=self._lag)
         self._state_times[self.seq] = state.time
         self._state_times.pop(self.seq - _KEEP_STATE_TIMES, None)
         self._plan_time_of.pop(self.seq - _KEEP_STATE_TIMES, None)
@@ -462,11 +486,15 @@ class WorldServer:
         elif msg.op in ("pause", "resume"):
             if self._paused != (msg.op == "pause"):
                 log.info("world %s at t=%.2f s", "paused" if msg.op == "pause" else "resumed",
-                         self.world.data.time)
+                         self.world.time)
             self._paused = msg.op == "pause"
+            if self._paused:
+                self._stop_world()       # a robot must not go on with its last command
         self.rep.send(P.encode(msg))
 
     def close(self) -> None:
+        if self.world is not None:
+            self.world.close()
         for m in self.monitors.values():
             m.close()
         for s in (self.rep, self.pub, self.pull):

@@ -19,6 +19,8 @@ from shared.scene import scene_framing
 from shared.security import ExposureError, keys_for_cli, load_world_keys
 from server.app import ServerOptions, WorldServer
 from server.check import scenario_errors
+from server.interface import WorldError, WorldLoadError, load_world_class
+from server.world import SimWorld
 
 app = typer.Typer(add_completion=False, help=(
     "Run the world: a MuJoCo simulation of a scenario that publishes its state over ZeroMQ and "
@@ -27,6 +29,8 @@ app = typer.Typer(add_completion=False, help=(
     "Across machines: `m3p2i keys DIR`, then `--host 0.0.0.0 --keys DIR` here and "
     "`--host THIS_MACHINE --keys DIR` on the planner (ZeroMQ CURVE: authenticated, "
     "encrypted). "
+    "A robot instead of the simulation: `--world package.module:Class`, a bridge class of your "
+    "own (docs/bridge.md); this process then serves it, handshake, watchdog and log included. "
     "Exit code: 0 on success, 1 on time-out or stop, 2 on a configuration error."))
 
 log = logging.getLogger("m3p2i.server")
@@ -69,8 +73,15 @@ def main(
                                       "workers use; pair it with m3p2i-planner --keep-running."),
     viewer: bool = typer.Option(False, help="Open MuJoCo's passive viewer (needs a display)."),
     check: bool = typer.Option(False, "--check", help="Only check the scenario (every error of "
-                               "the file, model names included) and exit: 0 sound, 2 faulty."),
+                               "the file, model names included) and --world's class, and exit: "
+                               "0 sound, 2 faulty."),
     seed: int = typer.Option(0, help="Seed of the scenario's randomised start (world.randomize)."),
+    world: Optional[str] = typer.Option(None, "--world", help="The world to serve instead of "
+                                        "the MuJoCo simulation: package.module:Class naming a "
+                                        "subclass of server.bridge.Bridge (a robot) or "
+                                        "server.interface.World, imported from the installed "
+                                        "packages, PYTHONPATH or the current directory "
+                                        "(docs/bridge.md). A robot runs --mode realtime."),
     verbose: bool = typer.Option(False, "--verbose", "-v"),
 ) -> None:
     setup_logging(verbose, "m3p2i.server")
@@ -78,10 +89,15 @@ def main(
         raise typer.BadParameter("must be 'lockstep' or 'realtime'", param_hint="--mode")
     if not check:   # before anything else: an exposed robot is refused at once
         world_keys = _security({"--host": host}, keys, insecure)
+    try:                                   # --check checks it too
+        world_class, world_error = (SimWorld if world is None else load_world_class(world)), None
+    except WorldLoadError as exc:
+        world_class, world_error = None, exc
+        typer.echo(f"error: {exc}", err=True)
     errors = scenario_errors(scenario)     # every error of the file, before anything starts
     print_errors(errors, err=not check)
-    if errors or check:
-        raise typer.Exit(2 if errors else 0)
+    if errors or world_error or check:
+        raise typer.Exit(2 if errors or world_error else 0)
     if keep_serving and (log_file is None or "{seed" not in str(log_file)):
         typer.echo("error: --keep-serving needs a --log holding '{seed}' (e.g. "
                    "runs/x/seed-{seed:03d}/episode.jsonl): each episode gets its own log",
@@ -98,12 +114,18 @@ def main(
                          plan_every=plan_every, keep_serving=keep_serving)
     try:
         server = WorldServer(sc, Endpoints(host, port), log_file, opts, seed=seed,
-                             keys=world_keys)
+                             keys=world_keys, world=world_class)
     except ConfigError as exc:   # e.g. a metrics frame the compiled model lacks
         typer.echo(f"error: {exc}", err=True)
         raise typer.Exit(2) from None
+    except WorldError as exc:    # a bridge that cannot reach its robot
+        typer.echo(f"error: --world {world}: {exc}", err=True)
+        raise typer.Exit(2) from None
     if viewer:
-        if os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY"):
+        if server.world.data is None:
+            log.warning("the world %s keeps no MuJoCo data to show: running without the viewer",
+                        world)
+        elif os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY"):
             import mujoco.viewer
             # the side panels would cover most of the window it opens with (Tab and
             # Shift+Tab show them)
@@ -115,7 +137,12 @@ def main(
     # a supervisor (systemd, the launcher's stop, a soak test's restart) stops the world with
     # SIGTERM: end the episode as Ctrl-C does, so the log still gets its summary
     signal.signal(signal.SIGTERM, _interrupt)
-    outcome = server.run()
+    try:
+        outcome = server.run()
+    except WorldError as exc:    # the world failed mid-episode: stopped, the summary written
+        typer.echo(f"error: --world {world}: {exc}", err=True)
+        typer.echo(f"episode log: {server.log.path}")
+        raise typer.Exit(1) from None
     if server.viewer is not None:
         server.viewer.close()
     typer.echo(summary_line(outcome.status, outcome.time, outcome.measures))

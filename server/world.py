@@ -1,59 +1,49 @@
 """The simulated world: the scenario's MuJoCo model stepped under the latest command.
 
-This is the piece a hardware bridge replaces: something that applies a control vector, advances
-(or waits for) the world, and reports the full state. Everything network-facing lives in
-:mod:`server.app`; the success test and time-out live here, with the physics.
+One implementation of :class:`server.interface.World` (a hardware bridge is another:
+:class:`server.bridge.Bridge`). Everything network-facing lives in :mod:`server.app`; the
+success test and time-out (:mod:`server.judge`) are judged here, with the physics.
 """
 
 from __future__ import annotations
-
-from dataclasses import dataclass
 
 import mujoco
 import numpy as np
 
 from shared.frames import FrameResolver
 from shared.geometry import select_axes
-from shared.predicates import WorldView
-from shared.protocol import State
-from shared.robots import get_robot
 from shared.scenario import Scenario
-from shared.scene import compile_model, reset_data
+from shared.scene import reset_data
 from server.disturbances import Disturbances, ObjectHandle
+from server.interface import Outcome, World, WorldState
+from server.judge import EpisodeJudge
+
+__all__ = ["Outcome", "SimWorld"]
 
 
-@dataclass
-class Outcome:
-    status: str               # running | success | timeout | stopped
-    time: float               # simulated seconds
-    measures: dict[str, float]
-
-
-class SimWorld:
+class SimWorld(World):
     """Owns MjModel/MjData of the scenario; one :meth:`step` per command."""
 
     def __init__(self, scenario: Scenario, seed: int = 0):
-        self.scenario = scenario
-        self.model = compile_model(scenario)
+        super().__init__(scenario, seed)
         self.data = mujoco.MjData(self.model)
-        self.robot = get_robot(scenario.robot.model)
         resolve = FrameResolver(self.model, self.robot.frame)
-        self.success_test = [p.bind(resolve) for p in scenario.episode.success]
+        self.judge = EpisodeJudge(scenario, resolve)
         self.battery = scenario.world.battery
         if self.battery:
             self._robot_frame = resolve("robot")
             self._charger = resolve(self.battery.charger)
         self.disturbances = Disturbances(self.model, resolve, scenario.world.randomize,
                                          scenario.world.disturbances)
-        self.seed = seed
-        self.events: list[dict] = []     # disturbances fired since the caller last cleared them
-        self.extras: dict[str, float] = {}
-        self.status = "running"
         self.reset()
 
     @property
-    def dt(self) -> float:
-        return float(self.model.opt.timestep)
+    def time(self) -> float:
+        return float(self.data.time)
+
+    @property
+    def ctrl(self) -> np.ndarray:
+        return self.data.ctrl
 
     def reset(self) -> None:
         """Start pose (randomised from ``seed`` where the scenario says), status running."""
@@ -62,7 +52,7 @@ class SimWorld:
         mujoco.mj_forward(self.model, self.data)
         self.data.ctrl[:] = self.robot.safe_stop()      # what a safe stop holds before any command
         self.status = "running"
-        self._success_since: float | None = None
+        self.judge.reset()
         if self.battery:
             self.extras["battery"] = self.battery.initial
 
@@ -87,10 +77,6 @@ class SimWorld:
             event["quat"] = (np.asarray(quat, float) / np.linalg.norm(quat)).tolist()
         return event
 
-    def safe_command(self) -> np.ndarray:
-        """The robot's safe control, its ``hold_ctrl`` actuators kept at their last command."""
-        return self.robot.safe_stop(self.data.ctrl)
-
     def step(self, ctrl: np.ndarray) -> None:
         """Advance one timestep holding ``ctrl`` (clipped to the actuators' ranges)."""
         lo, hi = self.model.actuator_ctrlrange.T
@@ -112,30 +98,14 @@ class SimWorld:
         self.extras["battery"] = float(np.clip(level, 0.0, 100.0))
 
     def _check_episode(self) -> None:
-        if self.status != "running":
-            return
-        view = WorldView(self.data, self.extras)
-        if not all(p(view) for p in self.success_test):
-            self._success_since = None
-        elif self._success_since is None:
-            self._success_since = self.data.time
-        # episode.hold: a stack that topples, or a cube moved off its goal, is no success yet
-        if self._success_since is not None and \
-                self.data.time - self._success_since >= self.scenario.episode.hold - 1e-9:
-            self.status = "success"
-        elif self.data.time >= self.scenario.episode.max_time - 1e-9:
-            self.status = "timeout"
+        self.status = self.judge.update(self.status, self.data, self.extras, self.data.time)
 
-    def state(self, session: str, seq: int) -> State:
+    def state(self) -> WorldState:
         d = self.data
-        return State(session=session, seq=seq, time=float(d.time), qpos=d.qpos.copy(),
-                     qvel=d.qvel.copy(), act=d.act.copy(), mocap_pos=d.mocap_pos.copy(),
-                     mocap_quat=d.mocap_quat.copy(), status=self.status, extras=dict(self.extras))
+        return WorldState(time=float(d.time), qpos=d.qpos.copy(), qvel=d.qvel.copy(),
+                          act=d.act.copy(), mocap_pos=d.mocap_pos.copy(),
+                          mocap_quat=d.mocap_quat.copy())
 
     def outcome(self) -> Outcome:
         """Status and the success predicates' measures (e.g. final distance to the goal)."""
-        view = WorldView(self.data, self.extras)
-        measures = {}
-        for p in self.success_test:
-            measures.update(p.measures(view))
-        return Outcome(self.status, float(self.data.time), measures)
+        return Outcome(self.status, float(self.data.time), self.judge.measures(self.data, self.extras))

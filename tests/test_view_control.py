@@ -66,7 +66,7 @@ def test_a_moved_cube_is_published_and_logged_as_a_disturbance(world):
     np.testing.assert_allclose(server.world.data.xquat[cube.id], [half, 0, 0, half], atol=1e-12)
     # a new state: a lock-step world now waits for the command answering the moved world
     assert server.seq == seq + 1
-    state = server.world.state(server.session, server.seq)
+    state = server.world.state()
     adr = server.world.model.jnt_qposadr[cube.jntadr[0]]
     np.testing.assert_allclose(state.qpos[adr:adr + 3], [0.5, 0.1, 1.1])
     (event,) = _events(server, "disturbance")

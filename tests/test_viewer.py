@@ -48,13 +48,13 @@ def test_a_cube_dragged_in_the_viewer_moves_in_the_published_state(tmp_path):
     try:
         cube = server.world.model.body("cube_a")
         adr = server.world.model.jnt_qposadr[cube.jntadr[0]]
-        before = server.world.state(server.session, server.seq).qpos[adr:adr + 3].copy()
+        before = server.world.state().qpos[adr:adr + 3].copy()
         # 0.05 kg cube: 1 N lifts it against gravity (0.49 N) and pulls it towards the robot
         server.viewer = DraggingViewer(server.world.model, server.world.data, "cube_a",
                                        force=(-0.3, 0.0, 1.0))
         for _ in range(30):
             server._apply(None)             # one world step with the robot held still
-        after = server.world.state(server.session, server.seq).qpos[adr:adr + 3]
+        after = server.world.state().qpos[adr:adr + 3]
     finally:
         server.close()
     assert server.viewer.syncs == 30
@@ -71,7 +71,7 @@ def test_a_fixed_object_dragged_in_the_viewer_is_published_where_it_was_put(tmp_
                                        shift=(0.0, -0.01, 0.0))
         for _ in range(10):
             server._apply(None)
-        published = server.world.state(server.session, server.seq).mocap_pos[mocap]
+        published = server.world.state().mocap_pos[mocap]
     finally:
         server.close()
     np.testing.assert_allclose(published, start + [0.0, -0.1, 0.0], atol=1e-9)
