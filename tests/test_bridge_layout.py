@@ -145,10 +145,11 @@ def test_declared_control_units_agree_with_velocity_servos_on_joints(name):
 def test_the_simulated_world_sends_exactly_the_layout(name):
     sc = load_scenario(name)
     world = SimWorld(sc)
+    world.reset()
     layout = bridge_layout(sc, world.model)
-    state = world.state("s", 0)
+    state = world.state()
     assert layout.sizes.mismatches({f: getattr(state, f) for f in STATE_FIELDS}) == []
-    assert sorted(state.extras) == sorted(e.name for e in layout.extras)
+    assert sorted(world.extras) == sorted(e.name for e in layout.extras)
     if sc.world.battery:
         assert layout.extras[0].unit == "%" and layout.extras[0].range == (0.0, 100.0)
 
