@@ -54,7 +54,8 @@ def build_task(scenario: Scenario, planner: MotionPlanner) -> TaskLayer:
             check_frames(pred, problem.resolve, scenario.source, f"observers.{factor}")
     return ActiveInferenceTask(ActiveInferencePlanner(scenario.task),
                                SymbolicObserver(scenario.observers, problem.resolve),
-                               scenario.action_objectives, scenario.planner.aip_period)
+                               scenario.action_objectives, scenario.planner.aip_period,
+                               scenario.planner.confirm)
 
 
 def build_client(scenario: Scenario, endpoints: Endpoints, threads: int = 0,

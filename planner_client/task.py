@@ -45,20 +45,54 @@ class FixedModes:
         return self.decision
 
 
+class ConfirmedObservation:
+    """Each factor's observed state, changed only once a new state has been observed without a
+    break for ``confirm[factor]`` seconds (``"*"``: every other factor; 0 or absent: at once).
+
+    An observer at its threshold with noisy poses flips between two states from one tick to the
+    next; acted on, every flip would switch the action. A real change (a cube taken from the
+    hand) persists, and is acted on after ``confirm`` seconds (plus up to one AIP period, the
+    rate the observers are read at)."""
+
+    def __init__(self, confirm: dict[str, float]):
+        self.confirm = confirm
+        self.state: dict[str, str] = {}
+        self._candidate: dict[str, tuple[str, float]] = {}   # factor -> (new state, seen since)
+
+    def __call__(self, observed: dict[str, str], time: float) -> dict[str, str]:
+        for factor, value in observed.items():
+            hold = self.confirm.get(factor, self.confirm.get("*", 0.0))
+            current = self.state.get(factor)
+            if current is None or current == value or hold <= 0:
+                self.state[factor] = value
+                self._candidate.pop(factor, None)
+                continue
+            candidate = self._candidate.get(factor)
+            if candidate is None or candidate[0] != value:
+                self._candidate[factor] = candidate = (value, time)
+            if time - candidate[1] >= hold - 1e-9:
+                self.state[factor] = value
+                del self._candidate[factor]
+        return dict(self.state)
+
+
 class ActiveInferenceTask:
     """Observers -> active inference -> alternatives -> objectives (paper Alg. 1, lines 5-9).
 
     The AIP ticks every ``period`` seconds of simulated time (slower than the motion planner);
-    between ticks the last decision stands. Each admissible alternative action becomes one M3P2I
-    mode through the plan interface (action -> objective). On success or failure the decision
-    says ``stop``: the loop holds the robot with its safe stop.
+    between ticks the last decision stands. Observations reach it through
+    :class:`ConfirmedObservation` (``planner.confirm``). Each admissible alternative action
+    becomes one M3P2I mode through the plan interface (action -> objective). On success or
+    failure the decision says ``stop``: the loop holds the robot with its safe stop.
     """
 
     def __init__(self, aip: ActiveInferencePlanner, observer: SymbolicObserver,
-                 action_objectives: dict[str, str], period: float):
+                 action_objectives: dict[str, str], period: float,
+                 confirm: dict[str, float] | None = None):
         self.aip, self.observer = aip, observer
         self.action_objectives = action_objectives
         self.period = period
+        self.confirmed = ConfirmedObservation(confirm or {})
         self._next = -np.inf
         self.decision: TaskDecision | None = None
         self.last_observation: dict[str, str] = {}
@@ -67,7 +101,7 @@ class ActiveInferenceTask:
         if self.decision is not None and time < self._next:
             return self.decision
         self._next = time + self.period
-        self.last_observation = self.observer(data, extras)
+        self.last_observation = self.confirmed(self.observer(data, extras), time)
         d = self.aip.step(self.last_observation)
         previous = self.decision
         if d.status == "running":

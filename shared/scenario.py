@@ -222,6 +222,9 @@ class PlannerConfig:
     mppi: dict[str, Any] = field(default_factory=dict)
     threads: int = 0                       # rollout threads; 0 = one per core
     aip_period: float = 0.2                # simulated seconds between active-inference ticks
+    # seconds an observed change of a task factor must persist before the task layer acts on
+    # it, per factor ("*": the others); 0 acts on every observation (planner_client.task)
+    confirm: dict[str, float] = field(default_factory=dict)
     timestep: float | None = None          # planning step (s), a multiple of the world's; None = its
     backend: str = "mujoco"                # rollouts: "mujoco" (mujoco.rollout pool) or "warp" (MJWarp)
     device: str = "cuda:0"                 # the warp backend's device: "cpu" or "cuda[:N]"
@@ -366,6 +369,16 @@ def _read(raw: dict, source: str, errors: ErrorLog) -> ScenarioReading:
         else:   # the task's own errors are reported; its dependants would only repeat them
             top.section("observers", required=False)
             top.section("plan", required=False)
+    if planner is not None and planner.confirm and task is None and not top.has("task"):
+        errors.add(ConfigError(source, "planner.confirm", "only a task's observers are "
+                               "confirmed", raw["planner"]["confirm"],
+                               "a scenario with a task: template"))
+    elif planner is not None and task is not None:
+        factors = [f.name for f in task.factors]
+        for key in planner.confirm:
+            if key != "*" and key not in factors:
+                errors.add(ConfigError(source, f"planner.confirm.{key}", "not a factor of the "
+                                       "task", key, "'*' or one of: " + ", ".join(factors)))
     if top.has("objectives") and isinstance(top.data["objectives"], dict):
         known = list(top.data["objectives"])
         for i, m in enumerate(modes):
@@ -639,6 +652,8 @@ def _planner(s: Section) -> PlannerConfig:
                         mppi=dict(s.section("mppi", required=False).data),
                         threads=s.opt("threads", 0, int),
                         aip_period=s.opt("aip_period", 0.2, positive, "simulated seconds"),
+                        confirm=s.opt("confirm", {}, _confirm_times, "seconds >= 0, or a map "
+                                      "{factor: seconds, '*': seconds}"),
                         timestep=s.opt("timestep", None, positive, "seconds > 0, a multiple of "
                                        "world.timestep"),
                         backend=s.opt("backend", "mujoco", one_of(ROLLOUT_BACKENDS)),
@@ -663,6 +678,14 @@ def _planning_model(s: Section) -> PlanningModel:
         exclude=tuple(s.opt("exclude", (), _body_pairs, "a list of [body, body] pairs")))
     s.done()
     return cfg
+
+
+def _confirm_times(value: Any) -> dict[str, float]:
+    if not isinstance(value, dict):
+        return {"*": non_negative(value)}
+    if not all(isinstance(k, str) for k in value):
+        raise ValueError("wrong type")
+    return {k: non_negative(v) for k, v in value.items()}
 
 
 def _count(value: Any) -> int:
