@@ -41,7 +41,6 @@ from __future__ import annotations
 import dataclasses
 import json
 import os
-import re
 import statistics
 import sys
 import time
@@ -60,6 +59,7 @@ from shared.config import ConfigError
 from shared.scenario import load_scenario
 from shared.scene import build_spec, compile_model, get_full_state, initial_data
 from shared.tools.bench import machine
+from shared.tools.blocks import regenerate
 from planner_client.build import build_motion_planner
 from planner_client.problem import apply_planning_model
 
@@ -179,18 +179,11 @@ def markdown(results: dict, source: str) -> str:
     return "\n".join(lines)
 
 
-_BLOCK = re.compile(r"(<!-- benchmark (?P<path>[^>]*?) -->\n)(?P<body>.*?)(<!-- end of benchmark -->)",
-                    re.S)
-
-
 def update(text: str, base: Path) -> str:
     """``text`` with every ``<!-- benchmark PATH -->`` block regenerated from its results file
     (PATH relative to ``base``)."""
-    def fill(m: re.Match) -> str:
-        path = m["path"].strip()
-        results = json.loads((base / path).read_text())
-        return m.group(1) + markdown(results, path) + "\n" + m.group(4)
-    new, n = _BLOCK.subn(fill, text)
+    new, n = regenerate(text, "benchmark", "benchmark", lambda path: markdown(
+        json.loads((base / path).read_text()), path) + "\n")
     if not n:
         raise typer.BadParameter("no '<!-- benchmark PATH -->' ... '<!-- end of benchmark -->' "
                                  "block found", param_hint="--update")

@@ -38,7 +38,6 @@ from __future__ import annotations
 import json
 import os
 import random
-import re
 import signal
 import subprocess
 import sys
@@ -57,6 +56,7 @@ from shared.endpoints import Endpoints, socket
 from shared.evaluation import episode
 from shared.scenario import find_scenario
 from shared.tools.bench import machine
+from shared.tools.blocks import regenerate
 from shared.tools.launch import free_port_block, stop_processes
 
 FAULTS = ("kill", "restart", "flood", "pause")
@@ -655,16 +655,10 @@ def markdown(results: dict, source: str) -> str:
     return "\n".join(lines)
 
 
-_BLOCK = re.compile(r"(<!-- soak (?P<path>[^>]*?) -->\n)(?P<body>.*?)(<!-- end of soak -->)", re.S)
-
-
 def update(text: str, base: Path) -> str:
     """``text`` with every ``<!-- soak PATH -->`` block regenerated from its results file."""
-    def fill(m: re.Match) -> str:
-        path = m["path"].strip()
-        results = json.loads((base / path).read_text())
-        return m.group(1) + markdown(results, path) + "\n" + m.group(4)
-    new, n = _BLOCK.subn(fill, text)
+    new, n = regenerate(text, "soak", "soak", lambda path: markdown(
+        json.loads((base / path).read_text()), path) + "\n")
     if not n:
         raise typer.BadParameter("no '<!-- soak PATH -->' ... '<!-- end of soak -->' block found",
                                  param_hint="--update")

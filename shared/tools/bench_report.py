@@ -11,7 +11,6 @@ from __future__ import annotations
 
 import csv
 import math
-import re
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -20,6 +19,7 @@ from rich.table import Table
 
 from shared.config import ConfigError, Section, load_yaml, positive_int, vector
 from shared.config_files import shipped
+from shared.tools.blocks import regenerate
 
 PAPER_RESULTS = shipped("paper_results.yaml")
 TIME_OUT = "time-out"
@@ -211,8 +211,6 @@ def markdown_report(rows: list[list[str]], skipped: list[tuple[str, str]], heade
 # ------------------------------------------------------------- reports from committed results
 
 NOTES_FILE = "failures.yaml"     # beside results.csv: {case: {seed: one sentence}}
-_BLOCK = re.compile(r"(<!-- m3p2i report (?P<paths>[^>]*?) -->\n)(?P<body>.*?)(<!-- end of report -->)",
-                    re.S)
 
 
 @dataclass(frozen=True)
@@ -291,10 +289,9 @@ def _trials_ran_on(rows: list[dict[str, str]]) -> str:
 def update_reports(text: str, base: Path, paper: dict[str, PaperRow]) -> str:
     """``text`` with every ``<!-- m3p2i report PATH... -->`` block regenerated from the results
     files it names (relative to ``base``), up to its ``<!-- end of report -->``."""
-    def fill(m: re.Match) -> str:
-        paths = m.group("paths").split()
-        if not paths:
-            raise ConfigError(str(base), "", "a report block names no results file", m.group(1))
-        body = results_report([read_results(base / p) for p in paths], paper)
-        return m.group(1) + body + m.group(4)
-    return _BLOCK.sub(fill, text)
+    def render(args: str) -> str:
+        if not args:
+            raise ConfigError(str(base), "", "a report block names no results file",
+                              "<!-- m3p2i report -->")
+        return results_report([read_results(base / p) for p in args.split()], paper)
+    return regenerate(text, "m3p2i report", "report", render)[0]
