@@ -98,7 +98,8 @@ class PlannerClient:
         self.hello = P.Hello(scenario=scenario_name, scenario_hash=scenario_hash)
         self.server_timeout = server_timeout
         self.exit_on_done = exit_on_done
-        self.mirror = Mirror(planner.problem.model)
+        self.mirror = Mirror(planner.problem.model,
+                             estimate=planner.problem.scenario.planner.estimate)
         self.keys = keys
         self.ctx = zmq.Context()
         self.sub = socket(self.ctx, zmq.SUB, conflate=True)   # only the newest state matters
@@ -191,7 +192,8 @@ class PlannerClient:
                  f" (seed {seed})" if seed is not None else "")
         self.planner.close()
         self.planner, self.task = self.renew(seed)
-        self.mirror = Mirror(self.planner.problem.model)
+        self.mirror = Mirror(self.planner.problem.model,
+                             estimate=self.planner.problem.scenario.planner.estimate)
         self._action = None
         self._last_ctrl = self.robot.safe_stop()
         self._faults = 0

@@ -12,7 +12,9 @@ import mujoco
 import numpy as np
 
 from shared.protocol import State
+from shared.scenario import EstimateConfig
 from shared.scene import STATE_FIELDS, get_full_state, set_state
+from planner_client.estimate import FreeBodyEstimator
 
 
 @dataclass
@@ -37,10 +39,15 @@ class Mirror:
     It also estimates the velocity of every mocap body (objects the world moves: scripted or
     dynamic obstacles) from the last two states, for the constant-velocity prediction of paper Eq. 22.
     A jump faster than ``max_speed`` is a teleport (a disturbance), not motion: velocity 0.
+    With ``estimate`` (``planner.estimate``), the free bodies' poses are filtered and their
+    velocities estimated from them (:mod:`planner_client.estimate`).
     """
 
-    def __init__(self, model: mujoco.MjModel, max_speed: float = 5.0):
+    def __init__(self, model: mujoco.MjModel, max_speed: float = 5.0,
+                 estimate: EstimateConfig | None = None):
         self.model = model
+        estimator = FreeBodyEstimator(model, estimate or EstimateConfig())
+        self.estimator = estimator if estimator.active else None
         self.data = mujoco.MjData(model)
         self.x0 = np.zeros(mujoco.mj_stateSize(model, mujoco.mjtState.mjSTATE_FULLPHYSICS))
         self.max_speed = max_speed
@@ -68,8 +75,13 @@ class Mirror:
     def apply(self, state: State) -> np.ndarray:
         """Copy ``state`` in, recompute kinematics, return the rollout initial state [nstate]."""
         m, d = self.model, self.data
+        arrays = {name: getattr(state, name) for name in STATE_FIELDS}
+        if self.estimator is not None and arrays["qpos"].shape == (m.nq,) and \
+                arrays["qvel"].shape == (m.nv,):        # (a misfit is set_state's to refuse)
+            arrays["qpos"], arrays["qvel"] = self.estimator(state.time, arrays["qpos"],
+                                                            arrays["qvel"])
         try:
-            set_state(m, d, {name: getattr(state, name) for name in STATE_FIELDS})
+            set_state(m, d, arrays)
         except ValueError as exc:
             raise ValueError(f"state.{exc}") from None
         d.time = state.time

@@ -209,6 +209,17 @@ class PlanningModel:
         return out
 
 
+@dataclass(frozen=True)
+class EstimateConfig:
+    """``planner.estimate``: how the planner's mirror turns received states of the free bodies
+    (the scenario's objects) into the rollouts' start, for worlds whose object poses come from
+    perception (noisy) and whose object velocities are not measured."""
+    object_velocities: str = "received"    # received | from_poses (finite differences)
+    pose_filter: float = 1.0               # weight of a new pose in an exponential filter; 1: none
+    velocity_filter: float = 1.0           # weight of a new finite-difference velocity; 1: none
+    max_speed: float = 5.0                 # m/s: a faster jump is a teleport (filters restart)
+
+
 SOLVERS = ("Newton", "CG", "PGS")
 CONES = ("pyramidal", "elliptic")
 INTEGRATORS = ("Euler", "implicitfast", "implicit", "RK4")
@@ -231,6 +242,7 @@ class PlannerConfig:
     nconmax: int | None = None             # warp: contacts per world; None = estimated at start
     njmax: int | None = None               # warp: constraint rows per world; None = estimated
     model: PlanningModel = PlanningModel()  # the rollout model's own options
+    estimate: EstimateConfig = EstimateConfig()   # the mirror's filters for the free bodies
 
     def step(self, world: WorldConfig) -> float:
         """Seconds per planned control step: ``timestep``, or the world's."""
@@ -660,7 +672,8 @@ def _planner(s: Section) -> PlannerConfig:
                         device=s.opt("device", "cuda:0", rollout_device, "cpu, cuda or cuda:N"),
                         nconmax=s.opt("nconmax", None, positive_int, "contacts per world"),
                         njmax=s.opt("njmax", None, positive_int, "constraint rows per world"),
-                        model=_planning_model(s.section("model", required=False)))
+                        model=_planning_model(s.section("model", required=False)),
+                        estimate=_estimate(s.section("estimate", required=False)))
     s.done()
     return cfg
 
@@ -678,6 +691,23 @@ def _planning_model(s: Section) -> PlanningModel:
         exclude=tuple(s.opt("exclude", (), _body_pairs, "a list of [body, body] pairs")))
     s.done()
     return cfg
+
+
+def _estimate(s: Section) -> EstimateConfig:
+    cfg = EstimateConfig(
+        object_velocities=s.opt("object_velocities", "received", one_of(("received", "from_poses"))),
+        pose_filter=s.opt("pose_filter", 1.0, _weight, "a weight in (0, 1]"),
+        velocity_filter=s.opt("velocity_filter", 1.0, _weight, "a weight in (0, 1]"),
+        max_speed=s.opt("max_speed", 5.0, positive, "m/s > 0"))
+    s.done()
+    return cfg
+
+
+def _weight(value: Any) -> float:
+    v = number(value)
+    if not 0.0 < v <= 1.0:
+        raise ValueError("must be in (0, 1]")
+    return v
 
 
 def _confirm_times(value: Any) -> dict[str, float]:
