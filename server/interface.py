@@ -131,6 +131,17 @@ class World(ABC):
     def outcome(self) -> Outcome:
         """Status, time and the success test's measures (e.g. the distance to the goal)."""
 
+    def true_state(self) -> WorldState:
+        """The state as it is, for the episode log and its metrics; ``state()`` is what the
+        planner is sent. They differ only in a world that simulates measurement faults
+        (:class:`server.hardware.FaultyWorld`: noise, delay)."""
+        return self.state()
+
+    def drop_state(self) -> bool:
+        """Whether the link loses the state about to be published (asked once per state;
+        :class:`server.hardware.FaultyWorld`'s ``drop_rate``). None is lost by default."""
+        return False
+
     def safe_command(self) -> np.ndarray:
         """The control that holds the robot still (the robot's ``safe_ctrl``), its
         ``hold_ctrl`` actuators (a gripper) kept at their last command: what the server applies
