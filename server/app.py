@@ -9,7 +9,8 @@ safe control (zero velocity) holds until a fresh one arrives. Bad messages are l
 
 The world is anything implementing :class:`server.interface.World` (the simulated
 :class:`server.world.SimWorld` by default, a user's bridge with ``--world``): this loop only
-calls its methods, never MuJoCo's data.
+calls its methods, never MuJoCo's data. With hardware faults (``--hardware``, the scenario's
+``hardware:`` section; docs/hardware.md) it is wrapped in :class:`server.hardware.FaultyWorld`.
 """
 
 from __future__ import annotations

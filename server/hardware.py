@@ -85,7 +85,7 @@ def draw_mismatch(model: mujoco.MjModel, world: World, config: HardwareConfig,
             model.body_mass[body] *= f_mass
             model.body_inertia[body] *= f_mass
             factors["mass"][obj.name] = float(f_mass)
-        if m.friction:
+        if m.friction and not obj.visual:      # a visual geom touches nothing
             model.geom_friction[model.geom_bodyid == body] *= f_friction
             factors["friction"][obj.name] = float(f_friction)
     for a in range(model.nu):
