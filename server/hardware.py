@@ -257,7 +257,9 @@ class FaultyWorld(World):
         self.inner.stop()
 
     def move_object(self, name: str, pos, quat=None) -> dict:
-        return self.inner.move_object(name, pos, quat)
+        event = self.inner.move_object(name, pos, quat)
+        self._record()          # measured now, published once the state delay has passed
+        return event
 
     def close(self) -> None:
         self.inner.close()
