@@ -125,6 +125,15 @@ def test_a_delayed_state_was_measured_the_delay_ago(push):
     assert world.state().qpos[0] < world.true_state().qpos[0]    # it has moved on since
 
 
+def test_an_object_moved_by_a_control_op_is_seen_after_the_state_delay(push):
+    world = faulty(push, state_delay_ms=50.0)            # 1 step
+    box = world.model.joint("box_free").qposadr[0]
+    world.move_object("box", [2.0, -1.0, 0.05])
+    assert world.state().qpos[box] != 2.0
+    world.step(u(0.0))
+    assert world.state().qpos[box] == pytest.approx(2.0)
+
+
 def test_the_control_period_holds_each_command_k_steps(push):
     world = faulty(push, control_period_ms=150.0)       # every 3rd step
     applied = []
