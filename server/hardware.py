@@ -161,7 +161,10 @@ class FaultyWorld(World):
         """Where the noise goes: qpos addresses by joint type, free joints' velocities."""
         types = model.jnt_type
         adr = model.jnt_qposadr
-        self._slide = adr[types == mujoco.mjtJoint.mjJNT_SLIDE]
+        # a slide of a body on the world is a mobile base's localisation (a tracker's noise);
+        # one deeper in the tree, a finger's, is an encoder's and left exact
+        on_world = model.body_parentid[model.jnt_bodyid] == 0
+        self._slide = adr[(types == mujoco.mjtJoint.mjJNT_SLIDE) & on_world]
         self._hinge = adr[types == mujoco.mjtJoint.mjJNT_HINGE]
         free = types == mujoco.mjtJoint.mjJNT_FREE
         self._free_pos = adr[free]
@@ -205,8 +208,9 @@ class FaultyWorld(World):
         self._states.push(self._now(), self.measure(self.inner.state()))
 
     def measure(self, s: WorldState) -> WorldState:
-        """``s`` as a sensor reports it: Gaussian noise on positions and angles (quaternions
-        turned by a random rotation and kept unit), free objects' velocities withheld."""
+        """``s`` as a sensor reports it: Gaussian noise on positions, hinge joints and
+        orientations (quaternions turned by a random rotation and kept unit), free objects'
+        velocities withheld."""
         c = self.config
         qpos, qvel = s.qpos.copy(), s.qvel.copy()
         mocap_pos, mocap_quat = s.mocap_pos.copy(), s.mocap_quat.copy()
@@ -215,8 +219,9 @@ class FaultyWorld(World):
                 qpos[a:a + 3] += self._noise.normal(0.0, c.position_noise_m, 3)
             qpos[self._slide] += self._noise.normal(0.0, c.position_noise_m, len(self._slide))
             mocap_pos += self._noise.normal(0.0, c.position_noise_m, mocap_pos.shape)
+        if c.joint_noise_rad:
+            qpos[self._hinge] += self._noise.normal(0.0, c.joint_noise_rad, len(self._hinge))
         if c.angle_noise_rad:
-            qpos[self._hinge] += self._noise.normal(0.0, c.angle_noise_rad, len(self._hinge))
             for a in self._quats:
                 qpos[a:a + 4] = self._turn(qpos[a:a + 4])
             for i in range(len(mocap_quat)):

@@ -39,8 +39,9 @@ class HardwareConfig:
     """The faults a simulated world shows (all off by default; docs/hardware.md)."""
     actuation_delay_ms: float = 0.0   # a command reaches the actuators this much later
     state_delay_ms: float = 0.0       # a published state was measured this much earlier
-    position_noise_m: float = 0.0     # Gaussian σ on slide joints, free bodies' and mocap positions
-    angle_noise_rad: float = 0.0      # Gaussian σ on hinge joints and free bodies' orientations
+    position_noise_m: float = 0.0     # Gaussian σ on a base's slides, free bodies' and mocap positions
+    angle_noise_rad: float = 0.0      # Gaussian σ on free bodies' and mocap orientations
+    joint_noise_rad: float = 0.0      # Gaussian σ on hinge joints (a robot arm's encoders)
     drop_rate: float = 0.0            # fraction of state messages the link loses
     hide_velocities: bool = False     # free objects' velocities published as zero
     control_period_ms: float = 0.0    # the actuators take a new command this often (0: every step)
@@ -62,16 +63,16 @@ PROFILES: dict[str, HardwareConfig] = {
     # the simulation as it is: no fault
     "nominal": NOMINAL,
     # a well-kept lab: 50 ms round trip, a tracker with 5 mm noise over Wi-Fi losing one state
-    # in ten, object velocities not measured, a parallel gripper that opens or closes, and a
-    # model whose masses and frictions are right within ±30 %
+    # in ten, arm encoders good to 0.001 rad, object velocities not measured, a parallel gripper
+    # that opens or closes, and a model whose masses and frictions are right within ±30 %
     "lab": HardwareConfig(actuation_delay_ms=25.0, state_delay_ms=25.0, position_noise_m=0.005,
-                          angle_noise_rad=0.005, drop_rate=0.10, hide_velocities=True,
+                          angle_noise_rad=0.005, joint_noise_rad=0.001, drop_rate=0.10, hide_velocities=True,
                           control_period_ms=0.0, gripper="binary",
                           mismatch=MismatchConfig(mass=0.3, friction=0.3, gain=0.1)),
     # a bad day: 150 ms round trip, 15 mm noise, a third of the states lost, a 50 Hz actuator
     # loop, masses and frictions off by up to ±50 %, actuator gains by ±25 %
     "harsh": HardwareConfig(actuation_delay_ms=75.0, state_delay_ms=75.0, position_noise_m=0.015,
-                            angle_noise_rad=0.015, drop_rate=0.30, hide_velocities=True,
+                            angle_noise_rad=0.015, joint_noise_rad=0.003, drop_rate=0.30, hide_velocities=True,
                             control_period_ms=20.0, gripper="binary",
                             mismatch=MismatchConfig(mass=0.5, friction=0.5, gain=0.25)),
 }
@@ -107,6 +108,8 @@ def parse_hardware(data: Any, source: str, path: str = "hardware") -> HardwareCo
         position_noise_m=s.opt("position_noise_m", base.position_noise_m, non_negative,
                                "metres >= 0 (a standard deviation)"),
         angle_noise_rad=s.opt("angle_noise_rad", base.angle_noise_rad, non_negative,
+                              "radians >= 0 (a standard deviation)"),
+        joint_noise_rad=s.opt("joint_noise_rad", base.joint_noise_rad, non_negative,
                               "radians >= 0 (a standard deviation)"),
         drop_rate=s.opt("drop_rate", base.drop_rate, _fraction, "a fraction in [0, 1)"),
         hide_velocities=s.opt("hide_velocities", base.hide_velocities, _flag, "true or false"),

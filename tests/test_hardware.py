@@ -161,6 +161,19 @@ def test_noise_has_the_configured_spread_and_quaternions_stay_unit(push):
     assert math.sqrt(np.mean(angles ** 2)) == pytest.approx(math.sqrt(3) * 0.02, rel=0.06)
 
 
+def test_joint_noise_is_on_the_arms_hinges_and_a_fingers_slide_is_exact():
+    world = FaultyWorld(SimWorld(load_scenario("pick_place")),
+                        HardwareConfig(joint_noise_rad=0.001, position_noise_m=0.005))
+    truth = world.true_state()
+    hinges = world.model.jnt_qposadr[world.model.jnt_type == mujoco.mjtJoint.mjJNT_HINGE]
+    samples = np.array([world.measure(truth).qpos - truth.qpos for _ in range(500)])
+    assert np.std(samples[:, hinges]) == pytest.approx(0.001, rel=0.06)
+    fingers = world.model.jnt_qposadr[world.model.jnt_type == mujoco.mjtJoint.mjJNT_SLIDE]
+    assert len(fingers) == 2 and np.all(samples[:, fingers] == 0)      # encoders: exact
+    cube = world.model.joint("cube_a_free").qposadr[0]
+    assert np.std(samples[:, cube:cube + 3]) == pytest.approx(0.005, rel=0.1)   # the tracker's
+
+
 def test_object_velocities_are_withheld_and_the_robots_kept(push):
     world = faulty(push, hide_velocities=True)
     s = world.inner.state()
