@@ -9,7 +9,8 @@ safe control (zero velocity) holds until a fresh one arrives. Bad messages are l
 
 The world is anything implementing :class:`server.interface.World` (the simulated
 :class:`server.world.SimWorld` by default, a user's bridge with ``--world``): this loop only
-calls its methods, never MuJoCo's data.
+calls its methods, never MuJoCo's data. With hardware faults (``--hardware``, the scenario's
+``hardware:`` section; docs/hardware.md) it is wrapped in :class:`server.hardware.FaultyWorld`.
 """
 
 from __future__ import annotations
@@ -28,12 +29,14 @@ from shared.endpoints import Endpoints, socket
 from shared.evaluation.episode import episode_log_path
 from shared.evaluation.metrics import MetricsEvaluator, describe, mean_hz
 from shared.evaluation.timing import describe_timing, timing_summary
+from shared.hardware import HardwareConfig
 from shared.scenario import Scenario
 from shared.security import Authenticator, HandshakeMonitor, WorldKeys, curve_server, \
     describe_handshake_failure
 from shared.timed_plan import PlanPlayer, TimedPlan, held
 from server.episode_log import EpisodeLog, read_log
-from server.interface import Outcome, World, WorldState, world_name
+from server.hardware import FaultyWorld
+from server.interface import Outcome, World, world_name
 from server.world import SimWorld
 
 log = logging.getLogger("m3p2i.server")
@@ -56,8 +59,11 @@ class ServerOptions:
 class WorldServer:
     def __init__(self, scenario: Scenario, endpoints: Endpoints, log_path: Path,
                  options: ServerOptions | None = None, viewer=None, seed: int = 0,
-                 keys: WorldKeys | None = None, world: type[World] = SimWorld):
+                 keys: WorldKeys | None = None, world: type[World] = SimWorld,
+                 hardware: HardwareConfig | None = None):
         self.scenario = scenario
+        # the faults the world shows (docs/hardware.md): --hardware's, else the scenario's
+        self.hardware = scenario.hardware if hardware is None else hardware
         self.world_class = world          # built afresh for each episode: world(scenario, seed)
         self.world: World | None = None
         self.opt = options or ServerOptions()
@@ -98,6 +104,8 @@ class WorldServer:
         if self.world is not None:
             self.world.close()
         self.world = self.world_class(self.scenario, seed)
+        if self.hardware.active:
+            self.world = FaultyWorld(self.world, self.hardware, realtime=self.opt.mode == "realtime")
         self.world.reset()
         self.metrics = MetricsEvaluator(self.scenario, self.world.model)   # bad frames fail here
         self.session = secrets.token_hex(4)
@@ -112,12 +120,15 @@ class WorldServer:
         self._action = ""
         self.action_changes: list[tuple[float, str]] = []
         self._paused = False              # control op pause: the world neither steps nor waits out time
+        self._published = -1              # the newest seq published (or lost: drop_state)
+        self.dropped = 0                  # states the simulated link lost
         self.log = EpisodeLog(episode_log_path(self.log_template, seed))
         self.log.write("header", scenario=self.scenario.name, scenario_hash=self.scenario.hash,
                        source=self.scenario.source, mode=self.opt.mode, dt=self.world.dt,
                        session=self.session, nq=self.world.model.nq, nu=self.world.model.nu,
                        seed=seed, initial=self.world.initial, curve=self.curve,
-                       world=world_name(self.world_class))
+                       world=world_name(self.world_class),
+                       **(self.world.header() if isinstance(self.world, FaultyWorld) else {}))
 
     # ------------------------------------------------------------------ loop
 
@@ -159,6 +170,7 @@ class WorldServer:
             self.log.write("summary", status=outcome.status, time=outcome.time,
                            measures=outcome.measures, planner_hz=hz, steps=self.seq,
                            rejected=self._rejected, actions=self.action_changes,
+                           **({"dropped": self.dropped} if self.hardware.active else {}),
                            metrics=metrics, timing=timing)
             self.log.close()
             self._over = True
@@ -344,7 +356,7 @@ class WorldServer:
             self.log.event("disturbance", **event)
         self.world.events.clear()
         self.seq += 1
-        s = self.world.state()
+        s = self.world.true_state()
         self.log.write("step", seq=self.seq, time=s.time, qpos=s.qpos, qvel=s.qvel,
                        act=s.act, mocap_pos=s.mocap_pos, mocap_quat=s.mocap_quat,
                        ctrl=self.world.ctrl, action=self._action, safe=ctrl is None, plan_seq=source, age=age,
@@ -352,17 +364,25 @@ class WorldServer:
         if self.viewer is not None:
             self.viewer.sync()
         if publish:
-            self._publish(s)
+            self._publish()
 
-    def _publish(self, s: WorldState | None = None) -> None:
-        """The world's state (``s``, or the current one) as state ``seq``."""
-        s = self.world.state() if s is None else s
+    def _publish(self) -> None:
+        """The world's current state as state ``seq``. A state the world's
+        link loses (:meth:`World.drop_state`, asked once per ``seq``) is not sent: lock-step
+        re-sends it on the ``republish`` timer (the loss costs wall time, never world time),
+        real time sends the next step's."""
+        s = self.world.state()
         state = P.State(session=self.session, seq=self.seq, time=s.time, qpos=s.qpos,
                         qvel=s.qvel, act=s.act, mocap_pos=s.mocap_pos, mocap_quat=s.mocap_quat,
                         status=self.world.status, extras=dict(self.world.extras), lag=self._lag)
         self._state_times[self.seq] = state.time
         self._state_times.pop(self.seq - _KEEP_STATE_TIMES, None)
         self._plan_time_of.pop(self.seq - _KEEP_STATE_TIMES, None)
+        if self.seq != self._published:
+            self._published = self.seq
+            if self.world.drop_state():
+                self.dropped += 1
+                return
         self.pub.send(P.encode(state))
 
     def _poll(self, timeout_s: float) -> P.Command | None:

@@ -14,6 +14,7 @@ import typer
 from shared.cli_common import default_run_dir, print_errors, setup_logging, summary_line
 from shared.config import ConfigError
 from shared.endpoints import DEFAULT_HOST, DEFAULT_PORT, Endpoints
+from shared.hardware import PROFILES, load_hardware
 from shared.scenario import load_scenario
 from shared.scene import scene_framing
 from shared.security import ExposureError, keys_for_cli, load_world_keys
@@ -82,6 +83,15 @@ def main(
                                         "server.interface.World, imported from the installed "
                                         "packages, PYTHONPATH or the current directory "
                                         "(docs/bridge.md). A robot runs --mode realtime."),
+    hardware: Optional[str] = typer.Option(None, "--hardware", help="Make the simulation "
+                                           "behave like hardware (docs/hardware.md): a profile "
+                                           f"({', '.join(PROFILES)}) or a YAML file of "
+                                           "hardware: keys (delays, noise, dropped states, "
+                                           "withheld velocities, control period, model "
+                                           "mismatch, binary gripper). Replaces the scenario's "
+                                           "own hardware: section; the planner is not told. "
+                                           "lockstep: faults drawn from --seed, delays in world "
+                                           "steps (repeatable); realtime: wall-clock delays."),
     verbose: bool = typer.Option(False, "--verbose", "-v"),
 ) -> None:
     setup_logging(verbose, "m3p2i.server")
@@ -95,6 +105,12 @@ def main(
         world_class, world_error = None, exc
         typer.echo(f"error: {exc}", err=True)
     errors = scenario_errors(scenario)     # every error of the file, before anything starts
+    hardware_config = None
+    if hardware is not None:
+        try:
+            hardware_config = load_hardware(hardware)
+        except ConfigError as exc:
+            errors = [*errors, exc]
     print_errors(errors, err=not check)
     if errors or world_error or check:
         raise typer.Exit(2 if errors or world_error else 0)
@@ -114,7 +130,7 @@ def main(
                          plan_every=plan_every, keep_serving=keep_serving)
     try:
         server = WorldServer(sc, Endpoints(host, port), log_file, opts, seed=seed,
-                             keys=world_keys, world=world_class)
+                             keys=world_keys, world=world_class, hardware=hardware_config)
     except ConfigError as exc:   # e.g. a metrics frame the compiled model lacks
         typer.echo(f"error: {exc}", err=True)
         raise typer.Exit(2) from None

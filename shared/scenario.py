@@ -20,6 +20,7 @@ from shared.config import (ConfigError, ErrorLog, Section, load_yaml, non_negati
                            positive, positive_int, string_list, vector)
 from shared.config_files import find, shipped
 from shared.geometry import AXES
+from shared.hardware import NOMINAL, HardwareConfig, parse_hardware
 from shared.predicates import Predicate, parse_predicate
 from shared.robots import ROBOTS, get_robot
 from shared.task_template import FactorTemplate, TaskTemplate, parse_task
@@ -266,6 +267,8 @@ class Scenario:
     # the plan interface, YAML key ``plan``: task action -> the objective that executes it
     action_objectives: dict[str, str] = field(default_factory=dict)
     metrics: MetricsConfig = field(default_factory=MetricsConfig)
+    # the world server's faults (docs/hardware.md); the planner keeps the nominal model
+    hardware: HardwareConfig = NOMINAL
     raw: dict = field(repr=False, default_factory=dict)
 
 
@@ -362,6 +365,9 @@ def _read(raw: dict, source: str, errors: ErrorLog) -> ScenarioReading:
             errors.add(ConfigError(source, "planner.timestep", "not a whole multiple of "
                                    "world.timestep", planner.timestep,
                                    f"{world.timestep} × 1, 2, 3, ... seconds"))
+    hardware = NOMINAL
+    if top.has("hardware"):     # a profile's name or a mapping
+        hardware = errors.call(parse_hardware, top.opt("hardware", None), source, default=NOMINAL)
     library, included = _includes(top, errors)
     objectives = errors.call(lambda: _objectives(top.section("objectives"), errors, library),
                              default={})
@@ -404,7 +410,8 @@ def _read(raw: dict, source: str, errors: ErrorLog) -> ScenarioReading:
                         hash=scenario_hash(raw, included), robot=robot, world=world,
                         episode=episode or EpisodeConfig(max_time=0.0, success=()),
                         planner=planner, objectives=objectives, modes=modes, task=task,
-                        observers=observers, action_objectives=action_objectives, metrics=metrics, raw=raw)
+                        observers=observers, action_objectives=action_objectives, metrics=metrics,
+                        hardware=hardware, raw=raw)
     return ScenarioReading(scenario, errors.errors, model_ok)
 
 

@@ -101,6 +101,12 @@ def run(
                              "steps on the wall clock, playing the planner's newest plan)."),
     plan_every: int = typer.Option(1, min=1, help="lockstep: world steps per command; K > 1 "
                                    "emulates, repeatably, a planner K times slower than the world."),
+    hardware: Optional[str] = typer.Option(None, "--hardware", help="The world behaves like "
+                                           "hardware (docs/hardware.md): a profile (nominal, "
+                                           "lab, harsh) or a YAML file of hardware: keys; "
+                                           "replaces the scenario's hardware: section. Only "
+                                           "the world is told: the planner keeps the nominal "
+                                           "model."),
     port: int = typer.Option(0, help="Base port (0: pick free ports)."),
     run_dir: Optional[Path] = typer.Option(None, help="Where logs go (default runs/<scenario>-<time>)."),
     timeout: float = typer.Option(900.0, help="Wall-clock seconds before the run is abandoned."),
@@ -114,15 +120,19 @@ def run(
                                         "processes authenticate and encrypt every socket."),
 ) -> None:
     """Run one episode of SCENARIO with server and planner; exit 0 on success."""
+    if hardware is not None:      # first: a mistyped profile is refused at once
+        hardware = _hardware_or_exit(hardware)
     sc = _load_or_exit(scenario)
     _keys_or_exit(keys)
     run_dir = run_dir or default_run_dir(sc.name)
-    typer.echo(f"running {sc.name} ({mode}); logs in {run_dir}")
+    typer.echo(f"running {sc.name} ({mode}{', hardware ' + hardware if hardware else ''}); "
+               f"logs in {run_dir}")
     try:
         result = run_episode(EpisodeLaunch(scenario=sc.source, run_dir=run_dir, seed=seed,
                                            mode=mode, port=port, timeout=timeout, viewer=viewer,
                                            verbose=verbose, plan_every=plan_every, view=view,
-                                           view_port=view_port, keys=keys),
+                                           view_port=view_port, keys=keys,
+                                           hardware=hardware or ""),
                              on_view=lambda url: typer.echo(f"view: {url}"))
     except RuntimeError as exc:      # the view could not serve its page
         typer.echo(f"error: {exc}", err=True)
@@ -459,6 +469,18 @@ def view(
         pass
     finally:
         shown.close()
+
+
+def _hardware_or_exit(spec: str) -> str:
+    """``--hardware`` checked before either process starts; what the server is passed (a
+    profile's name, or the file's absolute path: the server may run elsewhere than here)."""
+    from shared.hardware import PROFILES, load_hardware
+    try:
+        load_hardware(spec)
+    except ConfigError as exc:
+        typer.echo(f"error: {exc}", err=True)
+        raise typer.Exit(2) from None
+    return spec if spec in PROFILES else str(Path(spec).resolve())
 
 
 def _keys_or_exit(keys: Optional[Path]):

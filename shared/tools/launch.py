@@ -97,6 +97,7 @@ class EpisodeLaunch:
     timeout: float = 900.0          # wall-clock seconds before both processes are stopped
     threads: int = 0                # planner rollout threads (0: the scenario's / one per core)
     plan_every: int = 1             # lockstep: world steps per command (emulates a slow planner)
+    hardware: str = ""              # server only: a hardware profile or file (docs/hardware.md)
     viewer: bool = False
     verbose: bool = False           # children write to this terminal instead of log files
     view: bool = False              # serve the browser view (m3p2i view) beside the episode
@@ -117,6 +118,8 @@ class EpisodeLaunch:
             server.append("--viewer")
         if self.plan_every != 1:
             server += ["--plan-every", str(self.plan_every)]
+        if self.hardware:            # the planner is not told: it keeps the nominal model
+            server += ["--hardware", self.hardware]
         planner = [sys.executable, "-m", "planner_client", *common]
         if self.keep_serving:
             planner.append("--keep-running")

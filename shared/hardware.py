@@ -1,0 +1,151 @@
+"""Hardware's faults for a simulated world: the ``hardware:`` section of a scenario, the named
+profiles (``nominal``, ``lab``, ``harsh``) and ``--hardware PROFILE|FILE``.
+
+Only the world server reads it (:mod:`server.hardware` applies it); the planner keeps the
+nominal model and is never told. Every fault is off by default. The keys, their units and the
+profiles' numbers are documented in ``docs/hardware.md``.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from shared.config import ConfigError, Section, load_yaml, non_negative, one_of
+
+GRIPPER_MODES = ("continuous", "binary")
+
+
+@dataclass(frozen=True)
+class MismatchConfig:
+    """Model mismatch: each factor is drawn per episode, from the seed, uniformly in
+    ``[1 - f, 1 + f]`` (``f`` a fraction: 0.3 = ±30 %). ``mass``: per scenario object, its
+    bodies' masses and inertias; ``friction``: per scenario object, its geoms' frictions;
+    ``gain``: per actuator, its gain and bias (a position servo's kp and kv, a velocity servo's
+    kv)."""
+    mass: float = 0.0
+    friction: float = 0.0
+    gain: float = 0.0
+
+    @property
+    def active(self) -> bool:
+        return bool(self.mass or self.friction or self.gain)
+
+
+@dataclass(frozen=True)
+class HardwareConfig:
+    """The faults a simulated world shows (all off by default; docs/hardware.md)."""
+    actuation_delay_ms: float = 0.0   # a command reaches the actuators this much later
+    state_delay_ms: float = 0.0       # a published state was measured this much earlier
+    position_noise_m: float = 0.0     # Gaussian σ on a base's slides, free bodies' and mocap positions
+    angle_noise_rad: float = 0.0      # Gaussian σ on free bodies' and mocap orientations
+    joint_noise_rad: float = 0.0      # Gaussian σ on hinge joints (a robot arm's encoders)
+    drop_rate: float = 0.0            # fraction of state messages the link loses
+    hide_velocities: bool = False     # free objects' velocities published as zero
+    control_period_ms: float = 0.0    # the actuators take a new command this often (0: every step)
+    gripper: str = "continuous"       # binary: the gripper only opens or closes
+    mismatch: MismatchConfig = MismatchConfig()
+
+    @property
+    def active(self) -> bool:
+        """Whether any fault is on (an inactive config leaves the world untouched)."""
+        return self != HardwareConfig()
+
+    def to_dict(self) -> dict[str, Any]:
+        """The config as plain values (the episode log's header)."""
+        return dataclasses.asdict(self)
+
+
+NOMINAL = HardwareConfig()
+PROFILES: dict[str, HardwareConfig] = {
+    # the simulation as it is: no fault
+    "nominal": NOMINAL,
+    # a well-kept lab: 50 ms round trip, a tracker with 5 mm noise over Wi-Fi losing one state
+    # in ten, arm encoders good to 0.001 rad, object velocities not measured, a parallel gripper
+    # that opens or closes, and a model whose masses and frictions are right within ±30 %
+    "lab": HardwareConfig(actuation_delay_ms=25.0, state_delay_ms=25.0, position_noise_m=0.005,
+                          angle_noise_rad=0.005, joint_noise_rad=0.001, drop_rate=0.10, hide_velocities=True,
+                          control_period_ms=0.0, gripper="binary",
+                          mismatch=MismatchConfig(mass=0.3, friction=0.3, gain=0.1)),
+    # a bad day: 150 ms round trip, 15 mm noise, a third of the states lost, a 50 Hz actuator
+    # loop, masses and frictions off by up to ±50 %, actuator gains by ±25 %
+    "harsh": HardwareConfig(actuation_delay_ms=75.0, state_delay_ms=75.0, position_noise_m=0.015,
+                            angle_noise_rad=0.015, joint_noise_rad=0.003, drop_rate=0.30, hide_velocities=True,
+                            control_period_ms=20.0, gripper="binary",
+                            mismatch=MismatchConfig(mass=0.5, friction=0.5, gain=0.25)),
+}
+
+
+def _fraction(value: Any) -> float:
+    v = non_negative(value)
+    if v >= 1:
+        raise ValueError("must be < 1")
+    return v
+
+
+def _flag(value: Any) -> bool:
+    if not isinstance(value, bool):
+        raise ValueError("wrong type")
+    return value
+
+
+def parse_hardware(data: Any, source: str, path: str = "hardware") -> HardwareConfig:
+    """A ``hardware:`` value: a profile's name, or a mapping of keys (optionally ``profile:``,
+    the base its other keys override). Raises :class:`ConfigError` naming file, key, value and
+    what was expected."""
+    if isinstance(data, str):
+        return _profile(data, source, path)
+    s = Section(data, source, path)
+    base = NOMINAL
+    if s.has("profile"):
+        base = _profile(s.req("profile", str, "a profile name"), source, s.key_path("profile"))
+    ms = "milliseconds >= 0"
+    values = dict(
+        actuation_delay_ms=s.opt("actuation_delay_ms", base.actuation_delay_ms, non_negative, ms),
+        state_delay_ms=s.opt("state_delay_ms", base.state_delay_ms, non_negative, ms),
+        position_noise_m=s.opt("position_noise_m", base.position_noise_m, non_negative,
+                               "metres >= 0 (a standard deviation)"),
+        angle_noise_rad=s.opt("angle_noise_rad", base.angle_noise_rad, non_negative,
+                              "radians >= 0 (a standard deviation)"),
+        joint_noise_rad=s.opt("joint_noise_rad", base.joint_noise_rad, non_negative,
+                              "radians >= 0 (a standard deviation)"),
+        drop_rate=s.opt("drop_rate", base.drop_rate, _fraction, "a fraction in [0, 1)"),
+        hide_velocities=s.opt("hide_velocities", base.hide_velocities, _flag, "true or false"),
+        control_period_ms=s.opt("control_period_ms", base.control_period_ms, non_negative,
+                                "milliseconds >= 0 (0: every world step)"),
+        gripper=s.opt("gripper", base.gripper, one_of(GRIPPER_MODES),
+                      " or ".join(GRIPPER_MODES)),
+    )
+    m = s.section("mismatch", required=False)
+    frac = "a fraction in [0, 1) (0.3: factors within ±30 %)"
+    values["mismatch"] = MismatchConfig(
+        mass=m.opt("mass", base.mismatch.mass, _fraction, frac),
+        friction=m.opt("friction", base.mismatch.friction, _fraction, frac),
+        gain=m.opt("gain", base.mismatch.gain, _fraction, frac))
+    m.done()
+    s.done()
+    return HardwareConfig(**values)
+
+
+def _profile(name: str, source: str, path: str) -> HardwareConfig:
+    if name not in PROFILES:
+        raise ConfigError(source, path, "unknown hardware profile", name,
+                          f"one of: {', '.join(PROFILES)} (or a mapping of keys)")
+    return PROFILES[name]
+
+
+def load_hardware(spec: str) -> HardwareConfig:
+    """``--hardware``'s value: a profile's name, or a YAML file holding a ``hardware:`` value
+    (a profile's name or a mapping), or that mapping at its top level."""
+    if spec in PROFILES:
+        return PROFILES[spec]
+    path = Path(spec)
+    if not path.is_file():
+        raise ConfigError("--hardware", "", "neither a profile nor a file", spec,
+                          f"one of: {', '.join(PROFILES)}, or a YAML file")
+    raw = load_yaml(path)
+    if isinstance(raw, dict) and set(raw) == {"hardware"}:
+        return parse_hardware(raw["hardware"], str(path))
+    return parse_hardware(raw, str(path), "")

@@ -1,0 +1,303 @@
+"""Hardware's faults (server/hardware.py, shared/hardware.py, docs/hardware.md): each fault
+happens as configured, the profiles load, bad values are refused clearly, and ``--hardware``
+reaches the world's command line and not the planner's."""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from pathlib import Path
+
+import mujoco
+import numpy as np
+import pytest
+from typer.testing import CliRunner
+
+from planner_client.problem import build_problem
+from shared.config import ConfigError, load_yaml
+from shared.hardware import NOMINAL, PROFILES, HardwareConfig, MismatchConfig, load_hardware, \
+    parse_hardware
+from shared.scenario import find_scenario, load_scenario, parse_scenario
+from shared.tools.cli import app as m3p2i
+from shared.tools.launch import EpisodeLaunch
+from server.cli import app as server_cli
+from server.hardware import FaultyWorld, steps_of
+from server.world import SimWorld
+
+
+@pytest.fixture(scope="module")
+def push():
+    return load_scenario("push")       # point robot (velocity control) and a free box, dt 0.05
+
+
+def u(x: float, y: float = 0.0) -> np.ndarray:
+    """A point_robot_suction control: velocities x, y; suction off."""
+    return np.array([x, y, 0.0])
+
+
+def faulty(sc, seed: int = 0, **faults) -> FaultyWorld:
+    return FaultyWorld(SimWorld(sc, seed), HardwareConfig(**faults))
+
+
+# ---------------------------------------------------------------- configuration
+
+def test_profiles_hold_the_issues_numbers():
+    assert not PROFILES["nominal"].active and NOMINAL == HardwareConfig()
+    lab = PROFILES["lab"]
+    assert lab.actuation_delay_ms + lab.state_delay_ms >= 50      # round trip
+    assert lab.position_noise_m == 0.005 and lab.drop_rate == 0.10
+    assert lab.mismatch.mass == 0.3 and lab.mismatch.friction == 0.3
+    harsh = PROFILES["harsh"]
+    for f in ("actuation_delay_ms", "state_delay_ms", "position_noise_m", "drop_rate"):
+        assert getattr(harsh, f) > getattr(lab, f), f
+    assert load_hardware("lab") is lab
+
+
+def test_a_file_or_a_section_overrides_a_profile(tmp_path):
+    f = tmp_path / "hw.yaml"
+    f.write_text("hardware: {profile: lab, drop_rate: 0.2, mismatch: {gain: 0}}\n")
+    hw = load_hardware(str(f))
+    assert hw == dataclasses.replace(PROFILES["lab"], drop_rate=0.2,
+                                     mismatch=MismatchConfig(mass=0.3, friction=0.3, gain=0.0))
+    f.write_text("state_delay_ms: 40\n")         # the keys at the top level
+    assert load_hardware(str(f)) == HardwareConfig(state_delay_ms=40.0)
+    raw = load_yaml(find_scenario("push"))
+    assert parse_scenario({**raw, "hardware": "harsh"}, "push.yaml").hardware is PROFILES["harsh"]
+    assert load_scenario("push").hardware == NOMINAL
+
+
+@pytest.mark.parametrize("value, key, expected", [
+    ({"drop_rate": 1.5}, "hardware.drop_rate", "[0, 1)"),
+    ({"state_delay_ms": -5}, "hardware.state_delay_ms", "milliseconds"),
+    ({"gripper": "sticky"}, "hardware.gripper", "continuous or binary"),
+    ({"hide_velocities": "yes"}, "hardware.hide_velocities", "true or false"),
+    ({"mismatch": {"mass": 2}}, "hardware.mismatch.mass", "±30 %"),
+    ({"noise": 0.1}, "hardware.noise", "position_noise_m"),
+    ("lab2", "hardware", "nominal, lab, harsh"),
+    ({"profile": "lab2"}, "hardware.profile", "nominal, lab, harsh"),
+])
+def test_bad_values_name_file_key_value_and_what_was_expected(value, key, expected):
+    raw = load_yaml(find_scenario("push"))
+    with pytest.raises(ConfigError) as err:
+        parse_scenario({**raw, "hardware": value}, "my.yaml")
+    text = str(err.value)
+    assert "my.yaml" in text and key in text and expected in text, text
+
+
+def test_an_unknown_profile_or_file_is_refused():
+    with pytest.raises(ConfigError, match="neither a profile nor a file.*nominal, lab, harsh"):
+        load_hardware("no_such_profile")
+
+
+# ---------------------------------------------------------------- the faults
+
+def test_a_delayed_command_takes_effect_after_the_delay_in_world_steps(push):
+    world = faulty(push, actuation_delay_ms=150.0)      # 3 steps of 0.05 s
+    assert steps_of(150.0, world.dt) == 3
+    go = u(0.5, -0.25)
+    applied = []
+    for i in range(6):
+        world.step(go if i == 0 else u(0.0))
+        applied.append(world.ctrl.copy())
+    assert [bool(np.allclose(a, go)) for a in applied] == [False, False, False, True, False, False]
+    assert np.allclose(applied[0], world.robot.safe_stop())
+
+
+def test_a_realtime_delay_is_wall_clock(push):
+    clock = [0.0]
+    world = FaultyWorld(SimWorld(push), HardwareConfig(actuation_delay_ms=50.0), realtime=True,
+                        clock=lambda: clock[0])
+    go = u(0.5)
+    applied = []
+    for _ in range(5):                    # a step every 20 ms: the command arrives at 60 ms
+        world.step(go)
+        applied.append(float(world.ctrl[0]))
+        clock[0] += 0.02
+    assert applied == [0.0, 0.0, 0.0, 0.5, 0.5]
+
+
+def test_a_delayed_state_was_measured_the_delay_ago(push):
+    world = faulty(push, state_delay_ms=100.0)          # 2 steps
+    for _ in range(5):
+        world.step(u(0.4))
+        assert world.state().time == pytest.approx(max(0.0, world.time - 0.1))
+    assert world.true_state().time == pytest.approx(world.time)
+    assert world.state().qpos[0] < world.true_state().qpos[0]    # it has moved on since
+
+
+def test_an_object_moved_by_a_control_op_is_seen_after_the_state_delay(push):
+    world = faulty(push, state_delay_ms=50.0)            # 1 step
+    box = world.model.joint("box_free").qposadr[0]
+    world.move_object("box", [2.0, -1.0, 0.05])
+    assert world.state().qpos[box] != 2.0
+    world.step(u(0.0))
+    assert world.state().qpos[box] == pytest.approx(2.0)
+
+
+def test_the_control_period_holds_each_command_k_steps(push):
+    world = faulty(push, control_period_ms=150.0)       # every 3rd step
+    applied = []
+    for i in range(7):
+        world.step(u(0.1 * (i + 1)))
+        applied.append(round(float(world.ctrl[0]), 6))
+    assert applied == [0.1, 0.1, 0.1, 0.4, 0.4, 0.4, 0.7]
+
+
+def test_noise_has_the_configured_spread_and_quaternions_stay_unit(push):
+    world = faulty(push, position_noise_m=0.005, angle_noise_rad=0.02)
+    truth = world.true_state()
+    box = world.model.joint("box_free").qposadr[0]
+    samples = [world.measure(truth) for _ in range(2000)]
+    err = np.array([s.qpos[box:box + 3] - truth.qpos[box:box + 3] for s in samples]).ravel()
+    robot = np.array([s.qpos[:2] - truth.qpos[:2] for s in samples]).ravel()
+    # 6000 and 4000 draws: the sample σ is within 3 % of σ with overwhelming probability
+    assert np.std(err) == pytest.approx(0.005, rel=0.05) and abs(np.mean(err)) < 0.0005
+    assert np.std(robot) == pytest.approx(0.005, rel=0.05)
+    quats = np.array([s.qpos[box + 3:box + 7] for s in samples])
+    assert np.allclose(np.linalg.norm(quats, axis=1), 1.0)
+    q0 = truth.qpos[box + 3:box + 7]
+    angles = 2 * np.arccos(np.clip(np.abs(quats @ q0), 0, 1))
+    # the angle of a rotation vector with σ per axis: its RMS is √3 σ
+    assert math.sqrt(np.mean(angles ** 2)) == pytest.approx(math.sqrt(3) * 0.02, rel=0.06)
+
+
+def test_joint_noise_is_on_the_arms_hinges_and_a_fingers_slide_is_exact():
+    world = FaultyWorld(SimWorld(load_scenario("pick_place")),
+                        HardwareConfig(joint_noise_rad=0.001, position_noise_m=0.005))
+    truth = world.true_state()
+    hinges = world.model.jnt_qposadr[world.model.jnt_type == mujoco.mjtJoint.mjJNT_HINGE]
+    samples = np.array([world.measure(truth).qpos - truth.qpos for _ in range(500)])
+    assert np.std(samples[:, hinges]) == pytest.approx(0.001, rel=0.06)
+    fingers = world.model.jnt_qposadr[world.model.jnt_type == mujoco.mjtJoint.mjJNT_SLIDE]
+    assert len(fingers) == 2 and np.all(samples[:, fingers] == 0)      # encoders: exact
+    cube = world.model.joint("cube_a_free").qposadr[0]
+    assert np.std(samples[:, cube:cube + 3]) == pytest.approx(0.005, rel=0.1)   # the tracker's
+
+
+def test_object_velocities_are_withheld_and_the_robots_kept(push):
+    world = faulty(push, hide_velocities=True)
+    s = world.inner.state()
+    s.qvel[:] = 1.0
+    m = world.measure(s)
+    box = world.model.joint("box_free").dofadr[0]
+    assert np.all(m.qvel[box:box + 6] == 0) and np.all(m.qvel[:2] == 1.0)
+
+
+def test_states_are_dropped_at_the_configured_rate(push):
+    world = faulty(push, drop_rate=0.1)
+    n = 10000
+    dropped = sum(world.drop_state() for _ in range(n))
+    # binomial: σ = √(p (1 - p) / n) = 0.003; 4 σ
+    assert abs(dropped / n - 0.1) < 4 * math.sqrt(0.1 * 0.9 / n)
+    assert not any(faulty(push).drop_state() for _ in range(100))
+
+
+def test_a_binary_gripper_only_opens_or_closes():
+    sc = load_scenario("pick_place")
+    world = FaultyWorld(SimWorld(sc), HardwareConfig(gripper="binary"))
+    g = world.robot.ctrl_names.index("gripper")
+    lo, hi = world.model.actuator_ctrlrange[g]
+    for command, expected in ((0.05, hi), (0.03, lo), (hi, hi), (0.0, lo)):
+        ctrl = np.zeros(world.model.nu)
+        ctrl[g] = command
+        world.step(ctrl)
+        assert world.ctrl[g] == expected
+
+
+def test_mismatch_reaches_the_world_and_not_the_planner(push):
+    hw = HardwareConfig(mismatch=MismatchConfig(mass=0.3, friction=0.3, gain=0.2))
+    nominal = SimWorld(push).model
+    world = FaultyWorld(SimWorld(push, seed=7), hw)
+    planner = build_problem(push).model
+    box = nominal.body("box").id
+    f = world.mismatch
+    assert 0.7 <= f["mass"]["box"] <= 1.3 and f["mass"]["box"] != 1.0
+    assert world.model.body_mass[box] == pytest.approx(nominal.body_mass[box] * f["mass"]["box"])
+    geom = nominal.geom("box").id
+    assert world.model.geom_friction[geom, 0] == pytest.approx(
+        nominal.geom_friction[geom, 0] * f["friction"]["box"])
+    gains = np.array(list(f["gain"].values()))
+    assert world.model.actuator_gainprm[:, 0] == pytest.approx(nominal.actuator_gainprm[:, 0] * gains)
+    # the planner's model is built from the YAML: the nominal numbers
+    assert planner.body_mass[planner.body("box").id] == nominal.body_mass[box]
+    assert planner.geom_friction[planner.geom("box").id, 0] == nominal.geom_friction[geom, 0]
+    assert np.array_equal(planner.actuator_gainprm, nominal.actuator_gainprm)
+    # drawn from the seed: the same seed the same factors, another seed others
+    assert FaultyWorld(SimWorld(push, seed=7), hw).mismatch == f
+    assert FaultyWorld(SimWorld(push, seed=8), hw).mismatch != f
+
+
+def test_a_faulty_episode_repeats_exactly_from_its_seed(push):
+    def run(seed):
+        world = FaultyWorld(SimWorld(push, seed), PROFILES["harsh"])
+        rng = np.random.default_rng(0)
+        out = []
+        for _ in range(40):
+            world.step(u(*rng.uniform(-1, 1, 2)))
+            s = world.state()
+            out.append(np.concatenate([s.qpos, s.qvel, world.true_state().qpos]))
+        return np.array(out), [world.drop_state() for _ in range(50)]
+    (a, drops_a), (b, drops_b), (c, _) = run(3), run(3), run(4)
+    assert np.array_equal(a, b) and drops_a == drops_b
+    assert not np.array_equal(a, c)
+
+
+def test_the_server_wraps_its_world_only_for_faults_and_logs_truth_and_faults(push, tmp_path):
+    from server.app import WorldServer
+    from shared.endpoints import Endpoints
+    from shared.tools.launch import free_port_block
+    from server.episode_log import read_log
+
+    server = WorldServer(push, Endpoints(port=free_port_block()), tmp_path / "a.jsonl",
+                         hardware=PROFILES["nominal"])
+    assert type(server.world) is SimWorld        # nominal: the simulation itself, bit for bit
+    server.close()
+    server = WorldServer(push, Endpoints(port=free_port_block()), tmp_path / "b.jsonl", seed=5,
+                         hardware=dataclasses.replace(PROFILES["lab"], drop_rate=0.5))
+    try:
+        assert isinstance(server.world, FaultyWorld)
+        for _ in range(3):
+            server._apply(u(0.5, 0.2))
+        # a state is lost at most once: re-publishing the same seq always sends it
+        before = server.dropped
+        for _ in range(5):
+            server._publish()
+        assert server.dropped == before
+        n = 400
+        for _ in range(n):
+            server.seq += 1
+            server._publish()
+        assert abs((server.dropped - before) / n - 0.5) < 4 * math.sqrt(0.25 / n)
+        server.log.close()
+        records = read_log(tmp_path / "b.jsonl")
+        header = records[0]
+        assert header["hardware"]["drop_rate"] == 0.5 and "box" in header["hardware_mismatch"]["mass"]
+        # lab's 25 ms each way at 50 ms steps: one step each (rounded up)
+        assert header["hardware_delays"] == {"actuation": 1, "state": 1, "unit": "steps",
+                                             "control_period_steps": 1}
+        step = [r for r in records if r.get("kind", r.get("type")) == "step"][-1]
+        assert np.allclose(step["qpos"], server.world.true_state().qpos)   # the log: the truth
+        assert not np.allclose(step["qpos"], server.world.state().qpos)    # the planner: noise
+    finally:
+        server.close()
+
+
+# ---------------------------------------------------------------- the command lines
+
+def test_the_flag_reaches_the_worlds_command_line_only(tmp_path):
+    cmds = EpisodeLaunch(scenario="push.yaml", run_dir=tmp_path, hardware="lab").commands(5555)
+    server = cmds["server"]
+    assert server[server.index("--hardware") + 1] == "lab"
+    assert "--hardware" not in cmds["planner"]
+    assert "--hardware" not in EpisodeLaunch(scenario="push.yaml", run_dir=tmp_path).commands(5555)["server"]
+
+
+def test_a_bad_flag_stops_both_commands_before_anything_starts(tmp_path):
+    result = CliRunner().invoke(m3p2i, ["run", "push", "--hardware", "lab2",
+                                        "--run-dir", str(tmp_path)])
+    assert result.exit_code == 2 and "neither a profile nor a file" in result.output
+    assert not any(tmp_path.iterdir())
+    result = CliRunner().invoke(server_cli, ["--scenario", "push", "--check", "--hardware", "lab2"])
+    assert result.exit_code == 2 and "lab2" in result.output
+    result = CliRunner().invoke(server_cli, ["--scenario", "push", "--check", "--hardware", "harsh"])
+    assert result.exit_code == 0, result.output
