@@ -143,7 +143,7 @@ class PlannerClient:
         while True:
             req = socket(self.ctx, zmq.REQ)
             self._secure(req)
-            monitor = HandshakeMonitor(req)
+            monitor = HandshakeMonitor(req, hangups=True)
             req.connect(self.endpoints.control)
             req.send(P.encode(self.hello))
             try:

@@ -350,6 +350,9 @@ def describe_handshake_failure(event: int, value: int) -> str:
         return f"the peer refused our key (ZAP status {value})"
     if event == zmq.EVENT_HANDSHAKE_FAILED_PROTOCOL:
         return _PROTOCOL_ERRORS.get(value, f"protocol error 0x{value:x} in the handshake")
+    if event == zmq.EVENT_DISCONNECTED:
+        return ("the peer closed the connection before the handshake succeeded (keys that do "
+                "not match, or one side without keys)")
     return ("the handshake failed without detail (keys that do not match: another public key "
             "for the server, or none)")
 
@@ -360,18 +363,39 @@ HANDSHAKE_FAILURES = (zmq.EVENT_HANDSHAKE_FAILED_AUTH | zmq.EVENT_HANDSHAKE_FAIL
 
 class HandshakeMonitor:
     """Watches a socket for failed ZMTP handshakes (ZeroMQ's socket monitor): the only way a
-    side learns that CURVE refused a connection, which otherwise just never delivers."""
+    side learns that CURVE refused a connection, which otherwise just never delivers.
 
-    def __init__(self, sock: zmq.Socket):
+    With ``hangups``, a connection that the peer closes before any handshake succeeded counts
+    as a failure too (``EVENT_DISCONNECTED``): a CURVE world hanging up on a keyless client does
+    not always say why (seen: one start in five of three planners at once got no
+    ``HANDSHAKE_FAILED`` event at all). A world that is still starting refuses connections
+    instead, and one that is up completes the handshake in ZeroMQ's own thread."""
+
+    def __init__(self, sock: zmq.Socket, hangups: bool = False):
         self.sock = sock
-        self.mon = sock.get_monitor_socket(HANDSHAKE_FAILURES)
+        self.hangups = hangups
+        extra = (zmq.EVENT_CONNECTED | zmq.EVENT_HANDSHAKE_SUCCEEDED | zmq.EVENT_DISCONNECTED
+                 if hangups else 0)
+        self.mon = sock.get_monitor_socket(HANDSHAKE_FAILURES | extra)
+        self._connected = False        # a connection whose handshake has not succeeded yet
 
     def failures(self) -> list[tuple[int, int]]:
         """``(event, value)`` of the failures since the last call."""
         out = []
         while self.mon.poll(0):
             msg = recv_monitor_message(self.mon)
-            out.append((int(msg["event"]), int(msg["value"])))
+            event, value = int(msg["event"]), int(msg["value"])
+            if event == zmq.EVENT_CONNECTED:
+                self._connected = True
+            elif event == zmq.EVENT_HANDSHAKE_SUCCEEDED:
+                self._connected = False
+            elif event == zmq.EVENT_DISCONNECTED:
+                if self._connected:
+                    out.append((event, value))
+                self._connected = False
+            else:
+                self._connected = False        # reported as a failure of its own
+                out.append((event, value))
         return out
 
     def close(self) -> None:
