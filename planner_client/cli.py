@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import sys
 from pathlib import Path
@@ -69,6 +70,13 @@ def main(
                                  "a line on standard input before connecting (end of input: exit "
                                  "1 unconnected). It then takes over in a fraction of a second "
                                  "instead of a cold start's several."),
+    actuation_delay_ms: Optional[float] = typer.Option(
+        None, min=0.0, help="Declared actuation delay of the robot (ms from a command reaching "
+        "the world to the actuators acting on it), overriding planner.delays.actuation_ms: the "
+        "planner plans from the state predicted for when its plan acts (docs/hardware.md)."),
+    state_delay_ms: Optional[float] = typer.Option(
+        None, min=0.0, help="Declared state delay (ms from a measurement to its state being "
+        "published), overriding planner.delays.state_ms."),
     verbose: bool = typer.Option(False, "--verbose", "-v"),
 ) -> None:
     setup_logging(verbose, "m3p2i.planner")
@@ -93,7 +101,7 @@ def main(
         raise typer.Exit(2) from None
     from planner_client.loop import HandshakeRefused, LayoutMismatch
     try:
-        sc = load_scenario(scenario)
+        sc = with_delays(load_scenario(scenario), actuation_delay_ms, state_delay_ms)
         client = build_client(sc, Endpoints(host, port), threads=threads, seed=seed,
                               backend=backend, device=device,
                               server_timeout=server_timeout, exit_on_done=not keep_running,
@@ -119,6 +127,16 @@ def main(
     typer.echo(f"planner: {stats.iterations} iterations, {stats.hz:.1f} Hz, "
                f"episode {stats.final_status or 'not finished'}{fallbacks}")
     raise typer.Exit(0 if stats.final_status == "success" else 1)
+
+
+def with_delays(sc, actuation_ms: float | None, state_ms: float | None):
+    """``sc`` with the declared delays of the command line in place of its planner.delays."""
+    delays = sc.planner.delays
+    if actuation_ms is not None:
+        delays = dataclasses.replace(delays, actuation_ms=actuation_ms)
+    if state_ms is not None:
+        delays = dataclasses.replace(delays, state_ms=state_ms)
+    return dataclasses.replace(sc, planner=dataclasses.replace(sc.planner, delays=delays))
 
 
 def _security(hosts: dict[str, str], keys: Optional[Path], insecure: bool):

@@ -27,8 +27,10 @@ import zmq
 from shared import protocol as P
 from shared.endpoints import Endpoints, socket
 from shared.evaluation.metrics import mean_hz
+from shared.hardware import steps_of
 from shared.layout import StateSizes
 from shared.scene import STATE_FIELDS, get_full_state
+from shared.scenario import DelayConfig
 from shared.security import Authenticator, HandshakeMonitor, PlannerKeys, curve_client, \
     curve_server, describe_handshake_failure
 from shared.timed_plan import TimedPlan, held
@@ -87,10 +89,12 @@ class PlannerClient:
                  scenario_name: str, scenario_hash: str, server_timeout: float = 2.0,
                  exit_on_done: bool = True, diagnostics: bool = True,
                  keys: PlannerKeys | None = None, diagnostics_host: str | None = None,
-                 renew: Renew | None = None):
+                 renew: Renew | None = None, delays: DelayConfig | None = None):
         """``renew``: when given, each new session of the world after the first (a new episode:
         a world reset with a seed, or restarted) gets a planner and task layer as a fresh
-        process would build them, so no warm start, belief or random stream carries over."""
+        process would build them, so no warm start, belief or random stream carries over.
+        ``delays``: the robot's unseen delays to compensate (default: the scenario's
+        ``planner.delays``)."""
         self.planner = planner
         self.task = task
         self.renew = renew
@@ -98,6 +102,7 @@ class PlannerClient:
         self.hello = P.Hello(scenario=scenario_name, scenario_hash=scenario_hash)
         self.server_timeout = server_timeout
         self.exit_on_done = exit_on_done
+        self.delays = delays or planner.problem.scenario.planner.delays
         self.mirror = Mirror(planner.problem.model,
                              estimate=planner.problem.scenario.planner.estimate)
         self.keys = keys
@@ -127,7 +132,8 @@ class PlannerClient:
         self._last_ctrl = self.robot.safe_stop()
         self._answered: tuple[str, int] | None = None   # (session, seq) of the last command
         self._answer = b""
-        self._sent: deque[TimedPlan] = deque(maxlen=4)  # what the world plays, oldest first
+        # what the world plays, oldest first: enough plans to cover a lead plus declared delays
+        self._sent: deque[TimedPlan] = deque(maxlen=16)
         self._lead: LeadEstimate | None = None
         self._last_start: tuple[float, int] | None = None   # (t_eff, state seq) of the last plan
         self._faults = 0        # consecutive iterations without a plan (Iteration.fault)
@@ -343,22 +349,26 @@ class PlannerClient:
 
         Real time: ``lead`` whole world steps after the state (the largest recent lag), the
         mirror stepped over them under the plans the world is playing. Lock-step: the state's
-        own time, as received.
+        own time, as received. Declared delays (``planner.delays``) add the state delay to the
+        plan's date and predict the actuation delay beyond it (planner_client.timing).
         """
         mocap = self.mirror.mocap()
-        start = state.time
+        dt = self.welcome.dt
+        ahead = steps_of(self.delays.state_ms, dt)       # world steps from state to plan date
         if self._lead is not None:
             self._lead.observe(state.lag)
-            steps = self._lead.steps()
-            if steps:
-                model, data = self.mirror.model, self.mirror.data
-                predict(model, data, list(self._sent), self.robot.safe_stop(self._last_ctrl),
-                        self.welcome.dt, steps)
-                x0 = get_full_state(model, data, self.mirror.x0)
-                start = float(data.time)
-                if mocap is not None and mocap.moving:
-                    mocap = MocapState(mocap.pos + mocap.vel * (start - state.time), mocap.quat,
-                                       mocap.vel)
+            ahead += self._lead.steps()
+        acting = steps_of(self.delays.actuation_ms, dt)   # and on to when its first knot acts
+        start = state.time + ahead * dt
+        if ahead + acting:
+            model, data = self.mirror.model, self.mirror.data
+            predict(model, data, list(self._sent), self.robot.safe_stop(self._last_ctrl), dt,
+                    ahead + acting, acting * dt)
+            x0 = get_full_state(model, data, self.mirror.x0)
+            start = float(data.time) - acting * dt    # the same instant, in the mirror's float sums
+            if mocap is not None and mocap.moving:
+                mocap = MocapState(mocap.pos + mocap.vel * (float(data.time) - state.time),
+                                   mocap.quat, mocap.vel)
         if self._last_start is not None and start >= self._last_start[0] - _NEW_EPISODE:
             self.planner.advance(steps_between(self._last_start[0], start, self.planner.dt))
         return start, x0, mocap

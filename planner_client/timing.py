@@ -8,6 +8,12 @@ lead under the plan being played, and dates its plan's first knot ``t_eff``. The
 from ``state.lag`` (world seconds between publishing a state and the arrival of the command that
 answered it: planning plus transport, both ways). In lock-step the world waits, the lead is 0 and
 nothing here changes a thing.
+
+Delays no message shows (``planner.delays``, declared: docs/hardware.md) come on top: a state
+published ``state_ms`` after its measurement, and actuators that act ``actuation_ms`` after a
+control reaches the world. The plan is then dated when it reaches the world (``t_s + state +
+lead``), but planned from the state at which its first knot acts, ``actuation`` later, reached
+under the controls the actuators are still working through (those sent ``actuation`` earlier).
 """
 
 from __future__ import annotations
@@ -54,17 +60,19 @@ def _timestep(model: mujoco.MjModel, dt: float):
 
 
 def predict(model: mujoco.MjModel, data: mujoco.MjData, plans: list[TimedPlan], safe: np.ndarray,
-            world_dt: float, steps: int) -> None:
+            world_dt: float, steps: int, actuation_delay: float = 0.0) -> None:
     """Steps ``data`` (the mirrored state) ``steps`` world steps ahead, in place, under the
-    controls the world will apply meanwhile (``plans``: the last ones sent, oldest first); at the world's timestep even when the planning
-    model's is coarser, so that the predicted state is on the world's time grid."""
+    controls the world will apply meanwhile (``plans``: the last ones sent, oldest first), each
+    acting ``actuation_delay`` seconds after the world plays it; at the world's timestep even
+    when the planning model's is coarser, so that the predicted state is on the world's time
+    grid."""
     if steps <= 0:
         return
     lo, hi = model.actuator_ctrlrange.T
     limited = model.actuator_ctrllimited.astype(bool)
     with _timestep(model, world_dt):
         for _ in range(steps):
-            u = playing(plans, float(data.time))
+            u = playing(plans, float(data.time) - actuation_delay)
             u = safe if u is None else u
             data.ctrl[:] = np.where(limited, np.clip(u, lo, hi), u)
             mujoco.mj_step(model, data)

@@ -19,7 +19,6 @@ wall-clock seconds. Nothing here reads the wall clock in lock-step.
 
 from __future__ import annotations
 
-import math
 import time
 from collections import deque
 from collections.abc import Callable
@@ -28,7 +27,7 @@ from typing import Any
 import mujoco
 import numpy as np
 
-from shared.hardware import HardwareConfig
+from shared.hardware import HardwareConfig, steps_of
 from server.interface import Outcome, World, WorldError, WorldState
 from server.world import SimWorld
 
@@ -59,13 +58,6 @@ class DelayLine:
         if self._current is None and self.oldest_first and self._queue:
             return self._queue[0][1]
         return self._current
-
-
-def steps_of(ms: float, dt: float) -> int:
-    """Milliseconds as whole world steps of ``dt`` seconds, rounded up (lock-step delays,
-    control period): what a real-time world of that period does too, where a command 25 ms
-    late misses the tick it was sent for and is applied at the next."""
-    return max(0, math.ceil(ms / 1000.0 / dt - 1e-9))
 
 
 def draw_mismatch(model: mujoco.MjModel, world: World, config: HardwareConfig,

@@ -2,13 +2,15 @@
 profiles (``nominal``, ``lab``, ``harsh``) and ``--hardware PROFILE|FILE``.
 
 Only the world server reads it (:mod:`server.hardware` applies it); the planner keeps the
-nominal model and is never told. Every fault is off by default. The keys, their units and the
+nominal model and is never told, unless ``m3p2i run --compensate`` declares the delays to it as
+``planner.delays`` (what a robot's owner would measure). Every fault is off by default. The keys, their units and the
 profiles' numbers are documented in ``docs/hardware.md``.
 """
 
 from __future__ import annotations
 
 import dataclasses
+import math
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -149,3 +151,10 @@ def load_hardware(spec: str) -> HardwareConfig:
     if isinstance(raw, dict) and set(raw) == {"hardware"}:
         return parse_hardware(raw["hardware"], str(path))
     return parse_hardware(raw, str(path), "")
+
+
+def steps_of(ms: float, dt: float) -> int:
+    """Milliseconds as whole world steps of ``dt`` seconds, rounded up (lock-step delays,
+    control period): what a real-time world of that period does too, where a command 25 ms
+    late misses the tick it was sent for and is applied at the next."""
+    return max(0, math.ceil(ms / 1000.0 / dt - 1e-9))

@@ -221,6 +221,21 @@ class EstimateConfig:
     max_speed: float = 5.0                 # m/s: a faster jump is a teleport (filters restart)
 
 
+@dataclass(frozen=True)
+class DelayConfig:
+    """``planner.delays``: delays of the robot that no message shows, declared so the planner
+    plans for the state its plan will meet (docs/hardware.md, "Delay compensation").
+    ``actuation_ms``: from a command reaching the world to the actuators acting on it;
+    ``state_ms``: from a measurement to its state being published (a state's ``time`` is
+    its measurement's)."""
+    actuation_ms: float = 0.0
+    state_ms: float = 0.0
+
+    @property
+    def active(self) -> bool:
+        return bool(self.actuation_ms or self.state_ms)
+
+
 SOLVERS = ("Newton", "CG", "PGS")
 CONES = ("pyramidal", "elliptic")
 INTEGRATORS = ("Euler", "implicitfast", "implicit", "RK4")
@@ -244,6 +259,7 @@ class PlannerConfig:
     njmax: int | None = None               # warp: constraint rows per world; None = estimated
     model: PlanningModel = PlanningModel()  # the rollout model's own options
     estimate: EstimateConfig = EstimateConfig()   # the mirror's filters for the free bodies
+    delays: DelayConfig = DelayConfig()   # the robot's unseen delays, compensated by prediction
 
     def step(self, world: WorldConfig) -> float:
         """Seconds per planned control step: ``timestep``, or the world's."""
@@ -680,7 +696,15 @@ def _planner(s: Section) -> PlannerConfig:
                         nconmax=s.opt("nconmax", None, positive_int, "contacts per world"),
                         njmax=s.opt("njmax", None, positive_int, "constraint rows per world"),
                         model=_planning_model(s.section("model", required=False)),
-                        estimate=_estimate(s.section("estimate", required=False)))
+                        estimate=_estimate(s.section("estimate", required=False)),
+                        delays=_delays(s.section("delays", required=False)))
+    s.done()
+    return cfg
+
+
+def _delays(s: Section) -> DelayConfig:
+    cfg = DelayConfig(actuation_ms=s.opt("actuation_ms", 0.0, non_negative, "milliseconds >= 0"),
+                      state_ms=s.opt("state_ms", 0.0, non_negative, "milliseconds >= 0"))
     s.done()
     return cfg
 

@@ -21,7 +21,8 @@ from shared.scenario import find_scenario, load_scenario, parse_scenario
 from shared.tools.cli import app as m3p2i
 from shared.tools.launch import EpisodeLaunch
 from server.cli import app as server_cli
-from server.hardware import FaultyWorld, steps_of
+from server.hardware import FaultyWorld
+from shared.hardware import steps_of
 from server.world import SimWorld
 
 

@@ -106,7 +106,11 @@ def run(
                                            "lab, harsh) or a YAML file of hardware: keys; "
                                            "replaces the scenario's hardware: section. Only "
                                            "the world is told: the planner keeps the nominal "
-                                           "model."),
+                                           "model (--compensate declares the delays)."),
+    compensate: bool = typer.Option(False, "--compensate", help="Declare the hardware's "
+                                    "actuation and state delays to the planner (as a robot's "
+                                    "owner who measured them would, in planner.delays): it plans "
+                                    "from the state predicted for when its plan acts."),
     port: int = typer.Option(0, help="Base port (0: pick free ports)."),
     run_dir: Optional[Path] = typer.Option(None, help="Where logs go (default runs/<scenario>-<time>)."),
     timeout: float = typer.Option(900.0, help="Wall-clock seconds before the run is abandoned."),
@@ -124,15 +128,16 @@ def run(
         hardware = _hardware_or_exit(hardware)
     sc = _load_or_exit(scenario)
     _keys_or_exit(keys)
+    delays = _declared_delays_or_exit(sc, hardware) if compensate else None
     run_dir = run_dir or default_run_dir(sc.name)
-    typer.echo(f"running {sc.name} ({mode}{', hardware ' + hardware if hardware else ''}); "
-               f"logs in {run_dir}")
+    typer.echo(f"running {sc.name} ({mode}{', hardware ' + hardware if hardware else ''}"
+               f"{', delays compensated' if delays else ''}); logs in {run_dir}")
     try:
         result = run_episode(EpisodeLaunch(scenario=sc.source, run_dir=run_dir, seed=seed,
                                            mode=mode, port=port, timeout=timeout, viewer=viewer,
                                            verbose=verbose, plan_every=plan_every, view=view,
                                            view_port=view_port, keys=keys,
-                                           hardware=hardware or ""),
+                                           hardware=hardware or "", delays=delays),
                              on_view=lambda url: typer.echo(f"view: {url}"))
     except RuntimeError as exc:      # the view could not serve its page
         typer.echo(f"error: {exc}", err=True)
@@ -481,6 +486,19 @@ def _hardware_or_exit(spec: str) -> str:
         typer.echo(f"error: {exc}", err=True)
         raise typer.Exit(2) from None
     return spec if spec in PROFILES else str(Path(spec).resolve())
+
+
+def _declared_delays_or_exit(sc, hardware: str | None) -> tuple[float, float]:
+    """``--compensate``: the (actuation, state) delays in ms of ``--hardware``, else of the
+    scenario's hardware: section, for the planner to declare; exit 2 when there are none."""
+    from shared.hardware import load_hardware
+    hw = load_hardware(hardware) if hardware else sc.hardware
+    if not (hw.actuation_delay_ms or hw.state_delay_ms):
+        typer.echo("error: --compensate: no delay to compensate (give --hardware PROFILE, or a "
+                   "scenario whose hardware: section sets actuation_delay_ms or state_delay_ms)",
+                   err=True)
+        raise typer.Exit(2)
+    return hw.actuation_delay_ms, hw.state_delay_ms
 
 
 def _keys_or_exit(keys: Optional[Path]):

@@ -98,6 +98,7 @@ class EpisodeLaunch:
     threads: int = 0                # planner rollout threads (0: the scenario's / one per core)
     plan_every: int = 1             # lockstep: world steps per command (emulates a slow planner)
     hardware: str = ""              # server only: a hardware profile or file (docs/hardware.md)
+    delays: tuple[float, float] | None = None   # planner only: declared (actuation, state) ms
     viewer: bool = False
     verbose: bool = False           # children write to this terminal instead of log files
     view: bool = False              # serve the browser view (m3p2i view) beside the episode
@@ -125,6 +126,9 @@ class EpisodeLaunch:
             planner.append("--keep-running")
         if self.threads:
             planner += ["--threads", str(self.threads)]
+        if self.delays is not None:
+            planner += ["--actuation-delay-ms", repr(self.delays[0]),
+                        "--state-delay-ms", repr(self.delays[1])]
         return {"server": server, "planner": planner}
 
     def view_command(self, port: int, view_port: int) -> list[str]:
