@@ -246,6 +246,27 @@ def test_bench_modes_are_checked_and_recorded(tmp_path):
     assert {c.mode_label for c in cases} == {"realtime", "lockstep, plan every 3"}
 
 
+def test_bench_hardware_and_compensation_are_checked_and_reach_the_processes(tmp_path):
+    (tmp_path / "slow.yaml").write_text("actuation_delay_ms: 40\n")
+    path = write_bench(tmp_path, [
+        {"case": "a", "scenario": "navigation", "trials": 1, "hardware": "lab", "compensate": True},
+        {"case": "b", "scenario": "navigation", "trials": 1, "hardware": "slow.yaml"}])
+    a, b = load_bench(path).cases
+    assert a.delays == (25.0, 25.0) and a.mode_label == "lockstep, hardware lab, compensated"
+    assert b.hardware == str(tmp_path / "slow.yaml") and b.delays is None
+    for case, key, message in [
+            ({"hardware": "office"}, "hardware", "neither a profile nor a file"),
+            ({"compensate": True}, "compensate", "no delay to compensate"),
+            ({"hardware": "lab", "compensate": "yes"}, "compensate", "wrong type")]:
+        path = write_bench(tmp_path, [{"case": "c", "scenario": "navigation", "trials": 1, **case}])
+        with pytest.raises(ConfigError, match=message) as err:
+            load_bench(path)
+        assert err.value.path == f"cases[0].{key}"
+    robustness = load_bench("robustness").cases
+    assert {c.hardware for c in robustness} == {"", "lab", "harsh"}
+    assert all(c.delays is not None for c in robustness if c.case.endswith("_comp"))
+
+
 def test_realtime_trials_run_last_and_alone_on_every_core(tmp_path, monkeypatch):
     import threading
     import time as _time

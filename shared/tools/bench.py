@@ -73,11 +73,17 @@ class BenchCase:
     trials: int
     mode: str = "lockstep"       # lockstep | realtime (run one at a time, on every core)
     plan_every: int = 1          # lockstep: world steps per command (a slow planner, repeatably)
+    hardware: str = ""           # the world's faults: a profile, or a file's absolute path
+    delays: tuple[float, float] | None = None   # compensate: (actuation, state) ms declared
 
     @property
     def mode_label(self) -> str:
-        """As results.csv records it: ``lockstep``, ``realtime``, ``lockstep, plan every 3``."""
-        return f"lockstep, plan every {self.plan_every}" if self.plan_every > 1 else self.mode
+        """As results.csv records it: ``lockstep``, ``realtime``, ``lockstep, plan every 3``,
+        with ``, hardware lab`` and ``, compensated`` when the case sets them."""
+        label = f"lockstep, plan every {self.plan_every}" if self.plan_every > 1 else self.mode
+        if self.hardware:
+            label += f", hardware {Path(self.hardware).stem}"
+        return label + (", compensated" if self.delays is not None else "")
 
 
 @dataclass(frozen=True)
@@ -87,6 +93,34 @@ class BenchConfig:
     timeout: float = 600.0       # wall-clock seconds per trial
     quick_trials: int = 2        # trials per case with --quick
     sweep: Sweep = Sweep()       # every case runs once per combination of these values
+
+
+def _with_hardware(case: BenchCase, c: Section, bench: Path) -> BenchCase:
+    """A case's ``hardware`` (profile, or file relative to the bench file) and ``compensate``
+    (declare its delays to the planner), checked now, not trial by trial."""
+    from shared.hardware import PROFILES, load_hardware
+    spec = c.opt("hardware", "", str, "a profile (nominal, lab, harsh) or a YAML file")
+    compensate = c.opt("compensate", False, _flag, "true or false")
+    if spec and spec not in PROFILES:
+        if not (bench.parent / spec).is_file():
+            raise c.error("hardware", "neither a profile nor a file", spec,
+                          f"one of: {', '.join(PROFILES)}, or a YAML file of hardware: keys "
+                          f"(relative to the bench file)")
+        spec = str((bench.parent / spec).resolve())
+    hw = load_hardware(spec) if spec else None     # a bad file's error names its own key
+    delays = None
+    if compensate:
+        if hw is None or not (hw.actuation_delay_ms or hw.state_delay_ms):
+            raise c.error("compensate", "no delay to compensate", True,
+                          "a case whose hardware sets actuation_delay_ms or state_delay_ms")
+        delays = (hw.actuation_delay_ms, hw.state_delay_ms)
+    return dataclasses.replace(case, hardware=spec, delays=delays)
+
+
+def _flag(value) -> bool:
+    if not isinstance(value, bool):
+        raise ValueError("wrong type")
+    return value
 
 
 def find_bench(name_or_path: str | os.PathLike) -> Path:
@@ -105,6 +139,7 @@ def load_bench(name_or_path: str | os.PathLike) -> BenchConfig:
                          trials=c.req("trials", positive_int),
                          mode=c.opt("mode", "lockstep", one_of(("lockstep", "realtime"))),
                          plan_every=c.opt("plan_every", 1, positive_int))
+        case = _with_hardware(case, c, path)
         if case.plan_every > 1 and case.mode != "lockstep":
             raise c.error("plan_every", "only a lock-step world plays a plan for a set number "
                           "of steps", case.plan_every, "1 with mode: realtime")
@@ -355,7 +390,8 @@ def run_trial(trial: Trial, opts: BenchOptions, threads: int, stop: threading.Ev
     run_dir = opts.out_dir / rel
     launch = EpisodeLaunch(scenario=trial.scenario.source, run_dir=run_dir, seed=trial.seed,
                            timeout=opts.timeout, threads=threads, mode=trial.case.mode,
-                           plan_every=trial.case.plan_every)
+                           plan_every=trial.case.plan_every, hardware=trial.case.hardware,
+                           delays=trial.case.delays)
     if slot is not None:
         case_dir = opts.out_dir / trial.case_dir
         pair = slot.get(pair_key(trial), dataclasses.replace(
@@ -391,7 +427,8 @@ def run_trial(trial: Trial, opts: BenchOptions, threads: int, stop: threading.Ev
 def pair_key(trial: Trial) -> tuple:
     """Trials with the same key can share a warm pair: same scenario file, processes' options
     and log folder."""
-    return (trial.case_dir, trial.case.scenario, trial.case.mode, trial.case.plan_every)
+    return (trial.case_dir, trial.case.scenario, trial.case.mode, trial.case.plan_every,
+            trial.case.hardware, trial.case.delays)
 
 
 def run_trials(todo: list[Trial], opts: BenchOptions, results: ResultsFile,
