@@ -77,6 +77,11 @@ def main(
     state_delay_ms: Optional[float] = typer.Option(
         None, min=0.0, help="Declared state delay (ms from a measurement to its state being "
         "published), overriding planner.delays.state_ms."),
+    max_rate: float = typer.Option(0.0, min=0.0, help="At most this many plans per second "
+                                   "(0: as fast as the machine allows): rehearse what a slower "
+                                   "computer does, e.g. a planner under a third of a 100 Hz arm's "
+                                   "rate with --max-rate 25 (in real time; lock-step has "
+                                   "m3p2i-server --plan-every)."),
     verbose: bool = typer.Option(False, "--verbose", "-v"),
 ) -> None:
     setup_logging(verbose, "m3p2i.planner")
@@ -106,6 +111,7 @@ def main(
                               backend=backend, device=device,
                               server_timeout=server_timeout, exit_on_done=not keep_running,
                               keys=planner_keys, diagnostics_host=diagnostics_host,
+                              max_rate=max_rate,
                               before_connect=_await_go if standby else None)
     except ConfigError as exc:
         typer.echo(f"error: {exc}", err=True)

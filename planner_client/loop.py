@@ -89,12 +89,14 @@ class PlannerClient:
                  scenario_name: str, scenario_hash: str, server_timeout: float = 2.0,
                  exit_on_done: bool = True, diagnostics: bool = True,
                  keys: PlannerKeys | None = None, diagnostics_host: str | None = None,
-                 renew: Renew | None = None, delays: DelayConfig | None = None):
+                 renew: Renew | None = None, delays: DelayConfig | None = None,
+                 max_rate: float = 0.0):
         """``renew``: when given, each new session of the world after the first (a new episode:
         a world reset with a seed, or restarted) gets a planner and task layer as a fresh
         process would build them, so no warm start, belief or random stream carries over.
         ``delays``: the robot's unseen delays to compensate (default: the scenario's
-        ``planner.delays``)."""
+        ``planner.delays``). ``max_rate``: at most this many iterations per wall-clock second
+        (0: as fast as it can), to rehearse on a fast machine what a slower computer does."""
         self.planner = planner
         self.task = task
         self.renew = renew
@@ -103,6 +105,7 @@ class PlannerClient:
         self.server_timeout = server_timeout
         self.exit_on_done = exit_on_done
         self.delays = delays or planner.problem.scenario.planner.delays
+        self.min_period = 1.0 / max_rate if max_rate > 0 else 0.0
         self.mirror = Mirror(planner.problem.model,
                              estimate=planner.problem.scenario.planner.estimate)
         self.keys = keys
@@ -284,7 +287,11 @@ class PlannerClient:
                 # would change the episode; the same command again is harmless
                 self.push.send(self._answer)
                 continue
+            began = time.monotonic()
             self._step(state, on_plan)
+            if self.min_period:
+                # idle, not busy: a throttled planner must leave the cores to the world
+                time.sleep(max(0.0, began + self.min_period - time.monotonic()))
         return self.stats
 
     def _check_layout(self, state: P.State) -> None:

@@ -243,7 +243,8 @@ def test_bench_modes_are_checked_and_recorded(tmp_path):
     with pytest.raises(ConfigError, match="must be one of: lockstep, realtime"):
         load_bench(path)
     cases = load_bench("realtime").cases
-    assert {c.mode_label for c in cases} == {"realtime", "lockstep, plan every 3"}
+    assert {c.mode_label for c in cases} == {"realtime", "lockstep, plan every 3",
+                                             "realtime, planner at most 25 Hz"}
 
 
 def test_bench_hardware_and_compensation_are_checked_and_reach_the_processes(tmp_path):
@@ -262,6 +263,11 @@ def test_bench_hardware_and_compensation_are_checked_and_reach_the_processes(tmp
         with pytest.raises(ConfigError, match=message) as err:
             load_bench(path)
         assert err.value.path == f"cases[0].{key}"
+    path = write_bench(tmp_path, [{"case": "d", "scenario": "navigation", "trials": 1,
+                                   "max_rate": 5}])
+    with pytest.raises(ConfigError, match="only a real-time world") as err:
+        load_bench(path)
+    assert err.value.path == "cases[0].max_rate"
     robustness = load_bench("robustness").cases
     assert {c.hardware for c in robustness} == {"", "lab", "harsh"}
     assert all(c.delays is not None for c in robustness if c.case.endswith("_comp"))

@@ -75,12 +75,15 @@ class BenchCase:
     plan_every: int = 1          # lockstep: world steps per command (a slow planner, repeatably)
     hardware: str = ""           # the world's faults: a profile, or a file's absolute path
     delays: tuple[float, float] | None = None   # compensate: (actuation, state) ms declared
+    max_rate: float = 0.0        # realtime: the planner's plans per second at most (0: no cap)
 
     @property
     def mode_label(self) -> str:
         """As results.csv records it: ``lockstep``, ``realtime``, ``lockstep, plan every 3``,
         with ``, hardware lab`` and ``, compensated`` when the case sets them."""
         label = f"lockstep, plan every {self.plan_every}" if self.plan_every > 1 else self.mode
+        if self.max_rate:
+            label += f", planner at most {self.max_rate:g} Hz"
         if self.hardware:
             label += f", hardware {Path(self.hardware).stem}"
         return label + (", compensated" if self.delays is not None else "")
@@ -138,8 +141,12 @@ def load_bench(name_or_path: str | os.PathLike) -> BenchConfig:
                          scenario=c.req("scenario", str, "a scenario name or YAML path"),
                          trials=c.req("trials", positive_int),
                          mode=c.opt("mode", "lockstep", one_of(("lockstep", "realtime"))),
-                         plan_every=c.opt("plan_every", 1, positive_int))
+                         plan_every=c.opt("plan_every", 1, positive_int),
+                         max_rate=c.opt("max_rate", 0.0, positive, "plans per second > 0"))
         case = _with_hardware(case, c, path)
+        if case.max_rate and case.mode != "realtime":
+            raise c.error("max_rate", "only a real-time world lets a planner fall behind",
+                          case.max_rate, "mode: realtime (lock-step: plan_every)")
         if case.plan_every > 1 and case.mode != "lockstep":
             raise c.error("plan_every", "only a lock-step world plays a plan for a set number "
                           "of steps", case.plan_every, "1 with mode: realtime")
@@ -391,7 +398,7 @@ def run_trial(trial: Trial, opts: BenchOptions, threads: int, stop: threading.Ev
     launch = EpisodeLaunch(scenario=trial.scenario.source, run_dir=run_dir, seed=trial.seed,
                            timeout=opts.timeout, threads=threads, mode=trial.case.mode,
                            plan_every=trial.case.plan_every, hardware=trial.case.hardware,
-                           delays=trial.case.delays)
+                           delays=trial.case.delays, max_rate=trial.case.max_rate)
     if slot is not None:
         case_dir = opts.out_dir / trial.case_dir
         pair = slot.get(pair_key(trial), dataclasses.replace(
@@ -428,7 +435,7 @@ def pair_key(trial: Trial) -> tuple:
     """Trials with the same key can share a warm pair: same scenario file, processes' options
     and log folder."""
     return (trial.case_dir, trial.case.scenario, trial.case.mode, trial.case.plan_every,
-            trial.case.hardware, trial.case.delays)
+            trial.case.hardware, trial.case.delays, trial.case.max_rate)
 
 
 def run_trials(todo: list[Trial], opts: BenchOptions, results: ResultsFile,

@@ -111,6 +111,9 @@ def run(
                                     "actuation and state delays to the planner (as a robot's "
                                     "owner who measured them would, in planner.delays): it plans "
                                     "from the state predicted for when its plan acts."),
+    planner_max_rate: float = typer.Option(0.0, min=0.0, help="realtime: the planner makes at "
+                                           "most this many plans per second (0: as fast as it "
+                                           "can): a slower computer, rehearsed."),
     port: int = typer.Option(0, help="Base port (0: pick free ports)."),
     run_dir: Optional[Path] = typer.Option(None, help="Where logs go (default runs/<scenario>-<time>)."),
     timeout: float = typer.Option(900.0, help="Wall-clock seconds before the run is abandoned."),
@@ -137,7 +140,8 @@ def run(
                                            mode=mode, port=port, timeout=timeout, viewer=viewer,
                                            verbose=verbose, plan_every=plan_every, view=view,
                                            view_port=view_port, keys=keys,
-                                           hardware=hardware or "", delays=delays),
+                                           hardware=hardware or "", delays=delays,
+                                           max_rate=planner_max_rate),
                              on_view=lambda url: typer.echo(f"view: {url}"))
     except RuntimeError as exc:      # the view could not serve its page
         typer.echo(f"error: {exc}", err=True)

@@ -99,6 +99,7 @@ class EpisodeLaunch:
     plan_every: int = 1             # lockstep: world steps per command (emulates a slow planner)
     hardware: str = ""              # server only: a hardware profile or file (docs/hardware.md)
     delays: tuple[float, float] | None = None   # planner only: declared (actuation, state) ms
+    max_rate: float = 0.0           # planner only: at most this many plans per second (0: no cap)
     viewer: bool = False
     verbose: bool = False           # children write to this terminal instead of log files
     view: bool = False              # serve the browser view (m3p2i view) beside the episode
@@ -126,6 +127,8 @@ class EpisodeLaunch:
             planner.append("--keep-running")
         if self.threads:
             planner += ["--threads", str(self.threads)]
+        if self.max_rate:
+            planner += ["--max-rate", repr(self.max_rate)]
         if self.delays is not None:
             planner += ["--actuation-delay-ms", repr(self.delays[0]),
                         "--state-delay-ms", repr(self.delays[1])]
