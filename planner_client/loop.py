@@ -360,14 +360,16 @@ class PlannerClient:
         plan's date and predict the actuation delay beyond it (planner_client.timing).
         """
         mocap = self.mirror.mocap()
-        dt = self.welcome.dt
-        ahead = steps_of(self.delays.state_ms, dt)       # world steps from state to plan date
+        ahead = acting = 0      # world steps from the state to the plan's date, and on to when it acts
         if self._lead is not None:
             self._lead.observe(state.lag)
-            ahead += self._lead.steps()
-        acting = steps_of(self.delays.actuation_ms, dt)   # and on to when its first knot acts
-        start = state.time + ahead * dt
+            ahead = self._lead.steps()
+        if self.delays.active:
+            ahead += steps_of(self.delays.state_ms, self.welcome.dt)
+            acting = steps_of(self.delays.actuation_ms, self.welcome.dt)
+        start = state.time
         if ahead + acting:
+            dt = self.welcome.dt
             model, data = self.mirror.model, self.mirror.data
             predict(model, data, list(self._sent), self.robot.safe_stop(self._last_ctrl), dt,
                     ahead + acting, acting * dt)
