@@ -356,16 +356,19 @@ class PlannerClient:
 
         Real time: ``lead`` whole world steps after the state (the largest recent lag), the
         mirror stepped over them under the plans the world is playing. Lock-step: the state's
-        own time, as received. Declared delays (``planner.delays``) add the state delay to the
-        plan's date and predict the actuation delay beyond it (planner_client.timing).
+        own time, as received, plus the declared state delay (``planner.delays``). The declared
+        actuation delay is predicted beyond the plan's date (planner_client.timing).
         """
         mocap = self.mirror.mocap()
         ahead = acting = 0      # world steps from the state to the plan's date, and on to when it acts
         if self._lead is not None:
             self._lead.observe(state.lag)
             ahead = self._lead.steps()
-        if self.delays.active:
-            ahead += steps_of(self.delays.state_ms, self.welcome.dt)
+        elif self.delays.state_ms:
+            # lock-step; in real time the lag runs from the state's measurement time, so the
+            # lead already holds the state delay
+            ahead = steps_of(self.delays.state_ms, self.welcome.dt)
+        if self.delays.actuation_ms:
             acting = steps_of(self.delays.actuation_ms, self.welcome.dt)
         start = state.time
         if ahead + acting:

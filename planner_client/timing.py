@@ -11,9 +11,11 @@ nothing here changes a thing.
 
 Delays no message shows (``planner.delays``, declared: docs/hardware.md) come on top: a state
 published ``state_ms`` after its measurement, and actuators that act ``actuation_ms`` after a
-control reaches the world. The plan is then dated when it reaches the world (``t_s + state +
-lead``), but planned from the state at which its first knot acts, ``actuation`` later, reached
-under the controls the actuators are still working through (those sent ``actuation`` earlier).
+control reaches the world. The plan is dated when it reaches the world: ``t_s + lead`` in real
+time, where the lag is measured from the state's measurement time and so holds the state delay,
+``t_s + state`` in lock-step. It is planned from the state at which its first knot acts,
+``actuation`` later, reached under the controls the actuators are still working through (those
+the world played ``actuation`` earlier).
 """
 
 from __future__ import annotations
