@@ -15,7 +15,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from shared.config import ConfigError, Section, load_yaml, non_negative, one_of
+from shared.config import ConfigError, Section, flag, load_yaml, non_negative, one_of
 
 GRIPPER_MODES = ("continuous", "binary")
 
@@ -49,6 +49,14 @@ class HardwareConfig:
     control_period_ms: float = 0.0    # the actuators take a new command this often (0: every step)
     gripper: str = "continuous"       # binary: the gripper only opens or closes
     mismatch: MismatchConfig = MismatchConfig()
+
+    @property
+    def delays(self) -> tuple[float, float] | None:
+        """``(actuation_delay_ms, state_delay_ms)`` for a planner to declare
+        (``--compensate``), or None when neither is set."""
+        if not (self.actuation_delay_ms or self.state_delay_ms):
+            return None
+        return self.actuation_delay_ms, self.state_delay_ms
 
     @property
     def active(self) -> bool:
@@ -87,12 +95,6 @@ def _fraction(value: Any) -> float:
     return v
 
 
-def _flag(value: Any) -> bool:
-    if not isinstance(value, bool):
-        raise ValueError("wrong type")
-    return value
-
-
 def parse_hardware(data: Any, source: str, path: str = "hardware") -> HardwareConfig:
     """A ``hardware:`` value: a profile's name, or a mapping of keys (optionally ``profile:``,
     the base its other keys override). Raises :class:`ConfigError` naming file, key, value and
@@ -114,7 +116,7 @@ def parse_hardware(data: Any, source: str, path: str = "hardware") -> HardwareCo
         joint_noise_rad=s.opt("joint_noise_rad", base.joint_noise_rad, non_negative,
                               "radians >= 0 (a standard deviation)"),
         drop_rate=s.opt("drop_rate", base.drop_rate, _fraction, "a fraction in [0, 1)"),
-        hide_velocities=s.opt("hide_velocities", base.hide_velocities, _flag, "true or false"),
+        hide_velocities=s.opt("hide_velocities", base.hide_velocities, flag, "true or false"),
         control_period_ms=s.opt("control_period_ms", base.control_period_ms, non_negative,
                                 "milliseconds >= 0 (0: every world step)"),
         gripper=s.opt("gripper", base.gripper, one_of(GRIPPER_MODES),

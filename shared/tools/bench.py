@@ -37,7 +37,7 @@ from rich.progress import (BarColumn, MofNCompleteColumn, Progress, SpinnerColum
                            TimeElapsedColumn, TimeRemainingColumn)
 
 from shared.evaluation import episode
-from shared.config import ConfigError, Section, load_yaml, one_of, positive, positive_int
+from shared.config import ConfigError, Section, flag, load_yaml, one_of, positive, positive_int
 from shared.config_files import find
 from shared.tools.launch import EpisodeLaunch, run_episode
 from shared.evaluation.metrics import MetricsEvaluator
@@ -103,7 +103,7 @@ def _with_hardware(case: BenchCase, c: Section, bench: Path) -> BenchCase:
     (declare its delays to the planner), checked now, not trial by trial."""
     from shared.hardware import PROFILES, load_hardware
     spec = c.opt("hardware", "", str, "a profile (nominal, lab, harsh) or a YAML file")
-    compensate = c.opt("compensate", False, _flag, "true or false")
+    compensate = c.opt("compensate", False, flag, "true or false")
     if spec and spec not in PROFILES:
         if not (bench.parent / spec).is_file():
             raise c.error("hardware", "neither a profile nor a file", spec,
@@ -111,19 +111,11 @@ def _with_hardware(case: BenchCase, c: Section, bench: Path) -> BenchCase:
                           f"(relative to the bench file)")
         spec = str((bench.parent / spec).resolve())
     hw = load_hardware(spec) if spec else None     # a bad file's error names its own key
-    delays = None
-    if compensate:
-        if hw is None or not (hw.actuation_delay_ms or hw.state_delay_ms):
-            raise c.error("compensate", "no delay to compensate", True,
-                          "a case whose hardware sets actuation_delay_ms or state_delay_ms")
-        delays = (hw.actuation_delay_ms, hw.state_delay_ms)
+    delays = hw.delays if compensate and hw is not None else None
+    if compensate and delays is None:
+        raise c.error("compensate", "no delay to compensate", True,
+                      "a case whose hardware sets actuation_delay_ms or state_delay_ms")
     return dataclasses.replace(case, hardware=spec, delays=delays)
-
-
-def _flag(value) -> bool:
-    if not isinstance(value, bool):
-        raise ValueError("wrong type")
-    return value
 
 
 def find_bench(name_or_path: str | os.PathLike) -> Path:

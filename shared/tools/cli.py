@@ -496,13 +496,13 @@ def _declared_delays_or_exit(sc, hardware: str | None) -> tuple[float, float]:
     """``--compensate``: the (actuation, state) delays in ms of ``--hardware``, else of the
     scenario's hardware: section, for the planner to declare; exit 2 when there are none."""
     from shared.hardware import load_hardware
-    hw = load_hardware(hardware) if hardware else sc.hardware
-    if not (hw.actuation_delay_ms or hw.state_delay_ms):
+    delays = (load_hardware(hardware) if hardware else sc.hardware).delays
+    if delays is None:
         typer.echo("error: --compensate: no delay to compensate (give --hardware PROFILE, or a "
                    "scenario whose hardware: section sets actuation_delay_ms or state_delay_ms)",
                    err=True)
         raise typer.Exit(2)
-    return hw.actuation_delay_ms, hw.state_delay_ms
+    return delays
 
 
 def _keys_or_exit(keys: Optional[Path]):
