@@ -60,7 +60,7 @@ def main(
                                             "runs/<scenario>-<time>/episode.jsonl"),
     command_timeout: float = typer.Option(0.5, help="realtime: seconds after which a missing "
                                           "command makes the robot hold still."),
-    realtime_factor: float = typer.Option(1.0, help="realtime: simulated seconds per wall second."),
+    realtime_factor: float = typer.Option(1.0, min=0.01, help="realtime: simulated seconds per wall second."),
     republish: float = typer.Option(0.2, min=0.001, help="lockstep: re-send the state waiting "
                                     "for its command this often (seconds), for a planner that "
                                     "subscribed late or lost it."),

@@ -76,6 +76,7 @@ class BenchCase:
     hardware: str = ""           # the world's faults: a profile, or a file's absolute path
     delays: tuple[float, float] | None = None   # compensate: (actuation, state) ms declared
     max_rate: float = 0.0        # realtime: the planner's plans per second at most (0: no cap)
+    realtime_factor: float = 1.0  # realtime: world seconds per wall second (< 1: a slower world)
 
     @property
     def mode_label(self) -> str:
@@ -84,6 +85,8 @@ class BenchCase:
         label = f"lockstep, plan every {self.plan_every}" if self.plan_every > 1 else self.mode
         if self.max_rate:
             label += f", planner at most {self.max_rate:g} Hz"
+        if self.realtime_factor != 1.0:
+            label += f", world at {self.realtime_factor:g}x wall clock"
         if self.hardware:
             label += f", hardware {Path(self.hardware).stem}"
         return label + (", compensated" if self.delays is not None else "")
@@ -134,11 +137,16 @@ def load_bench(name_or_path: str | os.PathLike) -> BenchConfig:
                          trials=c.req("trials", positive_int),
                          mode=c.opt("mode", "lockstep", one_of(("lockstep", "realtime"))),
                          plan_every=c.opt("plan_every", 1, positive_int),
-                         max_rate=c.opt("max_rate", 0.0, positive, "plans per second > 0"))
+                         max_rate=c.opt("max_rate", 0.0, positive, "plans per second > 0"),
+                         realtime_factor=c.opt("realtime_factor", 1.0, positive,
+                                               "world seconds per wall second > 0"))
         case = _with_hardware(case, c, path)
         if case.max_rate and case.mode != "realtime":
             raise c.error("max_rate", "only a real-time world lets a planner fall behind",
                           case.max_rate, "mode: realtime (lock-step: plan_every)")
+        if case.realtime_factor != 1.0 and case.mode != "realtime":
+            raise c.error("realtime_factor", "only a real-time world has a wall clock to "
+                          "follow", case.realtime_factor, "mode: realtime")
         if case.plan_every > 1 and case.mode != "lockstep":
             raise c.error("plan_every", "only a lock-step world plays a plan for a set number "
                           "of steps", case.plan_every, "1 with mode: realtime")
@@ -390,7 +398,8 @@ def run_trial(trial: Trial, opts: BenchOptions, threads: int, stop: threading.Ev
     launch = EpisodeLaunch(scenario=trial.scenario.source, run_dir=run_dir, seed=trial.seed,
                            timeout=opts.timeout, threads=threads, mode=trial.case.mode,
                            plan_every=trial.case.plan_every, hardware=trial.case.hardware,
-                           delays=trial.case.delays, max_rate=trial.case.max_rate)
+                           delays=trial.case.delays, max_rate=trial.case.max_rate,
+                           realtime_factor=trial.case.realtime_factor)
     if slot is not None:
         case_dir = opts.out_dir / trial.case_dir
         pair = slot.get(pair_key(trial), dataclasses.replace(
@@ -427,7 +436,8 @@ def pair_key(trial: Trial) -> tuple:
     """Trials with the same key can share a warm pair: same scenario file, processes' options
     and log folder."""
     return (trial.case_dir, trial.case.scenario, trial.case.mode, trial.case.plan_every,
-            trial.case.hardware, trial.case.delays, trial.case.max_rate)
+            trial.case.hardware, trial.case.delays, trial.case.max_rate,
+            trial.case.realtime_factor)
 
 
 def run_trials(todo: list[Trial], opts: BenchOptions, results: ResultsFile,

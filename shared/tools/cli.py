@@ -114,6 +114,9 @@ def run(
     planner_max_rate: float = typer.Option(0.0, min=0.0, help="realtime: the planner makes at "
                                            "most this many plans per second (0: as fast as it "
                                            "can): a slower computer, rehearsed."),
+    realtime_factor: float = typer.Option(1.0, min=0.01, help="realtime: world seconds per wall "
+                                          "second; 0.5 runs the world at half speed, so every "
+                                          "planner rate counts double against it."),
     port: int = typer.Option(0, help="Base port (0: pick free ports)."),
     run_dir: Optional[Path] = typer.Option(None, help="Where logs go (default runs/<scenario>-<time>)."),
     timeout: float = typer.Option(900.0, help="Wall-clock seconds before the run is abandoned."),
@@ -141,7 +144,8 @@ def run(
                                            verbose=verbose, plan_every=plan_every, view=view,
                                            view_port=view_port, keys=keys,
                                            hardware=hardware or "", delays=delays,
-                                           max_rate=planner_max_rate),
+                                           max_rate=planner_max_rate,
+                                           realtime_factor=realtime_factor),
                              on_view=lambda url: typer.echo(f"view: {url}"))
     except RuntimeError as exc:      # the view could not serve its page
         typer.echo(f"error: {exc}", err=True)

@@ -100,6 +100,7 @@ class EpisodeLaunch:
     hardware: str = ""              # server only: a hardware profile or file (docs/hardware.md)
     delays: tuple[float, float] | None = None   # planner only: declared (actuation, state) ms
     max_rate: float = 0.0           # planner only: at most this many plans per second (0: no cap)
+    realtime_factor: float = 1.0    # server, realtime: world seconds per wall second
     viewer: bool = False
     verbose: bool = False           # children write to this terminal instead of log files
     view: bool = False              # serve the browser view (m3p2i view) beside the episode
@@ -120,6 +121,8 @@ class EpisodeLaunch:
             server.append("--viewer")
         if self.plan_every != 1:
             server += ["--plan-every", str(self.plan_every)]
+        if self.realtime_factor != 1.0:
+            server += ["--realtime-factor", repr(self.realtime_factor)]
         if self.hardware:            # the planner is not told: it keeps the nominal model
             server += ["--hardware", self.hardware]
         planner = [sys.executable, "-m", "planner_client", *common]
