@@ -243,8 +243,9 @@ def test_bench_modes_are_checked_and_recorded(tmp_path):
     with pytest.raises(ConfigError, match="must be one of: lockstep, realtime"):
         load_bench(path)
     cases = load_bench("realtime").cases
-    assert {c.mode_label for c in cases} == {"realtime", "lockstep, plan every 3",
-                                             "realtime, planner at most 25 Hz"}
+    assert {c.mode_label for c in cases} == {
+        "realtime", "lockstep, plan every 3", "realtime, planner at most 25 Hz",
+        "realtime, planner at most 15 Hz, world at 0.5x wall clock"}
 
 
 def test_bench_hardware_and_compensation_are_checked_and_reach_the_processes(tmp_path):
@@ -268,6 +269,18 @@ def test_bench_hardware_and_compensation_are_checked_and_reach_the_processes(tmp
     with pytest.raises(ConfigError, match="only a real-time world") as err:
         load_bench(path)
     assert err.value.path == "cases[0].max_rate"
+    for factor, message in [(0.5, "only a real-time world has a wall clock"), (0, "> 0")]:
+        path = write_bench(tmp_path, [{"case": "e", "scenario": "navigation", "trials": 1,
+                                       "realtime_factor": factor}])
+        with pytest.raises(ConfigError, match=message) as err:
+            load_bench(path)
+        assert err.value.path == "cases[0].realtime_factor"
+    from shared.tools.launch import EpisodeLaunch
+    launch = EpisodeLaunch(scenario="navigation.yaml", run_dir=tmp_path, mode="realtime",
+                           realtime_factor=0.5)
+    server = launch.commands(5555)["server"]
+    assert server[server.index("--realtime-factor") + 1] == "0.5"
+    assert "--realtime-factor" not in EpisodeLaunch(scenario="n.yaml", run_dir=tmp_path).commands(5555)["server"]
     robustness = load_bench("robustness").cases
     assert {c.hardware for c in robustness} == {"", "lab", "harsh"}
     assert all(c.delays is not None for c in robustness if c.case.endswith("_comp"))
