@@ -34,6 +34,7 @@ from shared.scenario import DelayConfig
 from shared.security import Authenticator, HandshakeMonitor, PlannerKeys, curve_client, \
     curve_server, describe_handshake_failure
 from shared.timed_plan import TimedPlan, held
+from planner_client.attach import Attachments
 from planner_client.motion import Iteration, MotionPlanner
 from planner_client.mirror import Mirror, MocapState
 from planner_client.task import TaskLayer
@@ -106,8 +107,7 @@ class PlannerClient:
         self.exit_on_done = exit_on_done
         self.delays = delays or planner.problem.scenario.planner.delays
         self.min_period = 1.0 / max_rate if max_rate > 0 else 0.0
-        self.mirror = Mirror(planner.problem.model,
-                             estimate=planner.problem.scenario.planner.estimate)
+        self._bind(planner)
         self.keys = keys
         self.ctx = zmq.Context()
         self.sub = socket(self.ctx, zmq.SUB, conflate=True)   # only the newest state matters
@@ -201,11 +201,16 @@ class PlannerClient:
                  f" (seed {seed})" if seed is not None else "")
         self.planner.close()
         self.planner, self.task = self.renew(seed)
-        self.mirror = Mirror(self.planner.problem.model,
-                             estimate=self.planner.problem.scenario.planner.estimate)
+        self._bind(self.planner)
         self._action = None
         self._last_ctrl = self.robot.safe_stop()
         self._faults = 0
+
+    def _bind(self, planner: MotionPlanner) -> None:
+        """The mirror of the world in ``planner``'s model, and its attachments."""
+        pc = planner.problem.scenario.planner
+        self.mirror = Mirror(planner.problem.model, estimate=pc.estimate)
+        self.attachments = Attachments(planner.problem.model, pc.model.attach)
 
     def _secure(self, sock: zmq.Socket) -> None:
         """A socket to the world: a CURVE client holding the world's public key, with keys."""
@@ -311,6 +316,8 @@ class PlannerClient:
             log.error("state does not fit the planner's model: %s", exc)
             return
         decision = self.task.decide(self.mirror.data, state.extras, state.time)
+        if self.attachments.welds:
+            self.attachments.update(self.mirror.data, self.task.last_observation, state.time)
         self.planner.set_modes(decision.modes)
         start, x0, mocap = self._plan_start(state, x0)
         it = self.planner.iterate(x0, mocap)

@@ -18,6 +18,7 @@ from shared.frames import FrameResolver
 from shared.robots import RobotSpec, get_robot
 from shared.scenario import PlanningModel, Scenario
 from shared.scene import build_spec, compile_model, initial_data, obstacle_names
+from planner_client.attach import add_attach_welds
 from planner_client.costs import JointInfo, Objective, TermContext, build_objective
 from planner_client.mppi import MPPIConfig
 from planner_client.sensors import SensorLayout, SensorRequest, add_sensors
@@ -98,6 +99,12 @@ def apply_planning_model(spec: mujoco.MjSpec, cfg: PlanningModel, source: str) -
                 raise ConfigError(source, f"planner.model.exclude[{i}]", "unknown body", name,
                                   f"one of: {', '.join(bodies)}")
         spec.add_exclude(bodyname1=a, bodyname2=b)
+    try:
+        add_attach_welds(spec, cfg.attach)
+    except KeyError as exc:
+        i, key, name, known = exc.args[0]
+        raise ConfigError(source, f"planner.model.attach[{i}].{key}", "unknown body", name,
+                          f"one of: {', '.join(known)}") from None
 
 
 def actuator_names(model: mujoco.MjModel) -> list[str]:

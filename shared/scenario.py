@@ -201,13 +201,28 @@ class PlanningModel:
     integrator: str | None = None          # Euler | implicitfast | implicit | RK4
     condim: int | None = None              # every geom's contact dimensionality (1, 3, 4, 6)
     exclude: tuple[tuple[str, str], ...] = ()   # body pairs whose contacts the rollouts skip
+    attach: tuple[Attach, ...] = ()        # objects welded to the robot while a task state holds
 
     def as_dict(self) -> dict[str, Any]:
         """The keys set, as written in YAML (for logs and benchmark rows)."""
-        out = {k: v for k, v in self.__dict__.items() if v is not None and k != "exclude"}
+        out = {k: v for k, v in self.__dict__.items()
+               if v is not None and k not in ("exclude", "attach")}
         if self.exclude:
             out["exclude"] = [list(pair) for pair in self.exclude]
+        if self.attach:
+            out["attach"] = [{"object": a.object, "to": a.to, "while": a.state} for a in self.attach]
         return out
+
+
+@dataclass(frozen=True)
+class Attach:
+    """``planner.model.attach[i]``: while the task observes ``state`` (e.g. ``holding``), the
+    planner's model welds ``object`` to robot body ``to`` at their pose of the moment and drops
+    the object's contacts with the robot (planner_client.attach). A grasp's pad contacts are
+    most of a carrying rollout's cost; the world keeps them."""
+    object: str            # a free object of the scenario
+    to: str                # a body of the robot (e.g. its hand)
+    state: str             # a state of a task factor (YAML key ``while``)
 
 
 @dataclass(frozen=True)
@@ -413,6 +428,8 @@ def _read(raw: dict, source: str, errors: ErrorLog) -> ScenarioReading:
             if key != "*" and key not in factors:
                 errors.add(ConfigError(source, f"planner.confirm.{key}", "not a factor of the "
                                        "task", key, "'*' or one of: " + ", ".join(factors)))
+    if planner is not None and planner.model.attach:
+        _check_attach(planner, task, world, source, errors)
     if top.has("objectives") and isinstance(top.data["objectives"], dict):
         known = list(top.data["objectives"])
         for i, m in enumerate(modes):
@@ -429,6 +446,27 @@ def _read(raw: dict, source: str, errors: ErrorLog) -> ScenarioReading:
                         observers=observers, action_objectives=action_objectives, metrics=metrics,
                         hardware=hardware, raw=raw)
     return ScenarioReading(scenario, errors.errors, model_ok)
+
+
+def _check_attach(planner: PlannerConfig, task: TaskTemplate | None, world: WorldConfig | None,
+                  source: str, errors: ErrorLog) -> None:
+    """An attachment needs a task state to follow, a free object, and the CPU rollouts (the
+    warp backend's model is not changed between iterations)."""
+    states = [st for f in task.factors for st in f.states] if task is not None else []
+    free = [o.name for o in world.objects if not o.fixed] if world is not None else None
+    for i, a in enumerate(planner.model.attach):
+        path = f"planner.model.attach[{i}]"
+        if a.state not in states:
+            errors.add(ConfigError(source, f"{path}.while", "not a state of the task's factors",
+                                   a.state, "one of: " + ", ".join(states) if states
+                                   else "a scenario with a task: template"))
+        if free is not None and a.object not in free:
+            errors.add(ConfigError(source, f"{path}.object", "not a free object of the world",
+                                   a.object, "one of: " + (", ".join(free) or "(none)")))
+    if planner.backend != "mujoco":
+        errors.add(ConfigError(source, "planner.model.attach", "only the mujoco backend "
+                               "changes its model between iterations", planner.backend,
+                               "planner.backend: mujoco, or no attach"))
 
 
 def _observers(s: Section, task: TaskTemplate, errors: ErrorLog) -> dict[str, ObserverConfig]:
@@ -719,7 +757,16 @@ def _planning_model(s: Section) -> PlanningModel:
         noslip_iterations=s.opt("noslip_iterations", None, _count, "an integer >= 0"),
         integrator=s.opt("integrator", None, one_of(INTEGRATORS)),
         condim=s.opt("condim", None, _one_of_ints((1, 3, 4, 6)), "1, 3, 4 or 6"),
-        exclude=tuple(s.opt("exclude", (), _body_pairs, "a list of [body, body] pairs")))
+        exclude=tuple(s.opt("exclude", (), _body_pairs, "a list of [body, body] pairs")),
+        attach=tuple(_attach(a) for a in s.items("attach")))
+    s.done()
+    return cfg
+
+
+def _attach(s: Section) -> Attach:
+    cfg = Attach(object=s.req("object", str, "a free object's name"),
+                 to=s.req("to", str, "a body of the robot"),
+                 state=s.req("while", str, "a state of a task factor, e.g. holding"))
     s.done()
     return cfg
 

@@ -1,0 +1,126 @@
+"""Grasped objects welded to the robot in the planner's model (``planner.model.attach``).
+
+A cube held between two rubber pads is, for the constraint solver, eight or more elliptic
+friction contacts squeezed by 70 N: most of a carrying rollout step's cost (docs/panda.md), so a
+planner that is slower than its world falls furthest behind exactly while it carries. While the
+task observes the attachment's state (``holding``), the planner's model instead welds the object
+to the robot body at their relative pose of the moment (one 6-row equality) and drops the
+object's contacts with the robot; its contacts with everything else stay. The world keeps the
+real grasp, so a cube that slips in the world is seen in the next state, and once the task
+observes it lost (within ``aip_period`` plus ``planner.confirm``) it is released here too.
+
+How the contacts are dropped without recompiling: one contact bit that no geom of the scene uses
+is added to every geom outside the robot; an attached object's geoms carry that bit alone, so
+they still meet the table and the other objects (bit shared) but never the robot (bit absent,
+and the object no longer has the robot's bits). The weld is activated through ``eq_active0``,
+because ``mujoco.rollout`` starts every rollout from a reset MjData, whose equality flags are
+the model's, and through the mirror's ``eq_active`` for the prediction over the plan's lead.
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass
+
+import mujoco
+import numpy as np
+
+from shared.scenario import Attach
+
+log = logging.getLogger("m3p2i.planner")
+
+EQUALITY_PREFIX = "m3p2i_attach_"
+
+
+def add_attach_welds(spec: mujoco.MjSpec, attach: tuple[Attach, ...]) -> None:
+    """One inactive weld per attachment (``m3p2i_attach_<object>``), its pose set at run time.
+    Raises KeyError naming a body the spec lacks (the caller turns it into a ConfigError)."""
+    bodies = {b.name for b in spec.bodies}
+    for i, a in enumerate(attach):
+        for key, name in (("object", a.object), ("to", a.to)):
+            if name not in bodies:
+                raise KeyError((i, key, name, sorted(bodies)))
+        spec.add_equality(name=EQUALITY_PREFIX + a.object, type=mujoco.mjtEq.mjEQ_WELD,
+                          objtype=mujoco.mjtObj.mjOBJ_BODY, name1=a.object, name2=a.to,
+                          active=False, data=np.zeros(mujoco.mjNEQDATA))
+
+
+@dataclass
+class _Weld:
+    cfg: Attach
+    eq: int                  # equality id
+    body: int                # the object's body
+    to: int                  # the robot body it is welded to
+    geoms: np.ndarray        # [G] the object's geoms
+    on: bool = False
+
+
+class Attachments:
+    """Switches each attachment on and off in ``model`` (the planner's own, shared with its
+    rollouts) from the task's observation."""
+
+    def __init__(self, model: mujoco.MjModel, attach: tuple[Attach, ...]):
+        self.model = model
+        self.welds: list[_Weld] = []
+        if not attach:
+            return
+        used = int(np.bitwise_or.reduce(np.concatenate([model.geom_contype,
+                                                        model.geom_conaffinity])))
+        free = [1 << k for k in range(31) if not used & (1 << k)]
+        if not free:
+            raise ValueError("planner.model.attach needs one contact bit that no geom uses; "
+                             "every one of the 31 is taken")
+        self.bit = free[0]
+        robots = set()
+        for a in attach:
+            body, to = model.body(a.object).id, model.body(a.to).id
+            robots.add(int(model.body_rootid[to]))
+            geoms = np.flatnonzero(model.body_rootid[model.geom_bodyid] == body)
+            self.welds.append(_Weld(a, model.equality(EQUALITY_PREFIX + a.object).id, body, to,
+                                    geoms))
+        outside = ~np.isin(model.body_rootid[model.geom_bodyid], list(robots))
+        model.geom_contype[outside] |= self.bit
+        model.geom_conaffinity[outside] |= self.bit
+        self._contype = model.geom_contype.copy()          # each geom's bits when detached
+        self._conaffinity = model.geom_conaffinity.copy()
+
+    def update(self, data: mujoco.MjData, observation: dict[str, str], time: float) -> None:
+        """Attach what the observation says is held, at its pose in ``data`` (the mirrored
+        state, kinematics computed); release the rest. ``data`` gets the same equality flags,
+        so that the prediction over the plan's lead uses the same model as the rollouts."""
+        held = set(observation.values())
+        m = self.model
+        for w in self.welds:
+            on = w.cfg.state in held
+            if on:
+                m.eq_data[w.eq, :3] = 0.0                       # anchor at the robot body's origin
+                m.eq_data[w.eq, 3:10] = relative_pose(data, w.to, w.body)
+                m.eq_data[w.eq, 10] = 1.0                       # torque scale
+            if on != w.on:
+                log.info("t=%.2f s: %s %s %s in the planner's model", time, w.cfg.object,
+                         "welded to" if on else "released from", w.cfg.to)
+                if on:
+                    m.geom_contype[w.geoms] = self.bit
+                    m.geom_conaffinity[w.geoms] = self.bit
+                else:
+                    m.geom_contype[w.geoms] = self._contype[w.geoms]
+                    m.geom_conaffinity[w.geoms] = self._conaffinity[w.geoms]
+                w.on = on
+            m.eq_active0[w.eq] = on
+            data.eq_active[w.eq] = on
+
+    @property
+    def attached(self) -> tuple[str, ...]:
+        """The objects welded now."""
+        return tuple(w.cfg.object for w in self.welds if w.on)
+
+
+def relative_pose(data: mujoco.MjData, body: int, frame: int) -> np.ndarray:
+    """``[7]``: position and quaternion of ``body`` in the frame of body ``frame`` (MuJoCo's
+    weld ``relpose``: body2's pose in body1's frame)."""
+    inv = np.zeros(4)
+    mujoco.mju_negQuat(inv, data.xquat[frame])
+    pos, quat = np.zeros(3), np.zeros(4)
+    mujoco.mju_rotVecQuat(pos, data.xpos[body] - data.xpos[frame], inv)
+    mujoco.mju_mulQuat(quat, inv, data.xquat[body])
+    return np.concatenate([pos, quat])

@@ -1,0 +1,118 @@
+"""``planner.model.attach``: while the task observes ``holding``, the planner's model carries the
+cube welded to the hand, without its contacts with the robot; released, the cube is a free body
+with every contact again. The world's model never changes."""
+
+import mujoco
+import numpy as np
+import pytest
+import yaml
+
+from planner_client.attach import Attachments, relative_pose
+from planner_client.problem import build_problem
+from shared.config import ConfigError
+from shared.scenario import SCENARIO_DIR, parse_scenario
+from shared.scene import compile_model, initial_data
+
+ATTACH = [{"object": "cube_a", "to": "panda_hand", "while": "holding"}]
+
+
+def _pick_place(attach=ATTACH) -> dict:
+    raw = yaml.safe_load((SCENARIO_DIR / "pick_place.yaml").read_text())
+    raw["planner"]["model"]["attach"] = attach
+    return raw
+
+
+@pytest.fixture(scope="module")
+def held():
+    """The planner's model with the cube lifted 3 cm off the table, as if held 2 cm below the
+    hand's fingertips (no contact with anything), and its attachments."""
+    sc = parse_scenario(_pick_place(), str(SCENARIO_DIR / "pick_place.yaml"))
+    model = build_problem(sc).model
+    data = initial_data(sc, model)
+    mujoco.mj_forward(model, data)
+    grasp = data.site("grasp").xpos
+    cube = model.body("cube_a")
+    data.qpos[model.jnt_qposadr[cube.jntadr[0]]:][:3] = grasp - [0.0, 0.0, 0.02]
+    mujoco.mj_forward(model, data)
+    return sc, model, data, Attachments(model, sc.planner.model.attach)
+
+
+def _roll(model, data, ctrl, steps=20):
+    d = mujoco.MjData(model)
+    mujoco.mj_resetData(model, d)          # as mujoco.rollout does: the flags are the model's
+    d.qpos[:], d.qvel[:] = data.qpos, data.qvel
+    d.ctrl[:] = ctrl
+    for _ in range(steps):
+        mujoco.mj_step(model, d)
+    return d
+
+
+def test_a_held_cube_moves_with_the_hand_and_a_released_one_falls(held):
+    sc, model, data, att = held
+    hand, cube = model.body("panda_hand").id, model.body("cube_a").id
+    before = relative_pose(data, cube, hand)
+    ctrl = np.array([0.5, -0.4, 0.3, 0.5, 0.0, 0.0, 0.0, 0.08])   # swing the arm
+    att.update(data, {"holding": "holding", "reachable": "reachable"}, 1.0)
+    assert att.attached == ("cube_a",) and data.eq_active[att.welds[0].eq]
+    d = _roll(model, data, ctrl)
+    after = relative_pose(d, cube, hand)
+    assert np.linalg.norm(d.xpos[hand] - data.xpos[hand]) > 0.05      # the hand moved...
+    # ...the cube with it, within the soft weld's give (free, it would fall 20 cm in 0.2 s)
+    assert np.linalg.norm(after[:3] - before[:3]) < 5e-3
+    att.update(data, {"holding": "not_holding", "reachable": "reachable"}, 2.0)
+    assert att.attached == () and not model.eq_active0[att.welds[0].eq]
+    d = _roll(model, data, np.zeros(model.nu), steps=10)
+    assert d.xpos[cube][2] < data.xpos[cube][2] - 0.003                # free again: it falls
+
+
+def test_an_attached_cube_meets_the_table_but_not_the_robot(held):
+    sc, model, data, att = held
+    robot = model.body("panda_hand").rootid
+    table, cube = model.geom("table").id, model.body("cube_a").id
+    geoms = att.welds[0].geoms
+
+    def meets(g1, g2):
+        return bool(model.geom_contype[g1] & model.geom_conaffinity[g2]
+                    or model.geom_contype[g2] & model.geom_conaffinity[g1])
+
+    pads = [model.geom("finger_left").id, model.geom("finger_right").id]
+    original = (model.geom_contype.copy(), model.geom_conaffinity.copy())
+    assert all(meets(g, p) for g in geoms for p in pads)
+    att.update(data, {"holding": "holding"}, 1.0)
+    assert not any(meets(g, r) for g in geoms for r in range(model.ngeom)
+                   if model.body(model.geom_bodyid[r]).rootid == robot)
+    assert all(meets(g, table) for g in geoms)
+    assert meets(model.geom("cube_b").id, table) and all(meets(model.geom("cube_b").id, p) for p in pads)
+    att.update(data, {"holding": "not_holding"}, 2.0)
+    assert (model.geom_contype == original[0]).all() and (model.geom_conaffinity == original[1]).all()
+    assert model.body(model.geom_bodyid[geoms[0]]).id == cube
+
+
+def test_the_world_model_has_no_weld():
+    sc = parse_scenario(_pick_place(), str(SCENARIO_DIR / "pick_place.yaml"))
+    world, planner = compile_model(sc), build_problem(sc).model
+    assert planner.neq == world.neq + 1 and planner.equality("m3p2i_attach_cube_a").type == \
+        mujoco.mjtEq.mjEQ_WELD
+
+
+@pytest.mark.parametrize("attach, key, expected", [
+    ([{"object": "cube_a", "to": "panda_hand", "while": "gripping"}], "attach[0].while",
+     "one of: at_preplace, not_at_preplace, holding"),
+    ([{"object": "table", "to": "panda_hand", "while": "holding"}], "attach[0].object",
+     "one of: cube_a, cube_b"),
+    ([{"object": "cube_a", "to": "panda_hand"}], "attach[0].while", "required"),
+    ([{"object": "cube_a", "to": "panda_hand", "while": "holding", "force": 1}],
+     "attach[0].force", "unknown key"),
+])
+def test_each_attachment_key_is_checked(attach, key, expected):
+    with pytest.raises(ConfigError) as info:
+        parse_scenario(_pick_place(attach), "pp.yaml")
+    msg = str(info.value)
+    assert f"pp.yaml: planner.model.{key}" in msg and expected in msg, msg
+
+
+def test_a_robot_body_the_model_lacks_is_named():
+    sc = parse_scenario(_pick_place([{"object": "cube_a", "to": "gripper", "while": "holding"}]),
+                        "pp.yaml")
+    with pytest.raises(ConfigError, match=r"planner.model.attach\[0\].to.*'gripper'"):
+        build_problem(sc)
