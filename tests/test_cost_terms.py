@@ -397,6 +397,32 @@ def test_reach_reads_the_real_z_axes(model, ctx):
     torch.testing.assert_close(term(b), torch.tensor([[math.hypot(0.5, 0.3)]], dtype=F64))
 
 
+def test_reach_with_obj_axis_up_takes_a_tipped_box_by_its_new_top_face(model, ctx):
+    term = make(ctx, "reach", ee="hand", obj="box", theta=-1.0, obj_axis="up")
+    eq27 = make(ctx, "reach", ee="hand", obj="box", theta=-1.0)
+    h = math.sqrt(0.5)
+    # upright: the same cost as Eq. 27's z axis; tipped 90 degrees about x (its -y axis now
+    # points up): the hand pointing up is 2 (opposite) from the top face's -1, where Eq. 27's
+    # flat z axis would call any hand pointing up or down half-way (1 off theta = -1)
+    for quat, tilt_up, tilt_eq27 in ([1, 0, 0, 0], 2.0, 2.0), ([h, h, 0, 0], 2.0, 1.0):
+        state = set_qpos(2, [0, -0.5, 0.1, *quat])
+        b_up, b_27 = sensed(model, ctx, term, state), sensed(model, ctx, eq27, state)
+        torch.testing.assert_close(term(b_up), torch.tensor([[math.hypot(0.5, 0.3) + tilt_up]], dtype=F64))
+        torch.testing.assert_close(eq27(b_27), torch.tensor([[math.hypot(0.5, 0.3) + tilt_eq27]], dtype=F64))
+    with pytest.raises(ConfigError, match=r"terms\[0\]\.obj_axis.*one of: up, z"):
+        make(ctx, "reach", ee="hand", obj="box", theta=-1.0, obj_axis="x")
+
+
+def test_top_axis_is_the_signed_axis_nearest_up():
+    from planner_client.costs.geometry import top_axis
+    rot = torch.eye(3, dtype=F64)                       # rows: x, y, z axes in the world
+    torch.testing.assert_close(top_axis(rot), torch.tensor([0.0, 0.0, 1.0], dtype=F64))
+    flipped = torch.tensor([[1.0, 0, 0], [0, 0, -1.0], [0, 1.0, 0]], dtype=F64)   # y points down
+    torch.testing.assert_close(top_axis(flipped), torch.tensor([0.0, 0.0, 1.0], dtype=F64))
+    batch = torch.stack([rot, flipped])[:, None]        # [2, 1, 3, 3]
+    assert top_axis(batch).shape == (2, 1, 3)
+
+
 def test_tilt_is_the_residual_of_eq_27_alone(ctx):
     term = make(ctx, "tilt", ee="site:left", obj="box", theta=-1.0)
     zee, zobj = term.sensors()

@@ -8,7 +8,7 @@ from dataclasses import dataclass
 
 import torch
 
-from shared.config import non_negative, positive, vector
+from shared.config import non_negative, one_of, positive, vector
 from shared.geometry import select_axes, symmetric_orientation_error_quat
 from planner_client.costs.base import CostTerm, RolloutBatch, register
 from planner_client.costs.helpers import axes_param, cosine, cosine_value, frame_params
@@ -99,26 +99,45 @@ class Reach(CostTerm):
     used here is minimised exactly at cos = θ, as the text intends; for θ = -1 it equals the
     printed expression (cos >= -1 always). Absolute rather than squared, so the tilt cost keeps
     the same linear scale as the distance it is added to.
+
+    ``obj_axis: up`` replaces z_O by the object's top-face normal: whichever of its axes ±x, ±y,
+    ±z points most nearly up in the world (``framexaxis``/``frameyaxis``/``framezaxis``
+    sensors). For a cube standing on its bottom face it is z_O itself; for one that fell on its
+    side, z_O lies flat and Eq. 27 would ask for a hand pointing sideways at table height, so a
+    dropped cube could never be grasped again from above.
     """
     ee: str
     obj: str
     theta: float
     tilt_weight: float
+    obj_axis: str = "z"
 
     @classmethod
     def from_params(cls, s, ctx):
         return cls(**frame_params(s, ctx, "ee", "obj"),
                    theta=s.req("theta", cosine_value, "a cosine in [-1, 1]"),
-                   tilt_weight=s.opt("tilt_weight", 1.0, non_negative, "a number >= 0"))
+                   tilt_weight=s.opt("tilt_weight", 1.0, non_negative, "a number >= 0"),
+                   obj_axis=s.opt("obj_axis", "z", one_of(("z", "up"))))
 
     def sensors(self):
+        axes = ("framexaxis", "frameyaxis", "framezaxis") if self.obj_axis == "up" else ("framezaxis",)
         return [SensorRequest("framepos", self.ee), SensorRequest("framepos", self.obj),
-                SensorRequest("framezaxis", self.ee), SensorRequest("framezaxis", self.obj)]
+                SensorRequest("framezaxis", self.ee), *(SensorRequest(a, self.obj) for a in axes)]
 
     def __call__(self, batch):
-        x_ee, x_o, z_ee, z_o = (batch.get(r) for r in self.requests)
+        x_ee, x_o, z_ee, *obj_axes = (batch.get(r) for r in self.requests)
+        z_o = obj_axes[0] if self.obj_axis == "z" else top_axis(torch.stack(obj_axes, dim=-2))
         dist = torch.linalg.vector_norm(x_ee - x_o, dim=-1)
         return dist + self.tilt_weight * (cosine(z_ee, z_o) - self.theta).abs()
+
+
+def top_axis(axes: torch.Tensor) -> torch.Tensor:
+    """Of a body's axes ``[..., 3, 3]`` (x, y, z, each a world vector), the one, signed, that
+    points most nearly up ``[..., 3]``: the normal of a box's top face however it lies."""
+    up = axes[..., 2]                                                    # [..., 3]
+    best = up.abs().argmax(dim=-1, keepdim=True)                         # [..., 1]
+    axis = torch.take_along_dim(axes, best[..., None], dim=-2).squeeze(-2)
+    return axis * torch.sign(torch.take_along_dim(up, best, dim=-1))
 
 
 @register("tilt")
