@@ -47,14 +47,17 @@ class FixedModes:
 
 class ConfirmedObservation:
     """Each factor's observed state, changed only once a new state has been observed without a
-    break for ``confirm[factor]`` seconds (``"*"``: every other factor; 0 or absent: at once).
+    break for ``confirm[factor]`` seconds (``"*"``: every other factor; 0 or absent: at once),
+    or, when ``confirm[factor]`` maps states to seconds, for the time of the state it changes to:
+    ``{reachable: {not_reachable: 0.3}}`` takes "reachable" at once and lets it go only after
+    0.3 s without it (hysteresis, for an observer at its threshold under noisy poses).
 
     An observer at its threshold with noisy poses flips between two states from one tick to the
     next; acted on, every flip would switch the action. A real change (a cube taken from the
     hand) persists, and is acted on after ``confirm`` seconds (plus up to one AIP period, the
     rate the observers are read at)."""
 
-    def __init__(self, confirm: dict[str, float]):
+    def __init__(self, confirm: dict[str, float | dict[str, float]]):
         self.confirm = confirm
         self.state: dict[str, str] = {}
         self._candidate: dict[str, tuple[str, float]] = {}   # factor -> (new state, seen since)
@@ -62,6 +65,8 @@ class ConfirmedObservation:
     def __call__(self, observed: dict[str, str], time: float) -> dict[str, str]:
         for factor, value in observed.items():
             hold = self.confirm.get(factor, self.confirm.get("*", 0.0))
+            if isinstance(hold, dict):          # per state: how long a change *to* it must last
+                hold = hold.get(value, 0.0)
             current = self.state.get(factor)
             if current is None or current == value or hold <= 0:
                 self.state[factor] = value
@@ -88,7 +93,7 @@ class ActiveInferenceTask:
 
     def __init__(self, aip: ActiveInferencePlanner, observer: SymbolicObserver,
                  action_objectives: dict[str, str], period: float,
-                 confirm: dict[str, float] | None = None):
+                 confirm: dict[str, float | dict[str, float]] | None = None):
         self.aip, self.observer = aip, observer
         self.action_objectives = action_objectives
         self.period = period

@@ -266,7 +266,7 @@ class PlannerConfig:
     aip_period: float = 0.2                # simulated seconds between active-inference ticks
     # seconds an observed change of a task factor must persist before the task layer acts on
     # it, per factor ("*": the others); 0 acts on every observation (planner_client.task)
-    confirm: dict[str, float] = field(default_factory=dict)
+    confirm: dict[str, float | dict[str, float]] = field(default_factory=dict)
     timestep: float | None = None          # planning step (s), a multiple of the world's; None = its
     backend: str = "mujoco"                # rollouts: "mujoco" (mujoco.rollout pool) or "warp" (MJWarp)
     device: str = "cuda:0"                 # the warp backend's device: "cpu" or "cuda[:N]"
@@ -424,10 +424,17 @@ def _read(raw: dict, source: str, errors: ErrorLog) -> ScenarioReading:
                                "a scenario with a task: template"))
     elif planner is not None and task is not None:
         factors = [f.name for f in task.factors]
-        for key in planner.confirm:
+        for key, hold in planner.confirm.items():
             if key != "*" and key not in factors:
                 errors.add(ConfigError(source, f"planner.confirm.{key}", "not a factor of the "
                                        "task", key, "'*' or one of: " + ", ".join(factors)))
+            elif isinstance(hold, dict):
+                states = next(f.states for f in task.factors if f.name == key)
+                for state in hold:
+                    if state not in states:
+                        errors.add(ConfigError(source, f"planner.confirm.{key}.{state}",
+                                               "not a state of the factor", state,
+                                               "one of: " + ", ".join(states)))
     if planner is not None and planner.model.attach:
         _check_attach(planner, task, world, source, errors)
     if top.has("objectives") and isinstance(top.data["objectives"], dict):
@@ -726,7 +733,7 @@ def _planner(s: Section) -> PlannerConfig:
                         threads=s.opt("threads", 0, int),
                         aip_period=s.opt("aip_period", 0.2, positive, "simulated seconds"),
                         confirm=s.opt("confirm", {}, _confirm_times, "seconds >= 0, or a map "
-                                      "{factor: seconds, '*': seconds}"),
+                                      "{factor: seconds or {state: seconds}, '*': seconds}"),
                         timestep=s.opt("timestep", None, positive, "seconds > 0, a multiple of "
                                        "world.timestep"),
                         backend=s.opt("backend", "mujoco", one_of(ROLLOUT_BACKENDS)),
@@ -788,12 +795,23 @@ def _weight(value: Any) -> float:
     return v
 
 
-def _confirm_times(value: Any) -> dict[str, float]:
+def _confirm_times(value: Any) -> dict[str, float | dict[str, float]]:
+    """``seconds``, or ``{factor: seconds | {state: seconds}, '*': seconds}``: a factor's
+    mapping gives the time a change *to* each listed state must persist (unlisted: at once),
+    so one direction can be quick and the other slow (hysteresis)."""
     if not isinstance(value, dict):
         return {"*": non_negative(value)}
     if not all(isinstance(k, str) for k in value):
         raise ValueError("wrong type")
-    return {k: non_negative(v) for k, v in value.items()}
+    out: dict[str, float | dict[str, float]] = {}
+    for k, v in value.items():
+        if isinstance(v, dict) and k != "*":
+            if not all(isinstance(state, str) for state in v):
+                raise ValueError("wrong type")
+            out[k] = {state: non_negative(t) for state, t in v.items()}
+        else:
+            out[k] = non_negative(v)
+    return out
 
 
 def _count(value: Any) -> int:

@@ -80,7 +80,22 @@ def test_the_filter_holds_a_state_until_the_new_one_persists():
     assert f({"a": "y"}, 0.8)["a"] == "y"
 
 
+def test_per_state_times_give_hysteresis():
+    """``{reachable: {not_reachable: 0.3}}``: a flickering observer takes 'reachable' at once and
+    keeps it; only 0.3 s without a break of 'not_reachable' lets it go."""
+    f = ConfirmedObservation({"reach": {"no": 0.3}})
+    assert f({"reach": "no"}, 0.0)["reach"] == "no"
+    assert f({"reach": "yes"}, 0.1)["reach"] == "yes"                # to 'yes': at once
+    for i in range(10):                                               # flicker: 'yes' holds
+        assert f({"reach": "no" if i % 2 == 0 else "yes"}, 0.2 + 0.1 * i)["reach"] == "yes"
+    assert f({"reach": "no"}, 1.2)["reach"] == "yes"
+    assert f({"reach": "no"}, 1.4)["reach"] == "yes"
+    assert f({"reach": "no"}, 1.5)["reach"] == "no"                 # 0.3 s without a break
+
+
 @pytest.mark.parametrize("confirm, message", [
+    ({"battery": {"battery_empty": 0.5}}, r"planner.confirm.battery.battery_empty: not a state "
+                                          r"of the factor.*one of: battery_ok"),
     ({"batery": 0.5}, "planner.confirm.batery: not a factor of the task"),
     (-1, "planner.confirm"),
     ({"battery": "soon"}, "planner.confirm"),
