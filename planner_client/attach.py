@@ -93,8 +93,14 @@ class Attachments:
         for w in self.welds:
             on = w.cfg.state in held
             if on:
-                m.eq_data[w.eq, :3] = 0.0                       # anchor at the robot body's origin
-                m.eq_data[w.eq, 3:10] = relative_pose(data, w.to, w.body)
+                # the weld point at the object's origin, given in the robot body's frame: anchored
+                # at the hand's origin, 11 cm away, a soft weld let a cube held off the vertical
+                # swing about it like a pendulum (2 cm in 0.1 s)
+                # (MuJoCo's weld matches x2 + R2·anchor with x1 + R1·relpos: anchor = the object's
+                # origin in the robot body's frame, relpos = 0, relquat = body2 in body1's frame)
+                m.eq_data[w.eq, :3] = relative_pose(data, w.body, w.to)[:3]
+                m.eq_data[w.eq, 3:6] = 0.0
+                m.eq_data[w.eq, 6:10] = relative_pose(data, w.to, w.body)[3:]
                 m.eq_data[w.eq, 10] = 1.0                       # torque scale
             if on != w.on:
                 log.info("t=%.2f s: %s %s %s in the planner's model", time, w.cfg.object,

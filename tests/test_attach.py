@@ -24,15 +24,16 @@ def _pick_place(attach=ATTACH) -> dict:
 
 @pytest.fixture(scope="module")
 def held():
-    """The planner's model with the cube lifted 3 cm off the table, as if held 2 cm below the
-    hand's fingertips (no contact with anything), and its attachments."""
+    """The planner's model with the cube lifted off the table, as if held 2 cm below and 3 cm
+    beside the hand's grasp point (no contact with anything; off the hand's axis, where a weld
+    anchored at the hand would let it swing down like a pendulum), and its attachments."""
     sc = parse_scenario(_pick_place(), str(SCENARIO_DIR / "pick_place.yaml"))
     model = build_problem(sc).model
     data = initial_data(sc, model)
     mujoco.mj_forward(model, data)
     grasp = data.site("grasp").xpos
     cube = model.body("cube_a")
-    data.qpos[model.jnt_qposadr[cube.jntadr[0]]:][:3] = grasp - [0.0, 0.0, 0.02]
+    data.qpos[model.jnt_qposadr[cube.jntadr[0]]:][:3] = grasp + [0.03, 0.0, -0.02]
     mujoco.mj_forward(model, data)
     return sc, model, data, Attachments(model, sc.planner.model.attach)
 
@@ -52,6 +53,9 @@ def test_a_held_cube_moves_with_the_hand_and_a_released_one_falls(held):
     hand, cube = model.body("panda_hand").id, model.body("cube_a").id
     before = relative_pose(data, cube, hand)
     ctrl = np.array([0.5, -0.4, 0.3, 0.5, 0.0, 0.0, 0.0, 0.08])   # swing the arm
+    att.update(data, {"holding": "holding"}, 0.5)
+    still = _roll(model, data, np.zeros(model.nu), steps=20)      # held still: no sag, no swing
+    assert np.linalg.norm(relative_pose(still, cube, hand)[:3] - before[:3]) < 1e-3
     att.update(data, {"holding": "holding", "reachable": "reachable"}, 1.0)
     assert att.attached == ("cube_a",) and data.eq_active[att.welds[0].eq]
     d = _roll(model, data, ctrl)
