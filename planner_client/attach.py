@@ -93,11 +93,10 @@ class Attachments:
         for w in self.welds:
             on = w.cfg.state in held
             if on:
-                # the weld point at the object's origin, given in the robot body's frame: anchored
-                # at the hand's origin, 11 cm away, a soft weld let a cube held off the vertical
-                # swing about it like a pendulum (2 cm in 0.1 s)
-                # (MuJoCo's weld matches x2 + R2·anchor with x1 + R1·relpos: anchor = the object's
-                # origin in the robot body's frame, relpos = 0, relquat = body2 in body1's frame)
+                # MuJoCo's weld holds x2 + R2·anchor at x1 + R1·relpos. The anchor is the object's
+                # origin (in the robot body's frame) and relpos 0: anchored at the hand's origin,
+                # 11 cm away, the soft weld let a cube held off the hand's axis swing down like a
+                # pendulum (7.8 mm in 0.2 s with the arm still; tests/test_attach.py)
                 m.eq_data[w.eq, :3] = relative_pose(data, w.body, w.to)[:3]
                 m.eq_data[w.eq, 3:6] = 0.0
                 m.eq_data[w.eq, 6:10] = relative_pose(data, w.to, w.body)[3:]
