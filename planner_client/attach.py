@@ -15,6 +15,12 @@ they still meet the table and the other objects (bit shared) but never the robot
 and the object no longer has the robot's bits). The weld is activated through ``eq_active0``,
 because ``mujoco.rollout`` starts every rollout from a reset MjData, whose equality flags are
 the model's, and through the mirror's ``eq_active`` for the prediction over the plan's lead.
+
+A held object's measured pose carries perception's noise, while the hand's comes from the arm's
+encoders: with ``planner.estimate.held_filter`` < 1, :meth:`Attachments.track` puts each attached
+object where the hand holds it, at a relative pose filtered over the states (constant while the
+grasp holds, so a strong filter costs no lag) and moving with the hand. A relative pose that
+jumps by more than ``slip`` is taken as measured (a cube slipped or was taken).
 """
 
 from __future__ import annotations
@@ -53,14 +59,18 @@ class _Weld:
     to: int                  # the robot body it is welded to
     geoms: np.ndarray        # [G] the object's geoms
     on: bool = False
+    rel: np.ndarray | None = None   # [7] filtered pose in ``to``'s frame, while on and tracked
 
 
 class Attachments:
     """Switches each attachment on and off in ``model`` (the planner's own, shared with its
     rollouts) from the task's observation."""
 
-    def __init__(self, model: mujoco.MjModel, attach: tuple[Attach, ...]):
+    def __init__(self, model: mujoco.MjModel, attach: tuple[Attach, ...],
+                 held_filter: float = 1.0, slip: float = 0.02):
         self.model = model
+        self.held_filter = held_filter
+        self.slip = slip
         self.welds: list[_Weld] = []
         if not attach:
             return
@@ -83,6 +93,29 @@ class Attachments:
         model.geom_conaffinity[outside] |= self.bit
         self._contype = model.geom_contype.copy()          # each geom's bits when detached
         self._conaffinity = model.geom_conaffinity.copy()
+
+    def track(self, data: mujoco.MjData) -> bool:
+        """Each object welded since the last observation put where ``to`` holds it in ``data``
+        (a new state, kinematics computed): pose ``to`` ∘ relative pose, filtered with weight
+        ``held_filter``; velocity that of ``to`` at the object's origin. Returns whether
+        ``data`` changed (the caller recomputes its kinematics and rollout start)."""
+        if self.held_filter >= 1.0:
+            return False
+        m, w, changed = self.model, self.held_filter, False
+        for weld in self.welds:
+            if not weld.on or weld.rel is None:
+                continue
+            measured = relative_pose(data, weld.body, weld.to)
+            if np.linalg.norm(measured[:3] - weld.rel[:3]) > self.slip:
+                weld.rel = measured
+            else:
+                q = measured[3:] * (1.0 if measured[3:] @ weld.rel[3:] >= 0 else -1.0)
+                weld.rel[:3] = w * measured[:3] + (1 - w) * weld.rel[:3]
+                blended = w * q + (1 - w) * weld.rel[3:]
+                weld.rel[3:] = blended / np.linalg.norm(blended)
+            _hold_at(m, data, weld.body, weld.to, weld.rel)
+            changed = True
+        return changed
 
     def update(self, data: mujoco.MjData, observation: dict[str, str], time: float) -> None:
         """Attach what the observation says is held, at its pose in ``data`` (the mirrored
@@ -111,6 +144,7 @@ class Attachments:
                     m.geom_contype[w.geoms] = self._contype[w.geoms]
                     m.geom_conaffinity[w.geoms] = self._conaffinity[w.geoms]
                 w.on = on
+                w.rel = relative_pose(data, w.body, w.to) if on else None
             m.eq_active0[w.eq] = on
             data.eq_active[w.eq] = on
 
@@ -118,6 +152,28 @@ class Attachments:
     def attached(self) -> tuple[str, ...]:
         """The objects welded now."""
         return tuple(w.cfg.object for w in self.welds if w.on)
+
+
+def _hold_at(model: mujoco.MjModel, data: mujoco.MjData, body: int, to: int,
+             rel: np.ndarray) -> None:
+    """Set free ``body``'s ``qpos`` to ``to``'s pose composed with ``rel`` ``[7]`` and its
+    ``qvel`` to ``to``'s rigid motion there (linear in the world frame, angular in the body's:
+    the free joint's convention)."""
+    qadr = model.jnt_qposadr[model.body_jntadr[body]]
+    vadr = model.jnt_dofadr[model.body_jntadr[body]]
+    pos, quat = np.zeros(3), np.zeros(4)
+    mujoco.mju_rotVecQuat(pos, rel[:3], data.xquat[to])
+    pos += data.xpos[to]
+    mujoco.mju_mulQuat(quat, data.xquat[to], rel[3:])
+    data.qpos[qadr:qadr + 3], data.qpos[qadr + 3:qadr + 7] = pos, quat
+    vel = np.zeros(6)                                    # [angular, linear] at to's origin, world
+    mujoco.mj_objectVelocity(model, data, mujoco.mjtObj.mjOBJ_XBODY, to, vel, 0)
+    linear = vel[3:] + np.cross(vel[:3], pos - data.xpos[to])
+    angular = np.zeros(3)
+    inv = np.zeros(4)
+    mujoco.mju_negQuat(inv, quat)
+    mujoco.mju_rotVecQuat(angular, vel[:3], inv)
+    data.qvel[vadr:vadr + 3], data.qvel[vadr + 3:vadr + 6] = linear, angular
 
 
 def relative_pose(data: mujoco.MjData, body: int, frame: int) -> np.ndarray:

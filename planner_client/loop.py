@@ -210,7 +210,8 @@ class PlannerClient:
         """The mirror of the world in ``planner``'s model, and its attachments."""
         pc = planner.problem.scenario.planner
         self.mirror = Mirror(planner.problem.model, estimate=pc.estimate)
-        self.attachments = Attachments(planner.problem.model, pc.model.attach)
+        self.attachments = Attachments(planner.problem.model, pc.model.attach,
+                                       held_filter=pc.estimate.held_filter)
 
     def _secure(self, sock: zmq.Socket) -> None:
         """A socket to the world: a CURVE client holding the world's public key, with keys."""
@@ -315,6 +316,8 @@ class PlannerClient:
         except ValueError as exc:
             log.error("state does not fit the planner's model: %s", exc)
             return
+        if self.attachments.track(self.mirror.data):
+            x0 = self.mirror.refresh()
         decision = self.task.decide(self.mirror.data, state.extras, state.time)
         if self.attachments.welds:
             self.attachments.update(self.mirror.data, self.task.last_observation, state.time)

@@ -87,5 +87,9 @@ class Mirror:
         d.time = state.time
         if m.nmocap:
             self._estimate_mocap_velocity(state.time)
-        mujoco.mj_forward(m, d)
-        return get_full_state(m, d, self.x0)
+        return self.refresh()
+
+    def refresh(self) -> np.ndarray:
+        """Recompute kinematics after ``data`` changed; return the rollout initial state [nstate]."""
+        mujoco.mj_forward(self.model, self.data)
+        return get_full_state(self.model, self.data, self.x0)

@@ -234,6 +234,7 @@ class EstimateConfig:
     pose_filter: float = 1.0               # weight of a new pose in an exponential filter; 1: none
     velocity_filter: float = 1.0           # weight of a new finite-difference velocity; 1: none
     max_speed: float = 5.0                 # m/s: a faster jump is a teleport (filters restart)
+    held_filter: float = 1.0               # weight of a new relative pose of an attached object
 
 
 @dataclass(frozen=True)
@@ -437,6 +438,10 @@ def _read(raw: dict, source: str, errors: ErrorLog) -> ScenarioReading:
                                                "one of: " + ", ".join(states)))
     if planner is not None and planner.model.attach:
         _check_attach(planner, task, world, source, errors)
+    elif planner is not None and planner.estimate.held_filter < 1.0:
+        errors.add(ConfigError(source, "planner.estimate.held_filter", "filters the pose of an "
+                               "attached object, and nothing is attached",
+                               planner.estimate.held_filter, "planner.model.attach, or no held_filter"))
     if top.has("objectives") and isinstance(top.data["objectives"], dict):
         known = list(top.data["objectives"])
         for i, m in enumerate(modes):
@@ -783,7 +788,8 @@ def _estimate(s: Section) -> EstimateConfig:
         object_velocities=s.opt("object_velocities", "received", one_of(("received", "from_poses"))),
         pose_filter=s.opt("pose_filter", 1.0, _weight, "a weight in (0, 1]"),
         velocity_filter=s.opt("velocity_filter", 1.0, _weight, "a weight in (0, 1]"),
-        max_speed=s.opt("max_speed", 5.0, positive, "m/s > 0"))
+        max_speed=s.opt("max_speed", 5.0, positive, "m/s > 0"),
+        held_filter=s.opt("held_filter", 1.0, _weight, "a weight in (0, 1]"))
     s.done()
     return cfg
 

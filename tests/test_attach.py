@@ -120,3 +120,71 @@ def test_a_robot_body_the_model_lacks_is_named():
                         "pp.yaml")
     with pytest.raises(ConfigError, match=r"planner.model.attach\[0\].to.*'gripper'"):
         build_problem(sc)
+
+
+def _tracked(held_filter=0.05):
+    """A fresh planner model with the cube held as in ``held``, the arm moving, and
+    attachments that track the held cube."""
+    sc = parse_scenario(_pick_place(), str(SCENARIO_DIR / "pick_place.yaml"))
+    model = build_problem(sc).model
+    data = initial_data(sc, model)
+    mujoco.mj_forward(model, data)
+    cube = model.body("cube_a")
+    data.qpos[model.jnt_qposadr[cube.jntadr[0]]:][:3] = data.site("grasp").xpos + [0.03, 0.0, -0.02]
+    data.qvel[:7] = [0.5, -0.4, 0.3, 0.5, 0.2, -0.3, 0.4]
+    mujoco.mj_forward(model, data)
+    att = Attachments(model, sc.planner.model.attach, held_filter=held_filter)
+    att.update(data, {"holding": "holding"}, 0.0)
+    return model, data, att
+
+
+def test_a_tracked_cube_averages_out_perception_noise_and_moves_with_the_hand():
+    model, data, att = _tracked()
+    hand, cube = model.body("panda_hand").id, model.body("cube_a").id
+    qadr = model.jnt_qposadr[model.body("cube_a").jntadr[0]]
+    held = relative_pose(data, cube, hand)
+    true = data.qpos[qadr:qadr + 3].copy()
+    rng = np.random.default_rng(0)
+    errors = []
+    for _ in range(200):                 # the cube measured with 5 mm noise, the hand exact
+        data.qpos[qadr:qadr + 3] = true + rng.normal(0.0, 0.005, 3)
+        mujoco.mj_forward(model, data)
+        assert att.track(data)
+        errors.append(np.linalg.norm(data.qpos[qadr:qadr + 3] - true))
+    assert np.median(errors[100:]) < 0.002            # raw: 5 mm per axis, 7.8 mm median
+    assert np.allclose(relative_pose(data, cube, hand)[3:], held[3:], atol=1e-9)
+    # the cube's velocity is the hand's rigid motion at the cube: a step of the hand's joints
+    # carries the tracked pose where that velocity says
+    vadr = model.jnt_dofadr[model.body("cube_a").jntadr[0]]
+    pos, linear = data.qpos[qadr:qadr + 3].copy(), data.qvel[vadr:vadr + 3].copy()
+    rel = att.welds[0].rel.copy()
+    h = 1e-6
+    mujoco.mj_integratePos(model, data.qpos, data.qvel, h)
+    mujoco.mj_kinematics(model, data)
+    ahead = data.xpos[hand] + data.xmat[hand].reshape(3, 3) @ rel[:3]
+    assert np.allclose((ahead - pos) / h, linear, atol=1e-4)
+    assert np.linalg.norm(linear) > 0.1
+
+
+def test_a_cube_that_jumps_in_the_hand_is_taken_as_measured():
+    model, data, att = _tracked()
+    qadr = model.jnt_qposadr[model.body("cube_a").jntadr[0]]
+    moved = data.qpos[qadr:qadr + 3] + [0.0, 0.0, -0.05]      # slipped 5 cm down the pads
+    data.qpos[qadr:qadr + 3] = moved
+    mujoco.mj_forward(model, data)
+    att.track(data)
+    assert np.allclose(data.qpos[qadr:qadr + 3], moved, atol=1e-9)
+
+
+def test_without_a_held_filter_nothing_is_tracked():
+    model, data, att = _tracked(held_filter=1.0)
+    before = data.qpos.copy()
+    assert not att.track(data) and np.array_equal(data.qpos, before)
+
+
+def test_a_held_filter_needs_an_attachment():
+    raw = _pick_place()
+    del raw["planner"]["model"]["attach"]
+    raw["planner"]["estimate"] = {"held_filter": 0.1}
+    with pytest.raises(ConfigError, match=r"planner.estimate.held_filter.*nothing is attached"):
+        parse_scenario(raw, "pp.yaml")
