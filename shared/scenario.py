@@ -7,6 +7,7 @@ The schema, key by key, is documented in ``docs/scenarios.md``.
 
 from __future__ import annotations
 
+import copy
 import hashlib
 import json
 import os
@@ -341,9 +342,56 @@ def read_scenario(name_or_path: str | os.PathLike) -> ScenarioReading:
     errors = ErrorLog()
     path = errors.call(find_scenario, name_or_path)
     raw = errors.call(load_yaml, path) if path is not None else None
+    if raw is not None:
+        raw = errors.call(with_base, raw, str(path))
     if raw is None:
         return ScenarioReading(None, errors.errors, False)
     return _read(raw, str(path), errors)
+
+
+def with_base(raw: Any, source: str, _seen: tuple[Path, ...] = ()) -> Any:
+    """``base: NAME or path`` (a path relative to ``source``'s folder first): the scenario
+    ``raw`` over the one it names, mappings merged key by key; a list or a value replaces the
+    base's, ``null`` removes the key. ``name`` is not inherited (default: the file's stem). A
+    base may have its own base. Raises :class:`ConfigError` naming the file and the base."""
+    if not isinstance(raw, dict) or "base" not in raw:
+        return raw
+    spec = raw["base"]
+    if not isinstance(spec, str) or not spec:
+        raise ConfigError(source, "base", "not a scenario name or path", spec,
+                          "e.g. base: pick_place")
+    me = Path(source).resolve()
+    near = Path(source).parent / spec
+    try:
+        path = (near if near.is_file() else find_scenario(spec)).resolve()
+    except ConfigError:
+        raise ConfigError(source, "base", "no such scenario", spec,
+                          "a scenario name (m3p2i list) or a YAML path") from None
+    if path == me and (shipped("scenarios") / f"{spec}.yaml").is_file():
+        path = (shipped("scenarios") / f"{spec}.yaml").resolve()   # a user's file over the shipped one
+    if path in _seen or path == me:
+        raise ConfigError(source, "base", "a scenario cannot be its own base", spec,
+                          "a chain of bases without a loop")
+    base = with_base(load_yaml(path), str(path), _seen + (me,))
+    if not isinstance(base, dict):
+        raise ConfigError(str(path), "", "a scenario must be a mapping", type(base).__name__,
+                          "keys such as name, robot, world")
+    merged = _merge(base, {k: v for k, v in raw.items() if k != "base"})
+    if "name" not in raw:
+        merged.pop("name", None)
+    return merged
+
+
+def _merge(base: dict, over: dict) -> dict:
+    out = copy.deepcopy(base)
+    for key, value in over.items():
+        if value is None:
+            out.pop(key, None)
+        elif isinstance(value, dict) and isinstance(out.get(key), dict):
+            out[key] = _merge(out[key], value)
+        else:
+            out[key] = copy.deepcopy(value)
+    return out
 
 
 def find_objectives(name_or_path: str | os.PathLike) -> Path:
@@ -366,7 +414,7 @@ def scenario_hash(raw: dict, included: Sequence[dict] = ()) -> str:
 
 def parse_scenario(raw: dict, source: str) -> Scenario:
     """A scenario from its YAML mapping; raises with every error of the file."""
-    reading = _read(raw, source, ErrorLog())
+    reading = _read(with_base(raw, source), source, ErrorLog())
     reading.raise_if_any()
     return reading.scenario
 
