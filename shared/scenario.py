@@ -361,9 +361,10 @@ def with_base(raw: Any, source: str, _seen: tuple[Path, ...] = ()) -> Any:
         raise ConfigError(source, "base", "not a scenario name or path", spec,
                           "e.g. base: pick_place")
     me = Path(source).resolve()
-    near = Path(source).parent / spec
+    near = [Path(source).parent / spec, Path(source).parent / f"{spec}.yaml"]
     try:
-        path = (near if near.is_file() else find_scenario(spec)).resolve()
+        path = next((p for p in near if p.is_file()), None) or find_scenario(spec)
+        path = path.resolve()
     except ConfigError:
         raise ConfigError(source, "base", "no such scenario", spec,
                           "a scenario name (m3p2i list) or a YAML path") from None
