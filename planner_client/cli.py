@@ -77,6 +77,11 @@ def main(
     state_delay_ms: Optional[float] = typer.Option(
         None, min=0.0, help="Declared state delay (ms from a measurement to its state being "
         "published), overriding planner.delays.state_ms."),
+    estimate_delays: bool = typer.Option(
+        False, "--estimate-delays", help="Measure the robot's delays online "
+        "(planner.delays.estimate): the state delay from the lag the world reports, the "
+        "actuation delay from how the robot answers the controls sent; declared delays stand "
+        "until then (docs/hardware.md)."),
     max_rate: float = typer.Option(0.0, min=0.0, help="At most this many plans per second "
                                    "(0: as fast as the machine allows): rehearse what a slower "
                                    "computer does, e.g. a planner under a third of a 100 Hz arm's "
@@ -106,7 +111,8 @@ def main(
         raise typer.Exit(2) from None
     from planner_client.loop import HandshakeRefused, LayoutMismatch
     try:
-        sc = with_delays(load_scenario(scenario), actuation_delay_ms, state_delay_ms)
+        sc = with_delays(load_scenario(scenario), actuation_delay_ms, state_delay_ms,
+                         estimate_delays)
         client = build_client(sc, Endpoints(host, port), threads=threads, seed=seed,
                               backend=backend, device=device,
                               server_timeout=server_timeout, exit_on_done=not keep_running,
@@ -135,9 +141,12 @@ def main(
     raise typer.Exit(0 if stats.final_status == "success" else 1)
 
 
-def with_delays(sc, actuation_ms: float | None, state_ms: float | None):
-    """``sc`` with the declared delays of the command line in place of its planner.delays."""
+def with_delays(sc, actuation_ms: float | None, state_ms: float | None, estimate: bool = False):
+    """``sc`` with the declared delays of the command line in place of its planner.delays
+    (``estimate``: switched on, else as the scenario says)."""
     delays = sc.planner.delays
+    if estimate:
+        delays = dataclasses.replace(delays, estimate=True)
     if actuation_ms is not None:
         delays = dataclasses.replace(delays, actuation_ms=actuation_ms)
     if state_ms is not None:

@@ -35,6 +35,7 @@ from shared.security import Authenticator, HandshakeMonitor, PlannerKeys, curve_
     curve_server, describe_handshake_failure
 from shared.timed_plan import TimedPlan, held
 from planner_client.attach import Attachments
+from planner_client.delay_estimate import ActuationDelayEstimate
 from planner_client.motion import Iteration, MotionPlanner
 from planner_client.mirror import Mirror, MocapState
 from planner_client.task import TaskLayer
@@ -138,6 +139,9 @@ class PlannerClient:
         # what the world plays, oldest first: enough plans to cover a lead plus declared delays
         self._sent: deque[TimedPlan] = deque(maxlen=16)
         self._lead: LeadEstimate | None = None
+        self._actuation: ActuationDelayEstimate | None = None   # planner.delays.estimate
+        self._acting_logged: int | None = None     # the delays last logged, in world steps
+        self._ahead_logged = 0
         self._last_start: tuple[float, int] | None = None   # (t_eff, state seq) of the last plan
         self._faults = 0        # consecutive iterations without a plan (Iteration.fault)
         self._handshake_failures = 0   # in a row, since the last reply
@@ -180,7 +184,15 @@ class PlannerClient:
                     self._new_episode(reply.seed)
                 self.welcome = reply
                 self._layout_checked = False
-                self._lead = LeadEstimate(reply.dt) if reply.mode == "realtime" else None
+                # a lock-step world reports its state delay in state.lag too (0 without one)
+                self._lead = LeadEstimate(reply.dt) \
+                    if reply.mode == "realtime" or self.delays.estimate else None
+                self._actuation = None
+                if self.delays.estimate:
+                    self._actuation = ActuationDelayEstimate(
+                        self.planner.problem.model, reply.dt, steps_of(self.delays.max_ms, reply.dt))
+                    # the plans the world played that long ago must still be at hand
+                    self._sent = deque(maxlen=max(16, self._actuation.max_steps + 8))
                 self._sent.clear()
                 self._last_start = None
                 return reply
@@ -318,6 +330,9 @@ class PlannerClient:
             return
         if self.attachments.track(self.mirror.data):
             x0 = self.mirror.refresh()
+        if self._actuation is not None:
+            self._actuation.observe(self.mirror.data, list(self._sent),
+                                    self.robot.safe_stop(self._last_ctrl))
         decision = self.task.decide(self.mirror.data, state.extras, state.time)
         if self.attachments.welds:
             self.attachments.update(self.mirror.data, self.task.last_observation, state.time)
@@ -371,15 +386,27 @@ class PlannerClient:
         """
         mocap = self.mirror.mocap()
         ahead = acting = 0      # world steps from the state to the plan's date, and on to when it acts
+        lockstep = self.welcome.mode != "realtime"
         if self._lead is not None:
             self._lead.observe(state.lag)
             ahead = self._lead.steps()
-        elif self.delays.state_ms:
-            # lock-step; in real time the lag runs from the state's measurement time, so the
-            # lead already holds the state delay
-            ahead = steps_of(self.delays.state_ms, self.welcome.dt)
+        if lockstep and ahead and ahead != self._ahead_logged:
+            log.info("t=%.2f s: state delay measured at %d world steps (%.0f ms)", state.time,
+                     ahead, ahead * self.welcome.dt * 1000)
+            self._ahead_logged = ahead
+        if lockstep and self.delays.state_ms:
+            # in real time the lag runs from the state's measurement time, so the lead already
+            # holds the state delay; in lock-step it is the declared one, or the lag measured
+            ahead = max(ahead, steps_of(self.delays.state_ms, self.welcome.dt))
         if self.delays.actuation_ms:
             acting = steps_of(self.delays.actuation_ms, self.welcome.dt)
+        estimated = self._actuation.steps() if self._actuation is not None else None
+        if estimated is not None:
+            acting = estimated
+            if estimated != self._acting_logged:
+                log.info("t=%.2f s: actuation delay estimated at %d world steps (%.0f ms)",
+                         state.time, estimated, estimated * self.welcome.dt * 1000)
+                self._acting_logged = estimated
         start = state.time
         if ahead + acting:
             dt = self.welcome.dt

@@ -245,6 +245,9 @@ class WorldServer:
         default; more emulate, deterministically, a planner that slow against a real-time world."""
         plan = (TimedPlan(cmd.plan_t0, cmd.plan_dt, cmd.plan_ctrl, cmd.seq) if cmd.has_plan
                 else held(cmd.ctrl, self.world.time, cmd.seq))
+        # the lag, as in real time: from the answered state's time (its measurement's) to now;
+        # 0 unless the world publishes its states late (a state delay)
+        self._lag = max(0.0, self.world.time - self._state_times.get(cmd.seq, self.world.time))
         for _ in range(self.opt.plan_every):
             self._apply(plan.at(self.world.time), cmd.seq, publish=False)
             if not self._running():

@@ -17,8 +17,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from shared.config import (ConfigError, ErrorLog, Section, load_yaml, non_negative, number, one_of,
-                           positive, positive_int, string_list, vector)
+from shared.config import (ConfigError, ErrorLog, Section, flag, load_yaml, non_negative, number,
+                           one_of, positive, positive_int, string_list, vector)
 from shared.config_files import find, shipped
 from shared.geometry import AXES
 from shared.hardware import NOMINAL, HardwareConfig, parse_hardware
@@ -244,13 +244,17 @@ class DelayConfig:
     plans for the state its plan will meet (docs/hardware.md, "Delay compensation").
     ``actuation_ms``: from a command reaching the world to the actuators acting on it;
     ``state_ms``: from a measurement to its state being published (a state's ``time`` is
-    its measurement's)."""
+    its measurement's). ``estimate``: measure them online instead, the state delay from
+    ``state.lag``, the actuation delay (up to ``max_ms``) from the robot's response; a declared
+    value stands until the estimate has one."""
     actuation_ms: float = 0.0
     state_ms: float = 0.0
+    estimate: bool = False          # measure both online (planner_client/delay_estimate.py)
+    max_ms: float = 300.0           # the longest actuation delay the estimate considers
 
     @property
     def active(self) -> bool:
-        return bool(self.actuation_ms or self.state_ms)
+        return bool(self.actuation_ms or self.state_ms or self.estimate)
 
 
 SOLVERS = ("Newton", "CG", "PGS")
@@ -803,7 +807,9 @@ def _planner(s: Section) -> PlannerConfig:
 
 def _delays(s: Section) -> DelayConfig:
     cfg = DelayConfig(actuation_ms=s.opt("actuation_ms", 0.0, non_negative, "milliseconds >= 0"),
-                      state_ms=s.opt("state_ms", 0.0, non_negative, "milliseconds >= 0"))
+                      state_ms=s.opt("state_ms", 0.0, non_negative, "milliseconds >= 0"),
+                      estimate=s.opt("estimate", False, flag, "true or false"),
+                      max_ms=s.opt("max_ms", 300.0, positive, "milliseconds > 0"))
     s.done()
     return cfg
 

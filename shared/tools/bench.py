@@ -75,6 +75,7 @@ class BenchCase:
     plan_every: int = 1          # lockstep: world steps per command (a slow planner, repeatably)
     hardware: str = ""           # the world's faults: a profile, or a file's absolute path
     delays: tuple[float, float] | None = None   # compensate: (actuation, state) ms declared
+    estimate_delays: bool = False  # compensate: estimate (the planner measures them online)
     max_rate: float = 0.0        # realtime: the planner's plans per second at most (0: no cap)
     realtime_factor: float = 1.0  # realtime: world seconds per wall second (< 1: a slower world)
 
@@ -89,6 +90,8 @@ class BenchCase:
             label += f", world at {self.realtime_factor:g}x wall clock"
         if self.hardware:
             label += f", hardware {Path(self.hardware).stem}"
+        if self.estimate_delays:
+            return label + ", delays estimated"
         return label + (", compensated" if self.delays is not None else "")
 
 
@@ -103,10 +106,12 @@ class BenchConfig:
 
 def _with_hardware(case: BenchCase, c: Section, bench: Path) -> BenchCase:
     """A case's ``hardware`` (profile, or file relative to the bench file) and ``compensate``
-    (declare its delays to the planner), checked now, not trial by trial."""
+    (``true``: declare its delays to the planner; ``estimate``: the planner measures them
+    online), checked now, not trial by trial."""
     from shared.hardware import PROFILES, load_hardware
     spec = c.opt("hardware", "", str, "a profile (nominal, lab, harsh) or a YAML file")
-    compensate = c.opt("compensate", False, flag, "true or false")
+    compensate = c.opt("compensate", False, _compensation,
+                       "true (declare the delays), false, or estimate (measured online)")
     if spec and spec not in PROFILES:
         if not (bench.parent / spec).is_file():
             raise c.error("hardware", "neither a profile nor a file", spec,
@@ -116,9 +121,17 @@ def _with_hardware(case: BenchCase, c: Section, bench: Path) -> BenchCase:
     hw = load_hardware(spec) if spec else None     # a bad file's error names its own key
     delays = hw.delays if compensate and hw is not None else None
     if compensate and delays is None:
-        raise c.error("compensate", "no delay to compensate", True,
+        raise c.error("compensate", "no delay to compensate", compensate,
                       "a case whose hardware sets actuation_delay_ms or state_delay_ms")
+    if compensate == "estimate":
+        return dataclasses.replace(case, hardware=spec, estimate_delays=True)
     return dataclasses.replace(case, hardware=spec, delays=delays)
+
+
+def _compensation(value) -> bool | str:
+    if value == "estimate":
+        return value
+    return flag(value)
 
 
 def find_bench(name_or_path: str | os.PathLike) -> Path:
@@ -398,8 +411,8 @@ def run_trial(trial: Trial, opts: BenchOptions, threads: int, stop: threading.Ev
     launch = EpisodeLaunch(scenario=trial.scenario.source, run_dir=run_dir, seed=trial.seed,
                            timeout=opts.timeout, threads=threads, mode=trial.case.mode,
                            plan_every=trial.case.plan_every, hardware=trial.case.hardware,
-                           delays=trial.case.delays, max_rate=trial.case.max_rate,
-                           realtime_factor=trial.case.realtime_factor)
+                           delays=trial.case.delays, estimate_delays=trial.case.estimate_delays,
+                           max_rate=trial.case.max_rate, realtime_factor=trial.case.realtime_factor)
     if slot is not None:
         case_dir = opts.out_dir / trial.case_dir
         pair = slot.get(pair_key(trial), dataclasses.replace(
@@ -436,8 +449,8 @@ def pair_key(trial: Trial) -> tuple:
     """Trials with the same key can share a warm pair: same scenario file, processes' options
     and log folder."""
     return (trial.case_dir, trial.case.scenario, trial.case.mode, trial.case.plan_every,
-            trial.case.hardware, trial.case.delays, trial.case.max_rate,
-            trial.case.realtime_factor)
+            trial.case.hardware, trial.case.delays, trial.case.estimate_delays,
+            trial.case.max_rate, trial.case.realtime_factor)
 
 
 def run_trials(todo: list[Trial], opts: BenchOptions, results: ResultsFile,

@@ -111,6 +111,10 @@ def run(
                                     "actuation and state delays to the planner (as a robot's "
                                     "owner who measured them would, in planner.delays): it plans "
                                     "from the state predicted for when its plan acts."),
+    estimate_delays: bool = typer.Option(False, "--estimate-delays", help="The planner "
+                                         "measures the delays online instead (planner.delays."
+                                         "estimate): the state delay from the lag the world "
+                                         "reports, the actuation delay from the robot's response."),
     planner_max_rate: float = typer.Option(0.0, min=0.0, help="realtime: the planner makes at "
                                            "most this many plans per second (0: as fast as it "
                                            "can): a slower computer, rehearsed."),
@@ -137,13 +141,15 @@ def run(
     delays = _declared_delays_or_exit(sc, hardware) if compensate else None
     run_dir = run_dir or default_run_dir(sc.name)
     typer.echo(f"running {sc.name} ({mode}{', hardware ' + hardware if hardware else ''}"
-               f"{', delays compensated' if delays else ''}); logs in {run_dir}")
+               f"{', delays compensated' if delays else ''}"
+               f"{', delays estimated' if estimate_delays else ''}); logs in {run_dir}")
     try:
         result = run_episode(EpisodeLaunch(scenario=sc.source, run_dir=run_dir, seed=seed,
                                            mode=mode, port=port, timeout=timeout, viewer=viewer,
                                            verbose=verbose, plan_every=plan_every, view=view,
                                            view_port=view_port, keys=keys,
                                            hardware=hardware or "", delays=delays,
+                                           estimate_delays=estimate_delays,
                                            max_rate=planner_max_rate,
                                            realtime_factor=realtime_factor),
                              on_view=lambda url: typer.echo(f"view: {url}"))

@@ -99,6 +99,7 @@ class EpisodeLaunch:
     plan_every: int = 1             # lockstep: world steps per command (emulates a slow planner)
     hardware: str = ""              # server only: a hardware profile or file (docs/hardware.md)
     delays: tuple[float, float] | None = None   # planner only: declared (actuation, state) ms
+    estimate_delays: bool = False   # planner only: measure the delays online
     max_rate: float = 0.0           # planner only: at most this many plans per second (0: no cap)
     realtime_factor: float = 1.0    # server, realtime: world seconds per wall second
     viewer: bool = False
@@ -135,6 +136,8 @@ class EpisodeLaunch:
         if self.delays is not None:
             planner += ["--actuation-delay-ms", repr(self.delays[0]),
                         "--state-delay-ms", repr(self.delays[1])]
+        if self.estimate_delays:
+            planner.append("--estimate-delays")
         return {"server": server, "planner": planner}
 
     def view_command(self, port: int, view_port: int) -> list[str]:

@@ -1,0 +1,93 @@
+"""The robot's actuation delay, estimated online from how it answers the controls it was sent.
+
+No message shows an actuation delay (a command reaches the world, the drives act on it later;
+docs/hardware.md), but the robot's motion does: between two received states, the planner's
+own model stepped under the controls the world played ``d`` world steps earlier predicts the
+robot's new velocities best for the true ``d``. :class:`ActuationDelayEstimate` keeps, for each
+candidate ``d`` in ``0..max_steps``, an exponentially weighted mean of that one-state prediction
+error over the robot's own degrees of freedom (objects excluded: their motion is the world's),
+and answers the candidate with the smallest. It needs the robot to move: until the errors
+differ by a margin, it answers None (the declared delay, if any, stands).
+
+The state delay needs no estimate: a world stamps each state with its measurement time and
+reports, in ``state.lag``, how long after it the command that answered it arrived
+(planner_client.timing.LeadEstimate), in real time and lock-step alike.
+"""
+
+from __future__ import annotations
+
+import mujoco
+import numpy as np
+
+from shared.timed_plan import TimedPlan, playing
+from planner_client.timing import world_timestep
+
+
+class ActuationDelayEstimate:
+    """Candidates ``0..max_steps`` world steps; ``forget``: weight of a new error in each
+    candidate's running mean; ``min_states``: observations before an answer."""
+
+    def __init__(self, model: mujoco.MjModel, world_dt: float, max_steps: int,
+                 forget: float = 0.05, min_states: int = 20, margin: float = 0.8):
+        self.model = model
+        self.world_dt = world_dt
+        self.max_steps = max_steps
+        self.forget = forget
+        self.min_states = min_states
+        self.margin = margin
+        self.errors = np.zeros(max_steps + 1)          # [D + 1] running mean squared error
+        self.observed = 0
+        free = model.jnt_type == mujoco.mjtJoint.mjJNT_FREE
+        robot = [j for j in range(model.njnt) if not free[j]]
+        self._dofs = np.array([model.jnt_dofadr[j] for j in robot], dtype=int)   # [R]
+        self._scratch = mujoco.MjData(model)
+        self._state_kind = mujoco.mjtState.mjSTATE_FULLPHYSICS
+        self._prev: tuple[float, np.ndarray] | None = None
+
+    def reset(self) -> None:
+        """A new episode: start over."""
+        self.errors[:] = 0.0
+        self.observed = 0
+        self._prev = None
+
+    def observe(self, data: mujoco.MjData, plans: list[TimedPlan], safe: np.ndarray) -> None:
+        """``data``: the mirror of the newest received state (its ``time`` the measurement's).
+        Scores every candidate on the step(s) from the previous state to this one, played
+        under ``plans`` (the plans sent, oldest first; ``safe`` before any)."""
+        time = float(data.time)
+        state = np.zeros(mujoco.mj_stateSize(self.model, self._state_kind))
+        mujoco.mj_getState(self.model, data, state, self._state_kind)
+        prev, self._prev = self._prev, (time, state)
+        if prev is None or not len(self._dofs):
+            return
+        steps = round((time - prev[0]) / self.world_dt)
+        if not 1 <= steps <= 3:          # a new episode, or a gap too long to score
+            return
+        target = data.qvel[self._dofs]
+        m, d = self.model, self._scratch
+        lo, hi = m.actuator_ctrlrange.T
+        limited = m.actuator_ctrllimited.astype(bool)
+        errors = np.empty_like(self.errors)
+        with world_timestep(m, self.world_dt):
+            for k in range(self.max_steps + 1):
+                mujoco.mj_setState(m, d, prev[1], self._state_kind)
+                for _ in range(steps):
+                    u = playing(plans, float(d.time) - k * self.world_dt)
+                    u = safe if u is None else u
+                    d.ctrl[:] = np.where(limited, np.clip(u, lo, hi), u)
+                    mujoco.mj_step(m, d)
+                errors[k] = float(np.sum((d.qvel[self._dofs] - target) ** 2))
+        w = self.forget if self.observed else 1.0
+        self.errors[:] = w * errors + (1 - w) * self.errors
+        self.observed += 1
+
+    def steps(self) -> int | None:
+        """The candidate with the smallest mean error, once ``min_states`` were scored and it
+        beats the others' median by ``margin`` (its error at most that fraction of it); else
+        None: the robot has not moved enough to tell."""
+        if self.observed < self.min_states:
+            return None
+        best = int(np.argmin(self.errors))
+        if not self.errors[best] < self.margin * float(np.median(self.errors)):
+            return None          # (all equal, zero included: the controls told nothing apart)
+        return best
