@@ -152,6 +152,9 @@ def test_distance_along_two_axes_ignores_the_third(ctx):
                   pos("goal"): one_step((3, 12, 4), (1, 7, 1))})
     close(make(ctx, "distance", a="robot", b="goal", axes="xz")(b), [[5.0], [0.0]])
     close(make(ctx, "distance", a="robot", b="goal", axes="yz")(b), [[math.hypot(12, 4)], [6.0]])
+    # one axis: a box held at its resting height, whatever it does in the plane (push_lab)
+    close(make(ctx, "distance", a="robot", b="goal", axes="z")(b), [[4.0], [0.0]])
+    close(make(ctx, "distance", a="robot", b="goal", axes="y")(b), [[12.0], [6.0]])
 
 
 def test_distance_to_an_offset_target(ctx):
