@@ -259,7 +259,8 @@ def test_bench_hardware_and_compensation_are_checked_and_reach_the_processes(tmp
     for case, key, message in [
             ({"hardware": "office"}, "hardware", "neither a profile nor a file"),
             ({"compensate": True}, "compensate", "no delay to compensate"),
-            ({"hardware": "lab", "compensate": "yes"}, "compensate", "wrong type")]:
+            ({"hardware": "lab", "compensate": "yes"}, "compensate", "wrong type"),
+            ({"compensate": "estimate"}, "compensate", "no delay to compensate")]:
         path = write_bench(tmp_path, [{"case": "c", "scenario": "navigation", "trials": 1, **case}])
         with pytest.raises(ConfigError, match=message) as err:
             load_bench(path)
@@ -281,6 +282,12 @@ def test_bench_hardware_and_compensation_are_checked_and_reach_the_processes(tmp
     server = launch.commands(5555)["server"]
     assert server[server.index("--realtime-factor") + 1] == "0.5"
     assert "--realtime-factor" not in EpisodeLaunch(scenario="n.yaml", run_dir=tmp_path).commands(5555)["server"]
+    path = write_bench(tmp_path, [{"case": "f", "scenario": "navigation", "trials": 1,
+                                   "hardware": "lab", "compensate": "estimate"}])
+    (f,) = load_bench(path).cases
+    assert f.estimate_delays and f.delays is None and f.mode_label.endswith("delays estimated")
+    assert "--estimate-delays" in EpisodeLaunch(scenario="n.yaml", run_dir=tmp_path,
+                                                estimate_delays=True).commands(5555)["planner"]
     robustness = load_bench("robustness").cases
     assert {c.hardware for c in robustness} == {"", "lab", "harsh"}
     assert all(c.delays is not None for c in robustness if c.case.endswith("_comp"))
@@ -312,3 +319,18 @@ def test_realtime_trials_run_last_and_alone_on_every_core(tmp_path, monkeypatch)
     assert modes == ["lockstep"] * 3 + ["realtime"] * 3           # the waiting world first
     assert all(t == 4 and now == ["realtime"] for m, t, now in log if m == "realtime")
     assert all(t == 2 for m, t, _ in log if m == "lockstep")
+
+
+@pytest.mark.parametrize("args, message", [
+    (["--mode", "bogus"], "--mode bogus: unknown mode (expected lockstep or realtime)"),
+    (["--realtime-factor", "0.5"], "--realtime-factor 0.5: only a real-time world"),
+    (["--planner-max-rate", "20"], "--planner-max-rate 20.0: only a real-time world"),
+    (["--mode", "realtime", "--plan-every", "3"], "--plan-every 3: only a lock-step world"),
+])
+def test_run_refuses_options_its_mode_would_ignore(args, message):
+    """What the bench refuses by key, ``m3p2i run`` refuses by flag (one check,
+    shared.tools.launch.mode_conflicts), before anything starts."""
+    from typer.testing import CliRunner
+    from shared.tools.cli import app
+    result = CliRunner().invoke(app, ["run", "navigation", *args])
+    assert result.exit_code == 2 and message in result.output, result.output

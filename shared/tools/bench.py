@@ -39,7 +39,7 @@ from rich.progress import (BarColumn, MofNCompleteColumn, Progress, SpinnerColum
 from shared.evaluation import episode
 from shared.config import ConfigError, Section, flag, load_yaml, one_of, positive, positive_int
 from shared.config_files import find
-from shared.tools.launch import EpisodeLaunch, run_episode
+from shared.tools.launch import MODES, EpisodeLaunch, mode_conflicts, run_episode
 from shared.evaluation.metrics import MetricsEvaluator
 from shared.scenario import Scenario, find_scenario, load_scenario, parse_scenario
 from shared.tools.sweep import Sweep, apply_overrides, file_label, parse_sweep_section, to_cell
@@ -148,21 +148,15 @@ def load_bench(name_or_path: str | os.PathLike) -> BenchConfig:
         case = BenchCase(case=c.req("case", str), variant=c.opt("variant", "", str),
                          scenario=c.req("scenario", str, "a scenario name or YAML path"),
                          trials=c.req("trials", positive_int),
-                         mode=c.opt("mode", "lockstep", one_of(("lockstep", "realtime"))),
+                         mode=c.opt("mode", "lockstep", one_of(MODES)),
                          plan_every=c.opt("plan_every", 1, positive_int),
                          max_rate=c.opt("max_rate", 0.0, positive, "plans per second > 0"),
                          realtime_factor=c.opt("realtime_factor", 1.0, positive,
                                                "world seconds per wall second > 0"))
         case = _with_hardware(case, c, path)
-        if case.max_rate and case.mode != "realtime":
-            raise c.error("max_rate", "only a real-time world lets a planner fall behind",
-                          case.max_rate, "mode: realtime (lock-step: plan_every)")
-        if case.realtime_factor != 1.0 and case.mode != "realtime":
-            raise c.error("realtime_factor", "only a real-time world has a wall clock to "
-                          "follow", case.realtime_factor, "mode: realtime")
-        if case.plan_every > 1 and case.mode != "lockstep":
-            raise c.error("plan_every", "only a lock-step world plays a plan for a set number "
-                          "of steps", case.plan_every, "1 with mode: realtime")
+        for key, why, value, expected in mode_conflicts(case.mode, case.plan_every,
+                                                        case.max_rate, case.realtime_factor):
+            raise c.error(key, why, value, expected)
         if case.case in names:
             raise c.error("case", "duplicate case name", case.case, "a unique name")
         names.add(case.case)

@@ -19,7 +19,7 @@ from shared.cli_common import default_run_dir, error_blocks, summary_line
 from shared.config import ConfigError, load_yaml
 from shared.config_files import ENV_VAR, KINDS, Entry, entries, search_folders, shown
 from shared.evaluation.timing import describe_timing
-from shared.tools.launch import EpisodeLaunch, free_port_block, run_episode
+from shared.tools.launch import EpisodeLaunch, free_port_block, mode_conflicts, run_episode
 from shared.scenario import find_scenario, load_scenario
 from shared.tools.check import scenario_errors
 from shared.tools.new import new_scenario
@@ -134,6 +134,13 @@ def run(
                                         "processes authenticate and encrypt every socket."),
 ) -> None:
     """Run one episode of SCENARIO with server and planner; exit 0 on success."""
+    flags = {"mode": "--mode", "max_rate": "--planner-max-rate",
+             "realtime_factor": "--realtime-factor", "plan_every": "--plan-every"}
+    for key, why, value, expected in mode_conflicts(mode, plan_every, planner_max_rate,
+                                                    realtime_factor):
+        expected = expected.replace("mode: ", "--mode ").replace("plan_every", "--plan-every")
+        typer.echo(f"error: {flags[key]} {value}: {why} (expected {expected})", err=True)
+        raise typer.Exit(2)
     if hardware is not None:      # first: a mistyped profile is refused at once
         hardware = _hardware_or_exit(hardware)
     sc = _load_or_exit(scenario)
