@@ -9,6 +9,7 @@ Shapes: S samples in all (M3P2I: Σ_i K_i, grouped by mode), T horizon, nu contr
 
 from __future__ import annotations
 
+import functools
 import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
@@ -116,12 +117,20 @@ def shift(seq: Tensor, steps: float = 1.0) -> Tensor:
     horizon = seq.shape[-2]
     whole = math.floor(steps)
     frac = steps - whole
-    idx = torch.arange(horizon, device=seq.device) + whole
-    lo = seq.index_select(-2, idx.clamp(0, horizon - 1))
+    lo_idx, hi_idx = _shift_index(horizon, whole, seq.device)
+    lo = seq.index_select(-2, lo_idx)
     if frac == 0.0:
         return lo
-    hi = seq.index_select(-2, (idx + 1).clamp(0, horizon - 1))
-    return torch.lerp(lo, hi, frac)
+    return torch.lerp(lo, seq.index_select(-2, hi_idx), frac)
+
+
+@functools.lru_cache(maxsize=64)
+def _shift_index(horizon: int, whole: int, device: torch.device) -> tuple[Tensor, Tensor]:
+    """``[T]`` rows ``t + whole`` and ``t + whole + 1`` clamped into the horizon, for
+    :func:`shift`: made once, as the planner shifts three sequences by one step every iteration
+    (read-only: ``index_select`` never writes its index)."""
+    idx = torch.arange(horizon, device=device) + whole
+    return idx.clamp(0, horizon - 1), (idx + 1).clamp(0, horizon - 1)
 
 
 class _Box:
