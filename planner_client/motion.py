@@ -76,7 +76,7 @@ class MotionPlanner:
         """The terms of every mode's objective (by :attr:`CostTerm.key`), when there are several
         modes: evaluated once on all S rows instead of once per mode (push and pull share their
         distances and the orientation, the costliest term). A term's value at a row does not
-        depend on the other rows, so each mode reads exactly what it would compute itself."""
+        depend on the other rows, so each mode reads what it would compute itself, bit for bit."""
         if len(self.modes) < 2:
             return []
         keys = [{wt.term.key: wt.term for wt in self.problem.objectives[m].terms}

@@ -72,7 +72,8 @@ def quat_to_rotmat(quat: ArrayLike) -> torch.Tensor:
     w, x, y, z = q.unbind(-1)
     # each product once (every one appears in two entries): the planner converts [S, T] of
     # them every iteration, and each tensor op costs about the same on so few elements
-    xx, yy, zz, xy, xz, yz, wx, wy, wz = x * x, y * y, z * z, x * y, x * z, y * z, w * x, w * y, w * z
+    xx, yy, zz = x * x, y * y, z * z
+    xy, xz, yz, wx, wy, wz = x * y, x * z, y * z, w * x, w * y, w * z
     rows = (
         1 - 2 * (yy + zz), 2 * (xy - wz), 2 * (xz + wy),
         2 * (xy + wz), 1 - 2 * (xx + zz), 2 * (yz - wx),

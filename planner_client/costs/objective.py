@@ -36,7 +36,8 @@ class Objective:
     def sensors(self) -> list[SensorRequest]:
         return [r for wt in self.terms for r in wt.term.sensors()]
 
-    def __call__(self, batch: RolloutBatch, values: dict[str, torch.Tensor] | None = None) -> torch.Tensor:
+    def __call__(self, batch: RolloutBatch,
+                 values: dict[str, torch.Tensor] | None = None) -> torch.Tensor:
         """Per-step costs ``[S, T]`` of the batch's rows.
 
         ``values``: unweighted term values ``[S, T]`` on these rows by :attr:`CostTerm.key`,
@@ -45,13 +46,13 @@ class Objective:
         listed twice (running and terminal) is evaluated once. Term values are never modified.
         """
         values = {} if values is None else values
-        horizon, dtype, device = batch.controls.shape[1], batch.sensordata.dtype, batch.sensordata.device
+        horizon, sd = batch.controls.shape[1], batch.sensordata
         out = None
         for wt in self.terms:
             value = values.get(wt.term.key)
             if value is None:
                 value = values[wt.term.key] = wt.term(batch)
-            c = value * self._step_weights(wt, horizon, dtype, device)
+            c = value * self._step_weights(wt, horizon, sd.dtype, sd.device)
             out = c if out is None else out.add_(c)
         return out
 

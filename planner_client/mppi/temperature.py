@@ -54,7 +54,8 @@ def cost_gaps(costs: Tensor, beta: Tensor) -> Tensor:
 
 def gap_weights(gaps: Tensor, lam: Tensor | float) -> tuple[Tensor, Tensor]:
     """:func:`softmin_weights` from the gaps ``[..., K]`` of :func:`cost_gaps`: weights
-    ``[..., K]`` and η ``[...]``, for a caller that has the gaps already (M3P2I adapts λ on them)."""
+    ``[..., K]`` and η ``[...]``, for a caller that has the gaps already (M3P2I adapts λ on
+    them)."""
     e = torch.exp(-gaps / lam)
     eta = e.sum(dim=-1, keepdim=True)
     # η ≥ 1 in any row with a finite cost (its minimum gives e^0 = 1 exactly), so the clamp
