@@ -18,7 +18,7 @@ import torch
 
 from planner_client.backends import RolloutBackend
 from planner_client.backends.mujoco_pool import MujocoPoolBackend
-from planner_client.costs import RolloutBatch
+from planner_client.costs import CostTerm, RolloutBatch
 from planner_client.mppi import M3P2I, MPPIConfig, ModeSpec, PlanResult
 from planner_client.mirror import MocapState
 from planner_client.problem import PlanningProblem
@@ -58,6 +58,7 @@ class MotionPlanner:
         self.mppi = M3P2I(cfg, [self._mode(m) for m in modes], dtype=torch.float64,
                           device=self.device)
         self.modes = list(modes)
+        self._shared = self._shared_terms()
         self._step_costs: torch.Tensor | None = None
         self._last_V: torch.Tensor | None = None         # [S, T, nu] of the last iterate()
 
@@ -69,6 +70,18 @@ class MotionPlanner:
         if list(modes) != self.modes:
             self.mppi.set_modes([self._mode(m) for m in modes])
             self.modes = list(modes)
+            self._shared = self._shared_terms()
+
+    def _shared_terms(self) -> list[CostTerm]:
+        """The terms of every mode's objective (by :attr:`CostTerm.key`), when there are several
+        modes: evaluated once on all S rows instead of once per mode (push and pull share their
+        distances and the orientation, the costliest term). A term's value at a row does not
+        depend on the other rows, so each mode reads what it would compute itself, bit for bit."""
+        if len(self.modes) < 2:
+            return []
+        keys = [{wt.term.key: wt.term for wt in self.problem.objectives[m].terms}
+                for m in self.modes]
+        return [term for key, term in keys[0].items() if all(key in k for k in keys[1:])]
 
     def iterate(self, x0: np.ndarray, mocap: MocapState | None = None) -> Iteration:
         """One iteration from the full physics state ``x0 [nstate]`` and the mocap bodies'
@@ -85,9 +98,13 @@ class MotionPlanner:
         S, T = V.shape[:2]
         if self._step_costs is None or self._step_costs.shape != (S, T):
             self._step_costs = torch.empty(S, T, dtype=V.dtype, device=V.device)
+        layout, dt = self.problem.layout, self.problem.model.opt.timestep
+        shared = {t.key: t(RolloutBatch(sd, V, layout, dt)) for t in self._shared}   # [S, T] each
         for name, rows in zip(self.modes, self.mppi.mode_slices):
-            batch = RolloutBatch(sd[rows], V[rows], self.problem.layout, self.problem.model.opt.timestep)
-            self._step_costs[rows] = self.problem.objectives[name](batch)
+            batch = RolloutBatch(sd[rows], V[rows], layout, dt)
+            objective = self.problem.objectives[name]
+            self._step_costs[rows] = (objective(batch, {k: v[rows] for k, v in shared.items()})
+                                      if shared else objective(batch))
         result = self.mppi.update(self._step_costs)
         best, top_modes = self._best_per_mode()
         top = self.problem.layout.take(sd[best], self.problem.robot_pos).cpu().numpy().copy()

@@ -104,6 +104,13 @@ class CostTerm(ABC):
         """:meth:`sensors`, built once: the hot loop reads these every iteration."""
         return self.sensors()
 
+    @cached_property
+    def key(self) -> str:
+        """Equal for terms that compute the same values: a term is a pure function of the batch
+        and its parameters, which a dataclass term's repr lists in full (class name included).
+        Objectives evaluate a term once per iteration by it, however many times it is listed."""
+        return repr(self)
+
     @abstractmethod
     def __call__(self, batch: RolloutBatch) -> torch.Tensor:
         """Unweighted per-step cost ``[S, T]``."""

@@ -36,11 +36,23 @@ class Objective:
     def sensors(self) -> list[SensorRequest]:
         return [r for wt in self.terms for r in wt.term.sensors()]
 
-    def __call__(self, batch: RolloutBatch) -> torch.Tensor:
+    def __call__(self, batch: RolloutBatch,
+                 values: dict[str, torch.Tensor] | None = None) -> torch.Tensor:
+        """Per-step costs ``[S, T]`` of the batch's rows.
+
+        ``values``: unweighted term values ``[S, T]`` on these rows by :attr:`CostTerm.key`,
+        already computed (a term several modes share, evaluated once on all their rows); a term
+        found there is not evaluated again, and each one evaluated is added to it, so a term
+        listed twice (running and terminal) is evaluated once. Term values are never modified.
+        """
+        values = {} if values is None else values
+        horizon, sd = batch.controls.shape[1], batch.sensordata
         out = None
         for wt in self.terms:
-            c = wt.term(batch) * self._step_weights(wt, batch.controls.shape[1], batch.sensordata.dtype,
-                                                    batch.sensordata.device)
+            value = values.get(wt.term.key)
+            if value is None:
+                value = values[wt.term.key] = wt.term(batch)
+            c = value * self._step_weights(wt, horizon, sd.dtype, sd.device)
             out = c if out is None else out.add_(c)
         return out
 

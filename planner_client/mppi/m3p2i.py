@@ -9,6 +9,7 @@ Shapes: S samples in all (M3P2I: Σ_i K_i, grouped by mode), T horizon, nu contr
 
 from __future__ import annotations
 
+import functools
 import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
@@ -19,7 +20,7 @@ from torch import Tensor
 from .config import MPPIConfig, ModeSpec
 from .sampling import make_noise
 from .smoothing import savgol_matrix, smooth
-from .temperature import adapt_temperature, softmin_weights
+from .temperature import adapt_temperature, cost_gaps, gap_weights, softmin_weights
 
 
 @dataclass(frozen=True)
@@ -116,12 +117,20 @@ def shift(seq: Tensor, steps: float = 1.0) -> Tensor:
     horizon = seq.shape[-2]
     whole = math.floor(steps)
     frac = steps - whole
-    idx = torch.arange(horizon, device=seq.device) + whole
-    lo = seq.index_select(-2, idx.clamp(0, horizon - 1))
+    lo_idx, hi_idx = _shift_index(horizon, whole, seq.device)
+    lo = seq.index_select(-2, lo_idx)
     if frac == 0.0:
         return lo
-    hi = seq.index_select(-2, (idx + 1).clamp(0, horizon - 1))
-    return torch.lerp(lo, hi, frac)
+    return torch.lerp(lo, seq.index_select(-2, hi_idx), frac)
+
+
+@functools.lru_cache(maxsize=64)
+def _shift_index(horizon: int, whole: int, device: torch.device) -> tuple[Tensor, Tensor]:
+    """``[T]`` rows ``t + whole`` and ``t + whole + 1`` clamped into the horizon, for
+    :func:`shift`: made once, as the planner shifts three sequences by one step every iteration
+    (read-only: ``index_select`` never writes its index)."""
+    idx = torch.arange(horizon, device=device) + whole
+    return idx.clamp(0, horizon - 1), (idx + 1).clamp(0, horizon - 1)
 
 
 class _Box:
@@ -439,20 +448,23 @@ class M3P2I:
         # rollouts all diverged, or all S of them) gets zero weights, keeps λ, μ and its best
         # sequence, and, for the fused row, the plan (then flagged: ``finite``).
         table = costs[lay.table].masked_fill_(lay.pad, math.inf)      # [N + 1, W]
+        # Gaps to each row's minimum, made once for the temperatures and both weightings: a
+        # mode's padding is +inf, so its minimum over W columns is the one over its K_max.
+        beta = table.amin(dim=-1, keepdim=True)                        # [N + 1, 1]
+        gaps = cost_gaps(table, beta)                                  # [N + 1, W]
         if c.cfg.eta_bounds is not None:
-            # +inf - +inf would be NaN in a row without a finite cost: shift it by 0 instead.
-            gaps = table - table.amin(dim=-1, keepdim=True).nan_to_num(posinf=0.0)
             self._lam = adapt_temperature(gaps, self._lam, c.cfg.eta_bounds, c.cfg.adapt_iters)
         lam = self._lam
 
         # Per-mode distributions (paper Eqs. 5-8).
         mode_idx = lay.table[:n, :lay.k_max]
-        w_mode, eta_mode, beta_mode = softmin_weights(table[:n, :lay.k_max], lam[:n, None])
+        w_mode, eta_mode = gap_weights(gaps[:n, :lay.k_max], lam[:n, None])
+        beta_mode = beta[:n].squeeze(-1)
         v_mode = v[mode_idx]                                           # [N, K_max, T, nu]
         mu = self._mu + (w_mode[..., None, None] * (v_mode - self._mu[:, None])).sum(dim=1)
 
         # Fused distribution over all samples (paper Eqs. 9-12).
-        w, eta, _ = softmin_weights(costs, lam[n])
+        w, eta = gap_weights(gaps[n], lam[n])                          # row N: all S samples
         u = self._u + c.cfg.alpha_u * (w[:, None, None] * (v - self._u)).sum(dim=0)
 
         # A mode without a finite cost keeps μ_i as it is (not smoothed again) and its best

@@ -42,12 +42,25 @@ def softmin_weights(costs: Tensor, lam: Tensor | float) -> tuple[Tensor, Tensor,
         cost has all weights 0, η = 0 and β = ``+inf``: there is nothing to average.
     """
     beta = costs.amin(dim=-1, keepdim=True)
-    # A row of +inf only would shift by inf - inf = NaN; shifting it by 0 gives e = 0 instead.
-    e = torch.exp(-(costs - beta.nan_to_num(posinf=0.0)) / lam)
+    w, eta = gap_weights(cost_gaps(costs, beta), lam)
+    return w, eta, beta.squeeze(-1)
+
+
+def cost_gaps(costs: Tensor, beta: Tensor) -> Tensor:
+    """Gaps d = S - β ``[..., K]`` to the row minima ``beta [..., 1]``; a row of +inf only
+    would give inf - inf = NaN, so it is shifted by 0 instead and keeps gaps of +inf."""
+    return costs - beta.nan_to_num(posinf=0.0)
+
+
+def gap_weights(gaps: Tensor, lam: Tensor | float) -> tuple[Tensor, Tensor]:
+    """:func:`softmin_weights` from the gaps ``[..., K]`` of :func:`cost_gaps`: weights
+    ``[..., K]`` and η ``[...]``, for a caller that has the gaps already (M3P2I adapts λ on
+    them)."""
+    e = torch.exp(-gaps / lam)
     eta = e.sum(dim=-1, keepdim=True)
     # η ≥ 1 in any row with a finite cost (its minimum gives e^0 = 1 exactly), so the clamp
     # changes nothing there and turns 0/0 into 0 in a row without one.
-    return e / eta.clamp(min=1.0), eta.squeeze(-1), beta.squeeze(-1)
+    return e / eta.clamp(min=1.0), eta.squeeze(-1)
 
 
 def adapt_temperature(gaps: Tensor, lam: Tensor, eta_bounds: tuple[float, float],
