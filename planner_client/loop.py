@@ -386,7 +386,7 @@ class PlannerClient:
         """
         mocap = self.mirror.mocap()
         ahead = acting = 0      # world steps from the state to the plan's date, and on to when it acts
-        lockstep = self.welcome.mode != "realtime"
+        lockstep = self.welcome is None or self.welcome.mode != "realtime"
         if self._lead is not None:
             self._lead.observe(state.lag)
             ahead = self._lead.steps()

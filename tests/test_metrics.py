@@ -132,7 +132,7 @@ def test_at_pose_success_gives_position_with_offset_and_orientation(tmp_path):
 
 @pytest.mark.parametrize("metrics, key", [
     ({"position": {"a": "box"}}, "metrics.position.b"),
-    ({"position": {"a": "box", "b": "goal", "axes": "z"}}, "metrics.position.axes"),
+    ({"position": {"a": "box", "b": "goal", "axes": "zx"}}, "metrics.position.axes"),
     ({"position": {"a": "box", "b": "goal", "offset": [0, 1]}}, "metrics.position.offset"),
     ({"orientation": {"a": "box", "b": "goal", "axes": "xy"}}, "metrics.orientation.axes"),
     ({"collisions": {"a": "robot"}}, "metrics.collisions.with"),
