@@ -381,8 +381,9 @@ class PlannerClient:
 
         Real time: ``lead`` whole world steps after the state (the largest recent lag), the
         mirror stepped over them under the plans the world is playing. Lock-step: the state's
-        own time, as received, plus the declared state delay (``planner.delays``). The declared
-        actuation delay is predicted beyond the plan's date (planner_client.timing).
+        own time, as received, plus the declared state delay (``planner.delays``) or, with
+        ``estimate``, the one the world reports in ``state.lag``. The actuation delay, declared
+        or estimated, is predicted beyond the plan's date (planner_client.timing).
         """
         mocap = self.mirror.mocap()
         ahead = acting = 0      # world steps from the state to the plan's date, and on to when it acts

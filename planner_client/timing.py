@@ -6,8 +6,9 @@ plans not from the state it received (time ``t_s``) but from the state the world
 the new plan arrives, ``t_eff = t_s + lead``: it predicts it by stepping its own model over the
 lead under the plan being played, and dates its plan's first knot ``t_eff``. The lead is learnt
 from ``state.lag`` (world seconds between publishing a state and the arrival of the command that
-answered it: planning plus transport, both ways). In lock-step the world waits, the lead is 0 and
-nothing here changes a thing.
+answered it: planning plus transport, both ways). In lock-step the world waits and the lag is 0,
+unless the world publishes its states late: then it is their state delay, which a planner
+estimating its delays (``planner.delays.estimate``) plans ahead by.
 
 Delays no message shows (``planner.delays``, declared: docs/hardware.md) come on top: a state
 published ``state_ms`` after its measurement, and actuators that act ``actuation_ms`` after a
