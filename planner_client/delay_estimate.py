@@ -19,8 +19,8 @@ from __future__ import annotations
 import mujoco
 import numpy as np
 
-from shared.timed_plan import TimedPlan, playing
-from planner_client.timing import world_timestep
+from shared.timed_plan import TimedPlan
+from planner_client.timing import predict
 
 
 class ActuationDelayEstimate:
@@ -44,12 +44,6 @@ class ActuationDelayEstimate:
         self._state_kind = mujoco.mjtState.mjSTATE_FULLPHYSICS
         self._prev: tuple[float, np.ndarray] | None = None
 
-    def reset(self) -> None:
-        """A new episode: start over."""
-        self.errors[:] = 0.0
-        self.observed = 0
-        self._prev = None
-
     def observe(self, data: mujoco.MjData, plans: list[TimedPlan], safe: np.ndarray) -> None:
         """``data``: the mirror of the newest received state (its ``time`` the measurement's).
         Scores every candidate on the step(s) from the previous state to this one, played
@@ -65,18 +59,11 @@ class ActuationDelayEstimate:
             return
         target = data.qvel[self._dofs]
         m, d = self.model, self._scratch
-        lo, hi = m.actuator_ctrlrange.T
-        limited = m.actuator_ctrllimited.astype(bool)
         errors = np.empty_like(self.errors)
-        with world_timestep(m, self.world_dt):
-            for k in range(self.max_steps + 1):
-                mujoco.mj_setState(m, d, prev[1], self._state_kind)
-                for _ in range(steps):
-                    u = playing(plans, float(d.time) - k * self.world_dt)
-                    u = safe if u is None else u
-                    d.ctrl[:] = np.where(limited, np.clip(u, lo, hi), u)
-                    mujoco.mj_step(m, d)
-                errors[k] = float(np.sum((d.qvel[self._dofs] - target) ** 2))
+        for k in range(self.max_steps + 1):
+            mujoco.mj_setState(m, d, prev[1], self._state_kind)
+            predict(m, d, plans, safe, self.world_dt, steps, actuation_delay=k * self.world_dt)
+            errors[k] = float(np.sum((d.qvel[self._dofs] - target) ** 2))
         w = self.forget if self.observed else 1.0
         self.errors[:] = w * errors + (1 - w) * self.errors
         self.observed += 1

@@ -53,7 +53,7 @@ class LeadEstimate:
 
 
 @contextmanager
-def world_timestep(model: mujoco.MjModel, dt: float):
+def _timestep(model: mujoco.MjModel, dt: float):
     """``model`` stepping at ``dt`` (the world's) inside the block, its own timestep after."""
     saved = model.opt.timestep
     model.opt.timestep = dt
@@ -74,7 +74,7 @@ def predict(model: mujoco.MjModel, data: mujoco.MjData, plans: list[TimedPlan], 
         return
     lo, hi = model.actuator_ctrlrange.T
     limited = model.actuator_ctrllimited.astype(bool)
-    with world_timestep(model, world_dt):
+    with _timestep(model, world_dt):
         for _ in range(steps):
             u = playing(plans, float(data.time) - actuation_delay)
             u = safe if u is None else u
