@@ -14,7 +14,7 @@ import numpy as np
 from shared.protocol import State
 from shared.scenario import EstimateConfig
 from shared.scene import STATE_FIELDS, get_full_state, set_state
-from planner_client.estimate import FreeBodyEstimator
+from planner_client.estimate import FreeBodyEstimator, MocapEstimator, filters_poses
 
 
 @dataclass
@@ -39,8 +39,8 @@ class Mirror:
     It also estimates the velocity of every mocap body (objects the world moves: scripted or
     dynamic obstacles) from the last two states, for the constant-velocity prediction of paper Eq. 22.
     A jump faster than ``max_speed`` is a teleport (a disturbance), not motion: velocity 0.
-    With ``estimate`` (``planner.estimate``), the free bodies' poses are filtered and their
-    velocities estimated from them (:mod:`planner_client.estimate`).
+    With ``estimate`` (``planner.estimate``), the free bodies' and the mocap bodies' poses are
+    filtered and their velocities estimated from them (:mod:`planner_client.estimate`).
     """
 
     def __init__(self, model: mujoco.MjModel, max_speed: float = 5.0,
@@ -48,6 +48,9 @@ class Mirror:
         self.model = model
         estimator = FreeBodyEstimator(model, estimate or EstimateConfig())
         self.estimator = estimator if estimator.active else None
+        cfg = estimate or EstimateConfig()
+        self.mocap_estimator = (MocapEstimator(model, cfg)
+                                if model.nmocap and filters_poses(cfg) else None)
         self.data = mujoco.MjData(model)
         self.x0 = np.zeros(mujoco.mj_stateSize(model, mujoco.mjtState.mjSTATE_FULLPHYSICS))
         self.max_speed = max_speed
@@ -76,16 +79,23 @@ class Mirror:
         """Copy ``state`` in, recompute kinematics, return the rollout initial state [nstate]."""
         m, d = self.model, self.data
         arrays = {name: getattr(state, name) for name in STATE_FIELDS}
+        mocap_vel = None
         if self.estimator is not None and arrays["qpos"].shape == (m.nq,) and \
                 arrays["qvel"].shape == (m.nv,):        # (a misfit is set_state's to refuse)
             arrays["qpos"], arrays["qvel"] = self.estimator(state.time, arrays["qpos"],
                                                             arrays["qvel"])
+        if self.mocap_estimator is not None and np.size(arrays["mocap_pos"]) == 3 * m.nmocap \
+                and np.size(arrays["mocap_quat"]) == 4 * m.nmocap:
+            arrays["mocap_pos"], arrays["mocap_quat"], mocap_vel = self.mocap_estimator(
+                state.time, arrays["mocap_pos"], arrays["mocap_quat"])
         try:
             set_state(m, d, arrays)
         except ValueError as exc:
             raise ValueError(f"state.{exc}") from None
         d.time = state.time
-        if m.nmocap:
+        if mocap_vel is not None:
+            self.mocap_vel[:] = mocap_vel
+        elif m.nmocap:
             self._estimate_mocap_velocity(state.time)
         return self.refresh()
 

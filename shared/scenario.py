@@ -236,6 +236,7 @@ class EstimateConfig:
     velocity_filter: float = 1.0           # weight of a new finite-difference velocity; 1: none
     max_speed: float = 5.0                 # m/s: a faster jump is a teleport (filters restart)
     held_filter: float = 1.0               # weight of a new relative pose of an attached object
+    still_speed: float = 0.0               # m/s: a slower filtered velocity is noise, taken as 0
 
 
 @dataclass(frozen=True)
@@ -844,7 +845,8 @@ def _estimate(s: Section) -> EstimateConfig:
         pose_filter=s.opt("pose_filter", 1.0, _weight, "a weight in (0, 1]"),
         velocity_filter=s.opt("velocity_filter", 1.0, _weight, "a weight in (0, 1]"),
         max_speed=s.opt("max_speed", 5.0, positive, "m/s > 0"),
-        held_filter=s.opt("held_filter", 1.0, _weight, "a weight in (0, 1]"))
+        held_filter=s.opt("held_filter", 1.0, _weight, "a weight in (0, 1]"),
+        still_speed=s.opt("still_speed", 0.0, non_negative, "m/s >= 0"))
     s.done()
     return cfg
 
