@@ -179,6 +179,20 @@ def test_report_blocks_are_regenerated_and_checked(tmp_path):
     assert bad.exit_code == 2 and "no results file" in bad.output
 
 
+def test_a_grid_block_counts_successes_per_scenario_and_variant(tmp_path):
+    rows = [{"case": "nav_lab", "variant": "lab", "scenario": "navigation", "seed": s,
+             "scenario_hash": "h", "success": s != 1} for s in range(3)]
+    rows += [{"case": "pp_comp", "variant": "lab compensated", "scenario": "pick_place", "seed": s,
+              "scenario_hash": "h", "success": s == 0} for s in range(2)]
+    _results(tmp_path / "r", rows)
+    doc = tmp_path / "doc.md"
+    doc.write_text("<!-- m3p2i grid r -->\nold\n<!-- end of grid -->\n")
+    text = update_reports(doc.read_text(), tmp_path, load_paper())
+    assert "| scenario | lab | lab compensated |" in text
+    assert "| `navigation` | 2/3 | — |" in text and "| `pick_place` | — | 1/2 |" in text
+    assert "old" not in text
+
+
 def test_results_files_written_before_the_machine_column_are_upgraded(tmp_path):
     old = [c for c in FIELDS if c not in ("machine", "date")]
     path = tmp_path / "results.csv"

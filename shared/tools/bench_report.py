@@ -286,12 +286,35 @@ def _trials_ran_on(rows: list[dict[str, str]]) -> str:
     return f"\nTrials ran on {'; '.join(machines)}, {', '.join(dates)}.\n"
 
 
+def grid_report(results: list[Results]) -> str:
+    """Successes per scenario (rows) and variant (columns), e.g. a robustness bench's scenarios
+    under each compensation: ``k/n`` over the newest version of each case, ``—`` where none ran."""
+    cells: dict[tuple[str, str], list[int]] = {}
+    for res in results:
+        for r in res.rows:
+            won, n = cells.setdefault((r["scenario"], r["variant"]), [0, 0])
+            cells[(r["scenario"], r["variant"])] = [won + (r["success"] == "1"), n + 1]
+    scenarios = list(dict.fromkeys(s for s, _ in cells))
+    variants = list(dict.fromkeys(v for _, v in cells))
+    rows = [["scenario", *variants]]
+    for sc in scenarios:
+        rows.append([f"`{sc}`", *(f"{cells[(sc, v)][0]}/{cells[(sc, v)][1]}" if (sc, v) in cells
+                                  else "—" for v in variants)])
+    head, *body = rows
+    lines = ["| " + " | ".join(head) + " |", "|---|" + "---:|" * len(variants)]
+    lines += ["| " + " | ".join(r) + " |" for r in body]
+    return "\n".join(lines) + "\n"
+
+
 def update_reports(text: str, base: Path, paper: dict[str, PaperRow]) -> str:
     """``text`` with every ``<!-- m3p2i report PATH... -->`` block regenerated from the results
-    files it names (relative to ``base``), up to its ``<!-- end of report -->``."""
-    def render(args: str) -> str:
+    files it names (relative to ``base``), up to its ``<!-- end of report -->``, and every
+    ``<!-- m3p2i grid PATH... -->`` block (:func:`grid_report`) up to ``<!-- end of grid -->``."""
+    def read(args: str, tag: str) -> list[Results]:
         if not args:
-            raise ConfigError(str(base), "", "a report block names no results file",
-                              "<!-- m3p2i report -->")
-        return results_report([read_results(base / p) for p in args.split()], paper)
-    return regenerate(text, "m3p2i report", "report", render)[0]
+            raise ConfigError(str(base), "", f"a {tag} block names no results file",
+                              f"<!-- m3p2i {tag} -->")
+        return [read_results(base / p) for p in args.split()]
+    text = regenerate(text, "m3p2i report", "report",
+                      lambda args: results_report(read(args, "report"), paper))[0]
+    return regenerate(text, "m3p2i grid", "grid", lambda args: grid_report(read(args, "grid")))[0]
