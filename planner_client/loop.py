@@ -221,7 +221,8 @@ class PlannerClient:
     def _bind(self, planner: MotionPlanner) -> None:
         """The mirror of the world in ``planner``'s model, and its attachments."""
         pc = planner.problem.scenario.planner
-        self.mirror = Mirror(planner.problem.model, estimate=pc.estimate)
+        self.mirror = Mirror(planner.problem.model, estimate=pc.estimate,
+                             planar=[n for n, o in pc.model.objects.items() if o.planar])
         self.attachments = Attachments(planner.problem.model, pc.model.attach,
                                        held_filter=pc.estimate.held_filter)
 

@@ -6,6 +6,8 @@ state, plus the velocity estimate of world-driven (mocap) bodies that the rollou
 
 from __future__ import annotations
 
+import math
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import mujoco
@@ -40,12 +42,15 @@ class Mirror:
     dynamic obstacles) from the last two states, for the constant-velocity prediction of paper Eq. 22.
     A jump faster than ``max_speed`` is a teleport (a disturbance), not motion: velocity 0.
     With ``estimate`` (``planner.estimate``), the free bodies' and the mocap bodies' poses are
-    filtered and their velocities estimated from them (:mod:`planner_client.estimate`).
+    filtered and their velocities estimated from them (:mod:`planner_client.estimate`). The free
+    objects named in ``planar`` (``planner.model.objects.<name>.planar``) are laid flat
+    (:func:`flatten`).
     """
 
     def __init__(self, model: mujoco.MjModel, max_speed: float = 5.0,
-                 estimate: EstimateConfig | None = None):
+                 estimate: EstimateConfig | None = None, planar: Sequence[str] = ()):
         self.model = model
+        self.planar = [_free_joint(model, name) for name in planar]
         estimator = FreeBodyEstimator(model, estimate or EstimateConfig())
         self.estimator = estimator if estimator.active else None
         cfg = estimate or EstimateConfig()
@@ -88,6 +93,10 @@ class Mirror:
                 and np.size(arrays["mocap_quat"]) == 4 * m.nmocap:
             arrays["mocap_pos"], arrays["mocap_quat"], mocap_vel = self.mocap_estimator(
                 state.time, arrays["mocap_pos"], arrays["mocap_quat"])
+        if self.planar and arrays["qpos"].shape == (m.nq,) and arrays["qvel"].shape == (m.nv,):
+            arrays["qpos"], arrays["qvel"] = arrays["qpos"].copy(), arrays["qvel"].copy()
+            for qadr, vadr in self.planar:
+                flatten(m, arrays["qpos"], arrays["qvel"], qadr, vadr)
         try:
             set_state(m, d, arrays)
         except ValueError as exc:
@@ -103,3 +112,27 @@ class Mirror:
         """Recompute kinematics after ``data`` changed; return the rollout initial state [nstate]."""
         mujoco.mj_forward(self.model, self.data)
         return get_full_state(self.model, self.data, self.x0)
+
+
+def _free_joint(model: mujoco.MjModel, body: str) -> tuple[int, int]:
+    """qpos and qvel addresses of body ``body``'s free joint."""
+    b = model.body(body).id
+    j = next(j for j in range(model.njnt) if model.jnt_bodyid[j] == b
+             and model.jnt_type[j] == mujoco.mjtJoint.mjJNT_FREE)
+    return int(model.jnt_qposadr[j]), int(model.jnt_dofadr[j])
+
+
+def flatten(model: mujoco.MjModel, qpos: np.ndarray, qvel: np.ndarray, qadr: int,
+            vadr: int) -> None:
+    """Lay a free object flat, in place: its height the model's start height (``qpos0``), its
+    orientation the yaw of the received one, its z, roll and pitch velocities zero. For a
+    planning model whose object does not rest on the floor (``planner.model.exclude:
+    [[world, obj]]``, ``gravcomp``): the world's box sinks, tilts and rocks on its soft floor
+    contacts by centimetres and degrees, and with no floor to right it the planner's box kept
+    that tilt through the whole horizon (the closed loop failed every trial; tested on
+    push_pull, 2026-12-01)."""
+    qpos[qadr + 2] = model.qpos0[qadr + 2]
+    w, x, y, z = qpos[qadr + 3:qadr + 7]
+    yaw = math.atan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z))
+    qpos[qadr + 3:qadr + 7] = (math.cos(yaw / 2), 0.0, 0.0, math.sin(yaw / 2))
+    qvel[vadr + 2:vadr + 5] = 0.0

@@ -67,6 +67,7 @@ def build_problem(scenario: Scenario, extra_sensors: list[SensorRequest] = ()) -
     requests = [robot_pos, *extra_sensors] + [r for o in objectives.values() for r in o.sensors()]
     add_sensors(spec, requests, resolve)
     model = compile_model(scenario, spec)
+    tune_planning_model(model, scenario.planner.model)
     return PlanningProblem(scenario, robot, model, objectives, SensorLayout(model, requests),
                            robot_pos, actuators, FrameResolver(model, robot.frame))
 
@@ -78,10 +79,16 @@ _INTEGRATORS = {"Euler": mujoco.mjtIntegrator.mjINT_EULER,
                 "implicitfast": mujoco.mjtIntegrator.mjINT_IMPLICITFAST,
                 "implicit": mujoco.mjtIntegrator.mjINT_IMPLICIT, "RK4": mujoco.mjtIntegrator.mjINT_RK4}
 
+_GEOM_TYPES = {"sphere": mujoco.mjtGeom.mjGEOM_SPHERE, "capsule": mujoco.mjtGeom.mjGEOM_CAPSULE,
+               "cylinder": mujoco.mjtGeom.mjGEOM_CYLINDER, "box": mujoco.mjtGeom.mjGEOM_BOX,
+               "ellipsoid": mujoco.mjtGeom.mjGEOM_ELLIPSOID}
+
 
 def apply_planning_model(spec: mujoco.MjSpec, cfg: PlanningModel, source: str) -> None:
     """``planner.model`` on the planner's spec (the world's is never touched); a body of
-    ``exclude`` that the model lacks raises ConfigError naming the pair."""
+    ``exclude`` that the model lacks raises ConfigError naming the pair, as does an object of
+    ``objects`` without a free joint. The per-DOF values of ``objects`` are set on the compiled
+    model (:func:`tune_planning_model`): a spec's joint has one value for all its DOFs."""
     opt = spec.option
     for key, table in (("solver", _SOLVERS), ("cone", _CONES), ("integrator", _INTEGRATORS)):
         if getattr(cfg, key) is not None:
@@ -99,12 +106,46 @@ def apply_planning_model(spec: mujoco.MjSpec, cfg: PlanningModel, source: str) -
                 raise ConfigError(source, f"planner.model.exclude[{i}]", "unknown body", name,
                                   f"one of: {', '.join(bodies)}")
         spec.add_exclude(bodyname1=a, bodyname2=b)
+    for name, obj in cfg.objects.items():
+        body = spec.body(name)
+        free = [j for j in body.joints if j.type == mujoco.mjtJoint.mjJNT_FREE] if body else []
+        if not free:
+            known = [b.name for b in spec.bodies
+                     if any(j.type == mujoco.mjtJoint.mjJNT_FREE for j in b.joints)]
+            raise ConfigError(source, f"planner.model.objects.{name}", "not a free object "
+                              "of the model", name, "one of: " + (", ".join(known) or "(none)"))
+        if obj.gravcomp is not None:
+            body.gravcomp = obj.gravcomp
+    for name, shape in cfg.geoms.items():
+        geom = spec.geom(name)
+        if geom is None:
+            raise ConfigError(source, f"planner.model.geoms.{name}", "unknown geom", name,
+                              "one of: " + ", ".join(g.name for g in spec.geoms if g.name))
+        if shape.type is not None:
+            geom.type = _GEOM_TYPES[shape.type]
+        if shape.size is not None:
+            geom.size = list(shape.size) + [0.0] * (3 - len(shape.size))
+        if shape.pos is not None:
+            geom.pos = list(shape.pos)
     try:
         add_attach_welds(spec, cfg.attach)
     except KeyError as exc:
         i, key, name, known = exc.args[0]
         raise ConfigError(source, f"planner.model.attach[{i}].{key}", "unknown body", name,
                           f"one of: {', '.join(known)}") from None
+
+
+def tune_planning_model(model: mujoco.MjModel, cfg: PlanningModel) -> None:
+    """The per-DOF joint values of ``planner.model.objects`` (damping, frictionloss, armature)
+    on the compiled planner model, after :func:`apply_planning_model` on its spec."""
+    for name, obj in cfg.objects.items():
+        body = model.body(name).id
+        joint = next(j for j in range(model.njnt) if model.jnt_bodyid[j] == body
+                     and model.jnt_type[j] == mujoco.mjtJoint.mjJNT_FREE)
+        dofs = slice(model.jnt_dofadr[joint], model.jnt_dofadr[joint] + 6)
+        for key in ("damping", "frictionloss", "armature"):
+            if getattr(obj, key) is not None:
+                getattr(model, f"dof_{key}")[dofs] = getattr(obj, key)
 
 
 def actuator_names(model: mujoco.MjModel) -> list[str]:

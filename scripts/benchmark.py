@@ -61,9 +61,9 @@ from shared.scene import build_spec, compile_model, get_full_state, initial_data
 from shared.tools.bench import machine
 from shared.tools.blocks import regenerate
 from planner_client.build import build_motion_planner
-from planner_client.problem import apply_planning_model
+from planner_client.problem import apply_planning_model, tune_planning_model
 
-SCENARIOS = ("navigation", "push_pull", "pick_place")
+SCENARIOS = ("navigation", "push_pull", "push_pull_fast", "pick_place")
 
 app = typer.Typer(add_completion=False)
 
@@ -87,6 +87,7 @@ def measure(scenario, iterations: int, nthread: int, rounds: int = 4, backend: s
     own_spec.option.timestep = model.opt.timestep
     apply_planning_model(own_spec, scenario.planner.model, scenario.source)
     own = compile_model(scenario, own_spec)
+    tune_planning_model(own, scenario.planner.model)
     hold = round(model.opt.timestep / world.opt.timestep)   # world steps per planned step
     samples, horizon = planner.mppi.num_samples, scenario.planner.horizon
     pool_data = [mujoco.MjData(world) for _ in range(nthread)]
