@@ -51,9 +51,9 @@ class Mirror:
                  estimate: EstimateConfig | None = None, planar: Sequence[str] = ()):
         self.model = model
         self.planar = [_free_joint(model, name) for name in planar]
-        estimator = FreeBodyEstimator(model, estimate or EstimateConfig())
-        self.estimator = estimator if estimator.active else None
         cfg = estimate or EstimateConfig()
+        estimator = FreeBodyEstimator(model, cfg)
+        self.estimator = estimator if estimator.active else None
         self.mocap_estimator = (MocapEstimator(model, cfg)
                                 if model.nmocap and filters_poses(cfg) else None)
         self.data = mujoco.MjData(model)
