@@ -897,12 +897,17 @@ def _sizes(value: Any) -> tuple[float, ...]:
     return v
 
 
+def _named_sections(s: Section, what: str):
+    """``(name, section)`` for each key of ``s``, a mapping of names to mappings."""
+    for name in s.data:
+        if not isinstance(name, str):
+            raise s.error(str(name), "wrong type", name, what)
+        yield name, s.section(name)
+
+
 def _geom_models(s: Section) -> dict[str, GeomModel]:
     out = {}
-    for name in s.data:
-        g = s.section(name) if isinstance(name, str) else None
-        if g is None:
-            raise s.error(str(name), "wrong type", name, "a geom's name")
+    for name, g in _named_sections(s, "a geom's name"):
         out[name] = GeomModel(
             type=g.opt("type", None, one_of(GEOM_TYPES)),
             size=g.opt("size", None, _sizes, "1 to 3 numbers > 0, as MuJoCo's geom size"),
@@ -925,10 +930,7 @@ def _per_dof(value: Any) -> tuple[float, ...]:
 
 def _object_models(s: Section) -> dict[str, ObjectModel]:
     out = {}
-    for name in s.data:
-        o = s.section(name) if isinstance(name, str) else None
-        if o is None:
-            raise s.error(str(name), "wrong type", name, "an object's name")
+    for name, o in _named_sections(s, "an object's name"):
         out[name] = ObjectModel(
             gravcomp=o.opt("gravcomp", None, non_negative, "a number >= 0 (1: weight cancelled)"),
             damping=o.opt("damping", None, _per_dof, _PER_DOF),
