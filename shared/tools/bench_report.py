@@ -289,20 +289,18 @@ def _trials_ran_on(rows: list[dict[str, str]]) -> str:
 def grid_report(results: list[Results]) -> str:
     """Successes per scenario (rows) and variant (columns), e.g. a robustness bench's scenarios
     under each compensation: ``k/n`` over the newest version of each case, ``—`` where none ran."""
-    cells: dict[tuple[str, str], list[int]] = {}
-    for res in results:
-        for r in res.rows:
-            won, n = cells.setdefault((r["scenario"], r["variant"]), [0, 0])
-            cells[(r["scenario"], r["variant"])] = [won + (r["success"] == "1"), n + 1]
-    scenarios = list(dict.fromkeys(s for s, _ in cells))
-    variants = list(dict.fromkeys(v for _, v in cells))
-    rows = [["scenario", *variants]]
+    won: dict[tuple[str, str], int] = {}
+    ran: dict[tuple[str, str], int] = {}
+    for r in (r for res in results for r in res.rows):
+        key = (r["scenario"], r["variant"])
+        ran[key] = ran.get(key, 0) + 1
+        won[key] = won.get(key, 0) + (r["success"] == "1")
+    scenarios = list(dict.fromkeys(s for s, _ in ran))
+    variants = list(dict.fromkeys(v for _, v in ran))
+    lines = ["| scenario | " + " | ".join(variants) + " |", "|---|" + "---:|" * len(variants)]
     for sc in scenarios:
-        rows.append([f"`{sc}`", *(f"{cells[(sc, v)][0]}/{cells[(sc, v)][1]}" if (sc, v) in cells
-                                  else "—" for v in variants)])
-    head, *body = rows
-    lines = ["| " + " | ".join(head) + " |", "|---|" + "---:|" * len(variants)]
-    lines += ["| " + " | ".join(r) + " |" for r in body]
+        cells = [f"{won[(sc, v)]}/{ran[(sc, v)]}" if (sc, v) in ran else "—" for v in variants]
+        lines.append(f"| `{sc}` | " + " | ".join(cells) + " |")
     return "\n".join(lines) + "\n"
 
 
