@@ -15,7 +15,7 @@ import numpy as np
 
 from shared.protocol import State
 from shared.scenario import EstimateConfig
-from shared.scene import STATE_FIELDS, get_full_state, set_state
+from shared.scene import STATE_FIELDS, free_joint, get_full_state, set_state
 from planner_client.estimate import FreeBodyEstimator, MocapEstimator, filters_poses
 
 
@@ -116,9 +116,7 @@ class Mirror:
 
 def _free_joint(model: mujoco.MjModel, body: str) -> tuple[int, int]:
     """qpos and qvel addresses of body ``body``'s free joint."""
-    b = model.body(body).id
-    j = next(j for j in range(model.njnt) if model.jnt_bodyid[j] == b
-             and model.jnt_type[j] == mujoco.mjtJoint.mjJNT_FREE)
+    j = free_joint(model, body)
     return int(model.jnt_qposadr[j]), int(model.jnt_dofadr[j])
 
 

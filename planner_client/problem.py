@@ -17,7 +17,7 @@ from shared.config import ConfigError, ErrorLog, Section
 from shared.frames import FrameResolver
 from shared.robots import RobotSpec, get_robot
 from shared.scenario import PlanningModel, Scenario
-from shared.scene import build_spec, compile_model, initial_data, obstacle_names
+from shared.scene import build_spec, compile_model, free_joint, initial_data, obstacle_names
 from planner_client.attach import add_attach_welds
 from planner_client.costs import JointInfo, Objective, TermContext, build_objective
 from planner_client.mppi import MPPIConfig
@@ -139,9 +139,7 @@ def tune_planning_model(model: mujoco.MjModel, cfg: PlanningModel) -> None:
     """The per-DOF joint values of ``planner.model.objects`` (damping, frictionloss, armature)
     on the compiled planner model, after :func:`apply_planning_model` on its spec."""
     for name, obj in cfg.objects.items():
-        body = model.body(name).id
-        joint = next(j for j in range(model.njnt) if model.jnt_bodyid[j] == body
-                     and model.jnt_type[j] == mujoco.mjtJoint.mjJNT_FREE)
+        joint = free_joint(model, name)
         dofs = slice(model.jnt_dofadr[joint], model.jnt_dofadr[joint] + 6)
         for key in ("damping", "frictionloss", "armature"):
             if getattr(obj, key) is not None:

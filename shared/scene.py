@@ -156,6 +156,13 @@ def set_state(model: mujoco.MjModel, data: mujoco.MjData, values: Mapping[str, A
         getattr(data, name).flat[:] = value
 
 
+def free_joint(model: mujoco.MjModel, body: str) -> int:
+    """The id of body ``body``'s free joint (StopIteration if it has none)."""
+    b = model.body(body).id
+    return next(j for j in range(model.njnt) if model.jnt_bodyid[j] == b
+                and model.jnt_type[j] == mujoco.mjtJoint.mjJNT_FREE)
+
+
 def state_size(model: mujoco.MjModel) -> int:
     return mujoco.mj_stateSize(model, mujoco.mjtState.mjSTATE_FULLPHYSICS)
 
