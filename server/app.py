@@ -112,6 +112,7 @@ class WorldServer:
         self.seed = seed
         self.seq = 0
         self._over = False                # the summary is written; a kept world waits for a reset
+        self._ending = False              # the safe stop, metrics and summary are being written
         self._plan_times: list[float] = []
         self._state_times: dict[int, float] = {}     # seq -> world time of recent states
         self._plan_time_of: dict[int, float] = {}    # seq -> planning time, until first applied
@@ -161,6 +162,7 @@ class WorldServer:
             self.world.status = "stopped"
             log.info("interrupted")
         finally:
+            self._ending = True                  # a signal from now on must not cost the summary
             self._stop_world()                   # a robot holds still whatever ended the episode
             if self.world.status == "running":   # ended by a seeded reset
                 self.world.status = "stopped"
@@ -176,6 +178,15 @@ class WorldServer:
             self._over = True
         outcome.measures["planner_hz"] = hz
         return outcome
+
+    def interrupt(self, signum: int, frame=None) -> None:
+        """SIGINT/SIGTERM handler (the CLI installs it): end the episode as Ctrl-C does, and
+        serve no other. While the episode is ending (safe stop, metrics, summary) it raises
+        nothing: a supervisor's SIGTERM that lands just as an episode ends would otherwise cut
+        the log before its summary."""
+        self._stop = True
+        if not self._ending:
+            raise KeyboardInterrupt(f"signal {signum}")
 
     def _stop_world(self) -> None:
         """The world's safe stop; its failure is logged loudly, and the summary still written."""

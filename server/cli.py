@@ -152,7 +152,8 @@ def main(
             log.warning("no display found: running without the viewer")
     # a supervisor (systemd, the launcher's stop, a soak test's restart) stops the world with
     # SIGTERM: end the episode as Ctrl-C does, so the log still gets its summary
-    signal.signal(signal.SIGTERM, _interrupt)
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(sig, server.interrupt)
     try:
         outcome = server.run()
     except WorldError as exc:    # the world failed mid-episode: stopped, the summary written
@@ -188,7 +189,3 @@ def _security(hosts: dict[str, str], keys: Optional[Path], insecure: bool):
     except (ExposureError, ConfigError) as exc:
         typer.echo(f"error: {exc}", err=True)
         raise typer.Exit(2) from None
-
-
-def _interrupt(signum, frame) -> None:
-    raise KeyboardInterrupt(f"signal {signum}")

@@ -13,7 +13,10 @@ from pathlib import Path
 
 import pytest
 
+from server.app import ServerOptions, WorldServer
 from server.episode_log import read_log
+from shared.endpoints import Endpoints
+from shared.scenario import load_scenario
 from tests.helpers import ENV, StateWatcher, free_port_block, start_server, stop
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -152,6 +155,32 @@ def test_world_writes_its_summary_on_sigterm(tmp_path):
     records = read_log(log)
     assert records[0]["kind"] == "header"
     assert records[-1]["kind"] == "summary" and records[-1]["status"] == "stopped", records[-1]
+
+
+def test_a_signal_as_the_episode_ends_still_leaves_the_summary(tmp_path):
+    """The soak's world restart can land just as the episode ends on its own (the CI run of
+    2026-12-01 lost one summary so): a signal during the safe stop, metrics and summary must
+    not cut the log, while one mid-episode still ends the episode as Ctrl-C does."""
+    server = WorldServer(load_scenario("navigation"), Endpoints(port=free_port_block()),
+                         tmp_path / "episode.jsonl", ServerOptions(keep_serving=True))
+    try:
+        with pytest.raises(KeyboardInterrupt):
+            server.interrupt(signal.SIGTERM)      # serving: the episode ends as on Ctrl-C
+        metrics = server._episode_metrics
+
+        def signalled_while_ending(status):
+            server.interrupt(signal.SIGTERM)      # what the handler does when SIGTERM lands here
+            return metrics(status)
+
+        server._episode_metrics = signalled_while_ending
+        outcome = server.run()                    # _stop is set: the episode ends at once
+    finally:
+        server.log.close()
+        server.close()
+    assert outcome.status == "stopped"
+    records = read_log(tmp_path / "episode.jsonl")
+    assert records[0]["kind"] == "header"
+    assert records[-1]["kind"] == "summary" and records[-1]["status"] == "stopped"
 
 
 @pytest.mark.slow
