@@ -329,7 +329,7 @@ class PlannerClient:
         except ValueError as exc:
             log.error("state does not fit the planner's model: %s", exc)
             return
-        if self.attachments.track(self.mirror.data):
+        if self.attachments.track(self.mirror.data, self.mirror.received_qpos):
             x0 = self.mirror.refresh()
         if self._actuation is not None:
             self._actuation.observe(self.mirror.data, list(self._sent),

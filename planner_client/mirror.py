@@ -59,6 +59,7 @@ class Mirror:
         self.data = mujoco.MjData(model)
         self.x0 = np.zeros(mujoco.mj_stateSize(model, mujoco.mjtState.mjSTATE_FULLPHYSICS))
         self.max_speed = max_speed
+        self.received_qpos = np.zeros(model.nq)      # the last state's qpos as received [nq]
         self.mocap_vel = np.zeros((model.nmocap, 3))
         self._prev_pos = np.zeros((model.nmocap, 3))
         self._prev_time: float | None = None
@@ -84,6 +85,8 @@ class Mirror:
         """Copy ``state`` in, recompute kinematics, return the rollout initial state [nstate]."""
         m, d = self.model, self.data
         arrays = {name: getattr(state, name) for name in STATE_FIELDS}
+        # before any filter: a held object is measured here (planner_client.attach)
+        self.received_qpos = np.asarray(arrays["qpos"], dtype=float)
         mocap_vel = None
         if self.estimator is not None and arrays["qpos"].shape == (m.nq,) and \
                 arrays["qvel"].shape == (m.nv,):        # (a misfit is set_state's to refuse)

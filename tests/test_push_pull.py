@@ -23,8 +23,8 @@ BOX = slice(2, 4)   # the box's x, y in qpos, after the robot's two slide joints
 # the hybrid's longest time to show that it mostly stalls.
 CORNER2_PUSH_TIME = 12.0
 PAIR = (0, 1)
-HYBRID_SEEDS = (0, 1, 2)
-PUSH_SEEDS = tuple(range(8))
+HYBRID_SEEDS = (0, 1)
+PUSH_SEEDS = tuple(range(5))
 
 
 def episode_specs(out):
@@ -94,11 +94,11 @@ def test_hybrid_puts_the_box_into_a_corner(episodes):
 
 
 def test_hybrid_takes_the_box_from_corner_to_corner_pulling_then_pushing(episodes):
-    """20/20 in the bench; at least 2 of 3 here. In each success the executed suction follows
+    """20/20 in the bench; at least 1 of 2 here. In each success the executed suction follows
     the dominant mode: on when the box leaves its corner (pulled out), off at the end (pushed
     into the other corner)."""
     runs = _runs(episodes, "push_pull_corner2", HYBRID_SEEDS)
-    assert _successes(runs) >= 2
+    assert _successes(runs) >= 1
     for r in (r for r in runs if r.success):
         box = np.array([s["qpos"][BOX] for s in r.steps])
         moved = np.flatnonzero(np.linalg.norm(box - box[0], axis=1) > 0.1)[0]
@@ -109,11 +109,12 @@ def test_hybrid_takes_the_box_from_corner_to_corner_pulling_then_pushing(episode
 def test_push_alone_mostly_stalls_where_the_hybrid_goes_from_corner_to_corner(episodes):
     """Table II: the walls keep the robot from getting behind the box, so push alone can only
     press it against the north wall and slide it along; that reached the goal in 7 of 20 bench
-    seeds (35 %). Here push gets the hybrid's longest time (12 s) on 8 seeds and must fail in at
-    least 2: with a 35 % success rate all but one of 8 succeed with probability 0.4 %."""
+    seeds (35 %). Here push gets the hybrid's longest time (12 s) on 5 seeds and must fail in at
+    least 1: with a 35 % success rate all 5 succeed with probability 0.5 % (8 seeds and 2
+    failures before 2026-12-01: the same odds, 60 s more of the suite)."""
     runs = _runs(episodes, "push_corner2", PUSH_SEEDS)
     failures = [r for r in runs if not r.success]
-    assert len(failures) >= 2
+    assert failures
     for r in failures:
         assert r.row["status"] == "timeout"
 

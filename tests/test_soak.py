@@ -1,5 +1,5 @@
 """The soak and fault test (scripts/soak.py): its checks catch each fault they claim to, the world
-closes its log on SIGTERM (how the soak restarts it), and a 60 s soak of real-time episodes
+closes its log on SIGTERM (how the soak restarts it), and a 40 s soak of real-time episodes
 under every kind of fault passes every check."""
 
 from __future__ import annotations
@@ -184,11 +184,13 @@ def test_a_signal_as_the_episode_ends_still_leaves_the_summary(tmp_path):
 
 
 @pytest.mark.slow
-def test_sixty_second_soak_passes_every_check(tmp_path):
-    """Real-time navigation episodes for 60 s under every kind of fault (planner SIGKILL and
-    its hot spare, world restart, command-socket garbage, planner SIGSTOP past the time-out)."""
+def test_forty_second_soak_passes_every_check(tmp_path):
+    """Real-time navigation episodes for 40 s under every kind of fault (planner SIGKILL and
+    its hot spare, world restart, command-socket garbage, planner SIGSTOP past the time-out).
+    The kinds come in turn, so the first four faults (by about 25 s) cover them all; the rest
+    repeat them (60 s before 2026-12-01, 20 s more of the suite)."""
     results = tmp_path / "soak.json"
-    run = subprocess.run([sys.executable, str(ROOT / "scripts" / "soak.py"), "--duration", "60",
+    run = subprocess.run([sys.executable, str(ROOT / "scripts" / "soak.py"), "--duration", "40",
                           "--gap-min", "3", "--gap-max", "5", "--seed", "1",
                           "--out", str(tmp_path / "logs"), "--results", str(results)],
                          capture_output=True, text=True, timeout=400, env=ENV, cwd=ROOT)

@@ -12,9 +12,12 @@ the wheel, so the page loads with no network beyond the machine serving it. The 
 
 from __future__ import annotations
 
+import contextlib
 import json
 import logging
+import os
 import shutil
+import signal
 import subprocess
 import tempfile
 import threading
@@ -619,7 +622,9 @@ def chromium_screenshot(url: str, out: Path, width: int = 1000, height: int = 70
     if exe is None:
         raise FileNotFoundError("no chromium on the PATH (apt-get install chromium)")
     deadline = time.monotonic() + timeout
-    with tempfile.TemporaryDirectory() as profile, \
+    # chromium's helper processes may still be writing the profile as it is removed: a leftover
+    # folder in /tmp is no reason to fail a screenshot that was taken
+    with tempfile.TemporaryDirectory(ignore_cleanup_errors=True) as profile, \
             tempfile.TemporaryFile("w+") as err:
         cmd = [exe, "--headless", "--no-sandbox", "--disable-gpu", "--disable-quic",
                "--no-first-run", "--disable-background-networking", "--disable-component-update",
@@ -628,7 +633,8 @@ def chromium_screenshot(url: str, out: Path, width: int = 1000, height: int = 70
                "--host-resolver-rules=MAP * ~NOTFOUND, EXCLUDE 127.0.0.1",
                f"--window-size={width},{height}", "--remote-debugging-address=127.0.0.1",
                "--remote-debugging-port=0", "about:blank"]
-        proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=err)
+        # its own process group, so that stopping it stops its renderer and GPU helpers too
+        proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=err, start_new_session=True)
         returncode = 1
         try:
             port_file = Path(profile) / "DevToolsActivePort"   # chromium writes its port here
@@ -665,12 +671,19 @@ def chromium_screenshot(url: str, out: Path, width: int = 1000, height: int = 70
         except (OSError, RuntimeError, StopIteration, TimeoutError) as exc:
             err.write(f"\nscreenshot failed: {exc!r}\n")
         finally:
-            proc.terminate()
-            try:
-                proc.wait(10)
-            except subprocess.TimeoutExpired:
-                proc.kill()
-                proc.wait()
+            _stop_group(proc)
             err.seek(0)
             stderr = err.read()
     return subprocess.CompletedProcess(cmd, returncode, "", stderr)
+
+
+def _stop_group(proc: subprocess.Popen) -> None:
+    """SIGTERM to ``proc``'s process group, SIGKILL after 10 s; waits for ``proc``."""
+    with contextlib.suppress(ProcessLookupError):      # the whole group may be gone already
+        os.killpg(proc.pid, signal.SIGTERM)
+    try:
+        proc.wait(10)
+    except subprocess.TimeoutExpired:
+        with contextlib.suppress(ProcessLookupError):
+            os.killpg(proc.pid, signal.SIGKILL)
+        proc.wait()
