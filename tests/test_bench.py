@@ -177,6 +177,9 @@ def test_report_blocks_are_regenerated_and_checked(tmp_path):
     missing.write_text("<!-- m3p2i report nowhere -->\n<!-- end of report -->\n")
     bad = runner.invoke(app, ["report", "--update", str(missing)])
     assert bad.exit_code == 2 and "no results file" in bad.output
+    # a markdown file where results were expected (``--check README.md``): named, not a KeyError
+    wrong = runner.invoke(app, ["report", str(doc)])
+    assert wrong.exit_code == 2 and "no case, seed, scenario_hash column" in wrong.output
 
 
 def test_a_grid_block_counts_successes_per_scenario_and_variant(tmp_path):

@@ -234,7 +234,12 @@ def read_results(path: str | Path) -> Results:
         raise ConfigError(str(path), "", "no results file", expected="a bench's results.csv or "
                           "its output folder")
     with csv_path.open(newline="") as f:
-        rows = list(csv.DictReader(f))
+        reader = csv.DictReader(f)
+        missing = [c for c in ("case", "seed", "scenario_hash") if c not in (reader.fieldnames or [])]
+        if missing:
+            raise ConfigError(str(csv_path), "", f"no {', '.join(missing)} column",
+                              expected="a bench's results.csv (m3p2i bench writes it)")
+        rows = list(reader)
     # a sweep's variants (same case, other overrides) are versions side by side, not in turn
     newest = {(r["case"], r.get("overrides") or ""): r["scenario_hash"] for r in rows}
     latest = {(r["case"], r.get("overrides") or "", int(r["seed"])): r for r in rows
