@@ -10,7 +10,8 @@ during an episode, one fault at a time, the four kinds in turn (seeded order):
   on the same ports; the planner must find it by itself;
 - ``flood``: push garbage at the command socket from a separate socket: random bytes,
   malformed msgpack, commands of a wrong session, of a wrong shape and with NaN;
-- ``pause``: SIGSTOP the planner past the command time-out, then SIGCONT.
+- ``pause``: SIGSTOP the planner past the command time-out, then SIGCONT; within the first
+  second of an episode, so that the world still has an episode to hold the robot still in.
 
 Checks at the end (exit status 0 only when all hold), printed as a table and written with every
 fault and episode to ``soak.json`` next to the episode logs:
@@ -431,15 +432,19 @@ class Soak:
                   f"{self.planner.returncode}; starting another", file=sys.stderr)
             self.start_planner()
 
-    def mid_episode(self) -> bool:
-        """The current world is stepping under the planner's commands."""
+    def mid_episode(self, within: float | None = None) -> bool:
+        """The current world is stepping under the planner's commands (with ``within``: and
+        began stepping less than ``within`` s ago)."""
         tail = self.tails[self.world.index]
         tail.poll()
         recs = tail.records
         if self.world.popen.poll() is not None or not recs or recs[-1]["kind"] == "summary":
             return False
         steps = [r for r in recs[-20:] if r["kind"] == "step"]
-        return bool(steps) and not steps[-1]["safe"] and time.time() - steps[-1]["wall"] < 0.5
+        if not steps or steps[-1]["safe"] or time.time() - steps[-1]["wall"] >= 0.5:
+            return False
+        first = next(r for r in recs if r["kind"] == "step")
+        return within is None or time.time() - first["wall"] < within
 
     def wait(self, seconds: float, until=None) -> bool:
         """Tick for ``seconds`` or until ``until()`` holds."""
@@ -577,8 +582,12 @@ class Soak:
                 if kind == "kill" and not self.wait(120.0, self.spare_ready):
                     print("the spare planner never became ready", file=sys.stderr)
                     break
-                # "at a random moment" of an episode: the planner must be driving the robot
-                if not self.wait(min(30.0, hard_end - time.monotonic()), self.mid_episode):
+                # "at a random moment" of an episode: the planner must be driving the robot. A
+                # pause early in it: one near its end let the robot coast into the goal on its
+                # last command, and the world that holds still was never seen (no step left to
+                # log between the time-out and the episode's end)
+                ready = (lambda: self.mid_episode(within=1.0)) if kind == "pause" else self.mid_episode
+                if not self.wait(min(30.0, hard_end - time.monotonic()), ready):
                     break
                 f = self.inject(kind)
                 print(f"{time.time() - started:7.1f} s  {kind:8s} world {f.world}", flush=True)

@@ -10,8 +10,8 @@ import pytest
 import yaml
 from typer.testing import CliRunner
 
-from shared.tools.bench import (FIELDS, BenchOptions, ResultsFile, load_bench, plan_trials,
-                                select_cases, trial_key)
+from shared.tools.bench import (FIELDS, BenchOptions, ResultsFile, _TrialQueue, load_bench,
+                                pair_key, plan_trials, select_cases, trial_key)
 from shared.tools.bench_report import (load_paper, markdown_table, read_results, results_report,
                                        seed_ranges, summarize, table_rows, update_reports, wilson)
 from shared.tools.cli import app
@@ -82,6 +82,25 @@ def test_plan_is_seed_major_and_skips_finished_trials(tmp_path):
     assert [(t.case.case, t.seed) for t in todo] == [("a", 10), ("b", 10), ("a", 12)]
     quick = BenchOptions(out_dir=tmp_path, workers=1, timeout=1.0, quick=True)
     assert len(plan_trials(ready, cfg, quick, set())[0]) == 3          # min(2, 3) + min(2, 1)
+
+
+def test_workers_without_a_pair_start_on_cases_nobody_serves(tmp_path):
+    """Two workers, cases of two trials each: each worker takes a case of its own and its warm
+    pair serves it to the end (two pair starts for two cases, where taking the next trial in
+    turn started one per trial)."""
+    cases = [{"case": "a", "scenario": "navigation", "trials": 2},
+             {"case": "b", "scenario": "battery_enough", "trials": 2}]
+    cfg = load_bench(write_bench(tmp_path, cases))
+    ready, _ = select_cases(cfg)
+    _, todo = plan_trials(ready, cfg, BenchOptions(out_dir=tmp_path, workers=2, timeout=1.0),
+                          set())
+    queue = _TrialQueue(todo)
+    first, second = queue.take(0, None), queue.take(1, None)     # both start
+    assert [(t.case.case, t.seed) for t in (first, second)] == [("a", 0), ("b", 0)]
+    # each goes on with its own case, whichever asks first; the last takes what is left
+    assert (queue.take(1, pair_key(second)).case.case, queue.take(0, pair_key(first)).case.case) \
+        == ("b", "a")
+    assert queue.take(0, pair_key(first)) is None
 
 
 def test_results_file_drops_a_torn_last_row(tmp_path):

@@ -1,8 +1,9 @@
 """Panda pick-and-place (paper III.A.2, III.C): the action template's decisions, and both processes
-end to end in lock-step: normal stacking, the reactive run (cube moved, stolen from the hand, goal
+end to end in lock-step: the reactive run (stacking with the cube moved, stolen from the hand, goal
 blocked, unstacked) and the multi-modal grasp past a moving obstacle, in both of its cases (side
-grasp in the shelf, top grasp on the table). Each run prints its position and orientation error
-(Table III's columns); ``-s`` shows them."""
+grasp in the shelf, top grasp on the table). Plain stacking (pick_place.yaml) runs end to end in
+tests/test_realtime.py, in real time. Each run prints its position and orientation error (Table
+III's columns); ``-s`` shows them."""
 
 from __future__ import annotations
 
@@ -64,8 +65,7 @@ SEEDS = (0, 1)
 def episode_specs(out):
     """This module's episodes, for the session's one pool (tests/conftest.py); the longest
     (the reactive run's four disturbances) first, so that they do not finish the pool alone."""
-    return [(name, name, seed) for name in ("pick_place_reactive", "pick_shelf", "pick_place")
-            for seed in SEEDS]
+    return [(name, name, seed) for name in ("pick_place_reactive", "pick_shelf") for seed in SEEDS]
 
 
 @pytest.fixture(scope="module")
@@ -100,16 +100,10 @@ def _first_occurrences(actions: list[str]) -> list[str]:
 
 
 @pytest.mark.slow
-def test_pick_place_stacks_the_cubes(panda):
-    _succeeded_within_tolerance("pick_place", panda)
-    for seed in SEEDS:
-        actions = panda[("pick_place", seed)].actions
-        assert _first_occurrences(actions)[:4] == ["reach", "pick", "move2place", "place"]
-
-
-@pytest.mark.slow
 def test_reactive_run_picks_the_stolen_cube_again_and_succeeds(panda):
     for ep in _succeeded_within_tolerance("pick_place_reactive", panda):
+        # the template's chain up to the theft (the goal's block then reports a failure)
+        assert _first_occurrences(ep.actions)[:3] == ["reach", "pick", "move2place"]
         assert [e["object"] for e in ep.disturbances] == \
             ["cube_a", "cube_a", "blocker", "blocker", "cube_a"]
         assert ep.actions.count("place") >= 2             # placed, unstacked, placed again

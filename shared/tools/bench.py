@@ -378,8 +378,9 @@ class BenchOptions:
 def plan_trials(ready: list[ReadyCase], cfg: BenchConfig, opts: BenchOptions,
                 done: set[tuple[str, int, str]]) -> tuple[list[Trial], list[Trial]]:
     """(all trials of this run, those still to run), seed-major. Workers start on the first
-    cases and then keep to their case while it has trials (its warm pair serves them), so an
-    interrupted bench has results for as many cases as there are workers, and more."""
+    cases, one each, and then keep to their case while it has trials (its warm pair serves
+    them), so an interrupted bench has results for as many cases as there are workers, and
+    more."""
     planned = []
     for i in range(max(_trials(rc.case, cfg, opts) for rc in ready) if ready else 0):
         for rc in ready:
@@ -461,17 +462,26 @@ def run_trials(todo: list[Trial], opts: BenchOptions, results: ResultsFile,
 
 class _TrialQueue:
     """The trials still to run, in order; a worker takes the first of its pair's case when one
-    is left (so a warm pair serves a case to its end), else the first of all."""
+    is left (so a warm pair serves a case to its end), else the first of a case no other worker
+    serves (else the first of all): two workers on cases of two trials each then start two
+    pairs per two cases, not four."""
 
     def __init__(self, trials: list[Trial]):
         self._trials = list(trials)
         self._lock = threading.Lock()
+        self._serving: dict[int, tuple] = {}     # worker -> pair key of its last trial
 
-    def take(self, key: tuple | None) -> Trial | None:
+    def take(self, worker: int, key: tuple | None) -> Trial | None:
+        """The next trial for ``worker``, whose warm pair (if any) has ``key``."""
         with self._lock:
             if not self._trials:
                 return None
-            i = next((i for i, t in enumerate(self._trials) if pair_key(t) == key), 0)
+            others = {k for w, k in self._serving.items() if w != worker}
+            keys = [pair_key(t) for t in self._trials]
+            i = next((i for i, k in enumerate(keys) if k == key), None)
+            if i is None:
+                i = next((i for i, k in enumerate(keys) if k not in others), 0)
+            self._serving[worker] = keys[i]
             return self._trials.pop(i)
 
 
@@ -488,10 +498,11 @@ def _run_pool(todo: list[Trial], workers: int, opts: BenchOptions, results: Resu
     trials = _TrialQueue(todo)
     finished: queue.Queue = queue.Queue()        # rows, exceptions and _WORKER_DONE
 
-    def work() -> None:
+    def work(worker: int) -> None:
         slot = None if opts.fresh else PairSlot()
         try:
-            while not stop.is_set() and (trial := trials.take(slot and slot.key)) is not None:
+            while not stop.is_set() and \
+                    (trial := trials.take(worker, slot and slot.key)) is not None:
                 row = run_trial(trial, opts, threads, stop, slot)
                 if row is not None:
                     results.append(row)
@@ -503,7 +514,7 @@ def _run_pool(todo: list[Trial], workers: int, opts: BenchOptions, results: Resu
                 slot.close()
             finished.put(_WORKER_DONE)
 
-    pool = [threading.Thread(target=work, name=f"bench-worker-{i}", daemon=True)
+    pool = [threading.Thread(target=work, args=(i,), name=f"bench-worker-{i}", daemon=True)
             for i in range(min(workers, len(todo)))]
     for t in pool:
         t.start()
