@@ -189,7 +189,10 @@ def _received_relative_pose(model: mujoco.MjModel, data: mujoco.MjData, qpos: np
     pose) in the frame of body ``frame`` as ``data`` has it."""
     qadr = model.jnt_qposadr[model.body_jntadr[body]]
     quat = qpos[qadr + 3:qadr + 7]
-    return _in_frame(data, frame, qpos[qadr:qadr + 3], quat / np.linalg.norm(quat))
+    norm = np.linalg.norm(quat)
+    if not norm > 0:           # no orientation received (a bridge's zeros): the mirrored one
+        return relative_pose(data, body, frame)
+    return _in_frame(data, frame, qpos[qadr:qadr + 3], quat / norm)
 
 
 def relative_pose(data: mujoco.MjData, body: int, frame: int) -> np.ndarray:
