@@ -116,15 +116,17 @@ def test_a_planar_object_is_laid_flat_in_the_planners_state():
 
 def test_the_shipped_planning_model_moves_the_box_about_as_the_world_does():
     """push_pull_fast's planning model (no floor contact: weight compensated, floor friction as joint
-    damping) against the world's, over 0.75 s (the horizon) of 40 seeded pushes and pulls of
-    the box from a side: the box's end position agrees to within 10 cm on average (pushes) and
-    13 cm (pulls), while it moves about 25 cm in the world; its yaw to within 0.2 rad on average.
-    Measured 2026-12-01: 6-7 cm and 9-10 cm, 0.12-0.15 rad."""
+    damping; 0.1 s steps) against the world's (0.05 s steps), over 0.8 s (the horizon) of 40
+    seeded pushes and pulls of the box from a side, each control held 0.1 s: the box's end
+    position agrees to within 10 cm on average (pushes) and 13 cm (pulls), while it moves about
+    25 cm in the world; its yaw to within 0.2 rad on average. Measured 2026-12-01: 7.6 and
+    11.4 cm, 0.10 rad (with 0.05 s steps over 0.75 s, before: 6-7 and 9-10 cm, 0.12-0.15 rad)."""
     sc = load_scenario("push_pull_fast")
     planner, world = build_problem(sc).model, compile_model(sc)
     assert planner.nexclude and not world.nexclude          # the shipped file has the model
+    assert planner.opt.timestep == 0.1 and world.opt.timestep == 0.05
     rng = np.random.default_rng(1)
-    n, steps = 40, 15
+    n, steps = 40, 8                                          # of 0.1 s
     starts, ctrl = [], np.zeros((n, steps, 3))
     for k in range(n):
         normal = [(1, 0), (0, 1), (-1, 0), (0, -1)][rng.integers(4)]
@@ -144,7 +146,8 @@ def test_the_shipped_planning_model_moves_the_box_about_as_the_world_does():
             s = np.empty(mujoco.mj_stateSize(model, mujoco.mjtState.mjSTATE_FULLPHYSICS))
             mujoco.mj_getState(model, data, s, mujoco.mjtState.mjSTATE_FULLPHYSICS)
             x0.append(s)
-        state, _ = rollout.rollout(model, mujoco.MjData(model), np.array(x0), ctrl)
+        held = np.repeat(ctrl, round(0.1 / model.opt.timestep), axis=1)     # 0.1 s per control
+        state, _ = rollout.rollout(model, mujoco.MjData(model), np.array(x0), held)
         qpos = state[:, -1, 1:1 + model.nq]
         return qpos[:, 2:4], 2 * np.arctan2(qpos[:, 8], qpos[:, 5])
 
