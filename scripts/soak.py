@@ -586,8 +586,9 @@ class Soak:
                 # pause early in it: one near its end let the robot coast into the goal on its
                 # last command, and the world that holds still was never seen (no step left to
                 # log between the time-out and the episode's end)
-                ready = (lambda: self.mid_episode(within=1.0)) if kind == "pause" else self.mid_episode
-                if not self.wait(min(30.0, hard_end - time.monotonic()), ready):
+                within = 1.0 if kind == "pause" else None
+                if not self.wait(min(30.0, hard_end - time.monotonic()),
+                                 lambda: self.mid_episode(within)):
                     break
                 f = self.inject(kind)
                 print(f"{time.time() - started:7.1f} s  {kind:8s} world {f.world}", flush=True)
