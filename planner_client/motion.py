@@ -123,11 +123,10 @@ class MotionPlanner:
         """Indices of each mode's ``top_k`` lowest-cost samples and their mode numbers: by the
         fused weights alone a viewer would see only the dominant mode's."""
         picks, modes = [], []
+        costs = self._step_costs.sum(1).nan_to_num_(nan=torch.inf)           # [S]
         for i, rows in enumerate(self.mppi.mode_slices):
-            cost = self._step_costs[rows].sum(1)
-            cost = torch.nan_to_num(cost, nan=torch.inf)
-            k = min(self.top_k, cost.shape[0])
-            picks.append(torch.topk(cost, k, largest=False).indices + rows.start)
+            k = min(self.top_k, rows.stop - rows.start)
+            picks.append(torch.topk(costs[rows], k, largest=False).indices + rows.start)
             modes += [i] * k
         return torch.cat(picks), np.array(modes, dtype=np.int64)
 

@@ -15,8 +15,10 @@ from mujoco import rollout as mj_rollout
 
 
 class RolloutEngine:
-    """Runs ``[S, T, nu]`` controls from one state; returns ``state [S, T, nstate]`` and
-    ``sensordata [S, T, nsensordata]`` (views into buffers reused by the next call).
+    """Runs ``[S, T, nu]`` controls from one state; returns ``sensordata [S, T, nsensordata]``
+    (a buffer reused by the next call). The states along the rollouts are not recorded: costs
+    read sensors only, and a [S, T, nstate] buffer written each iteration would only push the
+    costs' and the update's data out of the cache.
 
     With ``mocap_path`` the mocap bodies follow a given path during the rollouts (the per-step
     control vector is then [ctrl, mocap_pos], mujoco's state order): the planner's constant
@@ -41,7 +43,6 @@ class RolloutEngine:
         self._shape = (samples, horizon)
         self._models = [self.model] * samples
         self._x0 = np.zeros((samples, self.nstate))
-        self._state = np.zeros((samples, horizon, self.nstate))
         self._sensor = np.zeros((samples, horizon, self.model.nsensordata))
         self._full = np.zeros((samples, horizon, self.model.nu + 3 * self.model.nmocap))
         # ~10 chunks per thread balance the load without per-sample dispatch cost (mujoco's own
@@ -60,7 +61,7 @@ class RolloutEngine:
         self.model.body_quat[self._mocap_bodies] = quat
 
     def run(self, x0: np.ndarray, control: np.ndarray,
-            mocap_path: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+            mocap_path: np.ndarray | None = None) -> np.ndarray:
         """Roll out ``control [S, T, nu]`` (float64) from ``x0 [nstate]`` and the poses of
         :meth:`set_mocap`; with ``mocap_path [T, nmocap, 3]`` the mocap bodies are placed there
         at each step instead (the same path for all samples)."""
@@ -76,8 +77,8 @@ class RolloutEngine:
             control, spec = self._full, self.mocap_spec
         self._pool.rollout(self._models, self._datas, self._x0, np.ascontiguousarray(control),
                            control_spec=spec, skip_checks=True, nstep=horizon,
-                           state=self._state, sensordata=self._sensor, chunk_size=self._chunk)
-        return self._state, self._sensor
+                           state=None, sensordata=self._sensor, chunk_size=self._chunk)
+        return self._sensor
 
     def close(self) -> None:
         if self._pool is not None:

@@ -61,29 +61,6 @@ def _tensors(*xs: ArrayLike) -> list[torch.Tensor]:
     return [t.to(device=device, dtype=dtype) for t in ts]
 
 
-def quat_to_rotmat(quat: ArrayLike) -> torch.Tensor:
-    """``[..., 4]`` quaternions (w, x, y, z) -> ``[..., 3, 3]`` rotation matrices.
-
-    The quaternion is normalised first, so slightly drifted inputs (float32 sensor data) still
-    give a proper rotation; its sign does not matter.
-    """
-    import torch
-
-    (q,) = _tensors(quat)
-    q = q / q.norm(dim=-1, keepdim=True)
-    w, x, y, z = q.unbind(-1)
-    # each product once (every one appears in two entries): the planner converts [S, T] of
-    # them every iteration, and each tensor op costs about the same on so few elements
-    xx, yy, zz = x * x, y * y, z * z
-    xy, xz, yz, wx, wy, wz = x * y, x * z, y * z, w * x, w * y, w * z
-    rows = (
-        1 - 2 * (yy + zz), 2 * (xy - wz), 2 * (xz + wy),
-        2 * (xy + wz), 1 - 2 * (xx + zz), 2 * (yz - wx),
-        2 * (xz - wy), 2 * (yz + wx), 1 - 2 * (xx + yy),
-    )
-    return torch.stack(rows, dim=-1).reshape(*q.shape[:-1], 3, 3)
-
-
 def symmetric_orientation_error(rot_u: ArrayLike, rot_v: ArrayLike) -> torch.Tensor:
     """Orientation distance between two frames of a fully symmetric object (paper Eq. 33).
 
@@ -122,6 +99,79 @@ def symmetric_orientation_error(rot_u: ArrayLike, rot_v: ArrayLike) -> torch.Ten
 
 def symmetric_orientation_error_quat(quat_u: ArrayLike, quat_v: ArrayLike) -> torch.Tensor:
     """:func:`symmetric_orientation_error` for quaternions ``[..., 4]`` (w, x, y, z), e.g. the
-    ``framequat`` sensors of an object and of its goal."""
-    qu, qv = _tensors(quat_u, quat_v)
-    return symmetric_orientation_error(quat_to_rotmat(qu), quat_to_rotmat(qv))
+    ``framequat`` sensors of an object and of its goal; a tensor whatever the inputs.
+
+    The dot products u_a · v_i of paper Eq. 33 are the entries of R_uᵀR_v, the rotation of the
+    relative quaternion r = q_u* ⊗ q_v. Both steps are bilinear forms (r in q_u and q_v, the
+    rotation's first two rows and |r|² in r), each one matrix product over all [S·T] rows: the
+    planner evaluates this on every sample and step, where two rotation matrices and a batched
+    3 × 3 product took some forty small tensor operations (on [400, 8] samples × steps,
+    0.33 ms against 0.85 ms). Neither quaternion need be normalised (R(r) is divided by |r|²)
+    nor have a sign.
+    """
+    import torch
+
+    qu, qv = torch.broadcast_tensors(*_tensors(quat_u, quat_v))
+    lead = qu.shape[:-1]
+    conj_product, rows_and_norm = _quat_forms(qu.dtype, qu.device)
+    rel = _bilinear(qu.reshape(-1, 4), qv.reshape(-1, 4), conj_product)         # [N, 4]
+    m = _bilinear(rel, rel, rows_and_norm)                                      # [N, 7]
+    # columns 0-2: u1 . v_i, 3-5: u2 . v_i (both times |r|²), 6: |r|²
+    a = m[:, :6].abs()
+    best = (torch.maximum(torch.maximum(a[:, 0], a[:, 1]), a[:, 2])
+            + torch.maximum(torch.maximum(a[:, 3], a[:, 4]), a[:, 5]))          # [N]
+    return (2.0 - best / m[:, 6]).clamp_min(0.0).reshape(lead)
+
+
+def _bilinear(a: torch.Tensor, b: torch.Tensor, form: tuple) -> torch.Tensor:
+    """``out[n, k] = Σ_ij C[i, j, k] a[n, i] b[n, j]`` for ``a [N, da]``, ``b [N, db]``, as three
+    matrix products and one elementwise product on whole rows (``form``: the 0/1 matrices that
+    spread a and b over the (i, j) pairs, and C as ``[da·db, k]``, from :func:`_quat_forms`)."""
+    spread_a, spread_b, coef = form
+    return ((a @ spread_a) * (b @ spread_b)) @ coef
+
+
+def _quat_forms(dtype, device) -> tuple[tuple, tuple]:
+    """The bilinear forms of :func:`symmetric_orientation_error_quat` as tensors, made once per
+    dtype and device: the conjugate product q_u* ⊗ q_v, and the first two rows of R(r)
+    (row-major) with |r|²."""
+    key = (dtype, device)
+    if key not in _QUAT_FORMS:
+        import torch
+
+        spread = (np.kron(np.eye(4), np.ones((1, 4))), np.kron(np.ones((1, 4)), np.eye(4)))
+
+        def as_form(coef: np.ndarray) -> tuple:
+            return tuple(torch.as_tensor(x, dtype=dtype, device=device)
+                         for x in (*spread, coef.reshape(16, -1)))
+        _QUAT_FORMS[key] = (as_form(_CONJ_PRODUCT), as_form(_ROWS_AND_NORM))
+    return _QUAT_FORMS[key]
+
+
+def _quat_tables() -> tuple[np.ndarray, np.ndarray]:
+    """``C [4, 4, k]`` of the two bilinear forms, derived from the Hamilton product and the
+    rotation matrix of a unit quaternion, with w, x, y, z = 0..3."""
+    def hamilton(p, q):
+        w1, x1, y1, z1 = p
+        w2, x2, y2, z2 = q
+        return (w1 * w2 - x1 * x2 - y1 * y2 - z1 * z2, w1 * x2 + x1 * w2 + y1 * z2 - z1 * y2,
+                w1 * y2 - x1 * z2 + y1 * w2 + z1 * x2, w1 * z2 + x1 * y2 - y1 * x2 + z1 * w2)
+
+    unit = np.eye(4)
+    conj = np.array([1.0, -1.0, -1.0, -1.0])
+    product = np.array([[hamilton(conj * unit[i], unit[j]) for j in range(4)] for i in range(4)])
+    # R(r)·|r|² row-major, rows 0 and 1, each entry a quadratic form in (w, x, y, z); then |r|²
+    w, x, y, z = range(4)
+    entries = [{(w, w): 1, (x, x): 1, (y, y): -1, (z, z): -1}, {(x, y): 2, (w, z): -2},
+               {(x, z): 2, (w, y): 2}, {(x, y): 2, (w, z): 2},
+               {(w, w): 1, (x, x): -1, (y, y): 1, (z, z): -1}, {(y, z): 2, (w, x): -2},
+               {(w, w): 1, (x, x): 1, (y, y): 1, (z, z): 1}]
+    rows = np.zeros((4, 4, len(entries)))
+    for k, entry in enumerate(entries):
+        for (i, j), c in entry.items():
+            rows[i, j, k] = c
+    return product, rows
+
+
+_CONJ_PRODUCT, _ROWS_AND_NORM = _quat_tables()
+_QUAT_FORMS: dict = {}

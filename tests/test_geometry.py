@@ -11,8 +11,7 @@ import pytest
 import torch
 from scipy.spatial.transform import Rotation
 
-from shared.geometry import (quat_to_rotmat, symmetric_orientation_error,
-                             symmetric_orientation_error_quat)
+from shared.geometry import symmetric_orientation_error, symmetric_orientation_error_quat
 
 
 def rot(axis, degrees) -> np.ndarray:
@@ -34,28 +33,6 @@ def cube_symmetries() -> list[np.ndarray]:
             if np.linalg.det(m) > 0:
                 out.append(m)
     return out
-
-
-# ---------------------------------------------------------------- quat_to_rotmat ---------------
-
-def test_quat_to_rotmat_matches_mujoco():
-    rng = np.random.default_rng(0)
-    quats = rng.normal(size=(50, 4))
-    quats /= np.linalg.norm(quats, axis=1, keepdims=True)
-    ours = quat_to_rotmat(quats).numpy()
-    for q, m in zip(quats, ours):
-        expected = np.zeros(9)
-        mujoco.mju_quat2Mat(expected, q)
-        np.testing.assert_allclose(m, expected.reshape(3, 3), atol=1e-12)
-
-
-def test_quat_to_rotmat_batches_normalises_and_keeps_dtype():
-    q = torch.tensor([[2.0, 0.0, 0.0, 0.0], [0.0, 0.0, 0.0, -3.0]], dtype=torch.float32)
-    m = quat_to_rotmat(q.expand(4, 5, 2, 4))
-    assert m.shape == (4, 5, 2, 3, 3) and m.dtype == torch.float32
-    torch.testing.assert_close(m[0, 0, 0], torch.eye(3))
-    torch.testing.assert_close(m[0, 0, 1], torch.diag(torch.tensor([-1.0, -1.0, 1.0])))
-    assert quat_to_rotmat(np.array([1.0, 0, 0, 0])).dtype == torch.float64
 
 
 # ---------------------------------------------------------------- phi (paper Eq. 33) -----------------
@@ -181,3 +158,29 @@ def test_quaternion_version_matches_rotation_matrices():
     # quaternion sign does not matter
     torch.testing.assert_close(symmetric_orientation_error_quat(-quats, goal.as_quat(scalar_first=True)),
                                expected)
+
+
+def test_quaternion_version_takes_any_scale_batch_and_dtype_like_mujoco_matrices():
+    # rollout sensors [S, T, 4] against one goal [4]; framequat drifts off unit length in float32
+    rng = np.random.default_rng(21)
+    quats = rng.normal(size=(6, 5, 4)) * rng.uniform(0.5, 3.0, size=(6, 5, 1))
+    goal = rng.normal(size=4)
+    mats = np.zeros((6, 5, 9))
+    for idx in np.ndindex(6, 5):
+        mujoco.mju_quat2Mat(mats[idx], quats[idx] / np.linalg.norm(quats[idx]))
+    goal_mat = np.zeros(9)
+    mujoco.mju_quat2Mat(goal_mat, goal / np.linalg.norm(goal))
+    expected = symmetric_orientation_error(mats.reshape(6, 5, 3, 3), goal_mat.reshape(3, 3))
+    got = symmetric_orientation_error_quat(torch.as_tensor(quats), 2.5 * goal)
+    assert got.shape == (6, 5) and got.dtype == torch.float64
+    np.testing.assert_allclose(got.numpy(), expected, atol=1e-12)
+    single = symmetric_orientation_error_quat(torch.as_tensor(quats, dtype=torch.float32), goal)
+    assert single.dtype == torch.float32
+    np.testing.assert_allclose(single.numpy(), expected, atol=1e-5)
+    # a cube symmetry of the goal (a quarter turn about x) costs nothing
+    turn = np.array([np.cos(np.pi / 4), np.sin(np.pi / 4), 0.0, 0.0])
+    w1, x1, y1, z1 = goal
+    w2, x2, y2, z2 = turn
+    turned = [w1 * w2 - x1 * x2 - y1 * y2 - z1 * z2, w1 * x2 + x1 * w2 + y1 * z2 - z1 * y2,
+              w1 * y2 - x1 * z2 + y1 * w2 + z1 * x2, w1 * z2 + x1 * y2 - y1 * x2 + z1 * w2]
+    assert float(symmetric_orientation_error_quat(goal, np.array(turned))) == pytest.approx(0.0, abs=1e-12)

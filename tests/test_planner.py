@@ -78,10 +78,10 @@ def test_moving_obstacle_follows_the_constant_velocity_prediction_in_rollouts(na
     engine = RolloutEngine(model, 1)
     engine.set_mocap(pos, mirror.data.mocap_quat)
     controls = np.zeros((3, T, model.nu))
-    _, sd = engine.run(x0, controls, pos[None] + vel[None] * (np.arange(T)[:, None, None] * dt))
+    sd = engine.run(x0, controls, pos[None] + vel[None] * (np.arange(T)[:, None, None] * dt))
     y = sd[:, :, problem.layout.columns[req]][..., 1]                 # [S, T]
     np.testing.assert_allclose(y, np.tile(pos[mocap, 1] - np.arange(T) * dt, (3, 1)), atol=1e-9)
-    _, sd = engine.run(x0, controls)                                  # no prediction: it stays
+    sd = engine.run(x0, controls)                                  # no prediction: it stays
     np.testing.assert_allclose(sd[:, :, problem.layout.columns[req]][..., 1], pos[mocap, 1])
     engine.close()
 

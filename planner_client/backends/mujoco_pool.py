@@ -19,5 +19,4 @@ class MujocoPoolBackend(RolloutEngine):
                 mocap_path: np.ndarray | None = None) -> torch.Tensor:
         """``sensordata [S, T, nsensordata]`` of ``control [S, T, nu]`` rolled out from ``x0``;
         a view of a buffer the next call overwrites."""
-        _, sensordata = self.run(x0, control.numpy(), mocap_path)
-        return torch.from_numpy(sensordata)
+        return torch.from_numpy(self.run(x0, control.numpy(), mocap_path))

@@ -52,8 +52,8 @@ class Objective:
             value = values.get(wt.term.key)
             if value is None:
                 value = values[wt.term.key] = wt.term(batch)
-            c = value * self._step_weights(wt, horizon, sd.dtype, sd.device)
-            out = c if out is None else out.add_(c)
+            weights = self._step_weights(wt, horizon, sd.dtype, sd.device)
+            out = value * weights if out is None else out.addcmul_(value, weights)
         return out
 
     def _step_weights(self, wt: WeightedTerm, horizon: int, dtype: torch.dtype,

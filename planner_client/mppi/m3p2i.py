@@ -236,7 +236,7 @@ class MPPI:
     def sample(self) -> Tensor:
         """Returns ``V = g(U + σ·ε)``, ``[K, T, nu]``."""
         c = self._c
-        v = c.box.bound(self.U + c.noise.draw() * c.sigma)
+        v = c.box.bound(torch.addcmul(self.U, c.noise.draw(), c.sigma))
         if c.cfg.keep_best:
             v[0] = self._best
         if c.cfg.null_action:
@@ -421,7 +421,9 @@ class M3P2I:
     def sample(self) -> Tensor:
         """Returns the control sequences to roll out, ``[S, T, nu]``."""
         c, lay = self._c, self._layout
-        v = c.box.bound(self._mu.index_select(0, lay.row_mode) + c.noise.draw() * c.sigma)
+        # one kernel reads the sampler's transposed buffer, scales and shifts it
+        v = c.box.bound(torch.addcmul(self._mu.index_select(0, lay.row_mode), c.noise.draw(),
+                                      c.sigma))
         if c.cfg.keep_best:
             v.index_copy_(0, lay.first, self._best)
         if c.cfg.null_action:

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import math
 
+import numpy as np
 import torch
 from torch import Tensor
 
@@ -19,10 +20,10 @@ _LOG_LO_MARGIN = math.log(55.0)
 _LOG_HI_MARGIN = math.log(50.0)
 
 
-def _log_lambda_range(dtype: torch.dtype) -> tuple[float, float]:
+def _log_lambda_range(dtype: np.dtype) -> tuple[float, float]:
     """Bounds on log λ that keep λ a normal float of ``dtype``, one e away from the smallest
     and the largest (exp of the bound itself may round past them)."""
-    info = torch.finfo(dtype)
+    info = np.finfo(dtype)
     return math.log(info.tiny) + 1.0, math.log(info.max) - 1.0
 
 
@@ -88,52 +89,64 @@ def adapt_temperature(gaps: Tensor, lam: Tensor, eta_bounds: tuple[float, float]
         max_iters: cap on root-finding steps, shared by all rows.
 
     Returns:
-        ``[G]`` new temperatures, finite and > 0.
+        ``[G]`` new temperatures, finite and > 0 (``lam`` itself when every row is in its
+        window), on ``lam``'s device.
+
+    The maths runs in NumPy on the host: some forty steps on a few hundred numbers per row,
+    where each torch call costs about three NumPy ones (on [3, 400] gaps 110 against 260 µs, a
+    tenth of an iteration's overhead in push_pull); on a GPU the gaps cross once per iteration,
+    where the torch version synchronised on every step's ``done.all()`` anyway.
     """
+    new = _adapt(gaps.detach().cpu().numpy(), lam.detach().cpu().numpy(), eta_bounds, max_iters)
+    return lam if new is None else torch.as_tensor(new, dtype=lam.dtype, device=lam.device)
+
+
+def _adapt(gaps: np.ndarray, lam: np.ndarray, eta_bounds: tuple[float, float],
+           max_iters: int) -> np.ndarray | None:
+    """:func:`adapt_temperature` on host arrays; ``None`` when every row is in its window."""
     eta_l, eta_u = eta_bounds
-    e = torch.exp(-gaps / lam.unsqueeze(-1))
-    eta = e.sum(dim=-1)
-    done = (eta >= eta_l) & (eta <= eta_u)
-    if bool(done.all()):
-        return lam
+    # inf/inf, 0·inf and log(0) are expected here (padding, rows without spread) and handled
+    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+        eta = np.exp(-gaps / lam[:, None]).sum(axis=-1)
+        done = (eta >= eta_l) & (eta <= eta_u)
+        if done.all():
+            return None
 
-    target = 0.5 * (math.log(eta_l) + math.log(eta_u))
-    finite = torch.isfinite(gaps)
-    positive = finite & (gaps > 0)
-    inf = torch.full_like(gaps, math.inf)
-    d_min = torch.where(positive, gaps, inf).amin(dim=-1)
-    d_max = torch.where(finite, gaps, -inf).amax(dim=-1)
-    n_ties = (gaps == 0).sum(dim=-1)
-    n_finite = finite.sum(dim=-1)
-    log_min, log_max = _log_lambda_range(gaps.dtype)
-    lo = (torch.log(d_min) - _LOG_LO_MARGIN).clamp(min=log_min, max=log_max)
-    hi = (torch.log(d_max) + _LOG_HI_MARGIN).clamp(min=log_min, max=log_max)
-    x = torch.log(lam)
+        target = 0.5 * (math.log(eta_l) + math.log(eta_u))
+        finite = np.isfinite(gaps)
+        d_min = np.where(finite & (gaps > 0), gaps, np.inf).min(axis=-1)
+        d_max = np.where(finite, gaps, -np.inf).max(axis=-1)
+        n_ties = (gaps == 0).sum(axis=-1)
+        n_finite = finite.sum(axis=-1)
+        log_min, log_max = _log_lambda_range(gaps.dtype)
+        lo = np.clip(np.log(d_min) - _LOG_LO_MARGIN, log_min, log_max)
+        hi = np.clip(np.log(d_max) + _LOG_HI_MARGIN, log_min, log_max)
+        x = np.log(lam)
 
-    # Rows with no spread cannot be tuned; rows whose window is out of reach go to the nearest end.
-    flat = torch.isinf(d_min)
-    too_many_ties = ~flat & (n_ties > eta_u)
-    too_few_samples = ~flat & ~too_many_ties & (n_finite < eta_l)
-    x = torch.where(too_many_ties, lo, torch.where(too_few_samples, hi, x))
-    unreachable = flat | too_many_ties | too_few_samples
-    done = done | unreachable
-    x = torch.where(done, x, x.clamp(min=lo, max=hi))
+        # Rows with no spread cannot be tuned; rows whose window is out of reach go to the
+        # nearest end.
+        flat = np.isinf(d_min)
+        too_many_ties = ~flat & (n_ties > eta_u)
+        too_few_samples = ~flat & ~too_many_ties & (n_finite < eta_l)
+        x = np.where(too_many_ties, lo, np.where(too_few_samples, hi, x))
+        unreachable = flat | too_many_ties | too_few_samples
+        done = done | unreachable
+        x = np.where(done, x, np.clip(x, lo, hi))
 
-    for _ in range(max_iters):
-        lam_x = torch.exp(x).unsqueeze(-1)
-        scaled = gaps / lam_x
-        e = torch.exp(-scaled)
-        eta = e.sum(dim=-1)
-        done = unreachable | ((eta >= eta_l) & (eta <= eta_u))
-        if bool(done.all()):
-            break
-        f = torch.log(eta) - target
-        lo = torch.where(f < 0, x, lo)
-        hi = torch.where(f > 0, x, hi)
-        # d log η / d log λ = Σ (d/λ) e^{-d/λ} / η; padding gives inf·0, which contributes nothing.
-        slope = (scaled * e).nan_to_num_(nan=0.0).sum(dim=-1) / eta
-        newton = x - f / slope
-        inside = torch.isfinite(newton) & (newton > lo) & (newton < hi)
-        step = torch.where(inside, newton, 0.5 * (lo + hi))
-        x = torch.where(done, x, step)
-    return torch.exp(x)
+        for _ in range(max_iters):
+            scaled = gaps / np.exp(x)[:, None]
+            e = np.exp(-scaled)
+            eta = e.sum(axis=-1)
+            done = unreachable | ((eta >= eta_l) & (eta <= eta_u))
+            if done.all():
+                break
+            f = np.log(eta) - target
+            lo = np.where(f < 0, x, lo)
+            hi = np.where(f > 0, x, hi)
+            # d log η / d log λ = Σ (d/λ) e^{-d/λ} / η; padding gives inf·0, which contributes
+            # nothing.
+            slope = np.nan_to_num(scaled * e, nan=0.0).sum(axis=-1) / eta
+            newton = x - f / slope
+            inside = np.isfinite(newton) & (newton > lo) & (newton < hi)
+            x = np.where(done, x, np.where(inside, newton, 0.5 * (lo + hi)))
+        return np.exp(x)
