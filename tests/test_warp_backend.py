@@ -113,9 +113,9 @@ def _both(c, monkeypatch=None):
 CASES = [
     ("navigation", False, {"framepos": 1e-6, "contactforce": 1e-6}),
     ("navigation", True, {"framepos": 1e-5, "contactforce": 0.1}),
-    ("pick_place", False, {"framepos": 1e-5, "framequat": 1e-5, "framezaxis": 1e-5,
-                           "jointpos": 1e-5, "framelinvel": 1e-4, "distance": 1e-5,
-                           "contactforce": 1e-6}),
+    ("pick_place", False, {"framepos": 1e-5, "framequat": 1e-5, "framexaxis": 1e-5,
+                           "frameyaxis": 1e-5, "framezaxis": 1e-5, "jointpos": 1e-5,
+                           "framelinvel": 1e-4, "distance": 1e-5, "contactforce": 1e-6}),
 ]
 
 
