@@ -113,6 +113,8 @@ class WorldServer:
         self.seq = 0
         self._over = False                # the summary is written; a kept world waits for a reset
         self._ending = False              # the safe stop, metrics and summary are being written
+        self._in_step = False             # a world step is between its physics and its log record
+        self._pending: int | None = None  # a signal that landed there, raised once it is logged
         self._plan_times: list[float] = []
         self._state_times: dict[int, float] = {}     # seq -> world time of recent states
         self._plan_time_of: dict[int, float] = {}    # seq -> planning time, until first applied
@@ -183,10 +185,16 @@ class WorldServer:
         """SIGINT/SIGTERM handler (the CLI installs it): end the episode as Ctrl-C does, and
         serve no other. While the episode is ending (safe stop, metrics, summary) it raises
         nothing: a supervisor's SIGTERM that lands just as an episode ends would otherwise cut
-        the log before its summary."""
+        the log before its summary. Within a world step it raises once the step is logged: a
+        step taken but not logged would leave the world ahead of its log, and the summary's step
+        count one past the last step record (a CI run of 2026-12-01 caught that)."""
         self._stop = True
-        if not self._ending:
-            raise KeyboardInterrupt(f"signal {signum}")
+        if self._ending:
+            return
+        if self._in_step:
+            self._pending = signum
+            return
+        raise KeyboardInterrupt(f"signal {signum}")
 
     def _stop_world(self) -> None:
         """The world's safe stop; its failure is logged loudly, and the summary still written."""
@@ -364,17 +372,25 @@ class WorldServer:
         plan_time = self._plan_time_of.pop(source, 0.0)
         if plan_time:
             self._plan_times.append(plan_time)
-        self.world.step(self.world.safe_command() if ctrl is None else ctrl)
-        for event in self.world.events:
-            log.info("disturbance: %s moved at t=%.2f s", event["object"], event["time"])
-            self.log.event("disturbance", **event)
-        self.world.events.clear()
-        self.seq += 1
-        s = self.world.true_state()
-        self.log.write("step", seq=self.seq, time=s.time, qpos=s.qpos, qvel=s.qvel,
-                       act=s.act, mocap_pos=s.mocap_pos, mocap_quat=s.mocap_quat,
-                       ctrl=self.world.ctrl, action=self._action, safe=ctrl is None, plan_seq=source, age=age,
-                       plan_time=plan_time, cmd_age=cmd_age, extras=self.world.extras)
+        self._in_step = True              # from the physics to its log record: no signal between
+        try:
+            self.world.step(self.world.safe_command() if ctrl is None else ctrl)
+            for event in self.world.events:
+                log.info("disturbance: %s moved at t=%.2f s", event["object"], event["time"])
+                self.log.event("disturbance", **event)
+            self.world.events.clear()
+            self.seq += 1
+            s = self.world.true_state()
+            self.log.write("step", seq=self.seq, time=s.time, qpos=s.qpos, qvel=s.qvel,
+                           act=s.act, mocap_pos=s.mocap_pos, mocap_quat=s.mocap_quat,
+                           ctrl=self.world.ctrl, action=self._action, safe=ctrl is None,
+                           plan_seq=source, age=age, plan_time=plan_time, cmd_age=cmd_age,
+                           extras=self.world.extras)
+        finally:
+            self._in_step = False
+        if self._pending is not None:
+            signum, self._pending = self._pending, None
+            raise KeyboardInterrupt(f"signal {signum}")
         if self.viewer is not None:
             self.viewer.sync()
         if publish:

@@ -183,6 +183,36 @@ def test_a_signal_as_the_episode_ends_still_leaves_the_summary(tmp_path):
     assert records[-1]["kind"] == "summary" and records[-1]["status"] == "stopped"
 
 
+def test_a_signal_during_a_world_step_lands_once_the_step_is_logged(tmp_path):
+    """Ctrl-C mid-step (a CI run of 2026-12-01): the world had stepped, the step was not
+    logged, and the summary counted one step more than the log held. The interrupt now waits
+    for the step's record, so the log holds every step the world took."""
+    server = WorldServer(load_scenario("navigation"), Endpoints(port=free_port_block()),
+                         tmp_path / "episode.jsonl", ServerOptions())
+    try:
+        server._apply(None)                       # one step, no signal
+        real_step = server.world.step
+
+        def step_then_signal(ctrl):
+            real_step(ctrl)
+            server.interrupt(signal.SIGINT)       # what the handler does when SIGINT lands here
+
+        server.world.step = step_then_signal
+        with pytest.raises(KeyboardInterrupt):
+            server._apply(None)
+        time_stepped = server.world.time
+        outcome = server.run()                    # _stop is set: the episode ends at once
+    finally:
+        server.log.close()
+        server.close()
+    assert outcome.status == "stopped"
+    records = read_log(tmp_path / "episode.jsonl")
+    steps = [r for r in records if r["kind"] == "step"]
+    assert [r["seq"] for r in steps] == [1, 2]
+    assert steps[-1]["time"] == pytest.approx(time_stepped)
+    assert records[-1]["kind"] == "summary" and records[-1]["steps"] == 2
+
+
 @pytest.mark.slow
 def test_thirty_second_soak_passes_every_check(tmp_path):
     """Real-time navigation episodes for 30 s under every kind of fault (planner SIGKILL and
