@@ -4,6 +4,7 @@ under every kind of fault passes every check."""
 
 from __future__ import annotations
 
+import contextlib
 import importlib.util
 import json
 import signal
@@ -157,13 +158,24 @@ def test_world_writes_its_summary_on_sigterm(tmp_path):
     assert records[-1]["kind"] == "summary" and records[-1]["status"] == "stopped", records[-1]
 
 
+@contextlib.contextmanager
+def _navigation_world(tmp_path: Path, **options):
+    """A navigation world server on loopback, logging to ``tmp_path/episode.jsonl``; its log
+    and sockets are closed whatever the test does."""
+    server = WorldServer(load_scenario("navigation"), Endpoints(port=free_port_block()),
+                         tmp_path / "episode.jsonl", ServerOptions(**options))
+    try:
+        yield server
+    finally:
+        server.log.close()
+        server.close()
+
+
 def test_a_signal_as_the_episode_ends_still_leaves_the_summary(tmp_path):
     """The soak's world restart can land just as the episode ends on its own (the CI run of
     2026-12-01 lost one summary so): a signal during the safe stop, metrics and summary must
     not cut the log, while one mid-episode still ends the episode as Ctrl-C does."""
-    server = WorldServer(load_scenario("navigation"), Endpoints(port=free_port_block()),
-                         tmp_path / "episode.jsonl", ServerOptions(keep_serving=True))
-    try:
+    with _navigation_world(tmp_path, keep_serving=True) as server:
         with pytest.raises(KeyboardInterrupt):
             server.interrupt(signal.SIGTERM)      # serving: the episode ends as on Ctrl-C
         metrics = server._episode_metrics
@@ -174,9 +186,6 @@ def test_a_signal_as_the_episode_ends_still_leaves_the_summary(tmp_path):
 
         server._episode_metrics = signalled_while_ending
         outcome = server.run()                    # _stop is set: the episode ends at once
-    finally:
-        server.log.close()
-        server.close()
     assert outcome.status == "stopped"
     records = read_log(tmp_path / "episode.jsonl")
     assert records[0]["kind"] == "header"
@@ -187,9 +196,7 @@ def test_a_signal_during_a_world_step_lands_once_the_step_is_logged(tmp_path):
     """Ctrl-C mid-step (a CI run of 2026-12-01): the world had stepped, the step was not
     logged, and the summary counted one step more than the log held. The interrupt now waits
     for the step's record, so the log holds every step the world took."""
-    server = WorldServer(load_scenario("navigation"), Endpoints(port=free_port_block()),
-                         tmp_path / "episode.jsonl", ServerOptions())
-    try:
+    with _navigation_world(tmp_path) as server:
         server._apply(None)                       # one step, no signal
         real_step = server.world.step
 
@@ -202,9 +209,6 @@ def test_a_signal_during_a_world_step_lands_once_the_step_is_logged(tmp_path):
             server._apply(None)
         time_stepped = server.world.time
         outcome = server.run()                    # _stop is set: the episode ends at once
-    finally:
-        server.log.close()
-        server.close()
     assert outcome.status == "stopped"
     records = read_log(tmp_path / "episode.jsonl")
     steps = [r for r in records if r["kind"] == "step"]
