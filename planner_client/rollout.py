@@ -16,9 +16,8 @@ from mujoco import rollout as mj_rollout
 
 class RolloutEngine:
     """Runs ``[S, T, nu]`` controls from one state; returns ``sensordata [S, T, nsensordata]``
-    (a buffer reused by the next call). The states along the rollouts are not recorded: costs
-    read sensors only, and a [S, T, nstate] buffer written each iteration would only push the
-    costs' and the update's data out of the cache.
+    (a buffer reused by the next call). The states along the rollouts are not recorded: the
+    costs read sensors only.
 
     With ``mocap_path`` the mocap bodies follow a given path during the rollouts (the per-step
     control vector is then [ctrl, mocap_pos], mujoco's state order): the planner's constant

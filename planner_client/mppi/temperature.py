@@ -93,9 +93,9 @@ def adapt_temperature(gaps: Tensor, lam: Tensor, eta_bounds: tuple[float, float]
         window), on ``lam``'s device.
 
     The maths runs in NumPy on the host: some forty steps on a few hundred numbers per row,
-    where each torch call costs about three NumPy ones (on [3, 400] gaps 110 against 260 µs, a
-    tenth of an iteration's overhead in push_pull); on a GPU the gaps cross once per iteration,
-    where the torch version synchronised on every step's ``done.all()`` anyway.
+    where a torch call costs two to three NumPy ones (on [3, 400] gaps, when it iterates: 110
+    against 260 µs); on a GPU the gaps cross once per iteration, where the torch version
+    synchronised on every step's ``done.all()`` anyway.
     """
     new = _adapt(gaps.detach().cpu().numpy(), lam.detach().cpu().numpy(), eta_bounds, max_iters)
     return lam if new is None else torch.as_tensor(new, dtype=lam.dtype, device=lam.device)
