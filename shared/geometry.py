@@ -11,6 +11,7 @@ columns, as MuJoCo's ``xmat`` reshaped to ``[3, 3]``.
 
 from __future__ import annotations
 
+import functools
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -131,21 +132,19 @@ def _bilinear(a: torch.Tensor, b: torch.Tensor, form: tuple) -> torch.Tensor:
     return ((a @ spread_a) * (b @ spread_b)) @ coef
 
 
+@functools.lru_cache(maxsize=16)
 def _quat_forms(dtype, device) -> tuple[tuple, tuple]:
     """The bilinear forms of :func:`symmetric_orientation_error_quat` as tensors, made once per
-    dtype and device: the conjugate product q_u* ⊗ q_v, and the first two rows of R(r)
-    (row-major) with |r|²."""
-    key = (dtype, device)
-    if key not in _QUAT_FORMS:
-        import torch
+    dtype and device (read-only: the products never write them): the conjugate product
+    q_u* ⊗ q_v, and the first two rows of R(r) (row-major) with |r|²."""
+    import torch
 
-        spread = (np.kron(np.eye(4), np.ones((1, 4))), np.kron(np.ones((1, 4)), np.eye(4)))
+    spread = (np.kron(np.eye(4), np.ones((1, 4))), np.kron(np.ones((1, 4)), np.eye(4)))
 
-        def as_form(coef: np.ndarray) -> tuple:
-            return tuple(torch.as_tensor(x, dtype=dtype, device=device)
-                         for x in (*spread, coef.reshape(16, -1)))
-        _QUAT_FORMS[key] = (as_form(_CONJ_PRODUCT), as_form(_ROWS_AND_NORM))
-    return _QUAT_FORMS[key]
+    def as_form(coef: np.ndarray) -> tuple:
+        return tuple(torch.as_tensor(x, dtype=dtype, device=device)
+                     for x in (*spread, coef.reshape(16, -1)))
+    return as_form(_CONJ_PRODUCT), as_form(_ROWS_AND_NORM)
 
 
 def _quat_tables() -> tuple[np.ndarray, np.ndarray]:
@@ -174,4 +173,3 @@ def _quat_tables() -> tuple[np.ndarray, np.ndarray]:
 
 
 _CONJ_PRODUCT, _ROWS_AND_NORM = _quat_tables()
-_QUAT_FORMS: dict = {}
