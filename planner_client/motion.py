@@ -112,7 +112,8 @@ class MotionPlanner:
                                       if shared else objective(batch))
         result = self.mppi.update(self._step_costs)
         best, top_modes = self._best_per_mode()
-        top = self.problem.layout.take(sd[best], self.problem.robot_pos).cpu().numpy().copy()
+        top = self.problem.layout.take(sd.index_select(0, torch.from_numpy(best).to(sd.device)),
+                                       self.problem.robot_pos).cpu().numpy()
         if self.device.type != "cpu":
             result = _to_host(result)
         dominant = self.modes[int(torch.argmax(result.mode_weights))]
@@ -124,16 +125,17 @@ class MotionPlanner:
         return Iteration(result=result, modes=list(self.modes), top=top, top_modes=top_modes,
                          plan=self._resolve(result.U.numpy(), dominant), dominant=dominant)
 
-    def _best_per_mode(self) -> tuple[torch.Tensor, np.ndarray]:
-        """Indices of each mode's ``top_k`` lowest-cost samples and their mode numbers: by the
-        fused weights alone a viewer would see only the dominant mode's."""
+    def _best_per_mode(self) -> tuple[np.ndarray, np.ndarray]:
+        """Rows of each mode's ``top_k`` lowest-cost samples (by the total costs the update
+        weighed) and their mode numbers: by the fused weights alone a viewer would see only
+        the dominant mode's."""
         picks, modes = [], []
-        costs = self._step_costs.sum(1).nan_to_num_(nan=torch.inf)           # [S]
+        costs = self.mppi.costs                                              # [S]
         for i, rows in enumerate(self.mppi.mode_slices):
             k = min(self.top_k, rows.stop - rows.start)
-            picks.append(torch.topk(costs[rows], k, largest=False).indices + rows.start)
+            picks.append(np.argsort(costs[rows], kind="stable")[:k] + rows.start)
             modes += [i] * k
-        return torch.cat(picks), np.array(modes, dtype=np.int64)
+        return np.concatenate(picks), np.array(modes, dtype=np.int64)
 
     @property
     def last_samples(self) -> np.ndarray | None:

@@ -46,15 +46,19 @@ def wiggly_costs(v: torch.Tensor) -> torch.Tensor:
     dict(sampling="halton", halton_rotate=False, bound="squash", lambda_init=0.3),
     dict(sampling="gaussian", savgol_window=7, control_cost=0.5, u_min=None, u_max=None),
 ])
-def test_one_mode_m3p2i_is_mppi_bit_for_bit(kw):
+def test_one_mode_m3p2i_is_mppi(kw):
+    # M3P2I takes all its means in one product Σ ω V, MPPI (thesis Alg. 2) adds Σ ω ε to U:
+    # equal since Σ ω = 1, to rounding, which 25 iterations of feedback must not amplify
     cfg = cfg_of(seed=3, **kw)
     plain, multi = MPPI(cfg, 64), M3P2I(cfg, [ModeSpec("only", 64)])
+    close = dict(rtol=1e-9, atol=1e-12)
     for _ in range(25):
         va, vb = plain.sample(), multi.sample()
-        assert torch.equal(va, vb)
+        torch.testing.assert_close(va, vb, **close)
         ra, rb = plain.update(wiggly_costs(va)), multi.update(wiggly_costs(vb))
         for field in ("U", "u0", "weights", "best", "etas", "mode_costs", "fused_eta"):
-            assert torch.equal(getattr(ra, field), getattr(rb, field)), field
+            torch.testing.assert_close(getattr(ra, field), getattr(rb, field), **close,
+                                       msg=field)
     assert math.isclose(float(rb.mode_weights), 1.0, rel_tol=1e-12)
 
 
@@ -244,30 +248,31 @@ def test_temperature_lands_eta_in_window_for_any_cost_spread(bounds):
         rows.append(spread * torch.rand(200, generator=gen, dtype=F64))               # uniform
         rows.append(spread * torch.logspace(-6, 0, 200, dtype=F64)[torch.randperm(200, generator=gen)])
         rows.append(spread * torch.rand(200, generator=gen, dtype=F64) ** 8)          # clustered low
-    costs = torch.stack(rows)
-    gaps = costs - costs.amin(-1, keepdim=True)
+    costs = torch.stack(rows).numpy()
+    gaps = costs - costs.min(-1, keepdims=True)
     for lam0 in (1e-8, 1.0, 1e8):
-        lam = adapt_temperature(gaps, torch.full((len(rows),), lam0, dtype=F64), bounds, 20)
-        assert torch.isfinite(lam).all() and (lam > 0).all()
+        lam = adapt_temperature(gaps, np.full(len(rows), lam0), bounds, 20)
+        assert np.isfinite(lam).all() and (lam > 0).all()
         _, eta, _ = softmin_weights(costs, lam[:, None])
         assert (eta >= bounds[0]).all() and (eta <= bounds[1]).all(), eta
 
 
 def test_temperature_keeps_lambda_inside_window_and_handles_unreachable_windows():
-    costs = torch.linspace(0.0, 1.0, 100, dtype=F64)[None]
-    lam = torch.tensor([0.05], dtype=F64)
+    costs = np.linspace(0.0, 1.0, 100)[None]
+    lam = np.array([0.05])
     eta = softmin_weights(costs, lam[:, None])[1]
-    assert torch.equal(adapt_temperature(costs, lam, (float(eta) - 1, float(eta) + 1), 20), lam)
+    assert np.array_equal(adapt_temperature(costs, lam, (float(eta[0]) - 1, float(eta[0]) + 1), 20),
+                          lam)
 
-    ties = torch.cat([torch.zeros(20, dtype=F64), torch.linspace(1, 2, 80, dtype=F64)])
-    too_few = torch.linspace(0.0, 1.0, 5, dtype=F64)
-    flat = torch.zeros(100, dtype=F64)
-    pad = torch.full((95,), math.inf, dtype=F64)
-    gaps = torch.stack([ties, torch.cat([too_few, pad]), flat])
-    lam = adapt_temperature(gaps, torch.ones(3, dtype=F64), (6.0, 10.0), 20)
-    assert torch.isfinite(lam).all()
+    ties = np.concatenate([np.zeros(20), np.linspace(1, 2, 80)])
+    too_few = np.linspace(0.0, 1.0, 5)
+    flat = np.zeros(100)
+    pad = np.full(95, math.inf)
+    gaps = np.stack([ties, np.concatenate([too_few, pad]), flat])
+    lam = adapt_temperature(gaps, np.ones(3), (6.0, 10.0), 20)
+    assert np.isfinite(lam).all()
     w, eta, _ = softmin_weights(gaps, lam[:, None])
-    assert torch.allclose(w.sum(-1), torch.ones(3, dtype=F64))
+    assert np.allclose(w.sum(-1), np.ones(3))
     assert float(eta[0]) == pytest.approx(20.0, abs=1e-6)          # only the ties count
     assert float(eta[1]) > 4.8                                     # all five count
     assert float(lam[2]) == 1.0                                    # nothing to tune
@@ -371,7 +376,7 @@ def test_set_modes_keeps_persisting_means_and_seeds_new_ones_from_the_plan():
     assert [s.stop - s.start for s in planner.mode_slices] == [30, 50]
     assert torch.equal(planner.means[0], mu_pull)
     assert torch.equal(planner.means[1], plan)
-    assert torch.equal(planner._lam, torch.stack([lam_pull, t(1.0)[0], result.fused_lambda]))
+    assert np.array_equal(planner.temperatures, [lam_pull, 1.0, result.fused_lambda])
     v = planner.sample()
     assert v.shape == (80, 15, 2) and bool((v[30:, :, 0] == 1.0).all())
     after = planner.update(v.pow(2).sum(-1))
@@ -431,13 +436,13 @@ def test_nan_cost_leaves_temperatures_and_means_finite():
 
 
 def test_temperature_is_capped_for_gaps_near_the_float_maximum():
-    big = torch.finfo(F64).max
-    gaps = torch.tensor([[0.0, 1.0, 2.0, 3.0, big], [0.0, 1e300, 1e306, 1e307, 1e308]], dtype=F64)
+    big = np.finfo(np.float64).max
+    gaps = np.array([[0.0, 1.0, 2.0, 3.0, big], [0.0, 1e300, 1e306, 1e307, 1e308]])
     for bounds in ((10.0, 30.0), (4.5, 5.0)):
-        lam = adapt_temperature(gaps, torch.ones(2, dtype=F64), bounds, 20)
-        assert torch.isfinite(lam).all() and (lam > 0).all(), lam
+        lam = adapt_temperature(gaps, np.ones(2), bounds, 20)
+        assert np.isfinite(lam).all() and (lam > 0).all(), lam
         w, _, _ = softmin_weights(gaps, lam[:, None])
-        assert torch.isfinite(w).all()
+        assert np.isfinite(w).all()
 
 
 def test_minus_inf_cost_gets_no_weight():

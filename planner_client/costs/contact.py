@@ -11,7 +11,7 @@ import torch
 from shared.config import positive
 from shared.geometry import select_axes
 from planner_client.costs.base import CostTerm, register
-from planner_client.costs.helpers import axes_param, frame_params
+from planner_client.costs.helpers import axes_param, frame_params, last_sum, norm
 from planner_client.sensors import SensorRequest
 
 
@@ -45,7 +45,7 @@ class Collision(CostTerm):
             return torch.zeros(batch.controls.shape[:2], dtype=batch.sensordata.dtype,
                                device=batch.sensordata.device)
         d = batch.layout.take_all(batch.sensordata, self.requests)        # [S, T, n_obstacles]
-        return torch.clamp(self.margin - d, min=0.0).sum(-1) / self.margin
+        return last_sum(torch.clamp(self.margin - d, min=0.0)) / self.margin
 
 
 @register("contact_force")
@@ -84,7 +84,7 @@ class ContactForce(CostTerm):
                                device=batch.sensordata.device)
         f = batch.layout.take_all(batch.sensordata, self.requests)         # [S, T, 3 n_obstacles]
         f = f.unflatten(-1, (len(self.requests), 3))                       # [S, T, n_obstacles, 3]
-        return torch.linalg.vector_norm(f, dim=-1).sum(-1)
+        return last_sum(norm(f))
 
 
 @register("dynamic_obstacle")
@@ -115,4 +115,4 @@ class DynamicObstacle(CostTerm):
 
     def __call__(self, batch):
         x_r, x_d = (batch.get(r) for r in self.requests)
-        return torch.exp(-torch.linalg.vector_norm(select_axes(x_r - x_d, self.axes), dim=-1))
+        return torch.exp(-norm(select_axes(x_r - x_d, self.axes)))

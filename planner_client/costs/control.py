@@ -6,6 +6,7 @@ from dataclasses import dataclass
 
 from shared.config import string_list
 from planner_client.costs.base import CostTerm, register
+from planner_client.costs.helpers import last_sum
 
 
 @register("control_effort")
@@ -26,4 +27,4 @@ class ControlEffort(CostTerm):
 
     def __call__(self, batch):
         u = batch.controls if self.channels is None else batch.controls[..., list(self.channels)]
-        return (u * u).sum(-1)
+        return last_sum(u * u)

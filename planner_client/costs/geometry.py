@@ -11,7 +11,7 @@ import torch
 from shared.config import non_negative, one_of, positive, vector
 from shared.geometry import select_axes, symmetric_orientation_error_quat
 from planner_client.costs.base import CostTerm, RolloutBatch, register
-from planner_client.costs.helpers import axes_param, cosine, cosine_value, frame_params
+from planner_client.costs.helpers import axes_param, cosine, cosine_value, frame_params, norm
 from planner_client.sensors import SensorRequest
 
 
@@ -39,7 +39,7 @@ class Distance(CostTerm):
         d = pa - pb
         if any(self.offset):
             d = d - torch.tensor(self.offset, dtype=d.dtype, device=d.device)
-        return torch.linalg.vector_norm(select_axes(d, self.axes), dim=-1)
+        return norm(select_axes(d, self.axes))
 
 
 @register("velocity")
@@ -57,7 +57,7 @@ class Velocity(CostTerm):
         return [SensorRequest("framelinvel", self.a)]
 
     def __call__(self, batch):
-        return torch.linalg.vector_norm(select_axes(batch.get(self.requests[0]), self.axes), dim=-1)
+        return norm(select_axes(batch.get(self.requests[0]), self.axes))
 
 
 @register("orientation")
@@ -127,7 +127,7 @@ class Reach(CostTerm):
     def __call__(self, batch):
         x_ee, x_o, z_ee, *obj_axes = (batch.get(r) for r in self.requests)
         z_o = obj_axes[0] if self.obj_axis == "z" else top_axis(torch.stack(obj_axes, dim=-2))
-        dist = torch.linalg.vector_norm(x_ee - x_o, dim=-1)
+        dist = norm(x_ee - x_o)
         return dist + self.tilt_weight * (cosine(z_ee, z_o) - self.theta).abs()
 
 
@@ -202,6 +202,6 @@ class ApproachCone(CostTerm):
 
     def __call__(self, batch):
         x_ee, x_o = (batch.get(r) for r in self.requests)
-        d_xy = torch.linalg.vector_norm(x_ee[..., :2] - x_o[..., :2], dim=-1)
+        d_xy = norm(x_ee[..., :2] - x_o[..., :2])
         floor = torch.clamp(self.slope * torch.relu(d_xy - self.radius), max=self.height)
         return torch.relu(floor - (x_ee[..., 2] - x_o[..., 2]))

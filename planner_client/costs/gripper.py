@@ -4,11 +4,9 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-import torch
-
 from shared.config import non_negative, one_of
 from planner_client.costs.base import CostTerm, register
-from planner_client.costs.helpers import frame_params
+from planner_client.costs.helpers import frame_params, norm
 from planner_client.sensors import SensorRequest
 
 
@@ -41,7 +39,7 @@ class GripperWidth(CostTerm):
 
     def __call__(self, batch):
         xl, xr = (batch.get(r) for r in self.requests)
-        width = torch.linalg.vector_norm(xl - xr, dim=-1)
+        width = norm(xl - xr)
         if self.target == "closed":
             return width
         if self.target == "open":

@@ -3,6 +3,8 @@ readers (frames, axes, a cosine value) and the small tensor maths several terms 
 
 from __future__ import annotations
 
+import functools
+
 import torch
 
 from shared.config import Section, number, one_of
@@ -31,8 +33,29 @@ def cosine(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
     Near zero, |a·b| <= |a||b| keeps the ratio in [-1, 1], so the cost stays bounded and
     continuous there too.
     """
-    den = torch.linalg.vector_norm(a, dim=-1) * torch.linalg.vector_norm(b, dim=-1)
-    return (a * b).sum(-1) / den.clamp_min(TINY)
+    den = norm(a) * norm(b)
+    return last_sum(a * b) / den.clamp_min(TINY)
+
+
+def last_sum(x: torch.Tensor) -> torch.Tensor:
+    """Sum over a short last axis, ``[..., d] -> [...]``, as one matrix-vector product.
+
+    Torch's CPU reductions over a last axis of a few entries cost some 20 ns per output element
+    (on ``[200, 5, 7, 3]`` forces a ``sum(-1)`` took 180 µs, the product with a ones vector
+    25 µs): terms reduce over 2-7 entries on every sample and step, so they sum this way."""
+    return x @ _ones(x.shape[-1], x.dtype, x.device)
+
+
+def norm(x: torch.Tensor) -> torch.Tensor:
+    """Euclidean norm over a short last axis (a position, a force), ``[..., d] -> [...]``:
+    :func:`last_sum` of the squares (``torch.linalg.vector_norm`` reduces the slow way)."""
+    return last_sum(x * x).sqrt_()
+
+
+@functools.lru_cache(maxsize=32)
+def _ones(n: int, dtype: torch.dtype, device: torch.device) -> torch.Tensor:
+    """``[n]`` ones for :func:`last_sum`, made once (read-only: matmul never writes it)."""
+    return torch.ones(n, dtype=dtype, device=device)
 
 
 def cos_rog(batch: RolloutBatch, a: str, obj: str, goal: str, axes: str) -> torch.Tensor:

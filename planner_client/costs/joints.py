@@ -16,6 +16,7 @@ import torch
 
 from shared.config import Section, positive, string_list, vector
 from planner_client.costs.base import CostTerm, TermContext, register
+from planner_client.costs.helpers import last_sum
 from planner_client.sensors import SensorRequest
 
 
@@ -77,7 +78,7 @@ class JointLimits(CostTerm):
         q = _positions(batch, self.requests)                                  # [S, T, J]
         lo, hi = _constant(self.lower, q.dtype, q.device), _constant(self.upper, q.dtype, q.device)
         room = torch.minimum(q - lo, hi - q)                                  # [S, T, J]
-        return torch.clamp(self.margin - room, min=0.0).sum(-1) / self.margin
+        return last_sum(torch.clamp(self.margin - room, min=0.0)) / self.margin
 
 
 @register("posture")
@@ -104,4 +105,4 @@ class Posture(CostTerm):
     def __call__(self, batch):
         q = _positions(batch, self.requests)
         d = q - _constant(self.target, q.dtype, q.device)
-        return (d * d).sum(-1)
+        return last_sum(d * d)

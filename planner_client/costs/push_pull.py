@@ -10,7 +10,7 @@ import torch
 from shared.config import positive, string_list
 from shared.geometry import select_axes
 from planner_client.costs.base import CostTerm, register
-from planner_client.costs.helpers import axes_param, cos_rog, cosine, frame_params
+from planner_client.costs.helpers import axes_param, cos_rog, cosine, frame_params, norm
 from planner_client.sensors import SensorRequest
 
 
@@ -93,5 +93,5 @@ class PullDirection(CostTerm):
         d = select_axes(x_o - x_r, self.axes)
         cost = torch.relu(cosine(d, u))
         if self.within is not None:
-            cost = cost * (torch.linalg.vector_norm(d, dim=-1) <= self.within)
+            cost = cost * (norm(d) <= self.within)
         return cost

@@ -14,13 +14,14 @@ import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
+import numpy as np
 import torch
 from torch import Tensor
 
 from .config import MPPIConfig, ModeSpec
 from .sampling import make_noise
 from .smoothing import savgol_matrix, smooth
-from .temperature import adapt_temperature, cost_gaps, gap_weights, softmin_weights
+from .temperature import finite_costs, softmin_weights, weigh
 
 
 @dataclass(frozen=True)
@@ -94,15 +95,6 @@ def control_costs(mean: Tensor, eps: Tensor, inv_var: Tensor, coef: Tensor | flo
     if keep is not None:
         mean = mean * keep      # u = 0 removes the channel's whole term, 2uᵀΣ⁻¹ε included
     return coef * (mean * (mean + 2.0 * eps) * inv_var).sum(dim=(-2, -1))
-
-
-def finite_costs(costs: Tensor) -> Tensor:
-    """Maps NaN and ±inf total costs ``[S]`` to ``+inf``: the rollout diverged (or the objective
-    failed), so it gets zero weight, like padding, and does not count as a sample in the
-    temperature adaptation. Not a large finite stand-in: its gap would enter the bracket of
-    λ (paper Alg. 3) and, near the float maximum, overflow it to λ = inf; nor ``-inf`` kept as
-    it is: a diverged rollout is no perfect one. Finite costs pass unchanged."""
-    return torch.where(torch.isfinite(costs), costs, math.inf)
 
 
 def shift(seq: Tensor, steps: float = 1.0) -> Tensor:
@@ -181,6 +173,14 @@ class _Common:
     def make_noise(self, samples: int) -> None:
         self.noise = make_noise(self.cfg, samples, self.dtype, self.device)
 
+    def tensor(self, x: np.ndarray) -> Tensor:
+        """A host array of the weighting as a tensor of the planner's dtype and device; on the
+        CPU in float64 the same memory (``from_numpy`` takes a microsecond, ``as_tensor`` with
+        a dtype and device nine)."""
+        if self.device.type == "cpu" and x.dtype == np.float64 and self.dtype == torch.float64:
+            return torch.from_numpy(x)
+        return torch.as_tensor(x, dtype=self.dtype, device=self.device)
+
     def zeros(self, *lead: int) -> Tensor:
         return torch.zeros(*lead, self.cfg.horizon, self.cfg.nu, dtype=self.dtype,
                            device=self.device)
@@ -252,11 +252,11 @@ class MPPI:
         eps = v - self.U
         if c.cfg.control_cost:
             costs = costs + control_costs(self.U, eps, c.inv_var, c.control_coef)
-        costs = finite_costs(costs)
-        w, eta, rho = softmin_weights(costs, lam)
+        costs = finite_costs(costs.cpu().numpy())
+        w, eta, rho = (c.tensor(x) for x in softmin_weights(costs, lam))
         u = c.finish_mean(self.U + (w[:, None, None] * eps).sum(dim=0))
-        finite = bool((eta > 0) & torch.isfinite(u).all())
-        best = v[costs.argmin()]
+        finite = bool(eta > 0) and bool(torch.isfinite(u).all())
+        best = v[int(np.argmin(costs))]
         if not finite:      # no finite cost (all weights 0): keep U and the best, flag the result
             u, best = self.U, self._best
         one = torch.ones(1, dtype=c.dtype, device=c.device)
@@ -279,34 +279,21 @@ class MPPI:
 
 @dataclass(frozen=True)
 class _Layout:
-    """Index tensors that place N modes' samples in rows of ``[S]`` and of a padded table.
+    """Where N modes' samples sit in the rows of ``[S]``: grouped by mode, in mode order."""
 
-    ``table`` is ``[N + 1, W]`` flat sample indices: row i < N lists mode i's rows then padding,
-    row N lists all S rows (the fused problem); ``pad`` marks padding. Padded entries point at
-    row 0 and get +inf cost, so they carry zero weight.
-    """
-
-    row_mode: Tensor    # [S] mode of each sample row
-    table: Tensor       # [N + 1, W]
-    pad: Tensor         # [N + 1, W] bool
-    first: Tensor       # [N] first row of each mode
-    last: Tensor        # [N] last row of each mode
-    k_max: int
+    slices: list[slice]  # [N] rows of each mode
+    row_mode: Tensor     # [S] mode of each sample row
+    first: Tensor        # [N] first row of each mode
+    last: Tensor         # [N] last row of each mode
 
     @staticmethod
     def build(counts: Sequence[int], device: torch.device) -> _Layout:
-        n, total, k_max = len(counts), sum(counts), max(counts)
-        starts = torch.tensor([0, *counts], device=device).cumsum(0)[:-1]
+        starts = np.cumsum([0, *counts])[:-1]
         k = torch.tensor(counts, device=device)
-        col = torch.arange(total, device=device)
-        table = torch.zeros(n + 1, total, dtype=torch.long, device=device)
-        pad = torch.ones(n + 1, total, dtype=torch.bool, device=device)
-        in_mode = col[None, :] < k[:, None]
-        table[:n] = torch.where(in_mode, starts[:, None] + col[None, :], 0)
-        pad[:n] = ~in_mode
-        table[n], pad[n] = col, False
-        return _Layout(row_mode=torch.repeat_interleave(torch.arange(n, device=device), k),
-                       table=table, pad=pad, first=starts, last=starts + k - 1, k_max=k_max)
+        first = torch.as_tensor(starts, device=device)
+        return _Layout(slices=[slice(int(a), int(a) + n) for a, n in zip(starts, counts)],
+                       row_mode=torch.repeat_interleave(torch.arange(len(counts), device=device), k),
+                       first=first, last=first + k - 1)
 
 
 class M3P2I:
@@ -321,9 +308,14 @@ class M3P2I:
          all S samples (paper Eqs. 9-11, their λ adapted to the same η window); u ← (1-α_u)u + α_u Σ ω̃ V
          (paper Eq. 12); Savitzky-Golay smoothing of u and μ_i; projection onto the bounds; shift.
 
-    With one mode, α_u = 1 and no temperature adaptation this is exactly :class:`MPPI` (bit for
-    bit, same seed): μ_1 and u then follow the same recursion. paper Eq. 8 and paper Eq. 12 are evaluated as
-    ``m + Σ_k ω_k (V_k - m)``, equal to ``Σ_k ω_k V_k`` since Σ ω = 1 and thesis Alg. 2's form of it.
+    The N means and the fused plan are one ``[N + 1, T, nu]`` tensor, and the weights of all
+    N + 1 rows one ``[N + 1, S]`` matrix (a mode's row is 0 outside its samples), so paper
+    Eqs. 8 and 12 are one matrix product ``Σ_k ω_k V_k`` and the smoothing, projection and shift
+    one call each: an iteration is a few dozen tensor operations whatever N.
+
+    With one mode, α_u = 1 and no temperature adaptation this is :class:`MPPI` (same seed, same
+    samples and weights to rounding): μ_1 and u then follow thesis Alg. 2's recursion, which
+    :class:`MPPI` writes as ``U + Σ_k ω_k ε_k``, equal since Σ ω = 1.
 
     Fixed channels are pinned in every sample of a mode, so μ_i keeps them; the fused u blends the
     modes' values by weight, and the caller takes discrete decisions from ``mode_weights``.
@@ -352,29 +344,41 @@ class M3P2I:
     @property
     def mode_slices(self) -> list[slice]:
         """Rows of ``V`` (and of the step costs) owned by each mode, in mode order."""
-        return self._slices
+        return self._layout.slices
 
     @property
     def means(self) -> Tensor:
         """``[N, T, nu]`` per-mode means μ_i the next :meth:`sample` draws around (already shifted)."""
-        return self._mu
+        return self._plans[:-1]
 
     @property
     def nominal(self) -> Tensor:
         """``[T, nu]`` fused nominal control sequence u carried into the next iteration (already
         shifted)."""
-        return self._u
+        return self._plans[-1]
+
+    @property
+    def costs(self) -> np.ndarray | None:
+        """``[S]`` total costs S_k of the last update's samples (paper Eq. 4 with the control
+        cost, +inf for diverged rollouts), on the host; ``None`` before the first."""
+        return self._costs
+
+    @property
+    def temperatures(self) -> np.ndarray:
+        """``[N + 1]`` λ of each mode, then of the fused weights, for the next update."""
+        return self._lam
 
     def reset(self) -> None:
         """Zero means and plans (clamped into the bounds), initial temperatures, fresh random
         stream."""
         c, n = self._c, len(self._modes)
         u = c.box.project(c.zeros())                            # [T, nu]
-        mu = u.expand(n, -1, -1).clone()                        # [N, T, nu]
-        # (μ, u, best) as the last update left them; what sample() draws around is derived
-        self._unshifted = (mu, u, mu.clone())
+        # (μ_1..μ_N and u [N + 1, T, nu], best [N, T, nu]) as the last update left them; what
+        # sample() draws around is derived from them
+        self._unshifted = (u.expand(n + 1, -1, -1).clone(), u.expand(n, -1, -1).clone())
         self._retime(0.0)
-        self._lam = torch.full((n + 1,), c.cfg.lambda_init, dtype=c.dtype, device=c.device)
+        self._lam = np.full(n + 1, c.cfg.lambda_init)
+        self._costs: np.ndarray | None = None
         self._v: Tensor | None = None
         c.noise.reset()
 
@@ -388,19 +392,20 @@ class M3P2I:
         c = self._c
         old = {m.name: i for i, m in enumerate(self._modes)}
         keep = [old.get(m.name) for m in modes]
-        lam0 = torch.tensor(c.cfg.lambda_init, dtype=c.dtype, device=c.device)
-        mu, u, best = self._unshifted
-        mu = torch.stack([mu[i] if i is not None else u for i in keep])
+        plans, best = self._unshifted
+        u = plans[-1]
+        plans = torch.stack([plans[i] if i is not None else u for i in keep] + [u])
         best = torch.stack([best[i] if i is not None else u for i in keep])
-        lam = [self._lam[i] if i is not None else lam0 for i in keep] + [self._lam[-1]]
+        lam = np.array([self._lam[i] if i is not None else c.cfg.lambda_init for i in keep]
+                       + [self._lam[-1]])
         previous = self._s
         self._set_layout(modes)          # validates before anything changes
-        self._unshifted = (mu, u, best)
+        self._unshifted = (plans, best)
         self._retime(self._steps)
-        self._lam = torch.stack(lam)
+        self._lam = lam
         if self._s != previous:
             c.make_noise(self._s)
-        self._v = None
+        self._v, self._costs = None, None
 
     def advance(self, steps: float) -> None:
         """Re-times the warm start: the next iteration starts ``steps`` control steps (may be
@@ -413,16 +418,17 @@ class M3P2I:
         self._retime(steps)
 
     def _retime(self, steps: float) -> None:
-        """μ_i, u and the best sequences for the next iteration: the last update's, ``steps``
+        """Means, plan and best sequences for the next iteration: the last update's, ``steps``
         later (always from the unshifted plans: a shift of 0.3 must not lose step 0)."""
         self._steps = steps
-        self._mu, self._u, self._best = (shift(x, steps) for x in self._unshifted)
+        self._plans, self._best = (shift(x, steps) for x in self._unshifted)
 
     def sample(self) -> Tensor:
         """Returns the control sequences to roll out, ``[S, T, nu]``."""
         c, lay = self._c, self._layout
-        # one kernel reads the sampler's transposed buffer, scales and shifts it
-        v = c.box.bound(torch.addcmul(self._mu.index_select(0, lay.row_mode), c.noise.draw(),
+        # one kernel reads the sampler's transposed buffer, scales and shifts it (row_mode < N
+        # picks each row's mode mean out of the plans)
+        v = c.box.bound(torch.addcmul(self._plans.index_select(0, lay.row_mode), c.noise.draw(),
                                       c.sigma))
         if c.cfg.keep_best:
             v.index_copy_(0, lay.first, self._best)
@@ -441,48 +447,42 @@ class M3P2I:
         v, self._v = self._v, None
         costs = trajectory_costs(c.check_costs(step_costs, self._s), c.discount)
         if c.cfg.control_cost:
-            mu_rows = self._mu.index_select(0, lay.row_mode)
+            mu_rows = self._plans.index_select(0, lay.row_mode)
             costs = costs + control_costs(mu_rows, v - mu_rows, c.inv_var, c.control_coef,
                                           self._pin_keep)
-        costs = finite_costs(costs)
+        # Per-mode and fused weights and temperatures (paper Eqs. 5-7, 9-11, Alg. 3) on the
+        # host. Diverged rollouts get zero weight; a row with no finite cost at all (a mode
+        # whose rollouts all diverged, or all S of them) keeps λ, its mean and its best sequence,
+        # and, for the fused row, the plan (then flagged: ``finite``).
+        wt = weigh(costs.cpu().numpy(), lay.slices, self._lam,
+                   c.cfg.eta_bounds, c.cfg.adapt_iters)
+        self._lam, self._costs = wt.lam, wt.costs
+        w = c.tensor(wt.w)                                             # [N + 1, S]
 
-        # Diverged rollouts are +inf like padding; a row with no finite cost at all (a mode whose
-        # rollouts all diverged, or all S of them) gets zero weights, keeps λ, μ and its best
-        # sequence, and, for the fused row, the plan (then flagged: ``finite``).
-        table = costs[lay.table].masked_fill_(lay.pad, math.inf)      # [N + 1, W]
-        # Gaps to each row's minimum, made once for the temperatures and both weightings: a
-        # mode's padding is +inf, so its minimum over W columns is the one over its K_max.
-        beta = table.amin(dim=-1, keepdim=True)                        # [N + 1, 1]
-        gaps = cost_gaps(table, beta)                                  # [N + 1, W]
-        if c.cfg.eta_bounds is not None:
-            self._lam = adapt_temperature(gaps, self._lam, c.cfg.eta_bounds, c.cfg.adapt_iters)
-        lam = self._lam
+        # μ_i ← Σ ω_i V (paper Eq. 8) and Σ ω̃ V (paper Eq. 12) in one product; then u's step α_u
+        S, T, nu = v.shape
+        plans = (w @ v.reshape(S, T * nu)).view(n + 1, T, nu)
+        if c.cfg.alpha_u != 1.0:
+            plans[n] = torch.lerp(self._plans[n], plans[n], c.cfg.alpha_u)
+        plans = c.finish_mean(plans)
+        best = v.index_select(0, torch.from_numpy(wt.best).to(c.device))
+        alive = wt.eta > 0                                             # [N + 1]
+        alive[n] &= math.isfinite(float(plans[n].sum()))
+        if not alive.all():
+            keep = torch.from_numpy(alive).to(c.device)[:, None, None]
+            plans = torch.where(keep, plans, self._plans)
+            best = torch.where(keep[:n], best, self._best)
+        finite = bool(alive[n])
 
-        # Per-mode distributions (paper Eqs. 5-8).
-        mode_idx = lay.table[:n, :lay.k_max]
-        w_mode, eta_mode = gap_weights(gaps[:n, :lay.k_max], lam[:n, None])
-        beta_mode = beta[:n].squeeze(-1)
-        v_mode = v[mode_idx]                                           # [N, K_max, T, nu]
-        mu = self._mu + (w_mode[..., None, None] * (v_mode - self._mu[:, None])).sum(dim=1)
-
-        # Fused distribution over all samples (paper Eqs. 9-12).
-        w, eta = gap_weights(gaps[n], lam[n])                          # row N: all S samples
-        u = self._u + c.cfg.alpha_u * (w[:, None, None] * (v - self._u)).sum(dim=0)
-
-        # A mode without a finite cost keeps μ_i as it is (not smoothed again) and its best
-        # sequence (argmin of a row of +inf is merely its first sample); both are still shifted.
-        alive = (eta_mode > 0)[:, None, None]                          # [N, 1, 1]
-        mu, u = torch.where(alive, c.finish_mean(mu), self._mu), c.finish_mean(u)
-        best_col = table[:n, :lay.k_max].argmin(dim=-1, keepdim=True)
-        best = torch.where(alive, v[mode_idx.gather(1, best_col).squeeze(1)], self._best)
-        finite = bool((eta > 0) & torch.isfinite(u).all())
-        if not finite:      # no finite cost at all (all weights 0): keep the plan, flag the result
-            u = self._u
-        mode_weights = torch.zeros(n, dtype=c.dtype, device=c.device).index_add_(0, lay.row_mode, w)
-        result = PlanResult(u0=u[0], U=u, mode_weights=mode_weights, mode_costs=beta_mode,
-                            etas=eta_mode, lambdas=lam[:n].clone(), best=best, weights=w,
-                            fused_eta=eta, fused_lambda=lam[n].clone(), finite=finite)
-        self._unshifted = (mu, u, best)
+        # the per-mode diagnostics, made as one host array and handed out as views of it
+        diag = c.tensor(np.concatenate([
+            np.add.reduceat(wt.w[n], [rows.start for rows in lay.slices]),    # mode weights
+            wt.beta[:n], wt.eta, wt.lam]))
+        result = PlanResult(u0=plans[n, 0], U=plans[n], mode_weights=diag[:n],
+                            mode_costs=diag[n:2 * n], etas=diag[2 * n:3 * n],
+                            lambdas=diag[3 * n + 1:4 * n + 1], best=best, weights=w[n],
+                            fused_eta=diag[3 * n], fused_lambda=diag[4 * n + 1], finite=finite)
+        self._unshifted = (plans, best)
         self._retime(1.0)
         return result
 
@@ -516,14 +516,12 @@ class M3P2I:
         self._modes = modes
         self._s = sum(m.samples for m in modes)
         self._layout = _Layout.build([m.samples for m in modes], c.device)
-        starts = self._layout.first.tolist()
-        self._slices = [slice(s, s + m.samples) for s, m in zip(starts, modes)]
 
         # Pinning as v·keep + value (keep 0 on pinned channels), exact for finite v; and each
         # mode's null action: zero, inside the bounds, pinned.
         keep = torch.ones(self._s, 1, cfg.nu, dtype=c.dtype, device=c.device)
         value = torch.zeros_like(keep)
-        for m, rows in zip(modes, self._slices):
+        for m, rows in zip(modes, self._layout.slices):
             for ch, val in m.fixed.items():
                 keep[rows, :, ch] = 0.0
                 value[rows, :, ch] = val

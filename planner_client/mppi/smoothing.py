@@ -28,14 +28,6 @@ def savgol_matrix(horizon: int, window: int, order: int) -> np.ndarray:
 
 
 def smooth(matrix: Tensor, u: Tensor) -> Tensor:
-    """Applies a ``[T, T]`` smoothing matrix to ``[..., T, nu]`` sequences along T.
-
-    Leading dimensions are folded into columns so the work is one 2-D matmul; a single
-    ``[T, nu]`` sequence goes through exactly the same ``mm`` call whatever the batch, which keeps
-    one-mode M3P2I bit-identical to MPPI.
-    """
-    if u.dim() == 2:
-        return matrix @ u
-    t, nu = u.shape[-2:]
-    cols = u.movedim(-2, 0).reshape(t, -1)
-    return (matrix @ cols).reshape(t, *u.shape[:-2], nu).movedim(0, -2)
+    """Applies a ``[T, T]`` smoothing matrix to ``[..., T, nu]`` sequences along T (one
+    broadcast matrix product over the leading dimensions)."""
+    return matrix @ u

@@ -1,18 +1,21 @@
 """Importance weights (thesis Alg. 2 lines 25-29; paper Eqs. 5-7, 9-11) and the temperature
-adaptation of paper Alg. 3.
+adaptation of paper Alg. 3, in NumPy on the host.
 
 Rows are independent weighting problems (one per mode, plus the fused one), so everything here
-works on ``[..., K]`` costs and reduces over the last dimension.
+works on ``[..., K]`` costs and reduces over the last dimension. These are a few hundred to a
+few thousand numbers per iteration, where a torch call costs two to three NumPy ones and far
+more once a rollout has run on every core (its dispatcher's code is evicted): the planners hand
+their total costs ``[S]`` over once and take the weights back once (on a GPU, one transfer each
+way, where the torch version synchronised on every adaptation step anyway).
 """
 
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
+from dataclasses import dataclass
 
 import numpy as np
-import torch
-from torch import Tensor
-
 # Bracket of log λ around the cost gaps d: at λ = d_min⁺/55 every non-minimal sample has weight
 # ≤ e^{-55} relative to the best (η = number of ties), at λ = 50·d_max every sample has ≥ e^{-0.02}
 # (η ≈ number of samples), so any reachable η lies inside.
@@ -27,45 +30,98 @@ def _log_lambda_range(dtype: np.dtype) -> tuple[float, float]:
     return math.log(info.tiny) + 1.0, math.log(info.max) - 1.0
 
 
-def softmin_weights(costs: Tensor, lam: Tensor | float) -> tuple[Tensor, Tensor, Tensor]:
+def finite_costs(costs: np.ndarray) -> np.ndarray:
+    """Maps NaN and ±inf total costs ``[S]`` to ``+inf``: the rollout diverged (or the objective
+    failed), so it gets zero weight, like padding, and does not count as a sample in the
+    temperature adaptation. Not a large finite stand-in: its gap would enter the bracket of
+    λ (paper Alg. 3) and, near the float maximum, overflow it to λ = inf; nor ``-inf`` kept as
+    it is: a diverged rollout is no perfect one. Finite costs pass unchanged."""
+    return np.where(np.isfinite(costs), costs, np.inf)
+
+
+def softmin_weights(costs: np.ndarray, lam) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Exponentiated-cost weights with the min-cost shift.
 
     ω_k = exp(-(S_k - β)/λ) / η,  η = Σ_k exp(-(S_k - β)/λ),  β = min_k S_k   (paper Eqs. 5-7 / 9-11).
 
     Args:
         costs: ``[..., K]`` total costs S_k; ``+inf`` entries get zero weight (padding, diverged
-            rollouts). No NaN or ``-inf``: :func:`~planner_client.mppi.m3p2i.finite_costs` maps
-            them to ``+inf`` first.
-        lam: temperature λ > 0, finite, a float or ``[..., 1]`` tensor.
+            rollouts). No NaN or ``-inf``: :func:`finite_costs` maps them to ``+inf`` first.
+        lam: temperature λ > 0, finite, a float or ``[..., 1]`` array.
 
     Returns:
         weights ``[..., K]`` (sum 1 per row), η ``[...]``, β ``[...]``. A row without a finite
         cost has all weights 0, η = 0 and β = ``+inf``: there is nothing to average.
     """
-    beta = costs.amin(dim=-1, keepdim=True)
+    beta = costs.min(axis=-1, keepdims=True)
     w, eta = gap_weights(cost_gaps(costs, beta), lam)
-    return w, eta, beta.squeeze(-1)
+    return w, eta, beta[..., 0]
 
 
-def cost_gaps(costs: Tensor, beta: Tensor) -> Tensor:
+def cost_gaps(costs: np.ndarray, beta: np.ndarray) -> np.ndarray:
     """Gaps d = S - β ``[..., K]`` to the row minima ``beta [..., 1]``; a row of +inf only
     would give inf - inf = NaN, so it is shifted by 0 instead and keeps gaps of +inf."""
-    return costs - beta.nan_to_num(posinf=0.0)
+    return costs - np.where(np.isfinite(beta), beta, 0.0)
 
 
-def gap_weights(gaps: Tensor, lam: Tensor | float) -> tuple[Tensor, Tensor]:
+def gap_weights(gaps: np.ndarray, lam) -> tuple[np.ndarray, np.ndarray]:
     """:func:`softmin_weights` from the gaps ``[..., K]`` of :func:`cost_gaps`: weights
     ``[..., K]`` and η ``[...]``, for a caller that has the gaps already (M3P2I adapts λ on
     them)."""
-    e = torch.exp(-gaps / lam)
-    eta = e.sum(dim=-1, keepdim=True)
-    # η ≥ 1 in any row with a finite cost (its minimum gives e^0 = 1 exactly), so the clamp
+    e = np.exp(-gaps / lam)
+    eta = e.sum(axis=-1, keepdims=True)
+    # η ≥ 1 in any row with a finite cost (its minimum gives e^0 = 1 exactly), so the floor
     # changes nothing there and turns 0/0 into 0 in a row without one.
-    return e / eta.clamp(min=1.0), eta.squeeze(-1)
+    return e / np.maximum(eta, 1.0), eta[..., 0]
 
 
-def adapt_temperature(gaps: Tensor, lam: Tensor, eta_bounds: tuple[float, float],
-                      max_iters: int) -> Tensor:
+@dataclass(frozen=True)
+class Weights:
+    """One update's weighting of ``S`` samples in N modes plus the fused problem (paper
+    Eqs. 5-7 per mode, 9-11 fused); host arrays, row i < N the mode i, row N the fused one.
+
+    Attributes:
+        w: ``[N + 1, S]`` weights; a mode's row is 0 outside its own samples, so one matrix
+            product with the samples gives every mean (paper Eqs. 8, 12).
+        eta: ``[N + 1]`` normalisers η (0: no finite cost in the row).
+        beta: ``[N + 1]`` lowest costs β (``+inf``: none finite).
+        lam: ``[N + 1]`` temperatures used (adapted, paper Alg. 3, when asked).
+        best: ``[N]`` sample row of each mode's lowest cost (its first row when none is finite).
+        costs: ``[S]`` the total costs weighed, diverged rollouts ``+inf``.
+    """
+
+    w: np.ndarray
+    eta: np.ndarray
+    beta: np.ndarray
+    lam: np.ndarray
+    best: np.ndarray
+    costs: np.ndarray
+
+
+def weigh(costs: np.ndarray, modes: Sequence[slice], lam: np.ndarray,
+          eta_bounds: tuple[float, float] | None, max_iters: int) -> Weights:
+    """Weights of total costs ``[S]`` for each mode (its rows ``modes[i]``) and for all of them
+    together, with the temperatures ``lam [N + 1]`` adapted first when ``eta_bounds`` is given.
+
+    Diverged rollouts (NaN, ±inf) are +inf, like the other modes' samples in a mode's row; a
+    row with no finite cost at all gets zero weights and keeps its λ."""
+    costs = finite_costs(costs)
+    n = len(modes)
+    table = np.full((n + 1, costs.shape[0]), np.inf)            # [N + 1, S]
+    for i, rows in enumerate(modes):
+        table[i, rows] = costs[rows]
+    table[n] = costs
+    beta = table.min(axis=-1, keepdims=True)
+    gaps = cost_gaps(table, beta)
+    if eta_bounds is not None:
+        lam = adapt_temperature(gaps, lam, eta_bounds, max_iters)
+    w, eta = gap_weights(gaps, lam[:, None])
+    best = np.array([rows.start + int(np.argmin(costs[rows])) for rows in modes])
+    return Weights(w=w, eta=eta, beta=beta[:, 0], lam=lam, best=best, costs=costs)
+
+
+def adapt_temperature(gaps: np.ndarray, lam: np.ndarray, eta_bounds: tuple[float, float],
+                      max_iters: int) -> np.ndarray:
     """Re-tune λ per row until η(λ) = Σ_k exp(-d_k/λ) lies in ``[η_l, η_u]`` (paper Alg. 3).
 
     paper Alg. 3 multiplies λ by 0.9 or 1.2 until η is in the window, which needs tens to hundreds of steps
@@ -90,27 +146,16 @@ def adapt_temperature(gaps: Tensor, lam: Tensor, eta_bounds: tuple[float, float]
 
     Returns:
         ``[G]`` new temperatures, finite and > 0 (``lam`` itself when every row is in its
-        window), on ``lam``'s device.
-
-    The maths runs in NumPy on the host: some forty steps on a few hundred numbers per row,
-    where a torch call costs two to three NumPy ones (on [3, 400] gaps, when it iterates: 110
-    against 260 µs); on a GPU the gaps cross once per iteration, where the torch version
-    synchronised on every step's ``done.all()`` anyway.
+        window). Some forty NumPy steps on a few hundred numbers per row: on [3, 400] gaps,
+        when it iterates, 110 µs, where the same steps in torch took 260 µs.
     """
-    new = _adapt(gaps.detach().cpu().numpy(), lam.detach().cpu().numpy(), eta_bounds, max_iters)
-    return lam if new is None else torch.as_tensor(new, dtype=lam.dtype, device=lam.device)
-
-
-def _adapt(gaps: np.ndarray, lam: np.ndarray, eta_bounds: tuple[float, float],
-           max_iters: int) -> np.ndarray | None:
-    """:func:`adapt_temperature` on host arrays; ``None`` when every row is in its window."""
     eta_l, eta_u = eta_bounds
     # inf/inf, 0·inf and log(0) are expected here (padding, rows without spread) and handled
     with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
         eta = np.exp(-gaps / lam[:, None]).sum(axis=-1)
         done = (eta >= eta_l) & (eta <= eta_u)
         if done.all():
-            return None
+            return lam
 
         target = 0.5 * (math.log(eta_l) + math.log(eta_u))
         finite = np.isfinite(gaps)
