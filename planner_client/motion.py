@@ -100,16 +100,16 @@ class MotionPlanner:
                 steps = np.arange(V.shape[1])[:, None, None] * self.problem.model.opt.timestep
                 path = mocap.pos[None] + mocap.vel[None] * steps  # [T, nmocap, 3]
         sd = self.engine.sensors(x0, V, path)                     # [S, T, nsensordata]
-        S, T = V.shape[:2]
-        if self._step_costs is None or self._step_costs.shape != (S, T):
-            self._step_costs = torch.empty(S, T, dtype=V.dtype, device=V.device)
         layout, dt = self.problem.layout, self.problem.model.opt.timestep
-        shared = {t.key: t(RolloutBatch(sd, V, layout, dt)) for t in self._shared}   # [S, T] each
-        for name, rows in zip(self.modes, self.mppi.mode_slices):
-            batch = RolloutBatch(sd[rows], V[rows], layout, dt)
-            objective = self.problem.objectives[name]
-            self._step_costs[rows] = (objective(batch, {k: v[rows] for k, v in shared.items()})
-                                      if shared else objective(batch))
+        if len(self.modes) == 1:
+            self._step_costs = self.problem.objectives[self.modes[0]](
+                RolloutBatch(sd, V, layout, dt))                      # [S, T]
+        else:
+            shared = {t.key: t(RolloutBatch(sd, V, layout, dt)) for t in self._shared}
+            self._step_costs = torch.cat([
+                self.problem.objectives[name](RolloutBatch(sd[rows], V[rows], layout, dt),
+                                              {k: v[rows] for k, v in shared.items()})
+                for name, rows in zip(self.modes, self.mppi.mode_slices)])
         result = self.mppi.update(self._step_costs)
         best, top_modes = self._best_per_mode()
         top = self.problem.layout.take(sd.index_select(0, torch.from_numpy(best).to(sd.device)),

@@ -17,7 +17,6 @@ from shared.frames import FrameResolver
 
 _KINDS: dict[str, tuple[int, int]] = {
     "framepos": (mujoco.mjtSensor.mjSENS_FRAMEPOS, 3),
-    "framequat": (mujoco.mjtSensor.mjSENS_FRAMEQUAT, 4),
     "framexaxis": (mujoco.mjtSensor.mjSENS_FRAMEXAXIS, 3),
     "frameyaxis": (mujoco.mjtSensor.mjSENS_FRAMEYAXIS, 3),
     "framezaxis": (mujoco.mjtSensor.mjSENS_FRAMEZAXIS, 3),
@@ -40,7 +39,8 @@ class SensorRequest:
     as ``cutoff`` when farther apart (MuJoCo's GEOMDIST sensor). ``contactforce`` is the net
     contact force [3] between the subtree of body ``obj`` (a robot with all its links) and the
     geoms of body ``ref`` (MuJoCo's CONTACT sensor, zero when they do not touch). ``jointpos``
-    is the position of the joint named ``obj`` (a joint name, not a frame).
+    is the position of the joint named ``obj`` (a joint name, not a frame). A frame quantity
+    (``frame*``) with a ``ref`` is expressed in the frame ``ref`` instead of the world's.
     """
     kind: str
     obj: str
@@ -54,6 +54,8 @@ class SensorRequest:
             tail = f"__{self.ref}__{self.cutoff:g}"
         elif self.kind == "contactforce":
             tail = f"__{self.ref}"
+        elif self.ref:
+            tail = f"__in__{self.ref}"
         return f"m3p2i__{self.kind}__{self.obj}{tail}"
 
     @property
@@ -79,6 +81,8 @@ def add_sensors(spec: mujoco.MjSpec, requests: list[SensorRequest], resolve: Fra
             sensor.objtype = mujoco.mjtObj.mjOBJ_XBODY     # XBODY selects the body's subtree
             sensor.reftype, sensor.refname = resolve.mujoco_ref(req.ref)
             sensor.intprm[:3] = _CONTACT_INTPRM
+        elif req.ref:
+            sensor.reftype, sensor.refname = resolve.mujoco_ref(req.ref)
 
 
 class SensorLayout:

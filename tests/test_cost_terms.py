@@ -247,14 +247,19 @@ def _yaw(deg: float) -> tuple[float, float, float, float]:
 
 def test_orientation_ignores_the_symmetries_of_a_cube(ctx):
     term = make(ctx, "orientation", a="box", b="goal")
-    qa, qb = term.sensors()
+    assert [(r.kind, r.obj, r.ref) for r in term.sensors()] == [
+        (k, "goal", "box") for k in ("framexaxis", "frameyaxis", "framezaxis")]
     h = math.sqrt(0.5)
     rotations = [_yaw(0), _yaw(90), _yaw(-180), (0.0, 1.0, 0.0, 0.0), (h, h, 0.0, 0.0), _yaw(45)]
-    b = batch_of({qa: one_step(*rotations), qb: one_step(*[(1, 0, 0, 0)] * len(rotations))})
+    # the goal (world-aligned) in the box's frame: the columns of R_boxᵀ, the rows of R_box
+    mats = np.zeros((len(rotations), 9))
+    for mat, q in zip(mats, rotations):
+        mujoco.mju_quat2Mat(mat, np.array(q, dtype=float))
+    b = batch_of({r: one_step(*mats[:, 3 * i:3 * i + 3]) for i, r in enumerate(term.sensors())})
     close(term(b), [[0.0]] * 5 + [[2.0 - math.sqrt(2.0)]])
 
 
-def test_orientation_reads_the_real_frame_quaternions(model, ctx):
+def test_orientation_reads_the_real_frames(model, ctx):
     term = make(ctx, "orientation", a="box", b="goal")
     b = sensed(model, ctx, term, set_qpos(5, _yaw(45)))
     torch.testing.assert_close(term(b), torch.tensor([[2.0 - math.sqrt(2.0)]], dtype=F64))

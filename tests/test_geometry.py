@@ -11,7 +11,7 @@ import pytest
 import torch
 from scipy.spatial.transform import Rotation
 
-from shared.geometry import symmetric_orientation_error, symmetric_orientation_error_quat
+from shared.geometry import symmetric_orientation_error, symmetric_orientation_error_relative
 
 
 def rot(axis, degrees) -> np.ndarray:
@@ -148,39 +148,46 @@ def test_numpy_inputs_stay_in_numpy_and_agree_with_torch():
                                atol=1e-12, rtol=0)
 
 
-def test_quaternion_version_matches_rotation_matrices():
-    rotations = Rotation.random(30, random_state=13)
-    quats = rotations.as_quat(scalar_first=True)
-    goal = Rotation.from_euler("xyz", [10, -20, 30], degrees=True)
-    expected = torch.as_tensor(symmetric_orientation_error(rotations.as_matrix(), goal.as_matrix()))
-    got = symmetric_orientation_error_quat(quats, goal.as_quat(scalar_first=True))
-    torch.testing.assert_close(got, expected)
-    # quaternion sign does not matter
-    torch.testing.assert_close(symmetric_orientation_error_quat(-quats, goal.as_quat(scalar_first=True)),
-                               expected)
+def _axes_in(u: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """``[..., 9]``: the x, y, z axes of frames ``v [..., 3, 3]`` in the coordinates of frames
+    ``u``, one after the other (MuJoCo's frame axis sensors of v with u as reference)."""
+    return np.swapaxes(np.swapaxes(u, -1, -2) @ v, -1, -2).reshape(*u.shape[:-2], 9)
 
 
-def test_quaternion_version_takes_any_scale_batch_and_dtype_like_mujoco_matrices():
-    # rollout sensors [S, T, 4] against one goal [4]; framequat drifts off unit length in float32
-    rng = np.random.default_rng(21)
-    quats = rng.normal(size=(6, 5, 4)) * rng.uniform(0.5, 3.0, size=(6, 5, 1))
-    goal = rng.normal(size=4)
-    mats = np.zeros((6, 5, 9))
-    for idx in np.ndindex(6, 5):
-        mujoco.mju_quat2Mat(mats[idx], quats[idx] / np.linalg.norm(quats[idx]))
-    goal_mat = np.zeros(9)
-    mujoco.mju_quat2Mat(goal_mat, goal / np.linalg.norm(goal))
-    expected = symmetric_orientation_error(mats.reshape(6, 5, 3, 3), goal_mat.reshape(3, 3))
-    got = symmetric_orientation_error_quat(torch.as_tensor(quats), 2.5 * goal)
-    assert got.shape == (6, 5) and got.dtype == torch.float64
-    np.testing.assert_allclose(got.numpy(), expected, atol=1e-12)
-    single = symmetric_orientation_error_quat(torch.as_tensor(quats, dtype=torch.float32), goal)
-    assert single.dtype == torch.float32
-    np.testing.assert_allclose(single.numpy(), expected, atol=1e-5)
-    # a cube symmetry of the goal (a quarter turn about x) costs nothing
-    turn = np.array([np.cos(np.pi / 4), np.sin(np.pi / 4), 0.0, 0.0])
-    w1, x1, y1, z1 = goal
-    w2, x2, y2, z2 = turn
-    turned = [w1 * w2 - x1 * x2 - y1 * y2 - z1 * z2, w1 * x2 + x1 * w2 + y1 * z2 - z1 * y2,
-              w1 * y2 - x1 * z2 + y1 * w2 + z1 * x2, w1 * z2 + x1 * y2 - y1 * x2 + z1 * w2]
-    assert float(symmetric_orientation_error_quat(goal, np.array(turned))) == pytest.approx(0.0, abs=1e-12)
+def test_relative_axes_version_matches_rotation_matrices():
+    u = Rotation.random(30, random_state=13).as_matrix()
+    goal = Rotation.from_euler("xyz", [10, -20, 30], degrees=True).as_matrix()
+    expected = torch.as_tensor(symmetric_orientation_error(u, goal))
+    got = symmetric_orientation_error_relative(torch.as_tensor(_axes_in(u, goal)))
+    torch.testing.assert_close(got, expected, atol=1e-12, rtol=0)
+    # the argument order is the matrices' (u's first two axes are matched); batches [S, T]
+    samples = Rotation.random(12, random_state=4).as_matrix().reshape(4, 3, 3, 3)
+    got = symmetric_orientation_error_relative(torch.as_tensor(_axes_in(samples, goal)))
+    assert got.shape == (4, 3)
+    torch.testing.assert_close(got, torch.as_tensor(symmetric_orientation_error(samples, goal)),
+                               atol=1e-12, rtol=0)
+
+
+def test_relative_axes_version_reads_mujoco_frame_sensors_and_a_cube_symmetry_costs_nothing():
+    xml = """<mujoco><worldbody>
+      <body name="u" quat="0.9 0.2 -0.3 0.4"><freejoint/><geom size="0.1"/></body>
+      <body name="v" pos="1 0 0" quat="0.1 0.7 0.5 -0.2"><freejoint/><geom size="0.1"/></body>
+    </worldbody><sensor>
+      <framexaxis objtype="body" objname="v" reftype="body" refname="u"/>
+      <frameyaxis objtype="body" objname="v" reftype="body" refname="u"/>
+      <framezaxis objtype="body" objname="v" reftype="body" refname="u"/>
+    </sensor></mujoco>"""
+    m = mujoco.MjModel.from_xml_string(xml)
+    d = mujoco.MjData(m)
+    mujoco.mj_forward(m, d)
+    u, v = d.body("u").xmat.reshape(3, 3), d.body("v").xmat.reshape(3, 3)
+    got = symmetric_orientation_error_relative(torch.as_tensor(d.sensordata.copy()))
+    assert float(got) == pytest.approx(float(symmetric_orientation_error(u, v)), abs=1e-12)
+    assert float(got) > 0.1
+    # v turned onto u up to a quarter turn about u's x axis and a flip: a cube symmetry
+    d.qpos[10:14] = d.qpos[3:7]
+    turn = Rotation.from_euler("xz", [90, 180], degrees=True).as_quat(scalar_first=True)
+    mujoco.mju_mulQuat(d.qpos[10:14], d.qpos[3:7].copy(), turn)
+    mujoco.mj_forward(m, d)
+    got = symmetric_orientation_error_relative(torch.as_tensor(d.sensordata.copy()))
+    assert float(got) == pytest.approx(0.0, abs=1e-12)

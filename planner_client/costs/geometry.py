@@ -9,9 +9,10 @@ from dataclasses import dataclass
 import torch
 
 from shared.config import non_negative, one_of, positive, vector
-from shared.geometry import select_axes, symmetric_orientation_error_quat
+from shared.geometry import select_axes, symmetric_orientation_error_relative
 from planner_client.costs.base import CostTerm, RolloutBatch, register
-from planner_client.costs.helpers import axes_param, cosine, cosine_value, frame_params, norm
+from planner_client.costs.helpers import (axes_param, constant, cosine, cosine_value,
+                                          frame_params, norm)
 from planner_client.sensors import SensorRequest
 
 
@@ -38,7 +39,7 @@ class Distance(CostTerm):
         pa, pb = (batch.get(r) for r in self.requests)
         d = pa - pb
         if any(self.offset):
-            d = d - torch.tensor(self.offset, dtype=d.dtype, device=d.device)
+            d = d - constant(self.offset, d.dtype, d.device)
         return norm(select_axes(d, self.axes))
 
 
@@ -67,7 +68,9 @@ class Orientation(CostTerm):
 
     φ is the orientation metric for fully symmetric objects (paper Eq. 33): 0 whenever every axis
     of one frame is collinear with an axis of the other (any of a cube's 24 symmetries), at most
-    2 - 2/√3. Read from the ``framequat`` sensors of both frames ``[S, T, 4]``.
+    2 - 2/√3. Read from the ``framexaxis``, ``frameyaxis`` and ``framezaxis`` sensors of ``b``
+    in the frame of ``a`` ``[S, T, 9]``: the rotation from a to b, which MuJoCo computes in the
+    rollout itself.
     """
     a: str
     b: str
@@ -77,11 +80,12 @@ class Orientation(CostTerm):
         return cls(**frame_params(s, ctx, "a", "b"))
 
     def sensors(self):
-        return [SensorRequest("framequat", self.a), SensorRequest("framequat", self.b)]
+        return [SensorRequest(kind, self.b, ref=self.a)
+                for kind in ("framexaxis", "frameyaxis", "framezaxis")]
 
     def __call__(self, batch):
-        qa, qb = (batch.get(r) for r in self.requests)
-        return symmetric_orientation_error_quat(qa, qb)
+        return symmetric_orientation_error_relative(
+            batch.layout.take_all(batch.sensordata, self.requests))
 
 
 @register("reach")

@@ -52,6 +52,14 @@ def norm(x: torch.Tensor) -> torch.Tensor:
     return last_sum(x * x).sqrt_()
 
 
+@functools.lru_cache(maxsize=None)
+def constant(values: tuple[float, ...], dtype: torch.dtype,
+             device: torch.device = torch.device("cpu")) -> torch.Tensor:
+    """A term's parameter ``values`` as a tensor on ``device``, made once (read-only: terms run
+    every planner iteration, and a new tensor costs as much as the operation using it)."""
+    return torch.tensor(values, dtype=dtype, device=device)
+
+
 @functools.lru_cache(maxsize=32)
 def _ones(n: int, dtype: torch.dtype, device: torch.device) -> torch.Tensor:
     """``[n]`` ones for :func:`last_sum`, made once (read-only: matmul never writes it)."""

@@ -10,13 +10,12 @@ S samples, T horizon steps; each term returns ``[S, T]`` from ``jointpos`` senso
 from __future__ import annotations
 
 from dataclasses import dataclass
-from functools import lru_cache
 
 import torch
 
 from shared.config import Section, positive, string_list, vector
 from planner_client.costs.base import CostTerm, TermContext, register
-from planner_client.costs.helpers import last_sum
+from planner_client.costs.helpers import constant, last_sum
 from planner_client.sensors import SensorRequest
 
 
@@ -31,13 +30,6 @@ def _joint_names(s: Section, ctx: TermContext, default: list[str], what: str) ->
         raise s.error("joints", f"no joints to cost: the robot has no {what}", list(names),
                       "at least one joint name")
     return tuple(names)
-
-
-@lru_cache(maxsize=None)
-def _constant(values: tuple[float, ...], dtype: torch.dtype,
-              device: torch.device = torch.device("cpu")) -> torch.Tensor:
-    """``values`` as a tensor ``[J]`` on ``device``, made once: terms run every planner iteration."""
-    return torch.tensor(values, dtype=dtype, device=device)
 
 
 def _positions(batch, requests) -> torch.Tensor:
@@ -76,7 +68,7 @@ class JointLimits(CostTerm):
 
     def __call__(self, batch):
         q = _positions(batch, self.requests)                                  # [S, T, J]
-        lo, hi = _constant(self.lower, q.dtype, q.device), _constant(self.upper, q.dtype, q.device)
+        lo, hi = constant(self.lower, q.dtype, q.device), constant(self.upper, q.dtype, q.device)
         room = torch.minimum(q - lo, hi - q)                                  # [S, T, J]
         return last_sum(torch.clamp(self.margin - room, min=0.0)) / self.margin
 
@@ -104,5 +96,5 @@ class Posture(CostTerm):
 
     def __call__(self, batch):
         q = _positions(batch, self.requests)
-        d = q - _constant(self.target, q.dtype, q.device)
+        d = q - constant(self.target, q.dtype, q.device)
         return last_sum(d * d)

@@ -42,31 +42,39 @@ class Objective:
 
         ``values``: unweighted term values ``[S, T]`` on these rows by :attr:`CostTerm.key`,
         already computed (a term several modes share, evaluated once on all their rows); a term
-        found there is not evaluated again, and each one evaluated is added to it, so a term
-        listed twice (running and terminal) is evaluated once. Term values are never modified.
+        found there is not evaluated again, and each one evaluated is added to it. Term values
+        are never modified.
         """
         values = {} if values is None else values
-        horizon, sd = batch.controls.shape[1], batch.sensordata
+        sd = batch.sensordata
         out = None
-        for wt in self.terms:
-            value = values.get(wt.term.key)
+        for term, weights in self._weighted(batch.controls.shape[1], sd.dtype, sd.device):
+            value = values.get(term.key)
             if value is None:
-                value = values[wt.term.key] = wt.term(batch)
-            weights = self._step_weights(wt, horizon, sd.dtype, sd.device)
+                value = values[term.key] = term(batch)
             out = value * weights if out is None else out.addcmul_(value, weights)
         return out
 
-    def _step_weights(self, wt: WeightedTerm, horizon: int, dtype: torch.dtype,
-                      device: torch.device = torch.device("cpu")) -> torch.Tensor:
-        """weight · mask over the horizon ``[T]``, cached: one multiply per term per iteration."""
-        key = (id(wt), horizon, dtype, device)
+    def _weighted(self, horizon: int, dtype: torch.dtype,
+                  device: torch.device) -> list[tuple[CostTerm, torch.Tensor]]:
+        """Each distinct term (by :attr:`CostTerm.key`) with its weight · mask over the horizon
+        ``[T]``, summed over the entries that list it (a distance in every step and again,
+        weighted more, at the terminal one: paper Eq. 4): made once, then one multiply-add per
+        distinct term per iteration."""
+        key = (horizon, dtype, device)
         if key not in self._masks:
-            mask = torch.full((horizon,), wt.weight, dtype=dtype, device=device)
-            if wt.when == "running":
-                mask[-1] = 0.0
-            elif wt.when == "terminal":
-                mask[:-1] = 0.0
-            self._masks[key] = mask
+            merged: dict[str, tuple[CostTerm, torch.Tensor]] = {}
+            for wt in self.terms:
+                mask = torch.full((horizon,), wt.weight, dtype=dtype, device=device)
+                if wt.when == "running":
+                    mask[-1] = 0.0
+                elif wt.when == "terminal":
+                    mask[:-1] = 0.0
+                if wt.term.key in merged:
+                    merged[wt.term.key][1].add_(mask)
+                else:
+                    merged[wt.term.key] = (wt.term, mask)
+            self._masks[key] = list(merged.values())
         return self._masks[key]
 
 
