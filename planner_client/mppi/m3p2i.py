@@ -427,14 +427,19 @@ class M3P2I:
         """Returns the control sequences to roll out, ``[S, T, nu]``."""
         c, lay = self._c, self._layout
         # one kernel reads the sampler's transposed buffer, scales and shifts it (row_mode < N
-        # picks each row's mode mean out of the plans)
-        v = c.box.bound(torch.addcmul(self._plans.index_select(0, lay.row_mode), c.noise.draw(),
-                                      c.sigma))
+        # picks each row's mode mean out of the plans; one mode's broadcasts)
+        mean = self._plans[0] if len(self._modes) == 1 else self._plans.index_select(0, lay.row_mode)
+        v = torch.addcmul(mean, c.noise.draw(), c.sigma)
+        if c.box.squash:
+            c.box.bound(v)
         if c.cfg.keep_best:
             v.index_copy_(0, lay.first, self._best)
         if c.cfg.null_action:
             v.index_copy_(0, lay.last, self._null)
-        if self._pin_keep is not None:
+        if self._clamp is not None:
+            # bounds and pins in one kernel; the best and null rows are inside both already
+            torch.clamp(v, *self._clamp, out=v)
+        elif self._pin_keep is not None:
             v.mul_(self._pin_keep).add_(self._pin_value)
         self._v = v
         return v
@@ -527,5 +532,12 @@ class M3P2I:
                 value[rows, :, ch] = val
         last = self._layout.last
         self._null = c.box.project(c.zeros(len(modes))) * keep[last] + value[last]
-        self._pin_keep = keep if bool((keep == 0).any()) else None
+        pinned = keep == 0
+        self._pin_keep = keep if bool(pinned.any()) else None
         self._pin_value = value
+        # a clamp to bounds whose pinned channels have lo = hi = the pinned value
+        self._clamp = None
+        if not c.box.squash and (c.box.active or self._pin_keep is not None):
+            inf = torch.full_like(keep, math.inf)
+            lo, hi = (c.box.lo, c.box.hi) if c.box.active else (-inf, inf)
+            self._clamp = (torch.where(pinned, value, lo), torch.where(pinned, value, hi))
