@@ -112,11 +112,11 @@ class MotionPlanner:
                 for name, rows in zip(self.modes, self.mppi.mode_slices)])
         result = self.mppi.update(self._step_costs)
         best, top_modes = self._best_per_mode()
-        top = self.problem.layout.take(sd.index_select(0, torch.from_numpy(best).to(sd.device)),
-                                       self.problem.robot_pos).cpu().numpy()
+        top = self.problem.layout.take(sd, self.problem.robot_pos).index_select(
+            0, torch.from_numpy(best).to(sd.device)).cpu().numpy()
         if self.device.type != "cpu":
             result = _to_host(result)
-        dominant = self.modes[int(torch.argmax(result.mode_weights))]
+        dominant = self.modes[int(np.argmax(result.mode_weights.numpy()))]
         if not result.finite:
             # No sample had a finite cost: u0 is the previous plan, not an answer to this state.
             return Iteration(result=result, modes=list(self.modes), top=top, top_modes=top_modes,

@@ -144,7 +144,10 @@ def test_warp_push_pull_rollouts_match_with_the_suction_off(monkeypatch):
     c.control[..., 2] = 0.0                                     # suction off
     got, ref = _both(c)
     dev = deviation(c.problem, got, ref)
-    assert dev["framepos"] <= 1e-3 and dev["framexaxis"] <= 1e-3 and dev["distance"] <= 1e-5, dev
+    # the box's axes in the robot's frame (the orientation cost): a unit axis moves by the angle,
+    # where the quaternion this compared before moved by half of it (then 1e-3)
+    axes = max(dev[k] for k in ("framexaxis", "frameyaxis", "framezaxis"))
+    assert dev["framepos"] <= 1e-3 and axes <= 2e-3 and dev["distance"] <= 1e-5, dev
     box = c.problem.layout.columns[next(r for r in c.problem.layout.columns
                                         if r.kind == "framepos" and r.obj == "box")]
     assert np.abs(ref[:, -1, box] - ref[:, 0, box]).max() > 0.05   # the box was pushed
