@@ -59,7 +59,7 @@ def test_with_confirm_the_action_holds_through_the_flicker():
 def test_a_real_change_is_acted_on_within_confirm_and_one_period():
     task, data = _task({"*": 0.6})
     level = _threshold(task, data)
-    t, times = 0.0, []
+    t = 0.0
     for _ in range(10):                               # well charged: heads for the goal
         assert task.decide(data, {"battery": level + 20}, t).action == "move_to"
         t += PERIOD

@@ -6,7 +6,6 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from pathlib import Path
 
 import mujoco
 import numpy as np
@@ -15,8 +14,7 @@ from typer.testing import CliRunner
 
 from planner_client.problem import build_problem
 from shared.config import ConfigError, load_yaml
-from shared.hardware import NOMINAL, PROFILES, HardwareConfig, MismatchConfig, load_hardware, \
-    parse_hardware
+from shared.hardware import NOMINAL, PROFILES, HardwareConfig, MismatchConfig, load_hardware
 from shared.scenario import find_scenario, load_scenario, parse_scenario
 from shared.tools.cli import app as m3p2i
 from shared.tools.launch import EpisodeLaunch
