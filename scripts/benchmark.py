@@ -68,7 +68,7 @@ SCENARIOS = ("navigation", "push_pull", "push_pull_fast", "pick_place")
 app = typer.Typer(add_completion=False)
 
 
-def measure(scenario, iterations: int, nthread: int, rounds: int = 4, backend: str = "mujoco",
+def measure(scenario, iterations: int, nthread: int, rounds: int = 20, backend: str = "mujoco",
             device: str = "cuda:0") -> dict:
     """Median planner iteration and median bare rollouts, measured in alternating blocks.
 
@@ -76,7 +76,8 @@ def measure(scenario, iterations: int, nthread: int, rounds: int = 4, backend: s
     replay exactly the planner's own work: the [S, T] samples and start states of its last
     iterations, on the world model over the same seconds (no planner sensors), on the planner's
     own model without sensors, and on it with the sensors its costs read. Blocks alternate
-    ``rounds`` times so background load hits all alike; each pool is used only in its own block
+    ``rounds`` times (blocks of ten iterations by default), so that background load and a
+    virtual machine's drifting speed hit all four alike; each pool is used only in its own block
     so idle threads never compete.
     """
     planner = build_motion_planner(scenario, nthread, backend=backend, device=device)
