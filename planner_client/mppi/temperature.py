@@ -16,6 +16,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
+
 # Bracket of log λ around the cost gaps d: at λ = d_min⁺/55 every non-minimal sample has weight
 # ≤ e^{-55} relative to the best (η = number of ties), at λ = 50·d_max every sample has ≥ e^{-0.02}
 # (η ≈ number of samples), so any reachable η lies inside.
@@ -108,7 +109,7 @@ def weigh(costs: np.ndarray, modes: Sequence[slice], lam: np.ndarray,
     costs = finite_costs(costs)
     n = len(modes)
     # one mode: its row and the fused one are the same weighting while their λ agree, so it
-    # is made once and repeated (a third of a navigation update's NumPy work)
+    # is made once and repeated
     single = n == 1 and lam[0] == lam[1]
     if single:
         table, lam = costs[None], lam[:1]                          # [1, S]
