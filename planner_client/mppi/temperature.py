@@ -5,8 +5,8 @@ Rows are independent weighting problems (one per mode, plus the fused one), so e
 works on ``[..., K]`` costs and reduces over the last dimension. These are a few hundred to a
 few thousand numbers per iteration, where a torch call costs two to three NumPy ones and far
 more once a rollout has run on every core (its dispatcher's code is evicted): the planners hand
-their total costs ``[S]`` over once and take the weights back once (on a GPU, one transfer each
-way, where the torch version synchronised on every adaptation step anyway).
+their total costs ``[S]`` over once and take the weights back (on a GPU a few small transfers
+an iteration, where the torch version synchronised on every adaptation step anyway).
 """
 
 from __future__ import annotations
