@@ -17,6 +17,7 @@ persistent pool):
     python scripts/benchmark.py                      # table
     python scripts/benchmark.py --json               # one JSON object per line per case
     python scripts/benchmark.py -s navigation -n 300
+    python scripts/benchmark.py -s push_pull_fast --horizon 15   # its model over 15 steps
 
 With ``--backend warp`` the planner rolls out with MuJoCo Warp (the m3p2i[gpu] extra) on
 ``--device`` (cuda:0, or cpu: slow, for machines without a GPU), and ``--samples`` sets the
@@ -203,6 +204,9 @@ def main(
     device: str = typer.Option("cuda:0", help="The warp backend's device: cuda:N or cpu."),
     samples: str = typer.Option("", help="Samples per mode, comma-separated (1024,4096,16384): "
                                 "one case each; default: the scenario's planner.samples."),
+    horizon: int = typer.Option(0, min=0, help="Planned steps instead of the scenario's "
+                                "planner.horizon (0: the scenario's), each of its "
+                                "planner.timestep: what a longer or shorter plan would cost."),
     runs: int = typer.Option(1, min=1, help="Repeat the whole measurement this many times."),
     out: Optional[Path] = typer.Option(None, help="Write every row, with the command, date and "
                                        "machine, to this JSON file."),
@@ -231,6 +235,8 @@ def main(
                 sc = load_scenario(name)
                 if count is not None:
                     sc = dataclasses.replace(sc, planner=dataclasses.replace(sc.planner, samples=count))
+                if horizon:
+                    sc = dataclasses.replace(sc, planner=dataclasses.replace(sc.planner, horizon=horizon))
                 try:
                     row = measure(sc, iterations, nthread, backend=backend, device=device)
                 except ConfigError as exc:

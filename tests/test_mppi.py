@@ -11,9 +11,10 @@ import torch
 from scipy.signal import savgol_filter
 
 from planner_client.mppi import M3P2I, MPPI, MPPIConfig, ModeSpec
+from planner_client.mppi import sampling
 from planner_client.mppi.sampling import GaussianNoise, HaltonSplineNoise
 from planner_client.mppi.smoothing import savgol_matrix, smooth
-from planner_client.mppi.temperature import adapt_temperature, softmin_weights
+from planner_client.mppi.temperature import adapt_temperature, finite_costs, softmin_weights
 
 F64 = torch.float64
 DT = 0.1
@@ -326,6 +327,29 @@ def test_fixed_halton_set_is_reused_and_rotated_one_is_not():
     rotated = HaltonSplineNoise(50, 15, 2, 4, 2, 0, True, F64, dev)
     assert torch.equal(fixed.draw().clone(), fixed.draw())
     assert not torch.equal(rotated.draw().clone(), rotated.draw())
+
+
+def test_halton_draws_made_in_blocks_are_the_draws_made_one_at_a_time(monkeypatch):
+    dev = torch.device("cpu")
+    blocked = HaltonSplineNoise(40, 6, 2, 2, 2, 3, True, F64, dev)
+    assert blocked.block > 1
+    monkeypatch.setattr(sampling, "MAX_BLOCK", 1)
+    single = HaltonSplineNoise(40, 6, 2, 2, 2, 3, True, F64, dev)
+    assert single.block == 1
+    n = 2 * blocked.block + 1                  # across two refills of the block
+    first = [blocked.draw().clone() for _ in range(n)]
+    for i, x in enumerate(first):
+        assert torch.equal(x, single.draw()), f"draw {i}"
+    assert len({x.sum().item() for x in first}) == n        # every draw rotated anew
+    blocked.reset()                                          # mid-block: the stream restarts
+    assert torch.equal(blocked.draw(), first[0])
+
+
+def test_finite_costs_passes_finite_costs_and_maps_the_rest_to_inf():
+    finite = np.array([1.0, 2.0, 1e308, 1e308])
+    assert finite_costs(finite) is finite
+    costs = np.array([1.0, np.nan, -np.inf, np.inf, 3.0])
+    assert np.array_equal(finite_costs(costs), [1.0, np.inf, np.inf, np.inf, 3.0])
 
 
 @pytest.mark.parametrize("bound", ["clamp", "squash"])
