@@ -613,14 +613,3 @@ def test_objective_weights_and_running_terminal_masks(ctx):
 def test_yaml_errors_name_the_key_path(ctx, term, message):
     with pytest.raises(ConfigError, match=message):
         _objective(ctx, {"term": "distance", "a": "robot", "b": "goal"}, term)
-
-
-def test_norm_is_the_euclidean_norm_on_zeros_and_keeps_gradients():
-    from planner_client.costs.helpers import norm
-    x = torch.zeros(4, 5, 3, dtype=torch.float64)
-    x[1, 2] = torch.tensor([3.0, 4.0, 12.0])
-    x[3, :, :2] = -1.0
-    assert torch.equal(norm(x), torch.linalg.vector_norm(x, dim=-1))     # the NumPy root
-    y = torch.tensor([[3.0, 4.0], [6.0, 8.0]], dtype=torch.float64, requires_grad=True)
-    norm(y).sum().backward()                                               # torch's root
-    assert torch.allclose(y.grad, y.detach() / torch.tensor([[5.0], [10.0]], dtype=torch.float64))
