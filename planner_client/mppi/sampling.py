@@ -98,8 +98,9 @@ class HaltonSplineNoise:
     otherwise the same set every call (as in the paper).
 
     Rotated draws are made :attr:`block` at a time (as many as fit in :data:`BLOCK_NUMBERS`
-    numbers, at most :data:`MAX_BLOCK`): the same random stream and the same noise as one at a
-    time, but the six tensor operations of a draw run once per block, not once per iteration,
+    numbers, at most :data:`MAX_BLOCK`): on the CPU the same random stream and noise as one at a
+    time, bit for bit (a GPU's generator splits its stream by call, so there only the same
+    distribution), but the six tensor operations of a draw run once per block, not per iteration,
     where after each rollout they paid for their code again (navigation's draw took 130 µs
     of a 3 ms iteration). At GPU scale a draw fills the block by itself."""
 
