@@ -347,7 +347,7 @@ def test_halton_draws_made_in_blocks_are_the_draws_made_one_at_a_time(monkeypatc
 
 def test_finite_costs_passes_finite_costs_and_maps_the_rest_to_inf():
     finite = np.array([1.0, 2.0, 1e308, 1e308])
-    assert finite_costs(finite) is finite
+    assert np.array_equal(finite_costs(finite), finite)
     costs = np.array([1.0, np.nan, -np.inf, np.inf, 3.0])
     assert np.array_equal(finite_costs(costs), [1.0, np.inf, np.inf, np.inf, 3.0])
 

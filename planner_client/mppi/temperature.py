@@ -36,12 +36,8 @@ def finite_costs(costs: np.ndarray) -> np.ndarray:
     failed), so it gets zero weight, like padding, and does not count as a sample in the
     temperature adaptation. Not a large finite stand-in: its gap would enter the bracket of
     λ (paper Alg. 3) and, near the float maximum, overflow it to λ = inf; nor ``-inf`` kept as
-    it is: a diverged rollout is no perfect one. Finite costs pass unchanged (all finite, as
-    nearly always: ``costs`` itself, no copy)."""
-    finite = np.isfinite(costs)
-    if finite.all():
-        return costs
-    return np.where(finite, costs, np.inf)
+    it is: a diverged rollout is no perfect one. Finite costs pass unchanged."""
+    return np.where(np.isfinite(costs), costs, np.inf)
 
 
 def softmin_weights(costs: np.ndarray, lam) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -112,10 +108,11 @@ def weigh(costs: np.ndarray, modes: Sequence[slice], lam: np.ndarray,
     row with no finite cost at all gets zero weights and keeps its λ."""
     costs = finite_costs(costs)
     n = len(modes)
-    if n == 1:
-        # the mode's row and the fused one hold the same costs: a broadcast view, not a copy
-        # (two rows of S numbers cost nothing more to weigh than one; its calls do)
-        table = np.broadcast_to(costs, (2, costs.shape[0]))           # [2, S]
+    # one mode: its row and the fused one are the same weighting while their λ agree, so it
+    # is made once and repeated
+    single = n == 1 and lam[0] == lam[1]
+    if single:
+        table, lam = costs[None], lam[:1]                          # [1, S]
     else:
         table = np.full((n + 1, costs.shape[0]), np.inf)            # [N + 1, S]
         for i, rows in enumerate(modes):
@@ -123,13 +120,12 @@ def weigh(costs: np.ndarray, modes: Sequence[slice], lam: np.ndarray,
         table[n] = costs
     beta = table.min(axis=-1, keepdims=True)
     gaps = cost_gaps(table, beta)
-    w, eta = gap_weights(gaps, lam[:, None])
-    # paper Alg. 3 keeps λ while η is in its window, as it mostly is from one iteration to
-    # the next: the weights at the old λ are then the answer, and η is computed once
-    if eta_bounds is not None and not np.all((eta >= eta_bounds[0]) & (eta <= eta_bounds[1])):
+    if eta_bounds is not None:
         lam = adapt_temperature(gaps, lam, eta_bounds, max_iters)
-        w, eta = gap_weights(gaps, lam[:, None])
+    w, eta = gap_weights(gaps, lam[:, None])
     beta = beta[:, 0]
+    if single:
+        w, eta, beta, lam = (np.repeat(x, 2, axis=0) for x in (w, eta, beta, lam))
     best = np.array([rows.start + int(np.argmin(costs[rows])) for rows in modes])
     return Weights(w=w, eta=eta, beta=beta, lam=lam, best=best, costs=costs)
 
