@@ -120,7 +120,10 @@ class HaltonSplineNoise:
         self._z = torch.empty(self.block, samples, nu, n_knots, dtype=dtype, device=device)
         self._out = torch.empty(self.block, samples, nu, horizon, dtype=dtype, device=device)
         self._draws = list(self._out.transpose(2, 3).unbind(0))   # [S, T, nu] views, made once
-        self._fixed = None if rotate else self._splines(self._z.copy_(self._knots_u))[0]
+        self._fixed = None
+        if not rotate:
+            self._splines(self._z.copy_(self._knots_u))
+            self._fixed = self._draws[0]
         self.reset()
 
     def reset(self) -> None:
@@ -139,12 +142,11 @@ class HaltonSplineNoise:
         self._next += 1
         return self._draws[self._next - 1]
 
-    def _splines(self, u: Tensor) -> list[Tensor]:
-        """Uniform knots ``[B, S, nu, J]`` (overwritten) -> spline noise, the B ``[S, T, nu]``
-        draws of the block."""
+    def _splines(self, u: Tensor) -> None:
+        """Uniform knots ``[B, S, nu, J]`` (overwritten) -> spline noise in the block's buffer,
+        read as the B ``[S, T, nu]`` views of :attr:`_draws`."""
         z = torch.special.ndtri(u.clamp_(_U_EPS, 1 - _U_EPS), out=u)
         torch.mm(z.view(-1, z.shape[-1]), self._basis_t, out=self._out.view(-1, self._out.shape[-1]))
-        return self._draws
 
 
 def make_noise(cfg: MPPIConfig, samples: int, dtype: torch.dtype,
