@@ -19,6 +19,7 @@ from shared.config import ConfigError, Section
 from shared.frames import FrameResolver
 from shared.scenario import ObjectiveConfig, TermConfig
 from planner_client.costs import TERMS, JointInfo, RolloutBatch, TermContext, build_objective
+from planner_client.costs.helpers import norm, sparse_norm
 from planner_client.sensors import SensorLayout, SensorRequest, add_sensors
 
 F64 = torch.float64
@@ -219,6 +220,20 @@ def test_contact_force_ignores_movable_objects_and_free_space(model, ctx):
     # the push is real: named as an obstacle, the box reports its contact force
     with_box = make(ctx, "contact_force", a="robot", obstacles=["box"])
     assert float(with_box(sensed(model, ctx, with_box, push_box, steps=3))) > 0.1
+
+
+def test_sparse_norm_is_the_norm_with_zero_vectors_at_a_vanishing_floor():
+    forces = torch.zeros(50, 4, 7, 3, dtype=F64)
+    forces[::5, :, 2] = torch.randn(10, 4, 3, dtype=F64)
+    forces[1, 0, 0] = torch.tensor([1e-120, 0.0, 0.0])
+    got, want = sparse_norm(forces), norm(forces)
+    touching = want > 0
+    assert torch.equal(got[touching], want[touching])           # bit for bit where not zero
+    assert (got[~touching] == 1e-150).all()
+    # a contact cost of untouched obstacles leaves any real cost it is added to unchanged
+    untouched = 0.05 * sparse_norm(torch.zeros(7, 3, dtype=F64)).sum()     # 7 obstacles
+    costs = torch.rand(50, 4, dtype=F64) + 1e-3
+    assert torch.equal(costs + untouched, costs)
 
 
 def test_contact_force_rejects_sites(ctx):

@@ -14,7 +14,8 @@ from planner_client.mppi import M3P2I, MPPI, MPPIConfig, ModeSpec
 from planner_client.mppi import sampling
 from planner_client.mppi.sampling import GaussianNoise, HaltonSplineNoise
 from planner_client.mppi.smoothing import savgol_matrix, smooth
-from planner_client.mppi.temperature import adapt_temperature, finite_costs, softmin_weights
+from planner_client.mppi import temperature
+from planner_client.mppi.temperature import adapt_temperature, finite_costs, softmin_weights, weigh
 
 F64 = torch.float64
 DT = 0.1
@@ -277,6 +278,40 @@ def test_temperature_keeps_lambda_inside_window_and_handles_unreachable_windows(
     assert float(eta[0]) == pytest.approx(20.0, abs=1e-6)          # only the ties count
     assert float(eta[1]) > 4.8                                     # all five count
     assert float(lam[2]) == 1.0                                    # nothing to tune
+
+
+def test_one_modes_steady_weighing_is_the_general_one_bit_for_bit(monkeypatch):
+    """A single mode whose λ keeps η in its window is weighed by a short path: the same
+    weights, η, β, λ and best row as the general one; anything else goes the general way."""
+    rng = np.random.default_rng(3)
+    one = [slice(0, 200)]
+
+    def both(costs, lam, bounds):
+        short = weigh(costs, one, lam, bounds, 10)
+        with monkeypatch.context() as m:
+            m.setattr(temperature, "_weigh_steady", lambda *a: None)
+            return short, weigh(costs, one, lam, bounds, 10)
+
+    steady = 0
+    for scale in (1e-3, 1.0, 1e4):
+        costs = scale * rng.random(200) ** 3
+        for bounds in ((3.0, 10.0), None):
+            for lam in (scale / 20, scale * 1e-9):       # in the window (once adapted), out
+                if bounds is not None and lam == scale / 20:
+                    lam = adapt_temperature((costs - costs.min())[None], np.array([lam]),
+                                            bounds, 20)[0]
+                lam = np.full(2, lam)
+                steady += temperature._weigh_steady(costs, lam, bounds) is not None
+                short, general = both(costs, lam, bounds)
+                for field in ("w", "eta", "beta", "lam", "best", "costs"):
+                    assert np.array_equal(getattr(short, field), getattr(general, field)), field
+    assert steady == 9                         # all but the three out of their window
+    costs = rng.random(200)
+    costs[[4, 9]] = [math.nan, -math.inf]
+    assert temperature._weigh_steady(costs, np.full(2, 0.1), None) is None
+    assert temperature._weigh_steady(rng.random(200), np.full(2, 1e-9), (3.0, 10.0)) is None
+    short, general = both(costs, np.full(2, 0.1), (3.0, 10.0))
+    assert np.array_equal(short.w, general.w) and short.w[:, [4, 9]].sum() == 0.0
 
 
 def test_planner_etas_stay_in_window_across_iterations():

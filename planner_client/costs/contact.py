@@ -11,7 +11,7 @@ import torch
 from shared.config import positive
 from shared.geometry import select_axes
 from planner_client.costs.base import CostTerm, register
-from planner_client.costs.helpers import axes_param, frame_params, last_sum, norm
+from planner_client.costs.helpers import axes_param, frame_params, last_sum, norm, sparse_norm
 from planner_client.sensors import SensorRequest
 
 
@@ -59,7 +59,9 @@ class ContactForce(CostTerm):
     sensors of ``collision``). Unlike
     ``collision`` it is 0 until touching and carries no gradient of distance: it scores how hard
     a sample hits. ``obstacles`` defaults as for ``collision`` (walls and ``obstacle`` objects);
-    ``a`` must be a body (contact sensors do not take sites).
+    ``a`` must be a body (contact sensors do not take sites). An obstacle not touched adds
+    1e-150 N rather than 0 (:func:`~planner_client.costs.helpers.sparse_norm`: most readings
+    are zero, and the square root of zero is torch's slow case).
     """
     a: str
     obstacles: tuple[str, ...]
@@ -84,7 +86,7 @@ class ContactForce(CostTerm):
                                device=batch.sensordata.device)
         f = batch.layout.take_all(batch.sensordata, self.requests)         # [S, T, 3 n_obstacles]
         f = f.unflatten(-1, (len(self.requests), 3))                       # [S, T, n_obstacles, 3]
-        return last_sum(norm(f))
+        return last_sum(sparse_norm(f))
 
 
 @register("dynamic_obstacle")
