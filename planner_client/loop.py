@@ -120,8 +120,12 @@ class PlannerClient:
         self.push.connect(endpoints.command)
         self.diag = None
         self.auth = None
+        self._listeners = 0     # distinct subscriptions to the diagnostics (see _listened)
         if diagnostics:
-            self.diag = socket(self.ctx, zmq.PUB)
+            # XPUB, not PUB: it tells when someone subscribes, so that the diagnostics (the
+            # viewer's top trajectories: a tenth of navigation's planning work) are made only
+            # for a listener
+            self.diag = socket(self.ctx, zmq.XPUB)
             if keys is not None:   # the planner is the CURVE server of its diagnostics
                 self.auth = Authenticator(self.ctx, keys.viewers, "the planner's diagnostics")
                 curve_server(self.diag, keys.own)
@@ -366,7 +370,7 @@ class PlannerClient:
             self._action = key
             self.stats.action_changes.append((state.time, decision.action, tuple(decision.modes)))
             log.info("t=%.2f s: action %s, modes %s", state.time, decision.action, list(decision.modes))
-        if self.diag is not None:
+        if self.diag is not None and self._listened():
             r = it.result
             self.diag.send(P.encode(P.Diagnostics(
                 seq=state.seq, action=decision.action, alternatives=list(decision.alternatives),
@@ -437,6 +441,22 @@ class PlannerClient:
                         time, it.fault)
         self._faults += 1
         self.stats.safe_fallbacks += 1
+
+    def _listened(self) -> bool:
+        """Whether anyone subscribes to the diagnostics now. XPUB hands up each distinct
+        subscription when it is first made (a message starting with byte 1) and when its last
+        subscriber leaves or disconnects (byte 0); only that first byte is read, and at most
+        64 messages an iteration (the rest wait for the next)."""
+        for _ in range(64):
+            try:
+                msg = self.diag.recv(zmq.NOBLOCK)
+            except zmq.Again:
+                break
+            if msg[:1] == b"\x01":
+                self._listeners += 1
+            elif msg[:1] == b"\x00":
+                self._listeners = max(0, self._listeners - 1)
+        return self._listeners > 0
 
     def close(self) -> None:
         self.planner.close()

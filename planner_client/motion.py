@@ -11,7 +11,9 @@ plan and the diagnostics come back to the host.
 from __future__ import annotations
 
 import dataclasses
-from dataclasses import dataclass
+import functools
+from collections.abc import Callable
+from dataclasses import dataclass, field
 
 import numpy as np
 import torch
@@ -28,17 +30,35 @@ from planner_client.problem import PlanningProblem
 class Iteration:
     result: PlanResult
     modes: list[str]
-    top: np.ndarray            # [M, T, 3] robot-frame positions of each mode's lowest-cost samples
-    top_modes: np.ndarray      # [M] the mode (index in modes) of each of them
     plan: np.ndarray           # [T, nu] the fused plan U with discrete channels resolved, or
                                # [1, nu] the robot's safe control when there is no plan (fault)
     dominant: str              # the mode with the largest sum of fused weights
     fault: str | None = None   # why there is no plan this iteration (no finite cost); None: a plan
+    top_of: Callable[[], tuple[np.ndarray, np.ndarray]] | None = field(default=None, repr=False)
 
     @property
     def command(self) -> np.ndarray:
         """``[nu]`` the control to apply now: the plan's first step."""
         return self.plan[0]
+
+    @property
+    def top(self) -> np.ndarray:
+        """``[M, T, 3]`` robot-frame positions along each mode's lowest-cost samples, for a
+        viewer. Made when first read, not by the iteration (a tenth of navigation's work
+        outside the rollout, for diagnostics only): read it before the next
+        :meth:`MotionPlanner.iterate`, which reuses the rollouts' buffers."""
+        return self._top[0]
+
+    @property
+    def top_modes(self) -> np.ndarray:
+        """``[M]`` the mode (index in :attr:`modes`) of each of :attr:`top`'s trajectories."""
+        return self._top[1]
+
+    @functools.cached_property
+    def _top(self) -> tuple[np.ndarray, np.ndarray]:
+        if self.top_of is None:
+            return np.zeros((0, 0, 3)), np.zeros(0, dtype=np.int64)
+        return self.top_of()
 
 
 class MotionPlanner:
@@ -60,6 +80,7 @@ class MotionPlanner:
         self.modes = list(modes)
         self._shared = self._shared_terms()
         self._step_costs: torch.Tensor | None = None
+        self._generation = 0                             # iterations so far (Iteration.top)
         self._last_V: torch.Tensor | None = None         # [S, T, nu] of the last iterate()
 
     def _mode(self, name: str) -> ModeSpec:
@@ -111,31 +132,38 @@ class MotionPlanner:
                                               {k: v[rows] for k, v in shared.items()})
                 for name, rows in zip(self.modes, self.mppi.mode_slices)])
         result = self.mppi.update(self._step_costs)
-        best, top_modes = self._best_per_mode()
-        top = self.problem.layout.take(sd, self.problem.robot_pos).index_select(
-            0, torch.from_numpy(best).to(sd.device)).cpu().numpy()
+        self._generation += 1
+        top_of = functools.partial(self._top, sd, self.mppi.costs, self.mppi.mode_slices,
+                                   self._generation)
         if self.device.type != "cpu":
             result = _to_host(result)
         dominant = self.modes[int(np.argmax(result.mode_weights.numpy()))]
         if not result.finite:
             # No sample had a finite cost: u0 is the previous plan, not an answer to this state.
-            return Iteration(result=result, modes=list(self.modes), top=top, top_modes=top_modes,
+            return Iteration(result=result, modes=list(self.modes), top_of=top_of,
                              plan=self.problem.robot.safe_stop()[None], dominant=dominant,
                              fault=self._fault(result))
-        return Iteration(result=result, modes=list(self.modes), top=top, top_modes=top_modes,
+        return Iteration(result=result, modes=list(self.modes), top_of=top_of,
                          plan=self._resolve(result.U.numpy(), dominant), dominant=dominant)
 
-    def _best_per_mode(self) -> tuple[np.ndarray, np.ndarray]:
-        """Rows of each mode's ``top_k`` lowest-cost samples (by the total costs the update
-        weighed) and their mode numbers: by the fused weights alone a viewer would see only
-        the dominant mode's."""
+    @torch.inference_mode()
+    def _top(self, sd: torch.Tensor, costs: np.ndarray, slices: list[slice],
+             generation: int) -> tuple[np.ndarray, np.ndarray]:
+        """:attr:`Iteration.top` and :attr:`Iteration.top_modes` of iteration ``generation``
+        from its ``sensordata [S, T, ·]``, total costs ``[S]`` and mode rows: each mode's
+        ``top_k`` lowest-cost samples (by the fused weights alone a viewer would see only the
+        dominant mode's)."""
+        if generation != self._generation:
+            raise RuntimeError("Iteration.top read after the next iterate(): the rollouts' "
+                               "sensor buffer holds that iteration's samples now")
         picks, modes = [], []
-        costs = self.mppi.costs                                              # [S]
-        for i, rows in enumerate(self.mppi.mode_slices):
+        for i, rows in enumerate(slices):
             k = min(self.top_k, rows.stop - rows.start)
             picks.append(np.argsort(costs[rows], kind="stable")[:k] + rows.start)
             modes += [i] * k
-        return np.concatenate(picks), np.array(modes, dtype=np.int64)
+        best = torch.from_numpy(np.concatenate(picks)).to(sd.device)
+        top = self.problem.layout.take(sd, self.problem.robot_pos).index_select(0, best)
+        return top.cpu().numpy(), np.array(modes, dtype=np.int64)
 
     @property
     def last_samples(self) -> np.ndarray | None:

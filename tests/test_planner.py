@@ -120,6 +120,64 @@ def test_pinned_channels_follow_the_dominant_mode():
     planner.close()
 
 
+def test_top_trajectories_are_each_modes_cheapest_samples_read_before_the_next_iteration(nav):
+    planner = build_motion_planner(nav, threads=1)
+    model = planner.problem.model
+    x0 = Mirror(model).apply(_state(model, 0.0))
+    it = planner.iterate(x0)
+    costs, V = planner.mppi.costs.copy(), planner.last_samples.copy()
+    top = it.top
+    assert top.shape == (planner.top_k, nav.planner.horizon, 3)
+    assert list(it.top_modes) == [0] * planner.top_k
+    # the robot's positions along the five lowest-cost samples: rolled out again, the same
+    cheapest = np.argsort(costs, kind="stable")[:planner.top_k]
+    engine = RolloutEngine(model, 1)
+    sd = torch.from_numpy(engine.run(x0, V[cheapest]).copy())
+    np.testing.assert_array_equal(top, planner.problem.layout.take(sd, planner.problem.robot_pos))
+    engine.close()
+    assert it.top is top                                       # made once, kept
+    unread = planner.iterate(x0)
+    planner.iterate(x0)                                        # overwrites unread's rollouts
+    with pytest.raises(RuntimeError, match="after the next iterate"):
+        unread.top  # noqa: B018 - the property raises
+    planner.close()
+
+
+def test_diagnostics_are_made_only_while_someone_subscribes():
+    import time
+    import types
+
+    import zmq
+    ctx = zmq.Context()
+    xpub = ctx.socket(zmq.XPUB)
+    port = xpub.bind_to_random_port("tcp://127.0.0.1")
+    client = types.SimpleNamespace(diag=xpub, _listeners=0)
+    listened = lambda: PlannerClient._listened(client)       # noqa: E731
+
+    def until(want: bool) -> bool:
+        for _ in range(200):                                   # 2 s at most
+            if listened() == want:
+                return True
+            time.sleep(0.01)
+        return False
+
+    try:
+        assert not listened()
+        subs = [ctx.socket(zmq.SUB) for _ in range(2)]
+        for sub in subs:
+            sub.setsockopt(zmq.SUBSCRIBE, b"")
+            sub.connect(f"tcp://127.0.0.1:{port}")
+        assert until(True)
+        subs[0].close(0)
+        time.sleep(0.1)
+        assert listened()                                      # one still listens
+        subs[1].close(0)
+        assert until(False)
+    finally:
+        xpub.close(0)
+        ctx.term()
+
+
 class _Outbox:
     """Stands in for the command socket: keeps what the client sends."""
 
