@@ -81,6 +81,11 @@ class MotionPlanner:
         self._shared = self._shared_terms()
         self._step_costs: torch.Tensor | None = None
         self._generation = 0                             # iterations so far (Iteration.top)
+        # the planning model's timestep is fixed once built (timing.predict changes it only
+        # inside its own block); read through the bindings it costs more than a term
+        self._dt = float(problem.model.opt.timestep)
+        # one inference-mode context for every iterate(): the decorator builds a new one per call
+        self._inference = torch.inference_mode()
         self._last_V: torch.Tensor | None = None         # [S, T, nu] of the last iterate()
 
     def _mode(self, name: str) -> ModeSpec:
@@ -104,7 +109,6 @@ class MotionPlanner:
                 for m in self.modes]
         return [term for key, term in keys[0].items() if all(key in k for k in keys[1:])]
 
-    @torch.inference_mode()
     def iterate(self, x0: np.ndarray, mocap: MocapState | None = None) -> Iteration:
         """One iteration from the full physics state ``x0 [nstate]`` and the mocap bodies'
         ``mocap`` state; moving ones go at constant velocity through the rollouts (paper Eq. 22).
@@ -112,16 +116,20 @@ class MotionPlanner:
         In inference mode: nothing here is differentiated, and skipping autograd's dispatch and
         the version counters of views and in-place writes takes 10-12 % off the iteration's few
         hundred small tensor operations (``no_grad`` alone takes nothing off)."""
+        with self._inference:
+            return self._iterate(x0, mocap)
+
+    def _iterate(self, x0: np.ndarray, mocap: MocapState | None) -> Iteration:
         V = self.mppi.sample()                                    # [S, T, nu]
         self._last_V = V
         path = None
         if mocap is not None:
             self.engine.set_mocap(mocap.pos, mocap.quat)
             if mocap.moving:
-                steps = np.arange(V.shape[1])[:, None, None] * self.problem.model.opt.timestep
+                steps = np.arange(V.shape[1])[:, None, None] * self._dt
                 path = mocap.pos[None] + mocap.vel[None] * steps  # [T, nmocap, 3]
         sd = self.engine.sensors(x0, V, path)                     # [S, T, nsensordata]
-        layout, dt = self.problem.layout, self.problem.model.opt.timestep
+        layout, dt = self.problem.layout, self._dt
         if len(self.modes) == 1:
             self._step_costs = self.problem.objectives[self.modes[0]](
                 RolloutBatch(sd, V, layout, dt))                      # [S, T]
@@ -137,7 +145,8 @@ class MotionPlanner:
                                    self._generation)
         if self.device.type != "cpu":
             result = _to_host(result)
-        dominant = self.modes[int(np.argmax(result.mode_weights.numpy()))]
+        dominant = self.modes[0] if len(self.modes) == 1 else \
+            self.modes[int(np.argmax(result.mode_weights.numpy()))]
         if not result.finite:
             # No sample had a finite cost: u0 is the previous plan, not an answer to this state.
             return Iteration(result=result, modes=list(self.modes), top_of=top_of,
@@ -185,7 +194,7 @@ class MotionPlanner:
     @property
     def dt(self) -> float:
         """Seconds per planned control step (``planner.timestep``, by default the world's)."""
-        return float(self.problem.model.opt.timestep)
+        return self._dt
 
     def advance(self, steps: float) -> None:
         """The next iteration starts ``steps`` control steps after the last (default one)."""
