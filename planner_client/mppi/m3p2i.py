@@ -28,35 +28,79 @@ from .temperature import finite_costs, softmin_weights, weigh
 class PlanResult:
     """Outcome of one planner iteration (before the warm-start shift).
 
+    The per-mode figures live in one array, :attr:`diag`, read through properties: made as
+    one host array (one transfer on a GPU), and sliced only when someone reads them (the loop
+    reads the mode weights for a viewer only), which a dozen tensor views an iteration did
+    not.
+
     Attributes:
-        u0: ``[nu]`` control to apply now (``U[0]``).
         U: ``[T, nu]`` fused, smoothed, bounded control sequence (paper Eq. 12).
-        mode_weights: ``[N]`` fused weight mass of each mode's samples (sums to 1); the
-            dominant mode decides discrete choices such as suction on/off.
-        mode_costs: ``[N]`` lowest total cost among each mode's samples (β_i, paper Eq. 7).
-        etas: ``[N]`` per-mode normalisers η_i (paper Eq. 6), roughly the number of samples that count.
-        lambdas: ``[N]`` per-mode temperatures λ_i used this iteration.
         best: ``[N, T, nu]`` lowest-cost sample sequence of each mode.
-        weights: ``[S]`` fused sample weights ω̃ (paper Eq. 9).
-        fused_eta: ``[]`` normaliser η of the fused weights (paper Eq. 10).
-        fused_lambda: ``[]`` temperature λ of the fused weights.
+        fused: ``[N + 1, S]`` weights of each mode's problem (a row is 0 outside the mode's
+            samples) and, last, the fused weights ω̃ (paper Eq. 9).
+        diag: ``[4N + 2]`` mode weights ``[N]``, mode costs ``[N]``, η ``[N + 1]`` and λ
+            ``[N + 1]`` (each mode's, then the fused one's); see the properties.
         finite: ``False`` when no sample had a finite cost (every rollout diverged, or the
             objective returned NaN/inf) or the fused plan is not finite. All weights are then 0
             and ``U`` is the previous plan, no answer to the current costs: the caller should
             not send it but fall back to the robot's safe control.
     """
 
-    u0: Tensor
     U: Tensor
-    mode_weights: Tensor
-    mode_costs: Tensor
-    etas: Tensor
-    lambdas: Tensor
     best: Tensor
-    weights: Tensor
-    fused_eta: Tensor
-    fused_lambda: Tensor
+    fused: Tensor
+    diag: Tensor
     finite: bool
+
+    @property
+    def u0(self) -> Tensor:
+        """``[nu]`` control to apply now (``U[0]``)."""
+        return self.U[0]
+
+    @property
+    def num_modes(self) -> int:
+        """N."""
+        return (self.diag.shape[0] - 2) // 4
+
+    @property
+    def weights(self) -> Tensor:
+        """``[S]`` fused sample weights ω̃ (paper Eq. 9)."""
+        return self.fused[-1]
+
+    @property
+    def mode_weights(self) -> Tensor:
+        """``[N]`` fused weight mass of each mode's samples (sums to 1); the dominant mode
+        decides discrete choices such as suction on/off."""
+        return self.diag[:self.num_modes]
+
+    @property
+    def mode_costs(self) -> Tensor:
+        """``[N]`` lowest total cost among each mode's samples (β_i, paper Eq. 7)."""
+        n = self.num_modes
+        return self.diag[n:2 * n]
+
+    @property
+    def etas(self) -> Tensor:
+        """``[N]`` per-mode normalisers η_i (paper Eq. 6), roughly the number of samples that
+        count."""
+        n = self.num_modes
+        return self.diag[2 * n:3 * n]
+
+    @property
+    def fused_eta(self) -> Tensor:
+        """``[]`` normaliser η of the fused weights (paper Eq. 10)."""
+        return self.diag[3 * self.num_modes]
+
+    @property
+    def lambdas(self) -> Tensor:
+        """``[N]`` per-mode temperatures λ_i used this iteration."""
+        n = self.num_modes
+        return self.diag[3 * n + 1:4 * n + 1]
+
+    @property
+    def fused_lambda(self) -> Tensor:
+        """``[]`` temperature λ of the fused weights."""
+        return self.diag[4 * self.num_modes + 1]
 
 
 def trajectory_costs(step_costs: Tensor, discount: Tensor) -> Tensor:
@@ -181,6 +225,15 @@ class _Common:
             return torch.from_numpy(x)
         return torch.as_tensor(x, dtype=self.dtype, device=self.device)
 
+    def host(self, x: Tensor) -> np.ndarray:
+        """``x`` on the host as NumPy; on the CPU the same memory, without ``cpu()``'s call."""
+        return x.numpy() if self.device.type == "cpu" else x.cpu().numpy()
+
+    def rows(self, x: np.ndarray) -> Tensor:
+        """Host row indices ``x`` (int64) as an index tensor on the planner's device."""
+        t = torch.from_numpy(x)
+        return t if self.device.type == "cpu" else t.to(self.device)
+
     def finite(self, x: Tensor) -> bool:
         """Whether ``x`` holds no NaN or inf (its sum is finite); on the CPU summed by NumPy
         over the same memory (a third of torch's select, sum and transfer after a rollout)."""
@@ -202,6 +255,8 @@ class _Common:
         shape = (samples, self.cfg.horizon)
         if tuple(step_costs.shape) != shape:
             raise ValueError(f"step_costs must have shape {shape} [S, T], got {tuple(step_costs.shape)}")
+        if step_costs.dtype == self.dtype and step_costs.device == self.device:
+            return step_costs
         return step_costs.to(dtype=self.dtype, device=self.device)
 
 
@@ -259,17 +314,18 @@ class MPPI:
         eps = v - self.U
         if c.cfg.control_cost:
             costs = costs + control_costs(self.U, eps, c.inv_var, c.control_coef)
-        costs = finite_costs(costs.cpu().numpy())
-        w, eta, rho = (c.tensor(x) for x in softmin_weights(costs, lam))
+        costs = finite_costs(c.host(costs))
+        w, eta, rho = softmin_weights(costs, lam)
+        w = c.tensor(w)
         u = c.finish_mean(self.U + (w[:, None, None] * eps).sum(dim=0))
         finite = bool(eta > 0) and c.finite(u)
         best = v[int(np.argmin(costs))]
         if not finite:      # no finite cost (all weights 0): keep U and the best, flag the result
             u, best = self.U, self._best
-        one = torch.ones(1, dtype=c.dtype, device=c.device)
-        result = PlanResult(u0=u[0], U=u, mode_weights=one, mode_costs=rho.reshape(1),
-                            etas=eta.reshape(1), lambdas=one * lam, best=best[None], weights=w,
-                            fused_eta=eta, fused_lambda=one[0] * lam, finite=finite)
+        # one mode: its weights are the fused ones, all the weight is its own
+        diag = c.tensor(np.array([1.0, rho, eta, eta, lam, lam], dtype=np.float64))
+        result = PlanResult(U=u, best=best[None], fused=w.expand(2, -1), diag=diag,
+                            finite=finite)
         self.U, self._best = shift(u), shift(best)
         return result
 
@@ -466,7 +522,7 @@ class M3P2I:
         # host. Diverged rollouts get zero weight; a row with no finite cost at all (a mode
         # whose rollouts all diverged, or all S of them) keeps λ, its mean and its best sequence,
         # and, for the fused row, the plan (then flagged: ``finite``).
-        wt = weigh(costs.cpu().numpy(), lay.slices, self._lam,
+        wt = weigh(c.host(costs), lay.slices, self._lam,
                    c.cfg.eta_bounds, c.cfg.adapt_iters)
         self._lam, self._costs = wt.lam, wt.costs
         w = c.tensor(wt.w)                                             # [N + 1, S]
@@ -477,7 +533,7 @@ class M3P2I:
         if c.cfg.alpha_u != 1.0:
             plans[n] = torch.lerp(self._plans[n], plans[n], c.cfg.alpha_u)
         plans = c.finish_mean(plans)
-        best = v.index_select(0, torch.from_numpy(wt.best).to(c.device))
+        best = v.index_select(0, c.rows(wt.best))
         alive = wt.eta > 0                                             # [N + 1]
         alive[n] &= c.finite(plans[n])
         if not alive.all():
@@ -486,14 +542,11 @@ class M3P2I:
             best = torch.where(keep[:n], best, self._best)
         finite = bool(alive[n])
 
-        # the per-mode diagnostics, made as one host array and handed out as views of it
+        # the per-mode diagnostics as one host array (PlanResult reads them through views)
         diag = c.tensor(np.concatenate([
             np.add.reduceat(wt.w[n], [rows.start for rows in lay.slices]),    # mode weights
             wt.beta[:n], wt.eta, wt.lam]))
-        result = PlanResult(u0=plans[n, 0], U=plans[n], mode_weights=diag[:n],
-                            mode_costs=diag[n:2 * n], etas=diag[2 * n:3 * n],
-                            lambdas=diag[3 * n + 1:4 * n + 1], best=best, weights=w[n],
-                            fused_eta=diag[3 * n], fused_lambda=diag[4 * n + 1], finite=finite)
+        result = PlanResult(U=plans[n], best=best, fused=w, diag=diag, finite=finite)
         self._unshifted = (plans, best)
         self._retime(1.0)
         return result
