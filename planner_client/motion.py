@@ -141,8 +141,8 @@ class MotionPlanner:
                 for name, rows in zip(self.modes, self.mppi.mode_slices)])
         result = self.mppi.update(self._step_costs)
         self._generation += 1
-        top_of = functools.partial(self._top, sd, self.mppi.costs, self.mppi.mode_slices,
-                                   self._generation)
+        top_of = functools.partial(self._top_samples, sd, self.mppi.costs,
+                                   self.mppi.mode_slices, self._generation)
         if self.device.type != "cpu":
             result = _to_host(result)
         dominant = self.modes[0] if len(self.modes) == 1 else \
@@ -156,7 +156,7 @@ class MotionPlanner:
                          plan=self._resolve(result.U.numpy(), dominant), dominant=dominant)
 
     @torch.inference_mode()
-    def _top(self, sd: torch.Tensor, costs: np.ndarray, slices: list[slice],
+    def _top_samples(self, sd: torch.Tensor, costs: np.ndarray, slices: list[slice],
              generation: int) -> tuple[np.ndarray, np.ndarray]:
         """:attr:`Iteration.top` and :attr:`Iteration.top_modes` of iteration ``generation``
         from its ``sensordata [S, T, ·]``, total costs ``[S]`` and mode rows: each mode's
