@@ -157,7 +157,7 @@ class MotionPlanner:
 
     @torch.inference_mode()
     def _top_samples(self, sd: torch.Tensor, costs: np.ndarray, slices: list[slice],
-             generation: int) -> tuple[np.ndarray, np.ndarray]:
+                     generation: int) -> tuple[np.ndarray, np.ndarray]:
         """:attr:`Iteration.top` and :attr:`Iteration.top_modes` of iteration ``generation``
         from its ``sensordata [S, T, ·]``, total costs ``[S]`` and mode rows: each mode's
         ``top_k`` lowest-cost samples (by the fused weights alone a viewer would see only the
