@@ -20,6 +20,7 @@ from shared.frames import FrameResolver
 from shared.scenario import ObjectiveConfig, TermConfig
 from planner_client.costs import TERMS, JointInfo, RolloutBatch, TermContext, build_objective
 from planner_client.costs.helpers import norm, sparse_norm
+from planner_client.costs.norms import fusable
 from planner_client.sensors import SensorLayout, SensorRequest, add_sensors
 
 F64 = torch.float64
@@ -606,6 +607,49 @@ def test_objective_weights_and_running_terminal_masks(ctx):
     b = batch_of({pos("robot"): [[[0, 0, 0]] * 3], pos("goal"): [[[3, 4, 0]] * 3],
                   SensorRequest("framelinvel", "robot"): [[[1, 0, 0]] * 3]})
     close(obj(b), [[11.0, 11.0, 60.0]])
+
+
+def _random_batch(obj, samples: int = 6, horizon: int = 4, seed: int = 0) -> RolloutBatch:
+    """Random sensor values for every request of ``obj``, a third of them exactly zero (an
+    untouched obstacle's contact force), laid out in shuffled order."""
+    rng = np.random.default_rng(seed)
+    reqs = list(dict.fromkeys(obj.sensors()))
+    rng.shuffle(reqs)
+    values = {}
+    for r in reqs:
+        v = rng.normal(size=(samples, horizon, r.dim)) * 10.0 ** rng.integers(-3, 4)
+        v[rng.random((samples, horizon)) < 0.33] = 0.0
+        values[r] = v.tolist()
+    return batch_of(values, controls=np.zeros((samples, horizon, 2)))
+
+
+def test_an_objective_of_norms_costs_what_its_terms_sum_to(ctx):
+    """Distances (with an offset, along some axes, listed twice), a speed and contact forces:
+    the fused evaluation (:mod:`planner_client.costs.norms`) against each term's own."""
+    obj = _objective(
+        ctx,
+        {"term": "distance", "a": "robot", "b": "goal", "axes": "xy", "weight": 1.5},
+        {"term": "distance", "a": "robot", "b": "goal", "axes": "xy", "weight": 4.0,
+         "when": "terminal"},
+        {"term": "distance", "a": "hand", "b": "box", "offset": [0.1, -0.2, 0.3], "weight": 2.0},
+        {"term": "velocity", "a": "robot", "axes": "z", "when": "running", "weight": 0.3},
+        {"term": "contact_force", "a": "robot", "weight": 0.05})
+    assert fusable([wt.term for wt in obj.terms])
+    for seed in range(3):
+        batch = _random_batch(obj, seed=seed)
+        fused, per_term = obj(batch), obj(batch, {})
+        torch.testing.assert_close(fused, per_term, rtol=1e-12, atol=0.0)
+    # the layout is part of the fused form: another batch's columns are read where they are
+    other = _random_batch(obj, seed=7)
+    torch.testing.assert_close(obj(other), obj(other, {}), rtol=1e-12, atol=0.0)
+
+
+def test_an_objective_with_a_term_that_is_no_norm_is_not_fused(ctx):
+    obj = _objective(ctx, {"term": "distance", "a": "robot", "b": "goal"},
+                     {"term": "collision", "a": "robot"})
+    assert not fusable([wt.term for wt in obj.terms])
+    batch = _random_batch(obj)
+    torch.testing.assert_close(obj(batch), obj(batch, {}), rtol=0.0, atol=0.0)
 
 
 @pytest.mark.parametrize("term, message", [

@@ -198,13 +198,23 @@ def test_mode_with_huge_cost_offset_is_ignored_but_keeps_its_own_mean():
 
 # --- update equations against a direct evaluation -----------------------------------------------
 
-def test_update_matches_eqs_4_to_12_for_unequal_modes():
+@pytest.mark.parametrize("smoothed", [False, True])
+def test_update_matches_eqs_4_to_12_for_unequal_modes(smoothed):
+    """With ``smoothed`` every mean is also Savitzky-Golay filtered and clamped into tight
+    bounds (the SGF and projection of thesis Alg. 2 line 33), before the one-step shift."""
+    box = dict(u_min=(-0.3, -0.25), u_max=(0.3, 0.35)) if smoothed else dict(u_min=None, u_max=None)
     cfg = cfg_of(gamma=0.9, alpha_u=0.6, lambda_init=0.7, null_action=False, keep_best=False,
-                 u_min=None, u_max=None)
+                 savgol_window=5 if smoothed else 0, **box)
     modes = [ModeSpec("a", 30), ModeSpec("b", 50), ModeSpec("c", 7)]
     planner = M3P2I(cfg, modes)
     planner.update(wiggly_costs(planner.sample()))     # non-zero means and plan
     u_prev = planner.nominal.clone()
+
+    def finish(u):
+        if not smoothed:
+            return u
+        u = torch.as_tensor(savgol_matrix(15, 5, 2), dtype=F64) @ u
+        return torch.clamp(u, t(*box["u_min"]), t(*box["u_max"]))
 
     v = planner.sample()
     step = wiggly_costs(v)
@@ -213,7 +223,7 @@ def test_update_matches_eqs_4_to_12_for_unequal_modes():
     s = (step * 0.9 ** torch.arange(15, dtype=F64)).sum(-1)                     # paper Eq. 4
     fused = torch.exp(-(s - s.min()) / 0.7)
     fused = fused / fused.sum()                                                  # paper Eqs. 9-11
-    u = (1 - 0.6) * u_prev + 0.6 * (fused[:, None, None] * v).sum(0)            # paper Eq. 12
+    u = finish((1 - 0.6) * u_prev + 0.6 * (fused[:, None, None] * v).sum(0))    # paper Eq. 12
     assert torch.allclose(result.weights, fused, atol=1e-14)
     assert torch.allclose(result.U, u, atol=1e-12)
     for i, rows in enumerate(planner.mode_slices):
@@ -221,11 +231,15 @@ def test_update_matches_eqs_4_to_12_for_unequal_modes():
         assert torch.isclose(result.etas[i], w.sum())
         assert torch.isclose(result.mode_costs[i], s[rows].min())
         assert torch.isclose(result.mode_weights[i], fused[rows].sum())
-        mu = ((w / w.sum())[:, None, None] * v[rows]).sum(0)                     # paper Eq. 8
+        mu = finish(((w / w.sum())[:, None, None] * v[rows]).sum(0))             # paper Eq. 8
         assert torch.allclose(planner.means[i, :-1], mu[1:], atol=1e-12)       # after the shift
+        assert torch.equal(planner.means[i, -1], planner.means[i, -2])
         assert torch.equal(result.best[i], v[rows][s[rows].argmin()])
     assert torch.allclose(planner.nominal[:-1], u[1:], atol=1e-12)
     assert torch.equal(planner.nominal[-1], planner.nominal[-2])
+    # re-timed by a fraction of a step, the plan is read between the unshifted plan's steps
+    planner.advance(0.5)
+    assert torch.allclose(planner.nominal[:-1], 0.5 * (u[:-1] + u[1:]), atol=1e-12)
 
 
 def test_diverged_rollouts_get_zero_weight():

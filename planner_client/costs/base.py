@@ -45,6 +45,20 @@ class RolloutBatch:
 
 
 @dataclass(frozen=True)
+class Norm:
+    """One Euclidean norm of an affine map of a step's sensor values, ‖z‖ with
+    z_i = bias_i + Σ c · value (the ``(request, index, c)`` of ``components[i]``): a distance
+    is ``x_a - x_b - offset`` along its axes, a contact force its three values.
+
+    A term that is a sum of such norms (:meth:`CostTerm.norms`) lets an objective made only of
+    such terms compute them together (:mod:`planner_client.costs.norms`). ``floor`` bounds the
+    squared norm from below before the root (:func:`~planner_client.costs.helpers.sparse_norm`).
+    """
+    components: tuple[tuple[float, tuple[tuple[SensorRequest, int, float], ...]], ...]
+    floor: float = 0.0
+
+
+@dataclass(frozen=True)
 class JointInfo:
     """A robot joint (hinge or slide) as terms see it: its range (None when unlimited), whether
     it is a hinge (radians) or a slide (metres), and its position in the scenario's start pose."""
@@ -114,3 +128,8 @@ class CostTerm(ABC):
     @abstractmethod
     def __call__(self, batch: RolloutBatch) -> torch.Tensor:
         """Unweighted per-step cost ``[S, T]``."""
+
+    def norms(self) -> list[Norm] | None:
+        """This term as a sum of Euclidean norms of affine maps of the sensors (the same values
+        as :meth:`__call__` to rounding), or ``None`` when it is not one: the default."""
+        return None

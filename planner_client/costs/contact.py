@@ -10,8 +10,9 @@ import torch
 
 from shared.config import positive
 from shared.geometry import select_axes
-from planner_client.costs.base import CostTerm, register
-from planner_client.costs.helpers import axes_param, frame_params, last_sum, norm, sparse_norm
+from planner_client.costs.base import CostTerm, Norm, register
+from planner_client.costs.helpers import (SQUARE_FLOOR, axes_param, frame_params, last_sum, norm,
+                                          sparse_norm)
 from planner_client.sensors import SensorRequest
 
 
@@ -87,6 +88,10 @@ class ContactForce(CostTerm):
         f = batch.layout.take_all(batch.sensordata, self.requests)         # [S, T, 3 n_obstacles]
         f = f.unflatten(-1, (len(self.requests), 3))                       # [S, T, n_obstacles, 3]
         return last_sum(sparse_norm(f))
+
+    def norms(self):
+        return [Norm(tuple((0.0, ((req, i, 1.0),)) for i in range(3)), floor=SQUARE_FLOOR)
+                for req in self.requests]
 
 
 @register("dynamic_obstacle")

@@ -9,8 +9,8 @@ from dataclasses import dataclass
 import torch
 
 from shared.config import non_negative, one_of, positive, vector
-from shared.geometry import select_axes, symmetric_orientation_error_relative
-from planner_client.costs.base import CostTerm, RolloutBatch, register
+from shared.geometry import AXES, select_axes, symmetric_orientation_error_relative
+from planner_client.costs.base import CostTerm, Norm, RolloutBatch, register
 from planner_client.costs.helpers import (axes_param, constant, cosine, cosine_value,
                                           frame_params, norm)
 from planner_client.sensors import SensorRequest
@@ -42,6 +42,11 @@ class Distance(CostTerm):
             d = d - constant(self.offset, d.dtype, d.device)
         return norm(select_axes(d, self.axes))
 
+    def norms(self):
+        pa, pb = self.requests
+        return [Norm(tuple((-self.offset[i], ((pa, i, 1.0), (pb, i, -1.0)))
+                           for i in AXES[self.axes]))]
+
 
 @register("velocity")
 @dataclass
@@ -59,6 +64,9 @@ class Velocity(CostTerm):
 
     def __call__(self, batch):
         return norm(select_axes(batch.get(self.requests[0]), self.axes))
+
+    def norms(self):
+        return [Norm(tuple((0.0, ((self.requests[0], i, 1.0),)) for i in AXES[self.axes]))]
 
 
 @register("orientation")

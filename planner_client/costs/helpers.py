@@ -54,7 +54,7 @@ def norm(x: torch.Tensor) -> torch.Tensor:
 
 # Floor of a squared norm before its square root in :func:`sparse_norm`: its root, 1e-150,
 # vanishes against any cost it is added to (the sum rounds back to that cost, bit for bit).
-_SQUARE_FLOOR = 1e-300
+SQUARE_FLOOR = 1e-300
 
 
 def sparse_norm(x: torch.Tensor) -> torch.Tensor:
@@ -63,7 +63,7 @@ def sparse_norm(x: torch.Tensor) -> torch.Tensor:
     vector gives 1e-150 instead of 0. torch's CPU square root takes some 5 ns on an exact zero
     against under 1 ns on any other number (44 against 5 µs on [200, 5, 7]); the floor keeps
     it off zero, and leaves every square above 1e-300 (a force above 1e-150 N) as it is."""
-    return last_sum(x * x).clamp_min_(_SQUARE_FLOOR).sqrt_()
+    return last_sum(x * x).clamp_min_(SQUARE_FLOOR).sqrt_()
 
 
 @functools.lru_cache(maxsize=None)

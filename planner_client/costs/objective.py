@@ -9,6 +9,7 @@ import torch
 from shared.config import ErrorLog, Section, one_of
 from shared.scenario import ObjectiveConfig, TermConfig
 from planner_client.costs.base import TERMS, CostTerm, RolloutBatch, TermContext
+from planner_client.costs.norms import NormObjective, fusable
 from planner_client.sensors import SensorRequest
 
 _WHEN = ("all", "running", "terminal")
@@ -26,12 +27,14 @@ class Objective:
     """``S(V)`` per step: Σ_terms weight · term, masked to running/terminal steps.
 
     The last column of the result is the terminal cost φ of paper Eq. 4; the planner applies the
-    discount γ^t.
+    discount γ^t. An objective whose terms are all norms (distances, speeds, contact forces) is
+    computed in one pass over them (:class:`~planner_client.costs.norms.NormObjective`).
     """
     name: str
     terms: list[WeightedTerm]
     fixed: dict[int, float]         # control channel -> pinned value for this mode
     _masks: dict = field(default_factory=dict, repr=False)
+    _fused: dict = field(default_factory=dict, repr=False)
 
     def sensors(self) -> list[SensorRequest]:
         return [r for wt in self.terms for r in wt.term.sensors()]
@@ -43,10 +46,15 @@ class Objective:
         ``values``: unweighted term values ``[S, T]`` on these rows by :attr:`CostTerm.key`,
         already computed (a term several modes share, evaluated once on all their rows); a term
         found there is not evaluated again, and each one evaluated is added to it. Term values
-        are never modified.
+        are never modified. Without ``values`` an objective of norms is computed fused, to
+        rounding the same costs.
         """
-        values = {} if values is None else values
         sd = batch.sensordata
+        if values is None:
+            fused = self._norms(batch)
+            if fused is not None:
+                return fused(sd)
+            values = {}
         out = None
         for term, weights in self._weighted(batch.controls.shape[1], sd.dtype, sd.device):
             value = values.get(term.key)
@@ -54,6 +62,19 @@ class Objective:
                 value = values[term.key] = term(batch)
             out = value * weights if out is None else out.addcmul_(value, weights)
         return out
+
+    def _norms(self, batch: RolloutBatch) -> NormObjective | None:
+        """The fused form of this objective for the batch's layout, shapes and device, made
+        once per layout; ``None`` when a term is not a sum of norms."""
+        sd = batch.sensordata
+        key = (batch.controls.shape[1], sd.shape[-1], sd.dtype, sd.device)
+        layout, fused = self._fused.get(key, (None, None))
+        if layout is not batch.layout:
+            weighted = self._weighted(key[0], sd.dtype, sd.device)
+            fused = (NormObjective(weighted, batch.layout, sd.shape[-1])
+                     if fusable([term for term, _ in weighted]) else None)
+            self._fused[key] = (batch.layout, fused)
+        return fused
 
     def _weighted(self, horizon: int, dtype: torch.dtype,
                   device: torch.device) -> list[tuple[CostTerm, torch.Tensor]]:

@@ -169,6 +169,20 @@ def _shift_index(horizon: int, whole: int, device: torch.device) -> tuple[Tensor
     return idx.clamp(0, horizon - 1), (idx + 1).clamp(0, horizon - 1)
 
 
+def smooth_shift_matrix(savgol: Tensor | None, horizon: int, nu: int, dtype: torch.dtype,
+                        device: torch.device) -> Tensor:
+    """``[T·nu, 2·T·nu]``: a mean sequence flattened to ``[T·nu]`` (step-major) times it is the
+    sequence smoothed by ``savgol [T, T]`` (none: unchanged), then that smoothed sequence
+    shifted by one step as :func:`shift` does (the last step repeated). The update smooths its
+    new means and shifts them for the next iteration in this one product instead of a batched
+    product and an index per sequence."""
+    eye = torch.eye(horizon, dtype=dtype, device=device)
+    smooth_m = eye if savgol is None else savgol                           # [T, T]
+    lo_idx, _ = _shift_index(horizon, 1, device)
+    steps = torch.cat([smooth_m, smooth_m.index_select(0, lo_idx)])       # [2T, T]
+    return torch.kron(steps, torch.eye(nu, dtype=dtype, device=device)).T.contiguous()
+
+
 class _Box:
     """Control bounds of a config: sample bounding (clamp or squash) and projection."""
 
@@ -212,6 +226,9 @@ class _Common:
         self.savgol = (torch.as_tensor(savgol_matrix(t, cfg.savgol_window, cfg.savgol_order),
                                        dtype=dtype, device=self.device)
                        if cfg.savgol_window else None)
+        self.smooth_shift = smooth_shift_matrix(self.savgol, t, cfg.nu, dtype, self.device)
+        if self.box.active:
+            self.flat_lo, self.flat_hi = self.box.lo.repeat(2 * t), self.box.hi.repeat(2 * t)
         self.make_noise(samples)
 
     def make_noise(self, samples: int) -> None:
@@ -250,6 +267,15 @@ class _Common:
         if self.savgol is not None:
             u = smooth(self.savgol, u)
         return self.box.project(u)
+
+    def finish_and_shift(self, flat: Tensor) -> Tensor:
+        """:meth:`finish_mean` of flat means ``[M, T·nu]`` and the result shifted by one
+        step (:func:`shift`), ``[M, 2, T, nu]``: one product with :attr:`smooth_shift` and one
+        clamp (the projection commutes with a whole-step shift, a selection of steps)."""
+        both = flat @ self.smooth_shift
+        if self.box.active:
+            torch.clamp(both, self.flat_lo, self.flat_hi, out=both)
+        return both.view(flat.shape[0], 2, self.cfg.horizon, self.cfg.nu)
 
     def check_costs(self, step_costs: Tensor, samples: int) -> Tensor:
         shape = (samples, self.cfg.horizon)
@@ -527,29 +553,34 @@ class M3P2I:
         self._lam, self._costs = wt.lam, wt.costs
         w = c.tensor(wt.w)                                             # [N + 1, S]
 
-        # μ_i ← Σ ω_i V (paper Eq. 8) and Σ ω̃ V (paper Eq. 12) in one product; then u's step α_u
+        # μ_i ← Σ ω_i V (paper Eq. 8) and Σ ω̃ V (paper Eq. 12) in one product; then u's step
+        # α_u; then every mean smoothed, projected and, for the next iteration, shifted
         S, T, nu = v.shape
-        plans = (w @ v.reshape(S, T * nu)).view(n + 1, T, nu)
+        flat = w @ v.reshape(S, T * nu)                                # [N + 1, T·nu]
         if c.cfg.alpha_u != 1.0:
-            plans[n] = torch.lerp(self._plans[n], plans[n], c.cfg.alpha_u)
-        plans = c.finish_mean(plans)
+            flat[n] = torch.lerp(self._plans[n].reshape(-1), flat[n], c.cfg.alpha_u)
+        both = c.finish_and_shift(flat)                                # [N + 1, 2, T, nu]
+        plans = both[:, 0]
         best = v.index_select(0, c.rows(wt.best))
         alive = wt.eta > 0                                             # [N + 1]
         alive[n] &= c.finite(plans[n])
-        if not alive.all():
-            keep = torch.from_numpy(alive).to(c.device)[:, None, None]
-            plans = torch.where(keep, plans, self._plans)
-            best = torch.where(keep[:n], best, self._best)
         finite = bool(alive[n])
 
         # the per-mode diagnostics as one host array (PlanResult reads them through views)
         diag = c.tensor(np.concatenate([
             np.add.reduceat(wt.w[n], [rows.start for rows in lay.slices]),    # mode weights
             wt.beta[:n], wt.eta, wt.lam]))
-        result = PlanResult(U=plans[n], best=best, fused=w, diag=diag, finite=finite)
-        self._unshifted = (plans, best)
-        self._retime(1.0)
-        return result
+        if alive.all():
+            self._unshifted = (plans, best)
+            self._steps = 1.0
+            self._plans, self._best = both[:, 1], shift(best)
+        else:
+            keep = torch.from_numpy(alive).to(c.device)[:, None, None]
+            plans = torch.where(keep, plans, self._plans)
+            best = torch.where(keep[:n], best, self._best)
+            self._unshifted = (plans, best)
+            self._retime(1.0)
+        return PlanResult(U=plans[n], best=best, fused=w, diag=diag, finite=finite)
 
     def command(self, evaluate: Callable[[Tensor], Tensor]) -> PlanResult:
         """sample -> ``evaluate(V) -> [S, T]`` step costs -> update."""
