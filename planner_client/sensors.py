@@ -42,8 +42,8 @@ class SensorRequest(NamedTuple):
     (``frame*``) with a ``ref`` is expressed in the frame ``ref`` instead of the world's.
 
     A named tuple, not a dataclass: terms look their requests up in :class:`SensorLayout`
-    every iteration, and a tuple's hash and equality run in C (a dataclass's in Python, some
-    3-5 µs a lookup after a rollout has cooled the caches).
+    every iteration (pick_place 25 times), and a tuple's hash and equality run in C: 0.09 µs
+    a lookup against a frozen dataclass's 0.54 µs, warm.
     """
     kind: str
     obj: str
