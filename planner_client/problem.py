@@ -68,7 +68,7 @@ def build_problem(scenario: Scenario, extra_sensors: list[SensorRequest] = ()) -
     add_sensors(spec, requests, resolve)
     model = compile_model(scenario, spec)
     tune_planning_model(model, scenario.planner.model)
-    return PlanningProblem(scenario, robot, model, objectives, SensorLayout(model, requests),
+    return PlanningProblem(scenario, robot, model, objectives, SensorLayout.of_model(model, requests),
                            robot_pos, actuators, FrameResolver(model, robot.frame))
 
 

@@ -89,13 +89,20 @@ def add_sensors(spec: mujoco.MjSpec, requests: list[SensorRequest], resolve: Fra
 
 
 class SensorLayout:
-    """Columns of ``sensordata`` for each request, looked up in the compiled model."""
+    """Columns of ``sensordata`` for each request (:meth:`of_model` looks them up in a compiled
+    model)."""
 
-    def __init__(self, model: mujoco.MjModel, requests: list[SensorRequest]):
-        self.columns: dict[SensorRequest, slice] = {}
+    def __init__(self, columns: dict[SensorRequest, slice]):
+        self.columns = columns
+        self._groups: dict[tuple[SensorRequest, ...], slice | torch.Tensor] = {}
+
+    @classmethod
+    def of_model(cls, model: mujoco.MjModel, requests: list[SensorRequest]) -> SensorLayout:
+        columns = {}
         for req in dict.fromkeys(requests):
             s = model.sensor(req.name)
-            self.columns[req] = slice(int(s.adr[0]), int(s.adr[0]) + int(s.dim[0]))
+            columns[req] = slice(int(s.adr[0]), int(s.adr[0]) + int(s.dim[0]))
+        return cls(columns)
 
     def take(self, sensordata: torch.Tensor, req: SensorRequest) -> torch.Tensor:
         """``sensordata [..., nsensordata]`` -> ``[..., dim]`` for one request."""
@@ -103,8 +110,20 @@ class SensorLayout:
 
     def take_all(self, sensordata: torch.Tensor, reqs: list[SensorRequest]) -> torch.Tensor:
         """``[..., Σ dim]`` for several requests: a view when their columns are adjacent (as
-        :func:`add_sensors` lays out one term's requests), else a concatenated copy."""
-        cols = [self.columns[r] for r in reqs]
-        if all(a.stop == b.start for a, b in zip(cols, cols[1:])):
-            return sensordata[..., cols[0].start:cols[-1].stop]
-        return torch.cat([sensordata[..., c] for c in cols], dim=-1)
+        :func:`add_sensors` lays out one term's requests), else a copy of the columns in
+        request order. Where they are is worked out once per list of requests."""
+        key = tuple(reqs)
+        cols = self._groups.get(key)
+        if cols is None or (isinstance(cols, torch.Tensor) and cols.device != sensordata.device):
+            cols = self._groups[key] = self._columns_of(key, sensordata.device)
+        if isinstance(cols, slice):
+            return sensordata[..., cols]
+        return sensordata.index_select(-1, cols)
+
+    def _columns_of(self, reqs: tuple[SensorRequest, ...],
+                    device: torch.device) -> slice | torch.Tensor:
+        spans = [self.columns[r] for r in reqs]
+        if all(a.stop == b.start for a, b in zip(spans, spans[1:])):
+            return slice(spans[0].start, spans[-1].stop)
+        return torch.tensor([i for span in spans for i in range(span.start, span.stop)],
+                            dtype=torch.long, device=device)

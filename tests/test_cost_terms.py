@@ -83,13 +83,6 @@ def make(ctx: TermContext, name: str, **params):
     return term
 
 
-class _Layout(SensorLayout):
-    """Columns laid out by hand instead of looked up in a compiled model."""
-
-    def __init__(self, columns: dict[SensorRequest, slice]):
-        self.columns = columns
-
-
 def batch_of(values: dict[SensorRequest, list], controls=None, dt: float = 0.1) -> RolloutBatch:
     """A batch from values ``[S, T, dim]`` per request (nested lists), controls ``[S, T, nu]``."""
     columns, blocks, start = {}, [], 0
@@ -101,7 +94,18 @@ def batch_of(values: dict[SensorRequest, list], controls=None, dt: float = 0.1) 
     sensordata = torch.cat(blocks, dim=-1)
     if controls is None:
         controls = torch.zeros(*sensordata.shape[:2], 2, dtype=F64)
-    return RolloutBatch(sensordata, torch.as_tensor(controls, dtype=F64), _Layout(columns), dt)
+    return RolloutBatch(sensordata, torch.as_tensor(controls, dtype=F64), SensorLayout(columns), dt)
+
+
+def test_a_terms_sensors_are_read_in_request_order_wherever_they_lie():
+    a, b, c = pos("a"), SensorRequest("jointpos", "j"), SensorRequest("framezaxis", "c")
+    layout = SensorLayout({a: slice(0, 3), b: slice(3, 4), c: slice(4, 7)})
+    sd = torch.arange(2 * 7, dtype=F64).reshape(2, 1, 7)
+    for _ in range(2):                                 # worked out once, then looked up
+        apart = layout.take_all(sd, [c, a])
+        torch.testing.assert_close(apart, torch.cat([sd[..., 4:7], sd[..., 0:3]], dim=-1))
+        adjacent = layout.take_all(sd, [a, b])
+        assert adjacent.data_ptr() == sd.data_ptr() and adjacent.shape == (2, 1, 4)
 
 
 def pos(frame: str) -> SensorRequest:
@@ -136,7 +140,7 @@ def sensed(model: mujoco.MjModel, ctx: TermContext, term, setup, steps: int = 0)
     mujoco.mj_forward(m, d)
     sd = torch.as_tensor(d.sensordata.copy(), dtype=F64).reshape(1, 1, -1)
     ctrl = torch.as_tensor(d.ctrl.copy(), dtype=F64).reshape(1, 1, -1)
-    return RolloutBatch(sd, ctrl, SensorLayout(m, term.sensors()), m.opt.timestep)
+    return RolloutBatch(sd, ctrl, SensorLayout.of_model(m, term.sensors()), m.opt.timestep)
 
 
 # --- distance, velocity (paper Eq. 14) -----------------------------------------------------------------
@@ -379,7 +383,7 @@ def test_dynamic_obstacle_prediction_matches_a_real_rollout(model, ctx):
     T = 5
     _, sd = mj_rollout.rollout(m, d, x0[None], np.zeros((1, T, m.nu)), nstep=T)
     b = RolloutBatch(torch.as_tensor(sd), torch.zeros(1, T, m.nu, dtype=F64),
-                     SensorLayout(m, term.sensors()), m.opt.timestep)
+                     SensorLayout.of_model(m, term.sensors()), m.opt.timestep)
     gap = [math.hypot(-2 + 3 * t * m.opt.timestep, 2) for t in range(T)]
     torch.testing.assert_close(term(b), torch.tensor([[math.exp(-g) for g in gap]], dtype=F64))
 
@@ -583,7 +587,7 @@ def test_all_terms_together_compile_and_give_finite_costs_at_rest(model, ctx):
     d = mujoco.MjData(m)
     mujoco.mj_forward(m, d)
     sd = torch.as_tensor(np.tile(d.sensordata, (3, 4, 1)))
-    b = RolloutBatch(sd, torch.zeros(3, 4, m.nu, dtype=F64), SensorLayout(m, requests), 0.01)
+    b = RolloutBatch(sd, torch.zeros(3, 4, m.nu, dtype=F64), SensorLayout.of_model(m, requests), 0.01)
     for term in terms:
         cost = term(b)
         assert cost.shape == (3, 4) and torch.isfinite(cost).all(), term.name
@@ -644,10 +648,20 @@ def test_an_objective_of_norms_costs_what_its_terms_sum_to(ctx):
     torch.testing.assert_close(obj(other), obj(other, {}), rtol=1e-12, atol=0.0)
 
 
-def test_an_objective_with_a_term_that_is_no_norm_is_not_fused(ctx):
+def test_an_objectives_norm_terms_are_fused_beside_its_other_terms(ctx):
+    obj = _objective(ctx, {"term": "distance", "a": "robot", "b": "goal", "weight": 2.0},
+                     {"term": "collision", "a": "robot", "weight": 3.0},
+                     {"term": "contact_force", "a": "robot", "weight": 0.1, "when": "running"},
+                     {"term": "orientation", "a": "base", "b": "box"})
+    assert not fusable([wt.term for wt in obj.terms])
+    for seed in range(3):
+        batch = _random_batch(obj, seed=seed)
+        torch.testing.assert_close(obj(batch), obj(batch, {}), rtol=1e-12, atol=0.0)
+
+
+def test_one_norm_term_beside_others_is_evaluated_on_its_own(ctx):
     obj = _objective(ctx, {"term": "distance", "a": "robot", "b": "goal"},
                      {"term": "collision", "a": "robot"})
-    assert not fusable([wt.term for wt in obj.terms])
     batch = _random_batch(obj)
     torch.testing.assert_close(obj(batch), obj(batch, {}), rtol=0.0, atol=0.0)
 

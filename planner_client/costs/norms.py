@@ -1,5 +1,5 @@
-"""An objective made only of norms, evaluated in one pass: distances, speeds and contact forces
-(navigation's whole objective: thesis Eqs. 4.5 and 4.7).
+"""An objective's norm terms evaluated in one pass: distances, speeds and contact forces
+(navigation's whole objective: thesis Eqs. 4.5 and 4.7; most of pick_place's reach).
 
 Each such term is a sum of Euclidean norms of affine maps of a step's sensor values
 (:class:`~planner_client.costs.base.Norm`). With G norms in all, built from m vector
@@ -23,8 +23,8 @@ from planner_client.sensors import SensorLayout
 
 
 class NormObjective:
-    """The fused objective of ``terms``, each a term whose :meth:`CostTerm.norms` is not
-    ``None``, with its ``[T]`` weights (weight · mask, summed over the entries listing it).
+    """The weighted sum of ``terms``, each a term whose :meth:`CostTerm.norms` is not ``None``,
+    with its ``[T]`` weights (weight · mask, summed over the entries listing it).
 
     Args:
         terms: ``(term, weights [T])`` pairs, one per distinct term.
@@ -71,6 +71,7 @@ class NormObjective:
 
 
 def fusable(terms: list[CostTerm]) -> bool:
-    """Whether every one of ``terms`` is a sum of norms, and there is at least one norm."""
+    """Whether every one of ``terms`` is a sum of norms, and there is at least one norm (a
+    contact force against no obstacle is none)."""
     norms = [term.norms() for term in terms]
     return all(n is not None for n in norms) and any(norms)

@@ -27,8 +27,9 @@ class Objective:
     """``S(V)`` per step: Σ_terms weight · term, masked to running/terminal steps.
 
     The last column of the result is the terminal cost φ of paper Eq. 4; the planner applies the
-    discount γ^t. An objective whose terms are all norms (distances, speeds, contact forces) is
-    computed in one pass over them (:class:`~planner_client.costs.norms.NormObjective`).
+    discount γ^t. An objective with several terms that are norms (distances, speeds, contact
+    forces) computes them in one pass (:class:`~planner_client.costs.norms.NormObjective`) and
+    adds the others one by one.
     """
     name: str
     terms: list[WeightedTerm]
@@ -46,14 +47,17 @@ class Objective:
         ``values``: unweighted term values ``[S, T]`` on these rows by :attr:`CostTerm.key`,
         already computed (a term several modes share, evaluated once on all their rows); a term
         found there is not evaluated again, and each one evaluated is added to it. Term values
-        are never modified. Without ``values`` an objective of norms is computed fused, to
-        rounding the same costs.
+        are never modified. Without ``values`` the norm terms are computed fused, to rounding
+        the same costs.
         """
         sd = batch.sensordata
         if values is None:
-            fused = self._norms(batch)
+            fused, rest = self._split(batch)
             if fused is not None:
-                return fused(sd)
+                out = fused(sd)
+                for term, weights in rest:
+                    out.addcmul_(term(batch), weights)
+                return out
             values = {}
         out = None
         for term, weights in self._weighted(batch.controls.shape[1], sd.dtype, sd.device):
@@ -63,18 +67,22 @@ class Objective:
             out = value * weights if out is None else out.addcmul_(value, weights)
         return out
 
-    def _norms(self, batch: RolloutBatch) -> NormObjective | None:
-        """The fused form of this objective for the batch's layout, shapes and device, made
-        once per layout; ``None`` when a term is not a sum of norms."""
+    def _split(self, batch: RolloutBatch) -> tuple[NormObjective | None,
+                                                   list[tuple[CostTerm, torch.Tensor]]]:
+        """The fused form of this objective's norm terms for the batch's layout, shapes and
+        device, and its other weighted terms; made once per layout. ``None`` when fewer than
+        two terms are norms (one alone is as fast on its own)."""
         sd = batch.sensordata
         key = (batch.controls.shape[1], sd.shape[-1], sd.dtype, sd.device)
-        layout, fused = self._fused.get(key, (None, None))
+        layout, split = self._fused.get(key, (None, None))
         if layout is not batch.layout:
             weighted = self._weighted(key[0], sd.dtype, sd.device)
-            fused = (NormObjective(weighted, batch.layout, sd.shape[-1])
-                     if fusable([term for term, _ in weighted]) else None)
-            self._fused[key] = (batch.layout, fused)
-        return fused
+            norms = [(term, w) for term, w in weighted if fusable([term])]
+            rest = [(term, w) for term, w in weighted if not fusable([term])]
+            split = ((NormObjective(norms, batch.layout, sd.shape[-1]) if len(norms) > 1
+                      else None), rest)
+            self._fused[key] = (batch.layout, split)
+        return split
 
     def _weighted(self, horizon: int, dtype: torch.dtype,
                   device: torch.device) -> list[tuple[CostTerm, torch.Tensor]]:
