@@ -560,7 +560,7 @@ class M3P2I:
         if c.cfg.alpha_u != 1.0:
             flat[n] = torch.lerp(self._plans[n].reshape(-1), flat[n], c.cfg.alpha_u)
         both = c.finish_and_shift(flat)                                # [N + 1, 2, T, nu]
-        plans = both[:, 0]
+        plans = both.select(1, 0)
         best = v.index_select(0, c.rows(wt.best))
         alive = wt.eta > 0                                             # [N + 1]
         alive[n] &= c.finite(plans[n])
@@ -573,7 +573,7 @@ class M3P2I:
         if alive.all():
             self._unshifted = (plans, best)
             self._steps = 1.0
-            self._plans, self._best = both[:, 1], shift(best)
+            self._plans, self._best = both.select(1, 1), shift(best)
         else:
             keep = torch.from_numpy(alive).to(c.device)[:, None, None]
             plans = torch.where(keep, plans, self._plans)
