@@ -54,7 +54,7 @@ class NormObjective:
         self.lin = lin
         self.bias = bias if bool(bias.any()) else None
         groups = torch.zeros(m, g, dtype=dtype, device=device)            # component -> norm
-        groups[torch.arange(m), torch.tensor(group, dtype=torch.long)] = 1.0
+        groups[torch.arange(m, device=device), torch.tensor(group, device=device)] = 1.0
         self.groups = groups
         self.floor = torch.tensor(floors, dtype=dtype, device=device)     # [G]
         # W [T, G] as the block-diagonal [T·G, T] that sums each step's weighted norms
