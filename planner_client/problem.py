@@ -68,8 +68,9 @@ def build_problem(scenario: Scenario, extra_sensors: list[SensorRequest] = ()) -
     add_sensors(spec, requests, resolve)
     model = compile_model(scenario, spec)
     tune_planning_model(model, scenario.planner.model)
-    return PlanningProblem(scenario, robot, model, objectives, SensorLayout.of_model(model, requests),
-                           robot_pos, actuators, FrameResolver(model, robot.frame))
+    return PlanningProblem(scenario, robot, model, objectives,
+                           SensorLayout.of_model(model, requests), robot_pos, actuators,
+                           FrameResolver(model, robot.frame))
 
 
 _SOLVERS = {"Newton": mujoco.mjtSolver.mjSOL_NEWTON, "CG": mujoco.mjtSolver.mjSOL_CG,

@@ -50,8 +50,8 @@ class Norm:
     z_i = bias_i + Σ c · value (the ``(request, index, c)`` of ``components[i]``): a distance
     is ``x_a - x_b - offset`` along its axes, a contact force its three values.
 
-    A term that is a sum of such norms (:meth:`CostTerm.norms`) lets an objective made only of
-    such terms compute them together (:mod:`planner_client.costs.norms`). ``floor`` bounds the
+    A term that is a sum of such norms (:meth:`CostTerm.norms`) lets an objective compute it
+    together with its other norm terms (:mod:`planner_client.costs.norms`). ``floor`` bounds the
     squared norm from below before the root (:func:`~planner_client.costs.helpers.sparse_norm`).
     """
     components: tuple[tuple[float, tuple[tuple[SensorRequest, int, float], ...]], ...]

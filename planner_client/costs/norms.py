@@ -1,5 +1,6 @@
 """An objective's norm terms evaluated in one pass: distances, speeds and contact forces
-(navigation's whole objective: thesis Eqs. 4.5 and 4.7; most of pick_place's reach).
+(navigation's whole objective, thesis Eqs. 4.5 and 4.7; the distances and contact forces of
+pick_place's).
 
 Each such term is a sum of Euclidean norms of affine maps of a step's sensor values
 (:class:`~planner_client.costs.base.Norm`). With G norms in all, built from m vector
