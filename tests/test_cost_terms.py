@@ -654,15 +654,20 @@ def test_an_objectives_norm_terms_are_fused_beside_its_other_terms(ctx):
                      {"term": "contact_force", "a": "robot", "weight": 0.1, "when": "running"},
                      {"term": "orientation", "a": "base", "b": "box"})
     assert not fusable([wt.term for wt in obj.terms])
+    fused, rest = obj._split(_random_batch(obj))
+    assert fused is not None and [term.name for term, _ in rest] == ["collision", "orientation"]
     for seed in range(3):
         batch = _random_batch(obj, seed=seed)
         torch.testing.assert_close(obj(batch), obj(batch, {}), rtol=1e-12, atol=0.0)
 
 
 def test_one_norm_term_beside_others_is_evaluated_on_its_own(ctx):
+    """Fusing a single norm would take as many operations as the term itself."""
     obj = _objective(ctx, {"term": "distance", "a": "robot", "b": "goal"},
                      {"term": "collision", "a": "robot"})
     batch = _random_batch(obj)
+    fused, rest = obj._split(batch)
+    assert fused is None and [term.name for term, _ in rest] == ["distance", "collision"]
     torch.testing.assert_close(obj(batch), obj(batch, {}), rtol=0.0, atol=0.0)
 
 

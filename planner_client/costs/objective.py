@@ -70,8 +70,8 @@ class Objective:
     def _split(self, batch: RolloutBatch) -> tuple[NormObjective | None,
                                                    list[tuple[CostTerm, torch.Tensor]]]:
         """The fused form of this objective's norm terms for the batch's layout, shapes and
-        device, and its other weighted terms; made once per layout. ``None`` when fewer than
-        two terms are norms (one alone is as fast on its own)."""
+        device, and its other weighted terms; made once per layout. ``None`` and all the terms
+        when fewer than two are norms (one alone is as fast on its own)."""
         sd = batch.sensordata
         key = (batch.controls.shape[1], sd.shape[-1], sd.dtype, sd.device)
         layout, split = self._fused.get(key, (None, None))
@@ -79,8 +79,8 @@ class Objective:
             weighted = self._weighted(key[0], sd.dtype, sd.device)
             norms = [(term, w) for term, w in weighted if fusable([term])]
             rest = [(term, w) for term, w in weighted if not fusable([term])]
-            split = ((NormObjective(norms, batch.layout, sd.shape[-1]) if len(norms) > 1
-                      else None), rest)
+            split = ((NormObjective(norms, batch.layout, sd.shape[-1]), rest) if len(norms) > 1
+                     else (None, weighted))
             self._fused[key] = (batch.layout, split)
         return split
 
