@@ -399,8 +399,9 @@ class M3P2I:
 
     The N means and the fused plan are one ``[N + 1, T, nu]`` tensor, and the weights of all
     N + 1 rows one ``[N + 1, S]`` matrix (a mode's row is 0 outside its samples), so paper
-    Eqs. 8 and 12 are one matrix product ``Σ_k ω_k V_k`` and the smoothing, projection and shift
-    one call each: an iteration is a few dozen tensor operations whatever N.
+    Eqs. 8 and 12 are one matrix product ``Σ_k ω_k V_k``, and the smoothing, projection and
+    shift one more product and one clamp (:func:`smooth_shift_matrix`): an iteration is a few
+    dozen tensor operations whatever N.
 
     With one mode, α_u = 1 and no temperature adaptation this is :class:`MPPI` (same seed, same
     samples and weights to rounding): μ_1 and u then follow thesis Alg. 2's recursion, which
