@@ -242,6 +242,26 @@ def test_update_matches_eqs_4_to_12_for_unequal_modes(smoothed):
     assert torch.allclose(planner.nominal[:-1], 0.5 * (u[:-1] + u[1:]), atol=1e-12)
 
 
+@pytest.mark.parametrize("modes", [[ModeSpec("only", 40)], [ModeSpec("a", 30), ModeSpec("b", 20)]])
+def test_a_results_figures_read_late_are_its_own_iterations(modes):
+    """The per-mode figures are made from the update's weighting when first read: read after
+    later updates (and their temperature adaptation), they are still their own iteration's."""
+    cfg = cfg_of(eta_bounds=(2.0, 6.0), lambda_init=0.05)
+    late, early = M3P2I(cfg, modes), M3P2I(cfg, modes)
+    kept = []
+    for scale in (1.0, 1e3, 1e-2, 1.0):     # new cost scales: λ is re-tuned every time
+        kept.append(late.update(scale * wiggly_costs(late.sample())))
+        r = early.update(scale * wiggly_costs(early.sample()))
+        kept[-1:] = [(kept[-1], r.diag.clone())]
+    assert len({float(r.lambdas[0]) for r, _ in kept}) == 4
+    for r, diag in kept:
+        assert r.diag.dtype == torch.float64 and r.diag.device.type == "cpu"
+        assert torch.equal(r.diag, diag)
+        n = len(modes)
+        assert torch.equal(r.lambdas, diag[3 * n + 1:4 * n + 1]) and r.num_modes == n
+        assert float(r.mode_weights.sum()) == pytest.approx(1.0)
+
+
 def test_diverged_rollouts_get_zero_weight():
     planner = M3P2I(cfg_of(), [ModeSpec("a", 20), ModeSpec("b", 20)])
     v = planner.sample()
@@ -326,6 +346,16 @@ def test_one_modes_steady_weighing_is_the_general_one_bit_for_bit(monkeypatch):
     assert temperature._weigh_steady(rng.random(200), np.full(2, 1e-9), (3.0, 10.0)) is None
     short, general = both(costs, np.full(2, 0.1), (3.0, 10.0))
     assert np.array_equal(short.w, general.w) and short.w[:, [4, 9]].sum() == 0.0
+    # each kind of non-finite cost alone: NaN, -inf and no finite cost go the general way;
+    # diverged rollouts (+inf) among finite ones are weighed short, to the same bits
+    for bad, short_path in ((math.nan, False), (-math.inf, False), (math.inf, True)):
+        costs = rng.random(200)
+        costs[[7, 50]] = bad
+        assert (temperature._weigh_steady(costs, np.full(2, 0.1), None) is not None) == short_path
+        short, general = both(costs, np.full(2, 0.1), None)
+        for field in ("w", "eta", "beta", "lam", "best", "costs"):
+            assert np.array_equal(getattr(short, field), getattr(general, field)), (bad, field)
+    assert temperature._weigh_steady(np.full(200, math.inf), np.full(2, 0.1), None) is None
 
 
 def test_planner_etas_stay_in_window_across_iterations():

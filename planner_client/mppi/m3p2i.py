@@ -12,7 +12,7 @@ from __future__ import annotations
 import functools
 import math
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 import torch
@@ -21,25 +21,24 @@ from torch import Tensor
 from .config import MPPIConfig, ModeSpec
 from .sampling import make_noise
 from .smoothing import savgol_matrix, smooth
-from .temperature import finite_costs, softmin_weights, weigh
+from .temperature import Weights, finite_costs, softmin_weights, weigh
 
 
 @dataclass(frozen=True)
 class PlanResult:
     """Outcome of one planner iteration (before the warm-start shift).
 
-    The per-mode figures live in one array, :attr:`diag`, read through properties: made as
-    one host array (one transfer on a GPU), and sliced only when someone reads them (the loop
-    reads the mode weights for a viewer only), which a dozen tensor views an iteration did
-    not.
+    The per-mode figures live in one host array, :attr:`diag`, read through properties: made
+    from the update's host weighting when first read (a single mode's loop reads them for a
+    viewer only; several modes' reads the mode weights to pick the dominant one), so an
+    iteration nobody inspects pays neither its three calls nor a dozen tensor views.
 
     Attributes:
         U: ``[T, nu]`` fused, smoothed, bounded control sequence (paper Eq. 12).
         best: ``[N, T, nu]`` lowest-cost sample sequence of each mode.
         fused: ``[N + 1, S]`` weights of each mode's problem (a row is 0 outside the mode's
             samples) and, last, the fused weights ω̃ (paper Eq. 9).
-        diag: ``[4N + 2]`` mode weights ``[N]``, mode costs ``[N]``, η ``[N + 1]`` and λ
-            ``[N + 1]`` (each mode's, then the fused one's); see the properties.
+        make_diag: makes :attr:`diag`'s values, a float64 host array ``[4N + 2]``.
         finite: ``False`` when no sample had a finite cost (every rollout diverged, or the
             objective returned NaN/inf) or the fused plan is not finite. All weights are then 0
             and ``U`` is the previous plan, no answer to the current costs: the caller should
@@ -49,8 +48,15 @@ class PlanResult:
     U: Tensor
     best: Tensor
     fused: Tensor
-    diag: Tensor
     finite: bool
+    make_diag: Callable[[], np.ndarray] = field(repr=False, compare=False)
+
+    @functools.cached_property
+    def diag(self) -> Tensor:
+        """``[4N + 2]`` float64 on the CPU whatever the planner's device: mode weights ``[N]``,
+        mode costs ``[N]``, η ``[N + 1]`` and λ ``[N + 1]`` (each mode's, then the fused
+        one's); see the properties."""
+        return torch.from_numpy(self.make_diag())
 
     @property
     def u0(self) -> Tensor:
@@ -60,7 +66,7 @@ class PlanResult:
     @property
     def num_modes(self) -> int:
         """N."""
-        return (self.diag.shape[0] - 2) // 4
+        return self.best.shape[0]
 
     @property
     def weights(self) -> Tensor:
@@ -101,6 +107,14 @@ class PlanResult:
     def fused_lambda(self) -> Tensor:
         """``[]`` temperature λ of the fused weights."""
         return self.diag[4 * self.num_modes + 1]
+
+
+def _diagnostics(wt: Weights, starts: list[int]) -> np.ndarray:
+    """:attr:`PlanResult.diag` of an update's weighting ``wt`` of N modes whose rows start at
+    ``starts [N]``: each mode's share of the fused weights, β_i, η and λ (the modes', then
+    the fused one's)."""
+    n = len(starts)
+    return np.concatenate([np.add.reduceat(wt.w[n], starts), wt.beta[:n], wt.eta, wt.lam])
 
 
 def trajectory_costs(step_costs: Tensor, discount: Tensor) -> Tensor:
@@ -258,6 +272,12 @@ class _Common:
             return math.isfinite(x.numpy().sum())
         return math.isfinite(float(x.sum()))
 
+    def finite_row(self, x: Tensor, i: int) -> bool:
+        """:meth:`finite` of ``x[i]``, on the CPU without torch's select."""
+        if self.device.type == "cpu":
+            return math.isfinite(x.numpy()[i].sum())
+        return math.isfinite(float(x[i].sum()))
+
     def zeros(self, *lead: int) -> Tensor:
         return torch.zeros(*lead, self.cfg.horizon, self.cfg.nu, dtype=self.dtype,
                            device=self.device)
@@ -268,14 +288,14 @@ class _Common:
             u = smooth(self.savgol, u)
         return self.box.project(u)
 
-    def finish_and_shift(self, flat: Tensor) -> Tensor:
-        """:meth:`finish_mean` of flat means ``[M, T·nu]`` and the result shifted by one
-        step (:func:`shift`), ``[M, 2, T, nu]``: one product with :attr:`smooth_shift` and one
+    def finish_and_shift(self, flat: Tensor) -> tuple[Tensor, Tensor]:
+        """:meth:`finish_mean` of flat means ``[M, T·nu]``, ``[M, T, nu]``, and the same
+        shifted by one step (:func:`shift`): one product with :attr:`smooth_shift` and one
         clamp (the projection commutes with a whole-step shift, a selection of steps)."""
         both = flat @ self.smooth_shift
         if self.box.active:
             torch.clamp(both, self.flat_lo, self.flat_hi, out=both)
-        return both.view(flat.shape[0], 2, self.cfg.horizon, self.cfg.nu)
+        return both.view(flat.shape[0], 2, self.cfg.horizon, self.cfg.nu).unbind(1)
 
     def check_costs(self, step_costs: Tensor, samples: int) -> Tensor:
         shape = (samples, self.cfg.horizon)
@@ -349,9 +369,9 @@ class MPPI:
         if not finite:      # no finite cost (all weights 0): keep U and the best, flag the result
             u, best = self.U, self._best
         # one mode: its weights are the fused ones, all the weight is its own
-        diag = c.tensor(np.array([1.0, rho, eta, eta, lam, lam], dtype=np.float64))
-        result = PlanResult(U=u, best=best[None], fused=w.expand(2, -1), diag=diag,
-                            finite=finite)
+        diag = functools.partial(np.array, [1.0, rho, eta, eta, lam, lam], dtype=np.float64)
+        result = PlanResult(U=u, best=best[None], fused=w.expand(2, -1), finite=finite,
+                            make_diag=diag)
         self.U, self._best = shift(u), shift(best)
         return result
 
@@ -371,6 +391,7 @@ class _Layout:
     """Where N modes' samples sit in the rows of ``[S]``: grouped by mode, in mode order."""
 
     slices: list[slice]  # [N] rows of each mode
+    starts: list[int]    # [N] first row of each mode (slices' starts)
     row_mode: Tensor     # [S] mode of each sample row
     first: Tensor        # [N] first row of each mode
     last: Tensor         # [N] last row of each mode
@@ -381,6 +402,7 @@ class _Layout:
         k = torch.tensor(counts, device=device)
         first = torch.as_tensor(starts, device=device)
         return _Layout(slices=[slice(int(a), int(a) + n) for a, n in zip(starts, counts)],
+                       starts=[int(a) for a in starts],
                        row_mode=torch.repeat_interleave(torch.arange(len(counts), device=device), k),
                        first=first, last=first + k - 1)
 
@@ -560,28 +582,23 @@ class M3P2I:
         flat = w @ v.reshape(S, T * nu)                                # [N + 1, T·nu]
         if c.cfg.alpha_u != 1.0:
             flat[n] = torch.lerp(self._plans[n].reshape(-1), flat[n], c.cfg.alpha_u)
-        both = c.finish_and_shift(flat)                                # [N + 1, 2, T, nu]
-        plans = both.select(1, 0)
+        plans, shifted = c.finish_and_shift(flat)                      # [N + 1, T, nu] each
         best = v.index_select(0, c.rows(wt.best))
         alive = wt.eta > 0                                             # [N + 1]
-        alive[n] &= c.finite(plans[n])
+        alive[n] &= c.finite_row(plans, n)
         finite = bool(alive[n])
-
-        # the per-mode diagnostics as one host array (PlanResult reads them through views)
-        diag = c.tensor(np.concatenate([
-            np.add.reduceat(wt.w[n], [rows.start for rows in lay.slices]),    # mode weights
-            wt.beta[:n], wt.eta, wt.lam]))
         if alive.all():
             self._unshifted = (plans, best)
             self._steps = 1.0
-            self._plans, self._best = both.select(1, 1), shift(best)
+            self._plans, self._best = shifted, shift(best)
         else:
             keep = torch.from_numpy(alive).to(c.device)[:, None, None]
             plans = torch.where(keep, plans, self._plans)
             best = torch.where(keep[:n], best, self._best)
             self._unshifted = (plans, best)
             self._retime(1.0)
-        return PlanResult(U=plans[n], best=best, fused=w, diag=diag, finite=finite)
+        return PlanResult(U=plans[n], best=best, fused=w, finite=finite,
+                          make_diag=functools.partial(_diagnostics, wt, lay.starts))
 
     def command(self, evaluate: Callable[[Tensor], Tensor]) -> PlanResult:
         """sample -> ``evaluate(V) -> [S, T]`` step costs -> update."""

@@ -136,14 +136,16 @@ def weigh(costs: np.ndarray, modes: Sequence[slice], lam: np.ndarray,
 
 def _weigh_steady(costs: np.ndarray, lam: np.ndarray,
                   eta_bounds: tuple[float, float] | None) -> Weights | None:
-    """:func:`weigh` of one mode whose costs ``[S]`` are all finite and whose λ (``lam [2]``,
+    """:func:`weigh` of one mode whose costs ``[S]`` have no NaN or -inf and whose λ (``lam [2]``,
     equal) keeps η in its window: a planner's usual iteration, in a third of the NumPy calls
     (each pays for its code again after a rollout) and to the same bits. ``None`` in any
     other case, for :func:`weigh` to handle."""
-    if not math.isfinite(costs.sum()):              # one sum finds a NaN or infinite cost
-        return None
-    k = int(costs.argmin())
+    k = int(costs.argmin())                         # a NaN's row if there is one
     beta = costs[k]
+    # β is NaN with a NaN cost, -inf with a -inf one, +inf with no finite one: the general
+    # path's cases; a +inf cost among finite ones has weight exp(-inf) = 0 here as there
+    if not math.isfinite(beta):
+        return None
     e = np.subtract(costs, beta)                    # the gaps d (cost_gaps)
     np.exp(np.divide(e, -lam[0], out=e), out=e)     # exp(-d/λ), as gap_weights computes it
     eta = e.sum()
