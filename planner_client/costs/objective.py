@@ -77,8 +77,9 @@ class Objective:
         layout, split = self._fused.get(key, (None, None))
         if layout is not batch.layout:
             weighted = self._weighted(key[0], sd.dtype, sd.device)
-            norms = [(term, w) for term, w in weighted if fusable([term])]
-            rest = [(term, w) for term, w in weighted if not fusable([term])]
+            norms, rest = [], []
+            for term, w in weighted:
+                (norms if fusable([term]) else rest).append((term, w))
             split = ((NormObjective(norms, batch.layout, sd.shape[-1]), rest) if len(norms) > 1
                      else (None, weighted))
             self._fused[key] = (batch.layout, split)
