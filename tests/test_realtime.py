@@ -21,7 +21,7 @@ from shared.scenario import load_scenario
 from shared.scene import compile_model, reset_data
 from shared.timed_plan import PlanPlayer, TimedPlan, held, playing
 from planner_client.mppi import M3P2I, MPPIConfig, ModeSpec
-from planner_client.mppi.m3p2i import shift
+from planner_client.mppi.shift import shift
 from planner_client.timing import LeadEstimate, predict, steps_between
 from tests.helpers import free_port_block, start_server, stop
 

@@ -5,6 +5,8 @@ per-step costs ``[S, T]``. See docs/mppi.md for the equations and parameters.
 """
 
 from .config import MPPIConfig, ModeSpec
-from .m3p2i import M3P2I, MPPI, PlanResult
+from .m3p2i import M3P2I
+from .mppi import MPPI
+from .result import PlanResult
 
 __all__ = ["M3P2I", "MPPI", "MPPIConfig", "ModeSpec", "PlanResult"]
