@@ -29,7 +29,7 @@ fault and episode to ``soak.json`` next to the episode logs:
   MiB from its first sample after it started driving to its last.
 
     nice -n 10 python scripts/soak.py --duration 600 --results docs/soak/soak-600s.json
-    python scripts/soak.py --report docs/soak/soak-600s.json --update README.md
+    python scripts/soak.py --report docs/soak/soak-600s.json --update docs/reliability.md
 
 Loopback only, bounded in time (duration + a minute at most) and in faults and episodes.
 """
@@ -650,7 +650,7 @@ class Soak:
 # ---------------------------------------------------------------- reporting
 
 def markdown(results: dict, source: str) -> str:
-    """The README's reliability table, from a results file."""
+    """The reliability table of docs/reliability.md, from a results file."""
     lines = ["| check | holds | measured |", "|---|:---:|---|"]
     for c in results["checks"]:
         lines.append(f"| {c['name']} | {'yes' if c['ok'] else '**no**'} | {c['detail']} |")
@@ -721,7 +721,7 @@ def main(
     Exit status 0 only when every check holds; 2 for bad options.
 
     Example: nice -n 10 python scripts/soak.py --duration 600 --results docs/soak/soak-600s.json;
-    then python scripts/soak.py --report docs/soak/soak-600s.json --update README.md"""
+    then python scripts/soak.py --report docs/soak/soak-600s.json --update docs/reliability.md"""
     if report is not None or update_file is not None:
         if update_file is not None:
             update_file.write_text(update(update_file.read_text(), update_file.parent))

@@ -57,6 +57,14 @@ class ObjectHandle:
         data.qvel[self.dof:self.dof + 6] = 0.0
 
 
+def path_length(cfg: PathConfig) -> float:
+    """Metres from the first waypoint to the last (back to the first too when ``loop``)."""
+    points = np.array(cfg.waypoints)
+    if cfg.loop:
+        points = np.vstack([points, points[:1]])
+    return float(np.linalg.norm(np.diff(points, axis=0), axis=1).sum())
+
+
 def path_point(cfg: PathConfig, t: float) -> np.ndarray:
     """Position on the waypoint polyline after ``t`` seconds of motion at ``cfg.speed``."""
     points = np.array(cfg.waypoints)
@@ -74,7 +82,13 @@ def path_point(cfg: PathConfig, t: float) -> np.ndarray:
 
 
 class Disturbances:
-    """Applies randomisation at reset and scripted moves/paths before each world step."""
+    """Applies randomisation at reset and scripted moves/paths before each world step.
+
+    Events (logged as ``disturbance``): a move's ``{object, pos, yaw, time}`` when it fires; a
+    path's ``{object, pos, yaw: None, time, path: "start"}`` at the step it starts (the object
+    jumps from its scenario ``pos`` to the first waypoint) and, without ``loop``, ``{...,
+    path: "end"}`` at the step it reaches its last waypoint, where it then stays. A looping path
+    logs its start only: one event per path and episode, not one per step."""
 
     def __init__(self, model: mujoco.MjModel, resolve: FrameResolver,
                  randomize: tuple[RandomizeConfig, ...],
@@ -87,11 +101,13 @@ class Disturbances:
         self.handles = {n: ObjectHandle(model, n) for n in names}
         self._done: set[int] = set()
         self._held_since: dict[int, float] = {}     # move index -> when its `when` first held
+        self._path_phase: dict[int, str] = {}       # path index -> "start" / "end" logged
 
     def reset(self, data: mujoco.MjData, rng: np.random.Generator) -> list[dict]:
         """Draw the randomised start poses; returns what was drawn, for the episode log."""
         self._done.clear()
         self._held_since.clear()
+        self._path_phase.clear()
         drawn = []
         for c in self.randomize:
             h = self.handles[c.object]
@@ -106,12 +122,27 @@ class Disturbances:
             drawn.append({"object": c.object, "pos": pos.tolist(), "yaw": yaw})
         return drawn
 
+    @staticmethod
+    def _path_event(p: PathConfig, pos: np.ndarray, time: float, phase: str) -> dict:
+        return {"object": p.object, "pos": [float(v) for v in pos], "yaw": None,
+                "time": float(time), "path": phase}
+
     def apply(self, data: mujoco.MjData, extras: dict[str, float]) -> list[dict]:
         """Before a step at ``data.time``: move path objects, fire due moves; returns events."""
         events = []
-        for p in self.paths:
-            if data.time >= p.start:
-                self.handles[p.object].set(data, path_point(p, data.time - p.start))
+        for i, p in enumerate(self.paths):
+            if data.time < p.start - 1e-9:          # as a move's `at`: float steps
+                continue
+            moved = max(data.time - p.start, 0.0)
+            pos = path_point(p, moved)
+            self.handles[p.object].set(data, pos)
+            phase = self._path_phase.get(i)
+            if phase is None:
+                phase = self._path_phase[i] = "start"
+                events.append(self._path_event(p, pos, data.time, phase))
+            if phase == "start" and not p.loop and p.speed * moved >= path_length(p) - 1e-9:
+                self._path_phase[i] = "end"
+                events.append(self._path_event(p, pos, data.time, "end"))
         view = WorldView(data, extras)
         for i, (m, when) in enumerate(self.moves):
             if i in self._done or data.time < m.at - 1e-9:

@@ -241,6 +241,12 @@ def test_sparse_norm_is_the_norm_with_zero_vectors_at_a_vanishing_floor():
     assert torch.equal(costs + untouched, costs)
 
 
+def test_collision_rejects_sites(ctx):
+    # a site has no geoms: MuJoCo's distance sensor would not compile; the error names the key
+    with pytest.raises(ConfigError, match=r"o\.terms\[0\]\.a: distances need a body"):
+        make(ctx, "collision", a="site:left")
+
+
 def test_contact_force_rejects_sites(ctx):
     with pytest.raises(ConfigError, match=r"o\.terms\[0\]\.a: contact forces need a body"):
         make(ctx, "contact_force", a="site:left")

@@ -142,7 +142,7 @@ def test_bench_files_are_looked_up_like_scenarios(user):
     assert Path(load_bench("paper").source) == shipped("bench", "paper.yaml")
     out = cli("list", "bench").output.splitlines()
     assert out[:2] == ["./configs/bench (current folder):", "  mine"]
-    with pytest.raises(ConfigError, match=r"no such bench file or name .*one of: mine, paper, realtime, robustness, samples;"):
+    with pytest.raises(ConfigError, match=r"no such bench file or name .*one of: mine, paper, planning-model, realtime, robustness, samples;"):
         load_bench("nope")
 
 

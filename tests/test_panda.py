@@ -55,7 +55,7 @@ def test_placed_is_success_and_the_shelf_template_offers_both_grasps():
 #
 # Two seeds of each Panda scenario, run in parallel (tests/episodes.py). Success is asserted as a
 # rate, at least one of the two: over 50 seeds each scenario succeeds in at least 98 % (README,
-# Evaluation), so both seeds failing on another machine has a probability under 0.1 %. Every
+# Results), so both seeds failing on another machine has a probability under 0.1 %. Every
 # episode, successful or not, must show what does not depend on the chaotic details: the order
 # of active inference's decisions, the re-grasp after a disturbance, the grasp the mode chose.
 

@@ -2,7 +2,7 @@
 lock-step over loopback, a few seeds of each case run in parallel (tests/episodes.py).
 
 Success is asserted as a rate with a margin taken from the bench (`m3p2i bench`, 20-60 seeds per
-case; README, Evaluation), never on one seed: another machine rounds differently and a pushed
+case; docs/results.md), never on one seed: another machine rounds differently and a pushed
 box's contacts amplify it. What holds in every episode is asserted in every episode: the pinned
 suction of each mode, the moving obstacle never touched, active inference's choice of actions.
 """

@@ -34,6 +34,11 @@ class Collision(CostTerm):
     @classmethod
     def from_params(cls, s, ctx):
         a = ctx.frame(s, "a")
+        if ctx.resolve(a).kind == mujoco.mjtObj.mjOBJ_SITE:
+            # MuJoCo's distance sensor measures a body's own geoms (not its children's); a site
+            # has none, and the model would not compile
+            raise s.error("a", "distances need a body, not a site", a,
+                          "a body name, e.g. panda_hand (its own geoms, not the fingers)")
         names = ctx.bodies(s, "obstacles", tuple(ctx.obstacles))
         return cls(a=a, obstacles=tuple(n for n in names if n != a),
                    margin=s.opt("margin", 0.1, positive, "metres > 0"))

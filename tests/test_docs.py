@@ -1,0 +1,86 @@
+"""The README and docs stay legible: the README and docs/speed.md are short, each generated
+table has one home (no results file feeds blocks in two files), every relative link and anchor
+resolves, and docs/architecture.md exists and names the import-rules test."""
+
+from __future__ import annotations
+
+import re
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+DOCS = [ROOT / "README.md", *sorted((ROOT / "docs").glob("*.md"))]
+LINKED = [*DOCS, *(p for p in [ROOT / "CHANGELOG.md"] if p.exists())]
+
+# `<!-- m3p2i report A B -->`, `<!-- m3p2i grid A -->`, `<!-- soak A -->`, `<!-- benchmark A -->`
+BLOCK = re.compile(r"^<!-- (?:m3p2i (?:report|grid)|soak|benchmark) (?P<sources>[^>]*?) -->$", re.M)
+LINK = re.compile(r"(?<!`)\[[^\]]*\]\((?P<target>[^)\s]+)\)")
+FENCE = re.compile(r"^```.*?^```", re.S | re.M)
+
+
+def _lines(path: Path) -> int:
+    return len(path.read_text(encoding="utf-8").splitlines())
+
+
+def test_the_readme_and_the_speed_page_are_short():
+    assert _lines(ROOT / "README.md") <= 150
+    assert _lines(ROOT / "docs" / "speed.md") <= 150
+
+
+def block_sources(text: str) -> list[str]:
+    return [s for m in BLOCK.finditer(text) for s in m["sources"].split()]
+
+
+def test_each_generated_table_has_one_home():
+    homes: dict[Path, set[Path]] = {}
+    for doc in DOCS:
+        for source in block_sources(doc.read_text(encoding="utf-8")):
+            path = (doc.parent / source).resolve()
+            assert path.is_file(), f"{doc.relative_to(ROOT)}: block source {source} is not a file"
+            homes.setdefault(path, set()).add(doc)
+    shared = {str(p.relative_to(ROOT)): sorted(str(d.relative_to(ROOT)) for d in docs)
+              for p, docs in homes.items() if len(docs) > 1}
+    assert not shared, f"results files feeding blocks in more than one file: {shared}"
+    assert homes, "no generated block found"
+
+
+def test_block_sources_are_collected_from_every_kind_of_block():
+    text = ("<!-- m3p2i report a.csv b.csv -->\n<!-- end of report -->\n<!-- m3p2i grid c.csv -->\n"
+            "<!-- soak d.json -->\n<!-- benchmark e.json -->\n`<!-- m3p2i report PATH... -->`\n")
+    assert block_sources(text) == ["a.csv", "b.csv", "c.csv", "d.json", "e.json"]
+
+
+def anchors(path: Path) -> set[str]:
+    """GitHub's heading anchors: lower case, punctuation but - and _ dropped, spaces to -."""
+    text = FENCE.sub("", path.read_text(encoding="utf-8"))
+    out = set()
+    for m in re.finditer(r"^#{1,6} (.+)$", text, re.M):
+        slug = re.sub(r"[^\w\- ]", "", m[1].strip().lower()).replace(" ", "-")
+        out.add(slug)
+    return out
+
+
+def broken_links(doc: Path) -> list[str]:
+    text = FENCE.sub("", doc.read_text(encoding="utf-8"))
+    text = re.sub(r"`[^`]*`", "", text)
+    bad = []
+    for m in LINK.finditer(text):
+        target = m["target"]
+        if re.match(r"[a-z]+:", target):               # http(s), mailto: not checked offline
+            continue
+        file, _, anchor = target.partition("#")
+        path = (doc.parent / file).resolve() if file else doc
+        if not path.exists():
+            bad.append(f"{target}: no such file")
+        elif anchor and path.suffix == ".md" and anchor not in anchors(path):
+            bad.append(f"{target}: no heading #{anchor}")
+    return bad
+
+
+def test_every_link_in_the_readme_and_docs_resolves():
+    bad = {str(d.relative_to(ROOT)): broken_links(d) for d in LINKED}
+    assert not {k: v for k, v in bad.items() if v}, bad
+
+
+def test_the_architecture_page_names_the_import_rules_test():
+    text = (ROOT / "docs" / "architecture.md").read_text(encoding="utf-8")
+    assert "tests/test_import_rules.py" in text
