@@ -1,8 +1,9 @@
 """Errors up front: every error of a scenario file at once, before any process starts.
 
-``m3p2i check`` and ``m3p2i run`` merge what the world (``server.check``) and the planner
-(``planner_client.check``) find: load-time faults (types, unknown keys) and the names only the
-compiled model or the planner's registries can confirm (frames, actuators, cost terms).
+``m3p2i check`` and ``m3p2i run`` merge what the world (``server.world_check``) and the
+planner (``planner_client.planner_check``) find: load-time faults (types, unknown keys) and the
+names only the compiled model or the planner's registries can confirm (frames, actuators, cost
+terms).
 """
 
 from __future__ import annotations
@@ -13,8 +14,8 @@ import pytest
 import yaml
 from typer.testing import CliRunner
 
-from planner_client import check as planner_check
-from server import check as server_check
+from planner_client import planner_check
+from server import world_check as server_check
 from shared.config import ConfigError, ConfigErrors
 from shared.frames import FrameResolver
 from shared.scenario import SCENARIO_DIR, parse_scenario, read_scenario

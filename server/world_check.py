@@ -11,7 +11,7 @@ import os
 
 import mujoco
 
-from shared.check import scenario_errors as _scenario_errors
+from shared.scenario_check import scenario_errors as _scenario_errors
 from shared.config import ConfigError, ErrorLog
 from shared.evaluation.metrics import MetricsEvaluator
 from shared.frames import FrameResolver

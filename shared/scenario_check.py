@@ -2,7 +2,7 @@
 
 Loading collects the file's own faults (:func:`shared.scenario.read_scenario`); then, when the
 robot and world were read cleanly, each process checks what it resolves against the compiled
-model (``server.check``, ``planner_client.check``), through :func:`scenario_errors`.
+model (``server.world_check``, ``planner_client.planner_check``), through :func:`scenario_errors`.
 """
 
 from __future__ import annotations

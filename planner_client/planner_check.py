@@ -13,7 +13,7 @@ import os
 
 import mujoco
 
-from shared.check import scenario_errors as _scenario_errors
+from shared.scenario_check import scenario_errors as _scenario_errors
 from shared.config import ConfigError, ErrorLog
 from shared.frames import FrameResolver
 from shared.predicates import check_frames
