@@ -122,6 +122,36 @@ def test_a_faulty_world_skips_the_model_checks(tmp_path):
     assert [e.path for e in errors] == ["world.objects[3].shape"]
 
 
+def test_a_misspelt_frame_is_reported_beside_a_fault_that_stops_the_model(tmp_path):
+    # the arena's type error means no model of the file; the objective's frame is still looked
+    # up, against the robot's bodies and sites and the objects the world declares
+    raw = _nav()
+    raw["world"]["arena"]["half_size"] = "big"
+    raw["objectives"]["navigate"]["terms"][0]["b"] = "gaol"
+    path = _write(tmp_path, raw)
+    result = CliRunner().invoke(app, ["check", str(path)])
+    assert result.exit_code == 2, result.output
+    assert "world.arena.half_size: wrong type" in result.output
+    assert "objectives.navigate.terms[0].b" in result.output and "'gaol'" in result.output
+    assert "2 errors" in result.output
+    planner = [str(e) for e in planner_check.scenario_errors(path)]
+    assert len(planner) == 2 and "one of: robot" in planner[1] and "goal" in planner[1], planner
+
+
+def test_names_of_a_faulty_world_are_checked_against_what_it_declares(tmp_path):
+    # a faulty object still declares its name; the walls of a faulty arena are still there;
+    # the world's other faults are all reported, not only the first
+    raw = _nav()
+    raw["world"]["arena"]["half_size"] = -1
+    raw["world"]["objects"][0]["shape"] = "cone"                  # block_a
+    raw["episode"]["success"].append({"near": {"a": "robot", "b": "block_a", "within": 0.1}})
+    raw["episode"]["success"].append({"near": {"a": "wall_north", "b": "pilar",
+                                               "within": 0.1}})
+    errors = server_check.scenario_errors(_write(tmp_path, raw))
+    assert [e.path for e in errors] == ["world.arena.half_size", "world.objects[0].shape",
+                                        "episode.success[2].near.b"], errors
+
+
 def test_observer_frames_and_pinned_actuators_are_checked_together(tmp_path):
     raw = yaml.safe_load((SCENARIO_DIR / "push_pull_aip.yaml").read_text())
     raw = copy.deepcopy(raw)
