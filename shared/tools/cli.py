@@ -67,32 +67,39 @@ def layout(
     scenario: ScenarioArgument,
     as_json: bool = typer.Option(False, "--json", help="Print one JSON object instead of "
                                  "tables (keys: scenario, scenario_hash, robot, dt, sizes, nu, "
-                                 "qpos, qvel, act, mocap, ctrl, extras), for bridges and tools "
-                                 "in other languages."),
+                                 "qpos, qvel, act, mocap, ctrl, extras, frames), for bridges "
+                                 "and tools in other languages."),
 ) -> None:
     """Print what a world (a hardware bridge) must send and accept for SCENARIO, by name:
     each index of state.qpos and state.qvel with its joint, component, unit and frame; each
     row of mocap_pos/mocap_quat with its body; each index of command.ctrl with its actuator,
-    unit, range and safe value; the state.extras the scenario needs.
+    unit, range and safe value; the state.extras the scenario needs. Then the frames the
+    scenario's YAML may name: the robot's bodies and sites (site:NAME), the objects, the walls.
 
     The planner stops (exit code 3) when a world's first state has other sizes than these."""
     import json
 
     from rich.console import Console
 
-    from shared.layout import bridge_layout
+    from dataclasses import asdict
+
+    from shared.layout import bridge_layout, frame_names
     from shared.scene import compile_model
-    from shared.tools.layout_table import print_layout
+    from shared.tools.layout_table import print_frames, print_layout
     try:
         sc = load_scenario(scenario)
-        found = bridge_layout(sc, compile_model(sc))
+        model = compile_model(sc)
+        found, frames = bridge_layout(sc, model), frame_names(sc, model)
     except (ConfigError, ValueError) as exc:
         typer.echo(f"error: {exc}", err=True)
         raise typer.Exit(2) from None
     if as_json:
-        typer.echo(json.dumps(found.to_dict(), indent=1))
+        typer.echo(json.dumps({**found.to_dict(), "frames": [asdict(f) for f in frames]},
+                              indent=1))
         return
-    print_layout(found, Console(width=None if sys.stdout.isatty() else 200))
+    console = Console(width=None if sys.stdout.isatty() else 200)
+    print_layout(found, console)
+    print_frames(frames, console)
 
 
 @app.command("run")
