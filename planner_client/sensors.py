@@ -89,8 +89,8 @@ def add_sensors(spec: mujoco.MjSpec, requests: list[SensorRequest], resolve: Fra
 
 
 class SensorColumns:
-    """Columns of ``sensordata`` for each request (``spans``) (:meth:`of_model` looks them up in a compiled
-    model)."""
+    """Columns of ``sensordata`` for each request (``spans``; :meth:`of_model` looks them up in
+    a compiled model)."""
 
     def __init__(self, columns: dict[SensorRequest, slice]):
         self.spans = columns

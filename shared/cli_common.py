@@ -25,7 +25,7 @@ ScenarioArgument = Annotated[str, typer.Argument(help=SCENARIO_HELP)]
 Host = Annotated[str, typer.Option(
     "--host", help="The world's address: the one m3p2i-server binds (loopback by default), the "
     "one the planner and the view connect to. A network address (e.g. 0.0.0.0 on the world's "
-    "side) needs --keys, or --insecure.")]
+    "side) needs --keys (or, on m3p2i-server and m3p2i-planner, --insecure).")]
 Port = Annotated[int, typer.Option(
     "--port", help="The world's first port: control; the state is published on PORT+1, "
     "commands arrive on PORT+2, the planner's diagnostics are on PORT+3.")]

@@ -94,7 +94,8 @@ def batch_of(values: dict[SensorRequest, list], controls=None, dt: float = 0.1) 
     sensordata = torch.cat(blocks, dim=-1)
     if controls is None:
         controls = torch.zeros(*sensordata.shape[:2], 2, dtype=F64)
-    return RolloutBatch(sensordata, torch.as_tensor(controls, dtype=F64), SensorColumns(columns), dt)
+    return RolloutBatch(sensordata, torch.as_tensor(controls, dtype=F64), SensorColumns(columns),
+                        dt)
 
 
 def test_a_terms_sensors_are_read_in_request_order_wherever_they_lie():
@@ -587,7 +588,8 @@ def test_all_terms_together_compile_and_give_finite_costs_at_rest(model, ctx):
     d = mujoco.MjData(m)
     mujoco.mj_forward(m, d)
     sd = torch.as_tensor(np.tile(d.sensordata, (3, 4, 1)))
-    b = RolloutBatch(sd, torch.zeros(3, 4, m.nu, dtype=F64), SensorColumns.of_model(m, requests), 0.01)
+    b = RolloutBatch(sd, torch.zeros(3, 4, m.nu, dtype=F64), SensorColumns.of_model(m, requests),
+                     0.01)
     for term in terms:
         cost = term(b)
         assert cost.shape == (3, 4) and torch.isfinite(cost).all(), term.name

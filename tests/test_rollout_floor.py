@@ -1,5 +1,6 @@
-"""planner_client.rollout_floor (scripts/rollout_floor.py): the bare rollout of a planner's own model, with parts of its physics
-switched off, really runs those models (what it prints is timing, not tested here)."""
+"""planner_client.rollout_floor (scripts/rollout_floor.py): the bare rollout of a planner's own
+model, with parts of its physics switched off, really runs those models (what it prints is
+timing, not tested here)."""
 
 from __future__ import annotations
 

@@ -69,9 +69,9 @@ class Objective:
 
     def _split(self, batch: RolloutBatch) -> tuple[NormObjective | None,
                                                    list[tuple[CostTerm, torch.Tensor]]]:
-        """The fused form of this objective's norm terms for the batch's sensor columns, shapes and
-        device, and its other weighted terms; made once per columns object. ``None`` and all the terms
-        when fewer than two are norms (one alone is as fast on its own)."""
+        """The fused form of this objective's norm terms for the batch's sensor columns, shapes
+        and device, and its other weighted terms; made once per columns object. ``None`` and all
+        the terms when fewer than two are norms (one alone is as fast on its own)."""
         sd = batch.sensordata
         key = (batch.controls.shape[1], sd.shape[-1], sd.dtype, sd.device)
         columns, split = self._fused.get(key, (None, None))
