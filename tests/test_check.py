@@ -112,8 +112,9 @@ def test_one_error_is_still_a_plain_config_error():
     assert info.value.path == "episode.max_time"
 
 
-def test_a_faulty_world_skips_the_model_checks(tmp_path):
-    # a model without the faulty object is not the file's: its frame checks would only mislead
+def test_a_faulty_object_still_declares_its_name(tmp_path):
+    # the file's model cannot be built, but the success test's 'goal' is the faulty object's
+    # name: a frame check against a model without it would only mislead
     raw = _nav()
     raw["world"]["objects"][3]["shape"] = "cone"            # the goal marker
     reading = read_scenario(_write(tmp_path, raw))
