@@ -1,4 +1,5 @@
-"""``--help`` of the three programs reads as flowing sentences.
+"""``--help`` of the three programs reads as flowing sentences; their shared options are one
+declaration (shared.cli_common).
 
 Typer's rich help rewraps an option's help and a command's first paragraph, but keeps the hard
 line breaks of a command's later paragraphs: a docstring wrapped at 100 columns in the source
@@ -71,3 +72,36 @@ def test_help_renders_each_paragraph_on_one_line_of_a_wide_terminal(prog, app, a
     for paragraph in _paragraphs(cmd.help or ""):
         flat = " ".join(_plain(paragraph).split())
         assert flat in lines, f"{prog} {' '.join(args)}: {flat!r} not on one line"
+
+
+def _params(app: typer.Typer, *args: str) -> dict[str, click.Parameter]:
+    cmd = typer.main.get_command(app)
+    for name in args:
+        cmd = cmd.commands[name]
+    return {p.name: p for p in cmd.params}
+
+
+def test_shared_options_are_declared_once():
+    # the same flags, help and type wherever the three programs share an option
+    server, planner = _params(server_app), _params(planner_app)
+    run, view = _params(m3p2i_app, "run"), _params(m3p2i_app, "view")
+    for name, where in (("host", (server, planner, view)), ("keys", (server, planner, run, view)),
+                        ("insecure", (server, planner)), ("verbose", (server, planner, run)),
+                        ("mode", (server, run)), ("hardware", (server, run)),
+                        ("plan_every", (server, run)), ("window", (server, run)),
+                        ("estimate_delays", (planner, run))):
+        shown = {(tuple(p[name].opts), tuple(p[name].secondary_opts), p[name].help)
+                 for p in where}
+        assert len(shown) == 1, (name, shown)
+    assert server["scenario"].opts == planner["scenario"].opts == ["--scenario", "-s"]
+
+
+def test_the_mujoco_window_keeps_its_old_name():
+    # --window (MuJoCo's window) beside m3p2i run's --view (the browser page); --viewer, its
+    # name before, still opens it
+    server = typer.main.get_command(server_app)
+    for args, shown in (([], False), (["--window"], True), (["--viewer"], True)):
+        ctx = server.make_context("m3p2i-server", ["-s", "navigation", *args])
+        assert ctx.params["window"] is shown, args
+    run = typer.main.get_command(m3p2i_app).commands["run"]
+    assert run.make_context("run", ["navigation", "--viewer"]).params["window"] is True
