@@ -10,13 +10,16 @@ from typing import Optional
 
 import typer
 
-from shared.cli_common import print_errors, setup_logging
+from shared.cli_common import (EstimateDelays, Host, Insecure, Keys, Port, ScenarioOption,
+                               Verbose, print_errors, setup_logging)
 from shared.config import ConfigError
 from shared.endpoints import DEFAULT_HOST, DEFAULT_PORT, Endpoints
 from shared.scenario import load_scenario
 from shared.security import ExposureError, keys_for_cli, load_planner_keys
 
-app = typer.Typer(add_completion=False, help=(
+app = typer.Typer(add_completion=False)
+
+HELP = (
     "Run the planner: mirror the world server's state into batched MuJoCo rollouts, choose the "
     "task's modes (fixed, or by active inference), run M3P2I and send commands back.\n\n"
     "Start `m3p2i-server` with the same scenario first (either order works: the planner waits). "
@@ -24,29 +27,21 @@ app = typer.Typer(add_completion=False, help=(
     "authenticated and encrypted. "
     "Exit code: 0 when the episode ends in success, 1 otherwise, 2 on a configuration error, "
     "3 when the server refuses the handshake (scenario, protocol version or key) or its first "
-    "state has other sizes than the scenario's model (`m3p2i layout SCENARIO` prints them)."))
+    "state has other sizes than the scenario's model (`m3p2i layout SCENARIO` prints them).")
 
 log = logging.getLogger("m3p2i.planner")
 
 
-@app.command()
+@app.command(help=HELP)
 def main(
-    scenario: str = typer.Option(..., "--scenario", "-s",
-                                 help="Scenario name (m3p2i list) or YAML path."),
-    host: str = typer.Option(DEFAULT_HOST, help="Server address. A network address needs "
-                             "--keys, or --insecure."),
-    port: int = typer.Option(DEFAULT_PORT, help="Server's first port (control); diagnostics are "
-                             "published on port+3."),
+    scenario: ScenarioOption,
+    host: Host = DEFAULT_HOST,
+    port: Port = DEFAULT_PORT,
     diagnostics_host: str = typer.Option(DEFAULT_HOST, help="Address on this machine to bind "
                                          "the diagnostics (port+3) to; a network address "
                                          "needs --keys, or --insecure."),
-    keys: Optional[Path] = typer.Option(None, help="CURVE key folder made by `m3p2i keys DIR` "
-                                        "(its planner/ part): every socket authenticated and "
-                                        "encrypted; the world must hold the public key in "
-                                        "DIR/planner/world.key and allow this planner's."),
-    insecure: bool = typer.Option(False, "--insecure", help="Allow a network address without "
-                                  "keys (an isolated, trusted network only; warned at every "
-                                  "start)."),
+    keys: Keys = None,
+    insecure: Insecure = False,
     threads: int = typer.Option(0, help="Rollout threads (0: the scenario's planner.threads, "
                                 "else one per core)."),
     server_timeout: float = typer.Option(2.0, help="Seconds of silence before reconnecting."),
@@ -77,23 +72,19 @@ def main(
     state_delay_ms: Optional[float] = typer.Option(
         None, min=0.0, help="Declared state delay (ms from a measurement to its state being "
         "published), overriding planner.delays.state_ms."),
-    estimate_delays: bool = typer.Option(
-        False, "--estimate-delays", help="Measure the robot's delays online "
-        "(planner.delays.estimate): the state delay from the lag the world reports, the "
-        "actuation delay from how the robot answers the controls sent; declared delays stand "
-        "until then (docs/hardware.md)."),
+    estimate_delays: EstimateDelays = False,
     max_rate: float = typer.Option(0.0, min=0.0, help="At most this many plans per second "
                                    "(0: as fast as the machine allows): rehearse what a slower "
                                    "computer does, e.g. a planner under a third of a 100 Hz arm's "
                                    "rate with --max-rate 25 (in real time; lock-step has "
                                    "m3p2i-server --plan-every)."),
-    verbose: bool = typer.Option(False, "--verbose", "-v"),
+    verbose: Verbose = False,
 ) -> None:
     setup_logging(verbose, "m3p2i.planner")
     if not check:   # before anything else: an exposed robot is refused at once
         planner_keys = _security({"--host": host, "--diagnostics-host": diagnostics_host},
                                  keys, insecure)
-    from planner_client.check import scenario_errors
+    from planner_client.planner_check import scenario_errors
     errors = scenario_errors(scenario)     # every error of the file, before anything starts
     print_errors(errors, err=not check)
     if errors or check:

@@ -129,14 +129,14 @@ class MotionPlanner:
                 steps = np.arange(V.shape[1])[:, None, None] * self._dt
                 path = mocap.pos[None] + mocap.vel[None] * steps  # [T, nmocap, 3]
         sd = self.engine.sensors(x0, V, path)                     # [S, T, nsensordata]
-        layout, dt = self.problem.layout, self._dt
+        columns, dt = self.problem.columns, self._dt
         if len(self.modes) == 1:
             self._step_costs = self.problem.objectives[self.modes[0]](
-                RolloutBatch(sd, V, layout, dt))                      # [S, T]
+                RolloutBatch(sd, V, columns, dt))                      # [S, T]
         else:
-            shared = {t.key: t(RolloutBatch(sd, V, layout, dt)) for t in self._shared}
+            shared = {t.key: t(RolloutBatch(sd, V, columns, dt)) for t in self._shared}
             self._step_costs = torch.cat([
-                self.problem.objectives[name](RolloutBatch(sd[rows], V[rows], layout, dt),
+                self.problem.objectives[name](RolloutBatch(sd[rows], V[rows], columns, dt),
                                               {k: v[rows] for k, v in shared.items()})
                 for name, rows in zip(self.modes, self.mppi.mode_slices)])
         result = self.mppi.update(self._step_costs)
@@ -171,7 +171,7 @@ class MotionPlanner:
             picks.append(np.argsort(costs[rows], kind="stable")[:k] + rows.start)
             modes += [i] * k
         best = torch.from_numpy(np.concatenate(picks)).to(sd.device)
-        top = self.problem.layout.take(sd, self.problem.robot_pos).index_select(0, best)
+        top = self.problem.columns.take(sd, self.problem.robot_pos).index_select(0, best)
         return top.cpu().numpy(), np.array(modes, dtype=np.int64)
 
     @property

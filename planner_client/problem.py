@@ -21,7 +21,7 @@ from shared.scene import build_spec, compile_model, free_joint, initial_data, ob
 from planner_client.attach import add_attach_welds
 from planner_client.costs import JointInfo, Objective, TermContext, build_objective
 from planner_client.mppi import MPPIConfig
-from planner_client.sensors import SensorLayout, SensorRequest, add_sensors
+from planner_client.sensors import SensorColumns, SensorRequest, add_sensors
 
 
 @dataclass
@@ -30,7 +30,7 @@ class PlanningProblem:
     robot: RobotSpec
     model: mujoco.MjModel              # with the sensors of every objective
     objectives: dict[str, Objective]
-    layout: SensorLayout
+    columns: SensorColumns             # where each sensor request is in sensordata
     robot_pos: SensorRequest           # the robot frame's position, for diagnostics
     actuators: list[str]
     resolve: FrameResolver
@@ -69,7 +69,7 @@ def build_problem(scenario: Scenario, extra_sensors: list[SensorRequest] = ()) -
     model = compile_model(scenario, spec)
     tune_planning_model(model, scenario.planner.model)
     return PlanningProblem(scenario, robot, model, objectives,
-                           SensorLayout.of_model(model, requests), robot_pos, actuators,
+                           SensorColumns.of_model(model, requests), robot_pos, actuators,
                            FrameResolver(model, robot.frame))
 
 

@@ -5,7 +5,9 @@ headless chromium (WebGL on the CPU); then the same episode's replay page at its
     python scripts/view_screenshots.py pick_place --at 1.8
     python scripts/view_screenshots.py push_pull_corner2 --at 3.0
 
-Needs m3p2i[view] and chromium (apt-get install chromium). Prints the files it wrote.
+Needs m3p2i[view], chromium (apt-get install chromium) and a clone: the photographs are taken
+by the tests' headless browser (tests/browser.py; no command of the product needs one). Prints
+the files it wrote.
 """
 
 from __future__ import annotations
@@ -24,7 +26,10 @@ import zmq
 from shared.endpoints import Endpoints
 from shared.protocol import Control
 from shared.tools.launch import free_port_block
-from shared.tools.view import ControlClient, chromium_screenshot
+from shared.tools.view import ControlClient
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))   # the clone's tests/ package
+from tests.browser import chromium_screenshot  # noqa: E402
 
 
 def _last_time(log: Path) -> float:

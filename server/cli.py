@@ -11,19 +11,23 @@ from typing import Optional
 
 import typer
 
-from shared.cli_common import default_run_dir, print_errors, setup_logging, summary_line
+from shared.cli_common import (MODES, Hardware, Host, Insecure, Keys, Mode, PlanEvery, Port,
+                               RealtimeFactor, ScenarioOption, Verbose, Window, default_run_dir,
+                               print_errors, setup_logging, summary_line)
 from shared.config import ConfigError
 from shared.endpoints import DEFAULT_HOST, DEFAULT_PORT, Endpoints
-from shared.hardware import PROFILES, load_hardware
+from shared.hardware import load_hardware
 from shared.scenario import load_scenario
 from shared.scene import scene_framing
 from shared.security import ExposureError, keys_for_cli, load_world_keys
 from server.app import ServerOptions, WorldServer
-from server.check import scenario_errors
+from server.world_check import scenario_errors
 from server.interface import WorldError, WorldLoadError, load_world_class
 from server.world import SimWorld
 
-app = typer.Typer(add_completion=False, help=(
+app = typer.Typer(add_completion=False)
+
+HELP = (
     "Run the world: a MuJoCo simulation of a scenario that publishes its state over ZeroMQ and "
     "applies the planner's commands.\n\n"
     "Start it, then start `m3p2i-planner` with the same scenario in a second terminal. "
@@ -32,70 +36,52 @@ app = typer.Typer(add_completion=False, help=(
     "encrypted). "
     "A robot instead of the simulation: `--world package.module:Class`, a bridge class of your "
     "own (docs/bridge.md); this process then serves it, handshake, watchdog and log included. "
-    "Exit code: 0 on success, 1 on time-out or stop, 2 on a configuration error."))
+    "Exit code: 0 on success, 1 on time-out or stop, 2 on a configuration error.")
 
 log = logging.getLogger("m3p2i.server")
 
 
-@app.command()
+@app.command(help=HELP)
 def main(
-    scenario: str = typer.Option(..., "--scenario", "-s",
-                                 help="Scenario name (m3p2i list) or YAML path."),
-    mode: str = typer.Option("lockstep", help="lockstep: step only when the command for the "
-                             "latest state arrives (deterministic). realtime: step on the wall "
-                             "clock, playing the newest command's plan."),
-    host: str = typer.Option(DEFAULT_HOST, help="Address to bind (loopback by default). A "
-                             "network address (e.g. 0.0.0.0) needs --keys, or --insecure."),
-    keys: Optional[Path] = typer.Option(None, help="CURVE key folder made by `m3p2i keys DIR` "
-                                        "(its world/ part): every socket authenticated and "
-                                        "encrypted; only planners whose public keys are in "
-                                        "DIR/world/planners/ are accepted."),
-    insecure: bool = typer.Option(False, "--insecure", help="Allow a network --host without "
-                                  "keys: anyone who reaches the ports can drive the robot. "
-                                  "An isolated, trusted network only; warned at every start."),
-    port: int = typer.Option(DEFAULT_PORT, help="First of three ports: control, state, command."),
+    scenario: ScenarioOption,
+    mode: Mode = "lockstep",
+    host: Host = DEFAULT_HOST,
+    keys: Keys = None,
+    insecure: Insecure = False,
+    port: Port = DEFAULT_PORT,
     log_file: Optional[Path] = typer.Option(None, "--log", help="Episode log (JSON lines); "
                                             "'{seed}' in it (e.g. seed-{seed:03d}) becomes the "
                                             "episode's seed. Default: "
                                             "runs/<scenario>-<time>/episode.jsonl"),
     command_timeout: float = typer.Option(0.5, help="realtime: seconds after which a missing "
                                           "command makes the robot hold still."),
-    realtime_factor: float = typer.Option(1.0, min=0.01, help="realtime: simulated seconds per wall second."),
+    realtime_factor: RealtimeFactor = 1.0,
     republish: float = typer.Option(0.2, min=0.001, help="lockstep: re-send the state waiting "
                                     "for its command this often (seconds), for a planner that "
                                     "subscribed late or lost it."),
-    plan_every: int = typer.Option(1, min=1, help="lockstep: world steps played per command "
-                                   "(its plan's knots by time). K > 1 emulates, repeatably, a "
-                                   "planner K times slower than a real-time world."),
+    plan_every: PlanEvery = 1,
     keep_serving: bool = typer.Option(False, help="After the episode, keep the sockets open and "
                                       "wait for a control 'reset' with a seed, which begins "
                                       "the next episode (new session, new log: --log must "
                                       "hold '{seed}'); 'shutdown' exits. What warm bench "
                                       "workers use; pair it with m3p2i-planner --keep-running."),
-    viewer: bool = typer.Option(False, help="Open MuJoCo's passive viewer (needs a display)."),
+    window: Window = False,
     check: bool = typer.Option(False, "--check", help="Only check the scenario (every error of "
                                "the file, model names included) and --world's class, and exit: "
                                "0 sound, 2 faulty."),
-    seed: int = typer.Option(0, help="Seed of the scenario's randomised start (world.randomize)."),
+    seed: int = typer.Option(0, help="Seed of the scenario's randomised start (world.randomize) "
+                             "and of the hardware profile's faults."),
     world: Optional[str] = typer.Option(None, "--world", help="The world to serve instead of "
                                         "the MuJoCo simulation: package.module:Class naming a "
                                         "subclass of server.bridge.Bridge (a robot) or "
                                         "server.interface.World, imported from the installed "
                                         "packages, PYTHONPATH or the current directory "
                                         "(docs/bridge.md). A robot runs --mode realtime."),
-    hardware: Optional[str] = typer.Option(None, "--hardware", help="Make the simulation "
-                                           "behave like hardware (docs/hardware.md): a profile "
-                                           f"({', '.join(PROFILES)}) or a YAML file of "
-                                           "hardware: keys (delays, noise, dropped states, "
-                                           "withheld velocities, control period, model "
-                                           "mismatch, binary gripper). Replaces the scenario's "
-                                           "own hardware: section; the planner is not told. "
-                                           "lockstep: faults drawn from --seed, delays in world "
-                                           "steps (repeatable); realtime: wall-clock delays."),
-    verbose: bool = typer.Option(False, "--verbose", "-v"),
+    hardware: Hardware = None,
+    verbose: Verbose = False,
 ) -> None:
     setup_logging(verbose, "m3p2i.server")
-    if mode not in ("lockstep", "realtime"):
+    if mode not in MODES:
         raise typer.BadParameter("must be 'lockstep' or 'realtime'", param_hint="--mode")
     if not check:   # before anything else: an exposed robot is refused at once
         world_keys = _security({"--host": host}, keys, insecure)
@@ -119,8 +105,8 @@ def main(
                    "runs/x/seed-{seed:03d}/episode.jsonl): each episode gets its own log",
                    err=True)
         raise typer.Exit(2)
-    if keep_serving and viewer:
-        typer.echo("error: --keep-serving builds a new world for each episode; MuJoCo's viewer "
+    if keep_serving and window:
+        typer.echo("error: --keep-serving builds a new world for each episode; MuJoCo's window "
                    "shows one: use `m3p2i view` (the browser view) instead", err=True)
         raise typer.Exit(2)
     sc = load_scenario(scenario)
@@ -137,7 +123,7 @@ def main(
     except WorldError as exc:    # a bridge that cannot reach its robot
         typer.echo(f"error: --world {world}: {exc}", err=True)
         raise typer.Exit(2) from None
-    if viewer:
+    if window:
         if server.world.data is None:
             log.warning("the world %s keeps no MuJoCo data to show: running without the viewer",
                         world)
@@ -169,8 +155,8 @@ def main(
 
 def frame_viewer(viewer, model, data) -> None:
     """Point the passive viewer's free camera at the scene (:func:`shared.scene.scene_framing`)
-    from the front, above (as m3p2i record's videos): MuJoCo's default frames the whole model, floor included, and a
-    Panda's scene then opens looking at the table's edge."""
+    from the front, above (as m3p2i record's videos): MuJoCo's default frames the whole model,
+    floor included, and a Panda's scene then opens looking at the table's edge."""
     centre, radius = scene_framing(model, data)
     half_fov = math.radians(model.vis.global_.fovy) / 2
     with viewer.lock():

@@ -86,7 +86,7 @@ class World(ABC):
         events: disturbances since the server last read them (``object``, ``pos``, ``time``);
             the server logs and clears them.
         initial: what ``reset`` drew for the start (randomised poses), for the log's header.
-        data: the world's ``mujoco.MjData`` when it keeps one (what ``--viewer`` draws), else
+        data: the world's ``mujoco.MjData`` when it keeps one (what ``--window`` draws), else
             None. The server itself never reads it.
     """
 

@@ -1,13 +1,102 @@
-"""Small helpers shared by the three command-line programs."""
+"""What the three command-line programs share: the options they have in common (declared once
+here, as ``Annotated`` types; a command sets only the default), help text that typer's rich
+output can rewrap, logging, and the one-line summaries and error lines they print."""
 
 from __future__ import annotations
 
+import inspect
 import logging
 import sys
 import time
 from pathlib import Path
+from typing import Annotated, Optional
 
+import typer
 from rich.logging import RichHandler
+
+from shared.hardware import PROFILES
+
+# --- options shared by m3p2i-server, m3p2i-planner and m3p2i's commands --------------------
+
+SCENARIO_HELP = "Scenario name (m3p2i list) or YAML path."
+ScenarioOption = Annotated[str, typer.Option("--scenario", "-s", help=SCENARIO_HELP)]
+ScenarioArgument = Annotated[str, typer.Argument(help=SCENARIO_HELP)]
+
+Host = Annotated[str, typer.Option(
+    "--host", help="The world's address: the one m3p2i-server binds (loopback by default), the "
+    "one the planner and the view connect to. A network address (e.g. 0.0.0.0 on the world's "
+    "side) needs --keys (or, on m3p2i-server and m3p2i-planner, --insecure).")]
+Port = Annotated[int, typer.Option(
+    "--port", help="The world's first port: control; the state is published on PORT+1, "
+    "commands arrive on PORT+2, the planner's diagnostics are on PORT+3.")]
+Keys = Annotated[Optional[Path], typer.Option(
+    "--keys", help="CURVE key folder made by `m3p2i keys DIR`: every socket authenticated and "
+    "encrypted. The world uses DIR/world/ (it accepts only the planners whose public keys are "
+    "in DIR/world/planners/), the planner and the view DIR/planner/ (the world's public key "
+    "in DIR/planner/world.key).")]
+Insecure = Annotated[bool, typer.Option(
+    "--insecure", help="Allow a network address without --keys: anyone who reaches the ports "
+    "can drive the robot. Only on an isolated, trusted network; warned at every start.")]
+Verbose = Annotated[bool, typer.Option(
+    "--verbose", "-v", help="Debug messages too; m3p2i run shows both processes' output "
+    "instead of writing it to log files.")]
+
+MODES = ("lockstep", "realtime")
+Mode = Annotated[str, typer.Option(
+    "--mode", help="lockstep: the world steps only when the command for its latest state "
+    "arrives (deterministic). realtime: it steps on the wall clock, playing the newest "
+    "command's plan.")]
+PlanEvery = Annotated[int, typer.Option(
+    "--plan-every", min=1, help="lockstep: world steps played per command (its plan's knots by "
+    "time). K > 1 emulates, repeatably, a planner K times slower than a real-time world.")]
+RealtimeFactor = Annotated[float, typer.Option(
+    "--realtime-factor", min=0.01, help="realtime: simulated seconds per wall second; 0.5 runs "
+    "the world at half speed, so every planner rate counts double against it.")]
+Hardware = Annotated[Optional[str], typer.Option(
+    "--hardware", help="Make the simulated world behave like hardware (docs/hardware.md): a "
+    f"profile ({', '.join(PROFILES)}) or a YAML file of hardware: keys (delays, noise, dropped "
+    "states, withheld velocities, control period, model mismatch, binary gripper). Replaces the "
+    "scenario's own hardware: section. Only the world is told: the planner keeps the nominal "
+    "model (m3p2i run --compensate declares the delays to it). lockstep: faults drawn from "
+    "--seed, delays in world steps (repeatable); realtime: wall-clock delays.")]
+EstimateDelays = Annotated[bool, typer.Option(
+    "--estimate-delays", help="The planner measures the robot's delays online "
+    "(planner.delays.estimate): the state delay from the lag the world reports, the actuation "
+    "delay from how the robot answers the controls sent; declared delays stand until then "
+    "(docs/hardware.md).")]
+Window = Annotated[bool, typer.Option(
+    "--window/--no-window", "--viewer", help="Open MuJoCo's own viewer window on "
+    "the world's machine (needs a display); drag objects in it to disturb the world. "
+    "(--viewer is its older name.)")]
+Seed = Annotated[int, typer.Option(
+    "--seed", help="Seed of the episode: the world's randomised start (world.randomize) and the "
+    "planner's sampling.")]
+RunDir = Annotated[Optional[Path], typer.Option(
+    "--run-dir", help="Where the episode's logs go (default runs/<scenario>-<time>).")]
+Timeout = Annotated[float, typer.Option(
+    "--timeout", help="Wall-clock seconds before the run is abandoned.")]
+
+
+# --- help text ------------------------------------------------------------------------------
+
+def flowing(text: str) -> str:
+    """``text`` dedented, each paragraph on one line (paragraphs stay apart by a blank line).
+
+    Typer's rich help rewraps only a command's first paragraph and keeps the hard line breaks
+    of the others, which then break sentences wherever the source lines ended."""
+    paragraphs = inspect.cleandoc(text).split("\n\n")
+    return "\n\n".join(" ".join(p.split()) for p in paragraphs if p.strip())
+
+
+def flow_help(app: typer.Typer) -> None:
+    """Every help text of ``app`` (its own and each command's, from ``help=`` or the
+    docstring) as :func:`flowing` paragraphs. Call it once the commands are registered."""
+    if isinstance(app.info.help, str):
+        app.info.help = flowing(app.info.help)
+    for command in app.registered_commands:
+        text = command.help or inspect.getdoc(command.callback)
+        if text:
+            command.help = flowing(text)
 
 
 def setup_logging(verbose: bool, name: str) -> None:

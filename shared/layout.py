@@ -5,7 +5,9 @@ of the scenario's compiled model. :func:`bridge_layout` names every index of the
 component and unit of each ``qpos`` and ``qvel`` entry, the body of each mocap slot, the
 actuator, range, unit and safe value of each ``ctrl`` entry, and the ``extras`` the world
 simulates. ``m3p2i layout SCENARIO`` prints it; the planner checks a world's first state against
-the same sizes (:meth:`StateSizes.mismatches`).
+the same sizes (:meth:`StateSizes.mismatches`). Beside it, :func:`frame_names` lists the frames
+a scenario may name (cost terms, observers, the success test, metrics): the robot's bodies and
+sites, the objects, the arena's walls.
 """
 
 from __future__ import annotations
@@ -19,7 +21,7 @@ import numpy as np
 
 from shared.robots import get_robot
 from shared.scenario import Scenario
-from shared.scene import compile_model
+from shared.scene import WALL_NAMES, compile_model
 
 _FREE, _BALL, _SLIDE, _HINGE = (mujoco.mjtJoint.mjJNT_FREE, mujoco.mjtJoint.mjJNT_BALL,
                                 mujoco.mjtJoint.mjJNT_SLIDE, mujoco.mjtJoint.mjJNT_HINGE)
@@ -183,6 +185,47 @@ def bridge_layout(scenario: Scenario, model: mujoco.MjModel | None = None) -> Br
                         dt=float(model.opt.timestep), sizes=StateSizes.of(model), nu=model.nu,
                         qpos=tuple(qpos), qvel=tuple(qvel), act=act, mocap=tuple(mocap),
                         ctrl=ctrl, extras=extras)
+
+
+@dataclass(frozen=True)
+class FrameName:
+    """A frame a scenario may name (:mod:`shared.frames`): a body by its name, a site as
+    ``site:NAME``, or ``robot``, the robot's own frame (``same_as`` the body or site it is).
+    ``part``: ``robot`` (the robot's kinematic tree), ``object`` (a scenario object), ``arena``
+    (a wall) or ``scene`` (a fixed body of the robot's model file, e.g. a table)."""
+    name: str
+    kind: str                # body | site
+    part: str                # robot | object | arena | scene
+    same_as: str | None = None
+
+
+def frame_names(scenario: Scenario, model: mujoco.MjModel | None = None) -> tuple[FrameName, ...]:
+    """Every frame name ``scenario``'s YAML may use, ``robot`` first, then the bodies and the
+    sites in the model's order (compiled here unless given)."""
+    model = model if model is not None else compile_model(scenario)
+    robot = get_robot(scenario.robot.model)
+    objects = {o.name for o in scenario.world.objects}
+    if robot.frame.startswith("site:"):
+        own = int(model.site_bodyid[model.site(robot.frame[5:]).id])
+    else:
+        own = model.body(robot.frame).id
+    robot_root = int(model.body_rootid[own])
+
+    def part(body: int) -> str:
+        name = model.body(body).name
+        if name in objects:
+            return "object"
+        if name in WALL_NAMES:
+            return "arena"
+        return "robot" if int(model.body_rootid[body]) == robot_root else "scene"
+
+    out = [FrameName("robot", "site" if robot.frame.startswith("site:") else "body", "robot",
+                     same_as=robot.frame if robot.frame != "robot" else None)]
+    out += [FrameName(model.body(b).name, "body", part(b)) for b in range(1, model.nbody)
+            if model.body(b).name and model.body(b).name != "robot"]
+    out += [FrameName(f"site:{model.site(i).name}", "site", part(int(model.site_bodyid[i])))
+            for i in range(model.nsite) if model.site(i).name]
+    return tuple(out)
 
 
 def _joint(model: mujoco.MjModel, j: int) -> tuple[str, str, str]:

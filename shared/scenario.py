@@ -377,10 +377,13 @@ def load_scenario(name_or_path: str | os.PathLike) -> Scenario:
 class ScenarioReading:
     """A scenario file read with every error collected instead of raised at the first.
 
-    ``scenario`` is what could be read (None when not even a model could be described: no file,
+    ``scenario`` is what could be read (None when not even a robot could be read: no file,
     bad YAML, an unknown robot); faulty parts are left out of it, so it serves only checks.
     ``model_ok``: the robot and the world were read without error, so the compiled model is
     the one the file describes and model checks (frames, actuators, sensors) mean something.
+    Without it, the scenario's world is a stand-in of the names the file declares (its objects,
+    the arena's walls): enough to check the names the file uses, against them and the robot's
+    bodies and sites (:mod:`shared.scenario_check`).
     """
     scenario: Scenario | None
     errors: list[ConfigError]
@@ -560,8 +563,10 @@ def _read(raw: dict, source: str, errors: ErrorLog) -> ScenarioReading:
                 errors.add(ConfigError(source, f"modes[{i}]", "not an objective of this scenario",
                                        m, f"one of: {', '.join(known)}"))
     errors.call(top.done)
-    if robot is None or world is None:
+    if robot is None:
         return ScenarioReading(None, errors.errors, False)
+    if world is None:       # what the faulty world declares stands in, for name checks only
+        world = _declared_world(raw.get("world"), source)
     scenario = Scenario(name=name, description=description, source=source,
                         hash=scenario_hash(raw, included), robot=robot, world=world,
                         episode=episode or EpisodeConfig(max_time=0.0, success=()),
@@ -654,27 +659,16 @@ def _robot(s: Section) -> RobotConfig:
 
 
 def _world(s: Section, errors: ErrorLog) -> WorldConfig | None:
-    """The world, or None when a faulty object, randomisation or disturbance was recorded in
-    ``errors`` (the model of a faulty world is not the file's)."""
+    """The world, or None when a fault of it was recorded in ``errors`` (the model of a faulty
+    world is not the file's; :func:`_declared_world` stands in for it in name checks). Every
+    fault of the section is recorded, not only the first."""
     n_before = len(errors.errors)
-    timestep = s.req("timestep", positive, "seconds > 0")
-    arena = None
-    if s.has("arena"):
-        a = s.section("arena")
-        arena = ArenaConfig(half_size=a.opt("half_size", 4.0, positive),
-                            wall_height=a.opt("wall_height", 0.3, positive))
-        a.opt("wall_thickness", None, positive)   # accepted from older files: walls are planes
-        a.done()
-    battery = None
-    if s.has("battery"):
-        b = s.section("battery")
-        battery = BatteryConfig(charger=b.req("charger", str), rate=b.req("rate", positive, "%/s"),
-                                radius=b.opt("radius", 0.5, positive),
-                                initial=b.opt("initial", 100.0, non_negative))
-        b.done()
+    timestep = errors.call(s.req, "timestep", positive, "seconds > 0")
+    arena = errors.call(lambda: _arena(s.section("arena"))) if s.has("arena") else None
+    battery = errors.call(lambda: _battery(s.section("battery"))) if s.has("battery") else None
     objects = []
     names: set[str] = set()
-    for o in s.items("objects"):
+    for o in errors.call(s.items, "objects", default=[]):
         obj = errors.call(_object, o)
         if obj is None:
             continue
@@ -685,16 +679,67 @@ def _world(s: Section, errors: ErrorLog) -> WorldConfig | None:
         names.add(obj.name)
         objects.append(obj)
     if battery and battery.charger not in names:
-        raise ConfigError(s.source, f"{s.path}.battery.charger", "not an object of this world",
-                          battery.charger, f"one of: {', '.join(sorted(names))}")
+        errors.add(ConfigError(s.source, f"{s.path}.battery.charger", "not an object of this "
+                               "world", battery.charger, f"one of: {', '.join(sorted(names))}"))
     by_name = {o.name: o for o in objects}
-    randomize = tuple(errors.call(_randomize, r, by_name) for r in s.items("randomize"))
-    disturbances = tuple(errors.call(_disturbance, d, by_name) for d in s.items("disturbances"))
-    s.done()
+    randomize = tuple(errors.call(_randomize, r, by_name)
+                      for r in errors.call(s.items, "randomize", default=[]))
+    disturbances = tuple(errors.call(_disturbance, d, by_name)
+                         for d in errors.call(s.items, "disturbances", default=[]))
+    errors.call(s.done)
     if len(errors.errors) > n_before:
         return None
     return WorldConfig(timestep=timestep, objects=tuple(objects), arena=arena, battery=battery,
                        randomize=randomize, disturbances=disturbances)
+
+
+def _arena(a: Section) -> ArenaConfig:
+    arena = ArenaConfig(half_size=a.opt("half_size", 4.0, positive),
+                        wall_height=a.opt("wall_height", 0.3, positive))
+    a.opt("wall_thickness", None, positive)   # accepted from older files: walls are planes
+    a.done()
+    return arena
+
+
+def _battery(b: Section) -> BatteryConfig:
+    battery = BatteryConfig(charger=b.req("charger", str), rate=b.req("rate", positive, "%/s"),
+                            radius=b.opt("radius", 0.5, positive),
+                            initial=b.opt("initial", 100.0, non_negative))
+    b.done()
+    return battery
+
+
+def _declared_world(data: Any, source: str) -> WorldConfig:
+    """A stand-in for a faulty ``world:`` section, for name checks only (its model is not the
+    file's): the objects that read cleanly; each other object that has a name, as a small
+    sphere of that name; the arena's walls (of the default size when the arena is faulty); the
+    randomisations and disturbances that read cleanly. Its faults were recorded by
+    :func:`_world`; none is recorded again."""
+    scratch = ErrorLog()
+    s = Section(data if isinstance(data, dict) else {}, source, "world")
+    objects: list[ObjectConfig] = []
+    for o in scratch.call(s.items, "objects", default=[]):
+        obj = scratch.call(_object, o)
+        name = obj.name if obj is not None else o.data.get("name")
+        if not isinstance(name, str) or not name or name == "robot" or name in {
+                b.name for b in objects}:
+            continue
+        fixed = o.data.get("fixed", True)
+        objects.append(obj or ObjectConfig(name=name, shape="sphere", size=(0.05,),
+                                           pos=(0.0, 0.0, 0.05),
+                                           fixed=fixed if isinstance(fixed, bool) else True))
+    by_name = {o.name: o for o in objects}
+    arena = None
+    if s.has("arena"):
+        arena = scratch.call(lambda: _arena(s.section("arena")), default=ArenaConfig())
+    parts = {}
+    for key, read in (("randomize", _randomize), ("disturbances", _disturbance)):
+        parts[key] = tuple(p for p in (scratch.call(read, i, by_name)
+                                       for i in scratch.call(s.items, key, default=[]))
+                           if p is not None)
+    timestep = scratch.call(s.req, "timestep", positive, default=None)
+    return WorldConfig(timestep=timestep or 0.01, objects=tuple(objects), arena=arena,
+                       randomize=parts["randomize"], disturbances=parts["disturbances"])
 
 
 def _object_ref(s: Section, by_name: dict[str, ObjectConfig], fixed: bool | None = None) -> str:

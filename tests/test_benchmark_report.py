@@ -1,26 +1,15 @@
-"""scripts/benchmark.py's report: the speed table in docs/speed.md is generated from a results
-file (median and range over the runs), never typed; regenerating it changes nothing."""
+"""scripts/benchmark.py's report (shared.tools.speed_report): the speed table in docs/speed.md
+is generated from a results file (median and range over the runs), never typed; regenerating it
+changes nothing."""
 
 from __future__ import annotations
 
-import importlib.util
 import json
-from pathlib import Path
 
 import pytest
 import typer
 
-ROOT = Path(__file__).resolve().parents[1]
-
-
-def _load():
-    spec = importlib.util.spec_from_file_location("benchmark_script", ROOT / "scripts" / "benchmark.py")
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
-
-
-bench = _load()
+from shared.tools import speed_report
 
 
 def _row(run: int, hz: float, ratio: float) -> dict:
@@ -35,11 +24,11 @@ def test_the_speed_table_gives_median_and_range_over_the_runs(tmp_path):
                "rows": [_row(0, 300.0, 1.5), _row(1, 200.0, 1.3), _row(2, 250.0, 1.4)]}
     (tmp_path / "speed.json").write_text(json.dumps(results))
     doc = "intro\n<!-- benchmark speed.json -->\nstale\n<!-- end of benchmark -->\nafter\n"
-    new = bench.update(doc, tmp_path)
+    new = speed_report.update(doc, tmp_path)
     row = next(line for line in new.splitlines() if line.startswith("| `navigation`"))
     assert "200 × 5 × 0.15 s" in row and "250.0 (200.0-300.0)" in row and "1.40 (1.30-1.50)" in row
     assert "stale" not in new and new.startswith("intro\n") and new.endswith("after\n")
     assert "over 3 runs of `python scripts/benchmark.py --runs 3 --out x.json`" in new
-    assert bench.update(new, tmp_path) == new
+    assert speed_report.update(new, tmp_path) == new
     with pytest.raises(typer.BadParameter, match="no '<!-- benchmark PATH -->'"):
-        bench.update("no block here", tmp_path)
+        speed_report.update("no block here", tmp_path)

@@ -15,7 +15,8 @@ from typer.testing import CliRunner
 
 from shared import protocol as P
 from shared.endpoints import Endpoints, socket
-from shared.layout import StateSizes, bridge_layout
+from shared.frames import FrameResolver
+from shared.layout import StateSizes, bridge_layout, frame_names
 from shared.robots import ROBOTS, get_robot
 from shared.scenario import load_scenario
 from shared.scene import STATE_FIELDS, compile_model
@@ -183,6 +184,37 @@ def test_layout_command_prints_tables_and_json():
     assert data["qvel"][1] == {"index": 1, "joint": "y", "joint_type": "slide", "body": "robot",
                                "component": "velocity", "unit": "m/s", "frame": "axis",
                                "axis": [0.0, 1.0, 0.0], "range": None}
+
+
+def test_layout_command_lists_the_frames_a_scenario_may_name():
+    # the robot's sites and bodies too: a Panda scenario names site:grasp and panda_hand
+    runner = CliRunner()
+    shown = runner.invoke(m3p2i, ["layout", "pick_place"], env={"COLUMNS": "200"})
+    assert shown.exit_code == 0, shown.output
+    frames_part = shown.output[shown.output.index("frames:"):]
+    for text in ("site:grasp", "site:finger_left", "panda_hand", "cube_a", "table"):
+        assert text in frames_part, frames_part
+    data = json.loads(runner.invoke(m3p2i, ["layout", "pick_place", "--json"]).output)
+    by_name = {f["name"]: f for f in data["frames"]}
+    assert by_name["robot"] == {"name": "robot", "kind": "site", "part": "robot",
+                                "same_as": "site:grasp"}
+    assert by_name["site:finger_left"]["part"] == "robot"
+    assert by_name["panda_hand"] == {"name": "panda_hand", "kind": "body", "part": "robot",
+                                     "same_as": None}
+    assert by_name["cube_a"]["part"] == "object"
+
+
+@pytest.mark.parametrize("name", ["navigation", "pick_place", "battery_recharge"])
+def test_the_frames_listed_are_the_names_the_processes_resolve(name):
+    sc = load_scenario(name)
+    model = compile_model(sc)
+    resolve = FrameResolver(model, get_robot(sc.robot.model).frame)
+    listed = [f.name for f in frame_names(sc, model)]
+    assert listed == resolve.names()
+    parts = {f.name: f.part for f in frame_names(sc, model)}
+    assert {parts[o.name] for o in sc.world.objects} == {"object"}
+    if sc.world.arena:
+        assert parts["wall_north"] == "arena"
 
 
 def test_layout_command_refuses_an_unknown_scenario_like_the_others():

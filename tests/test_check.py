@@ -1,8 +1,9 @@
 """Errors up front: every error of a scenario file at once, before any process starts.
 
-``m3p2i check`` and ``m3p2i run`` merge what the world (``server.check``) and the planner
-(``planner_client.check``) find: load-time faults (types, unknown keys) and the names only the
-compiled model or the planner's registries can confirm (frames, actuators, cost terms).
+``m3p2i check`` and ``m3p2i run`` merge what the world (``server.world_check``) and the
+planner (``planner_client.planner_check``) find: load-time faults (types, unknown keys) and the
+names only the compiled model or the planner's registries can confirm (frames, actuators, cost
+terms).
 """
 
 from __future__ import annotations
@@ -13,8 +14,8 @@ import pytest
 import yaml
 from typer.testing import CliRunner
 
-from planner_client import check as planner_check
-from server import check as server_check
+from planner_client import planner_check
+from server import world_check as server_check
 from shared.config import ConfigError, ConfigErrors
 from shared.frames import FrameResolver
 from shared.scenario import SCENARIO_DIR, parse_scenario, read_scenario
@@ -111,14 +112,45 @@ def test_one_error_is_still_a_plain_config_error():
     assert info.value.path == "episode.max_time"
 
 
-def test_a_faulty_world_skips_the_model_checks(tmp_path):
-    # a model without the faulty object is not the file's: its frame checks would only mislead
+def test_a_faulty_object_still_declares_its_name(tmp_path):
+    # the file's model cannot be built, but the success test's 'goal' is the faulty object's
+    # name: a frame check against a model without it would only mislead
     raw = _nav()
     raw["world"]["objects"][3]["shape"] = "cone"            # the goal marker
     reading = read_scenario(_write(tmp_path, raw))
     assert not reading.model_ok
     errors = server_check.scenario_errors(_write(tmp_path, raw))
     assert [e.path for e in errors] == ["world.objects[3].shape"]
+
+
+def test_a_misspelt_frame_is_reported_beside_a_fault_that_stops_the_model(tmp_path):
+    # the arena's type error means no model of the file; the objective's frame is still looked
+    # up, against the robot's bodies and sites and the objects the world declares
+    raw = _nav()
+    raw["world"]["arena"]["half_size"] = "big"
+    raw["objectives"]["navigate"]["terms"][0]["b"] = "gaol"
+    path = _write(tmp_path, raw)
+    result = CliRunner().invoke(app, ["check", str(path)])
+    assert result.exit_code == 2, result.output
+    assert "world.arena.half_size: wrong type" in result.output
+    assert "objectives.navigate.terms[0].b" in result.output and "'gaol'" in result.output
+    assert "2 errors" in result.output
+    planner = [str(e) for e in planner_check.scenario_errors(path)]
+    assert len(planner) == 2 and "one of: robot" in planner[1] and "goal" in planner[1], planner
+
+
+def test_names_of_a_faulty_world_are_checked_against_what_it_declares(tmp_path):
+    # a faulty object still declares its name; the walls of a faulty arena are still there;
+    # the world's other faults are all reported, not only the first
+    raw = _nav()
+    raw["world"]["arena"]["half_size"] = -1
+    raw["world"]["objects"][0]["shape"] = "cone"                  # block_a
+    raw["episode"]["success"].append({"near": {"a": "robot", "b": "block_a", "within": 0.1}})
+    raw["episode"]["success"].append({"near": {"a": "wall_north", "b": "pilar",
+                                               "within": 0.1}})
+    errors = server_check.scenario_errors(_write(tmp_path, raw))
+    assert [e.path for e in errors] == ["world.arena.half_size", "world.objects[0].shape",
+                                        "episode.success[2].near.b"], errors
 
 
 def test_observer_frames_and_pinned_actuators_are_checked_together(tmp_path):

@@ -1,6 +1,6 @@
 """Cost terms on hand-made states with known values, and the YAML errors of objectives.
 
-Most tests fill a :class:`RolloutBatch` directly (a layout over hand-written sensor columns), so
+Most tests fill a :class:`RolloutBatch` directly (hand-written sensor columns), so
 each expected number follows from the equation alone. The rest compile a small model with the
 terms' sensors and set its state by hand, to pin what MuJoCo's sensors deliver to the terms.
 """
@@ -21,7 +21,7 @@ from shared.scenario import ObjectiveConfig, TermConfig
 from planner_client.costs import TERMS, JointInfo, RolloutBatch, TermContext, build_objective
 from planner_client.costs.helpers import norm, sparse_norm
 from planner_client.costs.norms import fusable
-from planner_client.sensors import SensorLayout, SensorRequest, add_sensors
+from planner_client.sensors import SensorColumns, SensorRequest, add_sensors
 
 F64 = torch.float64
 SRC = "test.yaml"
@@ -94,17 +94,18 @@ def batch_of(values: dict[SensorRequest, list], controls=None, dt: float = 0.1) 
     sensordata = torch.cat(blocks, dim=-1)
     if controls is None:
         controls = torch.zeros(*sensordata.shape[:2], 2, dtype=F64)
-    return RolloutBatch(sensordata, torch.as_tensor(controls, dtype=F64), SensorLayout(columns), dt)
+    return RolloutBatch(sensordata, torch.as_tensor(controls, dtype=F64), SensorColumns(columns),
+                        dt)
 
 
 def test_a_terms_sensors_are_read_in_request_order_wherever_they_lie():
     a, b, c = pos("a"), SensorRequest("jointpos", "j"), SensorRequest("framezaxis", "c")
-    layout = SensorLayout({a: slice(0, 3), b: slice(3, 4), c: slice(4, 7)})
+    columns = SensorColumns({a: slice(0, 3), b: slice(3, 4), c: slice(4, 7)})
     sd = torch.arange(2 * 7, dtype=F64).reshape(2, 1, 7)
     for _ in range(2):                                 # worked out once, then looked up
-        apart = layout.take_all(sd, [c, a])
+        apart = columns.take_all(sd, [c, a])
         torch.testing.assert_close(apart, torch.cat([sd[..., 4:7], sd[..., 0:3]], dim=-1))
-        adjacent = layout.take_all(sd, [a, b])
+        adjacent = columns.take_all(sd, [a, b])
         assert adjacent.data_ptr() == sd.data_ptr() and adjacent.shape == (2, 1, 4)
 
 
@@ -140,7 +141,7 @@ def sensed(model: mujoco.MjModel, ctx: TermContext, term, setup, steps: int = 0)
     mujoco.mj_forward(m, d)
     sd = torch.as_tensor(d.sensordata.copy(), dtype=F64).reshape(1, 1, -1)
     ctrl = torch.as_tensor(d.ctrl.copy(), dtype=F64).reshape(1, 1, -1)
-    return RolloutBatch(sd, ctrl, SensorLayout.of_model(m, term.sensors()), m.opt.timestep)
+    return RolloutBatch(sd, ctrl, SensorColumns.of_model(m, term.sensors()), m.opt.timestep)
 
 
 # --- distance, velocity (paper Eq. 14) -----------------------------------------------------------------
@@ -389,7 +390,7 @@ def test_dynamic_obstacle_prediction_matches_a_real_rollout(model, ctx):
     T = 5
     _, sd = mj_rollout.rollout(m, d, x0[None], np.zeros((1, T, m.nu)), nstep=T)
     b = RolloutBatch(torch.as_tensor(sd), torch.zeros(1, T, m.nu, dtype=F64),
-                     SensorLayout.of_model(m, term.sensors()), m.opt.timestep)
+                     SensorColumns.of_model(m, term.sensors()), m.opt.timestep)
     gap = [math.hypot(-2 + 3 * t * m.opt.timestep, 2) for t in range(T)]
     torch.testing.assert_close(term(b), torch.tensor([[math.exp(-g) for g in gap]], dtype=F64))
 
@@ -593,7 +594,8 @@ def test_all_terms_together_compile_and_give_finite_costs_at_rest(model, ctx):
     d = mujoco.MjData(m)
     mujoco.mj_forward(m, d)
     sd = torch.as_tensor(np.tile(d.sensordata, (3, 4, 1)))
-    b = RolloutBatch(sd, torch.zeros(3, 4, m.nu, dtype=F64), SensorLayout.of_model(m, requests), 0.01)
+    b = RolloutBatch(sd, torch.zeros(3, 4, m.nu, dtype=F64), SensorColumns.of_model(m, requests),
+                     0.01)
     for term in terms:
         cost = term(b)
         assert cost.shape == (3, 4) and torch.isfinite(cost).all(), term.name
@@ -649,7 +651,7 @@ def test_an_objective_of_norms_costs_what_its_terms_sum_to(ctx):
         batch = _random_batch(obj, seed=seed)
         fused, per_term = obj(batch), obj(batch, {})
         torch.testing.assert_close(fused, per_term, rtol=1e-12, atol=0.0)
-    # the layout is part of the fused form: another batch's columns are read where they are
+    # the sensor columns are part of the fused form: another batch's columns are read where they are
     other = _random_batch(obj, seed=7)
     torch.testing.assert_close(obj(other), obj(other, {}), rtol=1e-12, atol=0.0)
 

@@ -6,7 +6,7 @@ from __future__ import annotations
 import pytest
 import yaml
 
-from planner_client import check as planner_check
+from planner_client import planner_check
 from shared.config import ConfigError
 from shared.scenario import SCENARIO_DIR, load_scenario
 

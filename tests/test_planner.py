@@ -79,10 +79,10 @@ def test_moving_obstacle_follows_the_constant_velocity_prediction_in_rollouts(na
     engine.set_mocap(pos, mirror.data.mocap_quat)
     controls = np.zeros((3, T, model.nu))
     sd = engine.run(x0, controls, pos[None] + vel[None] * (np.arange(T)[:, None, None] * dt))
-    y = sd[:, :, problem.layout.columns[req]][..., 1]                 # [S, T]
+    y = sd[:, :, problem.columns.spans[req]][..., 1]                 # [S, T]
     np.testing.assert_allclose(y, np.tile(pos[mocap, 1] - np.arange(T) * dt, (3, 1)), atol=1e-9)
     sd = engine.run(x0, controls)                                  # no prediction: it stays
-    np.testing.assert_allclose(sd[:, :, problem.layout.columns[req]][..., 1], pos[mocap, 1])
+    np.testing.assert_allclose(sd[:, :, problem.columns.spans[req]][..., 1], pos[mocap, 1])
     engine.close()
 
 
@@ -133,7 +133,7 @@ def test_top_trajectories_are_each_modes_cheapest_samples_read_before_the_next_i
     cheapest = np.argsort(costs, kind="stable")[:planner.top_k]
     engine = RolloutEngine(model, 1)
     sd = torch.from_numpy(engine.run(x0, V[cheapest]).copy())
-    np.testing.assert_array_equal(top, planner.problem.layout.take(sd, planner.problem.robot_pos))
+    np.testing.assert_array_equal(top, planner.problem.columns.take(sd, planner.problem.robot_pos))
     engine.close()
     assert it.top is top                                       # made once, kept
     unread = planner.iterate(x0)

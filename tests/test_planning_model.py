@@ -5,7 +5,7 @@ import mujoco
 import pytest
 import yaml
 
-from planner_client.check import scenario_errors
+from planner_client.planner_check import scenario_errors
 from planner_client.problem import build_problem
 from shared.config import ConfigError
 from shared.scenario import SCENARIO_DIR, parse_scenario

@@ -11,7 +11,7 @@ import pytest
 import yaml
 from mujoco import rollout
 
-from planner_client.check import scenario_errors
+from planner_client.planner_check import scenario_errors
 from planner_client.mirror import Mirror
 from planner_client.problem import build_problem
 from shared.config import ConfigError

@@ -1,18 +1,20 @@
-"""scripts/rollout_floor.py: the bare rollout of a planner's own model, with parts of its physics
-switched off, really runs those models (what it prints is timing, not tested here)."""
+"""planner_client.rollout_floor (scripts/rollout_floor.py): the bare rollout of a planner's own
+model, with parts of its physics switched off, really runs those models (what it prints is
+timing, not tested here)."""
 
 from __future__ import annotations
 
-import importlib.util
+import subprocess
+import sys
 from pathlib import Path
 
 import mujoco
-from typer.testing import CliRunner
+from rich.console import Console
+
+from planner_client import rollout_floor as floor
+from tests.helpers import ENV
 
 ROOT = Path(__file__).resolve().parents[1]
-spec = importlib.util.spec_from_file_location("rollout_floor", ROOT / "scripts" / "rollout_floor.py")
-floor = importlib.util.module_from_spec(spec)
-spec.loader.exec_module(floor)
 
 
 def test_variants_switch_off_what_they_name(monkeypatch):
@@ -31,10 +33,18 @@ def test_variants_switch_off_what_they_name(monkeypatch):
     assert {shape for _, shape in seen} == {(6, 4, 2)}
 
 
-def test_cli_prints_every_variant():
-    result = CliRunner().invoke(floor.app, ["-s", "navigation", "--samples", "4", "--horizon",
-                                            "3", "--rounds", "1", "--threads", "1"],
-                                 env={"COLUMNS": "200"})
-    assert result.exit_code == 0, result.output
+def test_the_table_has_every_variant():
+    console = Console(width=200, record=True)
+    console.print(floor.floor_table(["navigation"], samples=4, horizon=3, nthread=1, rounds=1))
+    text = console.export_text()
     for variant in floor.VARIANTS:
-        assert variant in result.output
+        assert variant in text
+
+
+def test_the_script_prints_the_table():
+    run = subprocess.run([sys.executable, str(ROOT / "scripts" / "rollout_floor.py"), "-s",
+                          "navigation", "--samples", "4", "--horizon", "3", "--rounds", "1",
+                          "--threads", "1"], capture_output=True, text=True, timeout=300,
+                         env={**ENV, "COLUMNS": "200"}, cwd=ROOT)
+    assert run.returncode == 0, run.stderr
+    assert all(variant in run.stdout for variant in floor.VARIANTS), run.stdout

@@ -1,11 +1,10 @@
-"""The soak and fault test (scripts/soak.py): its checks catch each fault they claim to, the world
-closes its log on SIGTERM (how the soak restarts it), and a 30 s soak of real-time episodes
-under every kind of fault passes every check."""
+"""The soak and fault test (shared.tools.soak, run by scripts/soak.py): its checks catch each
+fault they claim to, the world closes its log on SIGTERM (how the soak restarts it), and a 30 s
+soak of real-time episodes under every kind of fault passes every check."""
 
 from __future__ import annotations
 
 import contextlib
-import importlib.util
 import json
 import signal
 import subprocess
@@ -18,20 +17,12 @@ from server.app import ServerOptions, WorldServer
 from server.episode_log import read_log
 from shared.endpoints import Endpoints
 from shared.scenario import load_scenario
+from shared.tools import soak
 from tests.helpers import ENV, StateWatcher, free_port_block, start_server, stop
 
 ROOT = Path(__file__).resolve().parents[1]
 
 
-def _load_soak():
-    spec = importlib.util.spec_from_file_location("soak_script", ROOT / "scripts" / "soak.py")
-    module = importlib.util.module_from_spec(spec)
-    sys.modules["soak_script"] = module      # dataclasses look their module up by name
-    spec.loader.exec_module(module)
-    return module
-
-
-soak = _load_soak()
 CFG = soak.SoakConfig(command_timeout=0.5, takeover=3.0, slack=0.25, rss_bound=50.0)
 
 

@@ -1,4 +1,4 @@
-"""Dragging objects by hand in the world server's viewer (`m3p2i-server --viewer`).
+"""Dragging objects by hand in the world server's viewer (`m3p2i-server --window`).
 
 MuJoCo's passive viewer applies the mouse's perturbation when its owner calls ``sync()``: a
 force/torque in ``data.xfrc_applied`` for a body, a new pose in ``data.mocap_pos`` for a mocap

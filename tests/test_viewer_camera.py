@@ -1,4 +1,4 @@
-"""MuJoCo's viewer on the world server (``m3p2i-server --viewer``) opens framing the scene: run
+"""MuJoCo's viewer on the world server (``m3p2i-server --window``) opens framing the scene: run
 under a virtual display (Xvfb), its window must show the Panda's table with both cubes, not the
 table's edge (MuJoCo's default camera frames the whole model, floor included)."""
 
@@ -51,7 +51,7 @@ def test_the_viewer_opens_looking_at_the_robot_and_the_cubes(tmp_path):
         env = {**ENV, "DISPLAY": display}
         env.pop("WAYLAND_DISPLAY", None)
         server = subprocess.Popen([sys.executable, "-m", "server", "--scenario", "pick_place",
-                                   "--viewer", "--port", str(free_port_block()),
+                                   "--window", "--port", str(free_port_block()),
                                    "--log", str(tmp_path / "episode.jsonl")],
                                   stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, env=env)
         end = time.monotonic() + 60

@@ -129,7 +129,7 @@ def test_warp_rollouts_match_mujoco_rollout(scenario, contact, tol):
     assert set(dev) == set(tol)
     assert all(dev[k] <= tol[k] for k in tol), dev
     if contact:   # the case is what it claims: the robot pushes against block_a
-        forces = [ref[..., cols] for r, cols in c.problem.layout.columns.items()
+        forces = [ref[..., cols] for r, cols in c.problem.columns.spans.items()
                   if r.kind == "contactforce"]
         assert max(float(np.abs(f).max()) for f in forces) > 10.0
 
@@ -148,7 +148,7 @@ def test_warp_push_pull_rollouts_match_with_the_suction_off(monkeypatch):
     # where the quaternion this compared before moved by half of it (then 1e-3)
     axes = max(dev[k] for k in ("framexaxis", "frameyaxis", "framezaxis"))
     assert dev["framepos"] <= 1e-3 and axes <= 2e-3 and dev["distance"] <= 1e-5, dev
-    box = c.problem.layout.columns[next(r for r in c.problem.layout.columns
+    box = c.problem.columns.spans[next(r for r in c.problem.columns.spans
                                         if r.kind == "framepos" and r.obj == "box")]
     assert np.abs(ref[:, -1, box] - ref[:, 0, box]).max() > 0.05   # the box was pushed
 
@@ -176,7 +176,7 @@ def test_warp_navigation_episode_succeeds_on_cpu(tmp_path):
 
 def test_planner_check_reports_warp_limits(tmp_path):
     """m3p2i check / m3p2i-planner --check meet the limits before anything starts."""
-    from planner_client.check import scenario_errors
+    from planner_client.planner_check import scenario_errors
     errors = scenario_errors(_scenario_with(tmp_path, "push_pull", backend="warp", device="cpu"))
     assert [e.path for e in errors] == ["planner.backend"] and "suction" in str(errors[0])
     assert scenario_errors(_scenario_with(tmp_path, "navigation", backend="warp")) == []

@@ -62,7 +62,7 @@ def case(scenario: str, contact: bool, samples: int = 16, seed: int = 0) -> Case
 def deviation(problem: PlanningProblem, a: np.ndarray, b: np.ndarray) -> dict[str, float]:
     """Largest |a - b| of each sensor kind over samples and steps (``[S, T, nsensordata]``)."""
     out: dict[str, float] = {}
-    for req, cols in problem.layout.columns.items():
+    for req, cols in problem.columns.spans.items():
         err = float(np.abs(a[..., cols] - b[..., cols]).max())
         out[req.kind] = max(out.get(req.kind, 0.0), err)
     return out

@@ -17,7 +17,7 @@ import torch
 
 from shared.config import Section, string_list
 from shared.frames import FrameResolver
-from planner_client.sensors import SensorLayout, SensorRequest
+from planner_client.sensors import SensorColumns, SensorRequest
 
 TERMS: dict[str, type[CostTerm]] = {}
 
@@ -36,12 +36,12 @@ class RolloutBatch:
     """What terms read: ``sensordata [S, T, nsensordata]`` and ``controls [S, T, nu]``."""
     sensordata: torch.Tensor
     controls: torch.Tensor
-    layout: SensorLayout
+    columns: SensorColumns
     dt: float
 
     def get(self, req: SensorRequest) -> torch.Tensor:
         """``[S, T, dim]`` values of one requested sensor."""
-        return self.layout.take(self.sensordata, req)
+        return self.columns.take(self.sensordata, req)
 
 
 @dataclass(frozen=True)

@@ -50,7 +50,7 @@ class Collision(CostTerm):
         if not self.obstacles:
             return torch.zeros(batch.controls.shape[:2], dtype=batch.sensordata.dtype,
                                device=batch.sensordata.device)
-        d = batch.layout.take_all(batch.sensordata, self.requests)        # [S, T, n_obstacles]
+        d = batch.columns.take_all(batch.sensordata, self.requests)        # [S, T, n_obstacles]
         return last_sum(torch.clamp(self.margin - d, min=0.0)) / self.margin
 
 
@@ -90,7 +90,7 @@ class ContactForce(CostTerm):
         if not self.obstacles:
             return torch.zeros(batch.controls.shape[:2], dtype=batch.sensordata.dtype,
                                device=batch.sensordata.device)
-        f = batch.layout.take_all(batch.sensordata, self.requests)         # [S, T, 3 n_obstacles]
+        f = batch.columns.take_all(batch.sensordata, self.requests)         # [S, T, 3 n_obstacles]
         f = f.unflatten(-1, (len(self.requests), 3))                       # [S, T, n_obstacles, 3]
         return last_sum(sparse_norm(f))
 

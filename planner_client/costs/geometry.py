@@ -93,7 +93,7 @@ class Orientation(CostTerm):
 
     def __call__(self, batch):
         return symmetric_orientation_error_relative(
-            batch.layout.take_all(batch.sensordata, self.requests))
+            batch.columns.take_all(batch.sensordata, self.requests))
 
 
 @register("reach")

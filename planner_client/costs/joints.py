@@ -34,7 +34,7 @@ def _joint_names(s: Section, ctx: TermContext, default: list[str], what: str) ->
 
 def _positions(batch, requests) -> torch.Tensor:
     """``[S, T, n_joints]`` joint positions of the rollouts."""
-    return batch.layout.take_all(batch.sensordata, requests)
+    return batch.columns.take_all(batch.sensordata, requests)
 
 
 @register("joint_limits")

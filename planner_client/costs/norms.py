@@ -20,7 +20,7 @@ from __future__ import annotations
 import torch
 
 from planner_client.costs.base import CostTerm
-from planner_client.sensors import SensorLayout
+from planner_client.sensors import SensorColumns
 
 
 class NormObjective:
@@ -29,11 +29,11 @@ class NormObjective:
 
     Args:
         terms: ``(term, weights [T])`` pairs, one per distinct term.
-        layout: columns of the sensors in ``sensordata``.
+        sensor_columns: where each sensor's values are in ``sensordata``.
         nsensordata: width of ``sensordata``.
     """
 
-    def __init__(self, terms: list[tuple[CostTerm, torch.Tensor]], layout: SensorLayout,
+    def __init__(self, terms: list[tuple[CostTerm, torch.Tensor]], sensor_columns: SensorColumns,
                  nsensordata: int):
         weights = terms[0][1]
         dtype, device = weights.dtype, weights.device
@@ -51,7 +51,7 @@ class NormObjective:
         for i, (b, parts) in enumerate(components):
             bias[i] = b
             for req, index, coef in parts:
-                lin[layout.columns[req].start + index, i] += coef
+                lin[sensor_columns.spans[req].start + index, i] += coef
         self.lin = lin
         self.bias = bias if bool(bias.any()) else None
         groups = torch.zeros(m, g, dtype=dtype, device=device)            # component -> norm

@@ -69,20 +69,20 @@ class Objective:
 
     def _split(self, batch: RolloutBatch) -> tuple[NormObjective | None,
                                                    list[tuple[CostTerm, torch.Tensor]]]:
-        """The fused form of this objective's norm terms for the batch's layout, shapes and
-        device, and its other weighted terms; made once per layout. ``None`` and all the terms
-        when fewer than two are norms (one alone is as fast on its own)."""
+        """The fused form of this objective's norm terms for the batch's sensor columns, shapes
+        and device, and its other weighted terms; made once per columns object. ``None`` and all
+        the terms when fewer than two are norms (one alone is as fast on its own)."""
         sd = batch.sensordata
         key = (batch.controls.shape[1], sd.shape[-1], sd.dtype, sd.device)
-        layout, split = self._fused.get(key, (None, None))
-        if layout is not batch.layout:
+        columns, split = self._fused.get(key, (None, None))
+        if columns is not batch.columns:
             weighted = self._weighted(key[0], sd.dtype, sd.device)
             norms, rest = [], []
             for term, w in weighted:
                 (norms if fusable([term]) else rest).append((term, w))
-            split = ((NormObjective(norms, batch.layout, sd.shape[-1]), rest) if len(norms) > 1
+            split = ((NormObjective(norms, batch.columns, sd.shape[-1]), rest) if len(norms) > 1
                      else (None, weighted))
-            self._fused[key] = (batch.layout, split)
+            self._fused[key] = (batch.columns, split)
         return split
 
     def _weighted(self, horizon: int, dtype: torch.dtype,

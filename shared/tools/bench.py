@@ -233,7 +233,7 @@ def select_cases(cfg: BenchConfig, patterns: list[str] | None = None, sweep: Swe
 
 def check_variants(ready: list[ReadyCase], workers: int,
                    check: Callable[[str], list[str]]) -> list[str]:
-    """Every message ``check`` (:func:`shared.tools.check.scenario_errors`: both processes'
+    """Every message ``check`` (:func:`shared.tools.process_checks.scenario_errors`: both processes'
     ``--check``) gives for the sweep variants among ``ready``, ``workers`` at a time; each
     message names the variant's file and the overrides."""
     variants = [rc for rc in ready if rc.overrides]

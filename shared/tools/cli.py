@@ -15,13 +15,16 @@ from typing import Optional
 
 import typer
 
-from shared.cli_common import default_run_dir, error_blocks, summary_line
+from shared.cli_common import (EstimateDelays, Hardware, Host, Keys, Mode, PlanEvery, Port,
+                               RealtimeFactor, RunDir, ScenarioArgument, Seed, Timeout, Verbose,
+                               Window, default_run_dir, error_blocks, flow_help, summary_line)
+from shared.endpoints import DEFAULT_HOST, DEFAULT_PORT
 from shared.config import ConfigError, load_yaml
 from shared.config_files import ENV_VAR, KINDS, Entry, entries, search_folders, shown
 from shared.evaluation.timing import describe_timing
 from shared.tools.launch import EpisodeLaunch, free_port_block, mode_conflicts, run_episode
 from shared.scenario import find_scenario, load_scenario
-from shared.tools.check import scenario_errors
+from shared.tools.process_checks import scenario_errors
 from shared.tools.new import new_scenario
 
 __all__ = ["app", "free_port_block"]   # free_port_block: tests start processes with it
@@ -52,9 +55,7 @@ def _load_or_exit(scenario: str):
 
 
 @app.command("check")
-def check(
-    scenario: str = typer.Argument(..., help="Scenario name (m3p2i list) or YAML path."),
-) -> None:
+def check(scenario: ScenarioArgument) -> None:
     """Check SCENARIO as both processes would, without starting them: every error of the file
     at once (frames, actuators, cost terms, observers included); exit 0 when sound, 2 if not."""
     sc = _load_or_exit(scenario)
@@ -63,75 +64,70 @@ def check(
 
 @app.command("layout")
 def layout(
-    scenario: str = typer.Argument(..., help="Scenario name (m3p2i list) or YAML path."),
+    scenario: ScenarioArgument,
     as_json: bool = typer.Option(False, "--json", help="Print one JSON object instead of "
                                  "tables (keys: scenario, scenario_hash, robot, dt, sizes, nu, "
-                                 "qpos, qvel, act, mocap, ctrl, extras), for bridges and tools "
-                                 "in other languages."),
+                                 "qpos, qvel, act, mocap, ctrl, extras, frames), for bridges "
+                                 "and tools in other languages."),
 ) -> None:
     """Print what a world (a hardware bridge) must send and accept for SCENARIO, by name:
     each index of state.qpos and state.qvel with its joint, component, unit and frame; each
     row of mocap_pos/mocap_quat with its body; each index of command.ctrl with its actuator,
-    unit, range and safe value; the state.extras the scenario needs.
+    unit, range and safe value; the state.extras the scenario needs. Then the frames the
+    scenario's YAML may name: the robot's bodies and sites (site:NAME), the objects, the walls.
 
     The planner stops (exit code 3) when a world's first state has other sizes than these."""
     import json
 
     from rich.console import Console
 
-    from shared.layout import bridge_layout
+    from dataclasses import asdict
+
+    from shared.layout import bridge_layout, frame_names
     from shared.scene import compile_model
-    from shared.tools.layout_table import print_layout
+    from shared.tools.layout_table import print_frames, print_layout
     try:
         sc = load_scenario(scenario)
-        found = bridge_layout(sc, compile_model(sc))
+        model = compile_model(sc)
+        found, frames = bridge_layout(sc, model), frame_names(sc, model)
     except (ConfigError, ValueError) as exc:
         typer.echo(f"error: {exc}", err=True)
         raise typer.Exit(2) from None
     if as_json:
-        typer.echo(json.dumps(found.to_dict(), indent=1))
+        typer.echo(json.dumps({**found.to_dict(), "frames": [asdict(f) for f in frames]},
+                              indent=1))
         return
-    print_layout(found, Console(width=None if sys.stdout.isatty() else 200))
+    console = Console(width=None if sys.stdout.isatty() else 200)
+    print_layout(found, console)
+    print_frames(frames, console)
 
 
 @app.command("run")
 def run(
-    scenario: str = typer.Argument(..., help="Scenario name (m3p2i list) or YAML path."),
-    mode: str = typer.Option("lockstep", help="lockstep (deterministic) or realtime (the world "
-                             "steps on the wall clock, playing the planner's newest plan)."),
-    plan_every: int = typer.Option(1, min=1, help="lockstep: world steps per command; K > 1 "
-                                   "emulates, repeatably, a planner K times slower than the world."),
-    hardware: Optional[str] = typer.Option(None, "--hardware", help="The world behaves like "
-                                           "hardware (docs/hardware.md): a profile (nominal, "
-                                           "lab, harsh) or a YAML file of hardware: keys; "
-                                           "replaces the scenario's hardware: section. Only "
-                                           "the world is told: the planner keeps the nominal "
-                                           "model (--compensate declares the delays)."),
+    scenario: ScenarioArgument,
+    mode: Mode = "lockstep",
+    plan_every: PlanEvery = 1,
+    hardware: Hardware = None,
     compensate: bool = typer.Option(False, "--compensate", help="Declare the hardware's "
                                     "actuation and state delays to the planner (as a robot's "
                                     "owner who measured them would, in planner.delays): it plans "
                                     "from the state predicted for when its plan acts."),
-    estimate_delays: bool = typer.Option(False, "--estimate-delays", help="The planner "
-                                         "measures the delays online instead (planner.delays."
-                                         "estimate): the state delay from the lag the world "
-                                         "reports, the actuation delay from the robot's response."),
+    estimate_delays: EstimateDelays = False,
     planner_max_rate: float = typer.Option(0.0, min=0.0, help="realtime: the planner makes at "
                                            "most this many plans per second (0: as fast as it "
                                            "can): a slower computer, rehearsed."),
-    realtime_factor: float = typer.Option(1.0, min=0.01, help="realtime: world seconds per wall "
-                                          "second; 0.5 runs the world at half speed, so every "
-                                          "planner rate counts double against it."),
-    port: int = typer.Option(0, help="Base port (0: pick free ports)."),
-    run_dir: Optional[Path] = typer.Option(None, help="Where logs go (default runs/<scenario>-<time>)."),
-    timeout: float = typer.Option(900.0, help="Wall-clock seconds before the run is abandoned."),
-    viewer: bool = typer.Option(False, help="Open the MuJoCo viewer on the server."),
+    realtime_factor: RealtimeFactor = 1.0,
+    port: int = typer.Option(0, help="The world's first port, as m3p2i-server --port (0: pick "
+                             "a free block of ports)."),
+    run_dir: RunDir = None,
+    timeout: Timeout = 900.0,
+    window: Window = False,
     view: bool = typer.Option(False, "--view", help="Serve the browser view (m3p2i view) of the "
-                              "episode and print its URL; needs m3p2i[view]."),
+                              "episode and print its URL; needs m3p2i\\[view]."),
     view_port: int = typer.Option(0, help="With --view: the page's port (0: a free one)."),
-    seed: int = typer.Option(0, help="Seed of the randomised start and of the planner's sampling."),
-    verbose: bool = typer.Option(False, "--verbose", "-v", help="Show both processes' output."),
-    keys: Optional[Path] = typer.Option(None, help="CURVE key folder (m3p2i keys DIR): both "
-                                        "processes authenticate and encrypt every socket."),
+    seed: Seed = 0,
+    verbose: Verbose = False,
+    keys: Keys = None,
 ) -> None:
     """Run one episode of SCENARIO with server and planner; exit 0 on success."""
     flags = {"mode": "--mode", "max_rate": "--planner-max-rate",
@@ -152,7 +148,7 @@ def run(
                f"{', delays estimated' if estimate_delays else ''}); logs in {run_dir}")
     try:
         result = run_episode(EpisodeLaunch(scenario=sc.source, run_dir=run_dir, seed=seed,
-                                           mode=mode, port=port, timeout=timeout, viewer=viewer,
+                                           mode=mode, port=port, timeout=timeout, window=window,
                                            verbose=verbose, plan_every=plan_every, view=view,
                                            view_port=view_port, keys=keys,
                                            hardware=hardware or "", delays=delays,
@@ -392,16 +388,14 @@ def record(
     out: Path = typer.Option(..., help="Video file: .gif (Pillow) or .mp4 (needs ffmpeg)."),
     log: Optional[Path] = typer.Option(None, help="Render this episode log (or run folder) "
                                        "instead of running an episode."),
-    seed: int = typer.Option(0, help="Seed of the randomised start and of the planner."),
-    run_dir: Optional[Path] = typer.Option(None, help="Where the episode's logs go (default "
-                                           "runs/<scenario>-<time>)."),
-    timeout: float = typer.Option(900.0, help="Wall-clock seconds before the run is abandoned."),
+    seed: Seed = 0,
+    run_dir: RunDir = None,
+    timeout: Timeout = 900.0,
     width: int = typer.Option(480, help="Frame width in pixels."),
     height: int = typer.Option(360, help="Frame height in pixels."),
     fps: float = typer.Option(20.0, help="Frames per second of the video."),
     speed: float = typer.Option(1.0, help="Simulated seconds per video second."),
-    keys: Optional[Path] = typer.Option(None, help="CURVE key folder (m3p2i keys DIR) for both "
-                                        "processes and the recorder."),
+    keys: Keys = None,
 ) -> None:
     """Record an episode offscreen (EGL or OSMesa) to GIF/MP4, with the planner's best sampled
     trajectories drawn in green."""
@@ -444,9 +438,8 @@ def view(
                                              "for a live view; leave out with --log."),
     log: Optional[Path] = typer.Option(None, help="Replay this episode log (or run folder) "
                                        "instead: a time slider, the actions, the metrics."),
-    host: str = typer.Option("127.0.0.1", help="Address of the world and the planner."),
-    port: int = typer.Option(5555, help="The world's first port (as m3p2i-server --port); the "
-                             "state is on PORT+1, the planner's diagnostics on PORT+3."),
+    host: Host = DEFAULT_HOST,
+    port: Port = DEFAULT_PORT,
     view_port: int = typer.Option(8080, help="Port of the page (the next free one if taken)."),
     public: bool = typer.Option(False, "--public", help="Serve the page on every network "
                                 "interface, not only loopback. Anyone who reaches it can pause, "
@@ -456,9 +449,7 @@ def view(
                                           "(as diagnostics.jsonl beside the episode log)."),
     duration: Optional[float] = typer.Option(None, help="Stop after this many seconds "
                                              "(default: until Ctrl-C)."),
-    keys: Optional[Path] = typer.Option(None, help="CURVE key folder of the planner's side "
-                                        "(m3p2i keys DIR), for a world and planner run with "
-                                        "--keys: the view connects with the planner's key pair."),
+    keys: Keys = None,
 ) -> None:
     """Show a world and its planner in a browser: the scene from the scenario's model, the
     planner's best sampled trajectories coloured by mode, the executed path, the action and its
@@ -627,6 +618,8 @@ def new(
                        + (" (shipped)" if e.folder.origin == "shipped" else ""))
     typer.echo(f"edit it, then: m3p2i run {name}")
 
+
+flow_help(app)   # the docstrings above as paragraphs that rich rewraps to the terminal
 
 if __name__ == "__main__":
     app()

@@ -125,7 +125,7 @@ class EpisodeLaunch:
     estimate_delays: bool = False   # planner only: measure the delays online
     max_rate: float = 0.0           # planner only: at most this many plans per second (0: no cap)
     realtime_factor: float = 1.0    # server, realtime: world seconds per wall second
-    viewer: bool = False
+    window: bool = False            # server: MuJoCo's own viewer window (a display needed)
     verbose: bool = False           # children write to this terminal instead of log files
     view: bool = False              # serve the browser view (m3p2i view) beside the episode
     view_port: int = 0              # its page's port (0: a free one)
@@ -141,8 +141,8 @@ class EpisodeLaunch:
                   "--log", self.log or str(self.run_dir / "episode.jsonl")]
         if self.keep_serving:
             server.append("--keep-serving")
-        if self.viewer:
-            server.append("--viewer")
+        if self.window:
+            server.append("--window")
         if self.plan_every != 1:
             server += ["--plan-every", str(self.plan_every)]
         if self.realtime_factor != 1.0:

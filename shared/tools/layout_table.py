@@ -1,11 +1,12 @@
-"""``m3p2i layout``'s tables: a scenario's :class:`~shared.layout.BridgeLayout` for a person."""
+"""``m3p2i layout``'s tables: a scenario's :class:`~shared.layout.BridgeLayout` for a person,
+and the frame names its YAML may use (:func:`shared.layout.frame_names`)."""
 
 from __future__ import annotations
 
 from rich.console import Console
 from rich.table import Table
 
-from shared.layout import BridgeLayout, Coordinate
+from shared.layout import BridgeLayout, Coordinate, FrameName
 
 
 def _vector(values) -> str:
@@ -80,3 +81,16 @@ def print_layout(layout: BridgeLayout, console: Console) -> None:
         console.print(table)
     else:
         console.print("state.extras: none needed by this scenario")
+
+
+def print_frames(frames: tuple[FrameName, ...], console: Console) -> None:
+    """The frames a scenario may name, and what each is."""
+    console.print("frames: the names cost terms, observers, the success test and metrics may "
+                  "use (a site as site:NAME)", highlight=False)
+    table = Table()
+    for column in ("name", "kind", "part of"):
+        table.add_column(column)
+    for f in frames:
+        kind = f"{f.kind} ({f.same_as}, the robot's frame)" if f.same_as else f.kind
+        table.add_row(f.name, kind, f.part)
+    console.print(table)

@@ -11,7 +11,7 @@ import os
 
 import mujoco
 
-from shared.check import scenario_errors as _scenario_errors
+from shared.scenario_check import scenario_errors as _scenario_errors
 from shared.config import ConfigError, ErrorLog
 from shared.evaluation.metrics import MetricsEvaluator
 from shared.frames import FrameResolver
@@ -21,7 +21,9 @@ from shared.scenario import MoveConfig, Scenario
 
 def model_checks(scenario: Scenario, model: mujoco.MjModel, resolve: FrameResolver,
                  errors: ErrorLog) -> None:
-    """The names the world resolves against its compiled model."""
+    """The names the world resolves against its compiled model: the frames of its success test
+    and disturbances, the frames and bodies of its metrics. Only names: the same checks serve
+    on the stand-in model of a file whose own model cannot be built."""
     for i, pred in enumerate(scenario.episode.success):
         errors.call(check_frames, pred, resolve, scenario.source, f"episode.success[{i}]")
     for i, d in enumerate(scenario.world.disturbances):
@@ -33,4 +35,4 @@ def model_checks(scenario: Scenario, model: mujoco.MjModel, resolve: FrameResolv
 
 def scenario_errors(name_or_path: str | os.PathLike) -> list[ConfigError]:
     """Every error of a scenario file the world would meet."""
-    return _scenario_errors(name_or_path, model_checks)
+    return _scenario_errors(name_or_path, model_checks, name_checks=model_checks)

@@ -13,7 +13,7 @@ import os
 
 import mujoco
 
-from shared.check import scenario_errors as _scenario_errors
+from shared.scenario_check import scenario_errors as _scenario_errors
 from shared.config import ConfigError, ErrorLog
 from shared.frames import FrameResolver
 from shared.predicates import check_frames
@@ -23,15 +23,22 @@ from planner_client.problem import (actuator_names, apply_planning_model, build_
                                     build_problem, mppi_config)
 
 
-def model_checks(scenario: Scenario, model: mujoco.MjModel, resolve: FrameResolver,
-                 errors: ErrorLog) -> None:
-    """What the planner resolves against its compiled model and registries."""
+def name_checks(scenario: Scenario, model: mujoco.MjModel, resolve: FrameResolver,
+                errors: ErrorLog) -> None:
+    """The names the planner looks up: its objectives' cost terms, frames and actuators, its
+    observers' frames."""
     errors.call(build_objectives, scenario, resolve, actuator_names(model))
-    errors.call(mppi_config, scenario, model)
-    errors.call(apply_planning_model, build_spec(scenario), scenario.planner.model, scenario.source)
     for factor, cfg in scenario.observers.items():
         for _, pred in cfg.rules:
             errors.call(check_frames, pred, resolve, scenario.source, f"observers.{factor}")
+
+
+def model_checks(scenario: Scenario, model: mujoco.MjModel, resolve: FrameResolver,
+                 errors: ErrorLog) -> None:
+    """What the planner resolves against its compiled model and registries."""
+    name_checks(scenario, model, resolve, errors)
+    errors.call(mppi_config, scenario, model)
+    errors.call(apply_planning_model, build_spec(scenario), scenario.planner.model, scenario.source)
     if scenario.planner.backend == "warp" and not errors.errors:
         errors.call(warp_checks, scenario)
 
@@ -47,4 +54,4 @@ def warp_checks(scenario: Scenario) -> None:
 
 def scenario_errors(name_or_path: str | os.PathLike) -> list[ConfigError]:
     """Every error of a scenario file the planner would meet."""
-    return _scenario_errors(name_or_path, model_checks)
+    return _scenario_errors(name_or_path, model_checks, name_checks)
