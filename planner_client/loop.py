@@ -27,12 +27,9 @@ import zmq
 
 from shared import protocol as P
 from shared.endpoints import Endpoints, socket
-from shared.scenario import DelayConfig
 from shared.security import Authenticator, HandshakeMonitor, PlannerKeys, curve_client, \
     curve_server, describe_handshake_failure
-from planner_client.controller import Controller, LoopStats, Renew
-from planner_client.motion import MotionPlanner
-from planner_client.task import TaskLayer
+from planner_client.controller import Controller, LoopStats
 
 log = logging.getLogger("m3p2i.planner")
 
@@ -45,19 +42,16 @@ class HandshakeRefused(RuntimeError):
 
 
 class PlannerClient:
-    def __init__(self, planner: MotionPlanner, task: TaskLayer, endpoints: Endpoints,
-                 scenario_name: str, scenario_hash: str, server_timeout: float = 2.0,
-                 exit_on_done: bool = True, diagnostics: bool = True,
-                 keys: PlannerKeys | None = None, diagnostics_host: str | None = None,
-                 renew: Renew | None = None, delays: DelayConfig | None = None,
-                 max_rate: float = 0.0):
-        """``renew``: when given, each new session of the world after the first (a new episode:
-        a world reset with a seed, or restarted) gets a planner and task layer as a fresh
-        process would build them, so no warm start, belief or random stream carries over.
-        ``delays``: the robot's unseen delays to compensate (default: the scenario's
-        ``planner.delays``). ``max_rate``: at most this many iterations per wall-clock second
-        (0: as fast as it can), to rehearse on a fast machine what a slower computer does."""
-        self.controller = Controller(planner, task, delays, renew)
+    def __init__(self, controller: Controller, endpoints: Endpoints, scenario_name: str,
+                 scenario_hash: str, server_timeout: float = 2.0, exit_on_done: bool = True,
+                 diagnostics: bool = True, keys: PlannerKeys | None = None,
+                 diagnostics_host: str | None = None, max_rate: float = 0.0):
+        """``controller``: the loop each state is handed to; with its ``renew``, each new
+        session of the world after the first (a new episode: a world reset with a seed, or
+        restarted) gets a planner and task layer as a fresh process would build them.
+        ``max_rate``: at most this many iterations per wall-clock second (0: as fast as it
+        can), to rehearse on a fast machine what a slower computer does."""
+        self.controller = controller
         self.endpoints = endpoints
         self.hello = P.Hello(scenario=scenario_name, scenario_hash=scenario_hash)
         self.server_timeout = server_timeout
