@@ -42,6 +42,9 @@ class HandshakeRefused(RuntimeError):
 
 
 class PlannerClient:
+    """A :class:`Controller` served over ZeroMQ: states from a world server in, its commands
+    (and, for listeners, its diagnostics) out."""
+
     def __init__(self, controller: Controller, endpoints: Endpoints, scenario_name: str,
                  scenario_hash: str, server_timeout: float = 2.0, exit_on_done: bool = True,
                  diagnostics: bool = True, keys: PlannerKeys | None = None,
