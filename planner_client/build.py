@@ -1,4 +1,4 @@
-"""Assemble a planner client from a scenario: problem, motion planner, task layer, loop."""
+"""Assemble a planner from a scenario: problem, motion planner, task layer, controller, client."""
 
 from __future__ import annotations
 
@@ -11,6 +11,7 @@ from shared.endpoints import Endpoints
 from shared.predicates import check_frames
 from shared.scenario import Scenario
 from planner_client.backends import make_backend
+from planner_client.controller import Controller
 from planner_client.loop import PlannerClient
 from planner_client.motion import MotionPlanner
 from planner_client.problem import build_problem, mppi_config
@@ -58,12 +59,11 @@ def build_task(scenario: Scenario, planner: MotionPlanner) -> TaskLayer:
                                scenario.planner.confirm)
 
 
-def build_client(scenario: Scenario, endpoints: Endpoints, threads: int = 0,
-                 seed: int | None = None, backend: str | None = None, device: str | None = None,
-                 before_connect: Callable[[], None] | None = None, **options) -> PlannerClient:
-    """The planner client of ``scenario``; ``before_connect`` runs once the planner and task
-    are built (the slow part: imports, model compilation) and before any socket is opened:
-    a hot spare waits there."""
+def build_controller(scenario: Scenario, threads: int = 0, seed: int | None = None,
+                     backend: str | None = None, device: str | None = None) -> Controller:
+    """The control loop of ``scenario`` (thesis Alg. 1): its motion planner and task layer,
+    sampling with ``seed`` (None: ``planner.mppi.seed``); a new episode with a seed rebuilds
+    both, sampling with that seed."""
     def renew(episode_seed: int | None):
         planner = build_motion_planner(scenario, threads,
                                        seed if episode_seed is None else episode_seed,
@@ -71,7 +71,16 @@ def build_client(scenario: Scenario, endpoints: Endpoints, threads: int = 0,
         return planner, build_task(scenario, planner)
 
     planner, task = renew(None)
+    return Controller(planner, task, renew=renew)
+
+
+def build_client(scenario: Scenario, endpoints: Endpoints, threads: int = 0,
+                 seed: int | None = None, backend: str | None = None, device: str | None = None,
+                 before_connect: Callable[[], None] | None = None, **options) -> PlannerClient:
+    """The planner client of ``scenario``; ``before_connect`` runs once the planner and task
+    are built (the slow part: imports, model compilation) and before any socket is opened:
+    a hot spare waits there."""
+    controller = build_controller(scenario, threads, seed, backend, device)
     if before_connect is not None:
         before_connect()
-    return PlannerClient(planner, task, endpoints, scenario.name, scenario.hash, renew=renew,
-                         **options)
+    return PlannerClient(controller, endpoints, scenario.name, scenario.hash, **options)

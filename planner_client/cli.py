@@ -100,7 +100,8 @@ def main(
     except ValueError as exc:
         typer.echo(f"error: --device {device!r}: {exc}", err=True)
         raise typer.Exit(2) from None
-    from planner_client.loop import HandshakeRefused, LayoutMismatch
+    from planner_client.controller import LayoutMismatch
+    from planner_client.loop import HandshakeRefused
     try:
         sc = with_delays(load_scenario(scenario), actuation_delay_ms, state_delay_ms,
                          estimate_delays)

@@ -1,9 +1,10 @@
 """Planner speed: iterations per second, and the ratio of one iteration to a bare rollout.
 
-For each scenario the planner runs closed loop in-process (its u0 applied to a copy of the world)
-and each iteration (sample -> mujoco.rollout -> costs -> M3P2I update) is timed against bare
-``mujoco.rollout`` calls replaying the planner's own samples and start states (same thread count,
-persistent pool):
+For each scenario the planner's control loop (:class:`planner_client.controller.Controller`, as
+the planner process runs it) runs closed loop in-process, its command applied to a copy of the
+world, and each iteration (mirror -> task layer -> sample -> mujoco.rollout -> costs -> M3P2I
+update -> command: the planning time a world logs) is timed against bare ``mujoco.rollout`` calls
+replaying the planner's own samples and start states (same thread count, persistent pool):
 
 - ``ratio_to_rollout``: to the world model over the same horizon in seconds (each control held
   for ``planner.timestep / world.timestep`` world steps): what planning costs against simulating
@@ -55,12 +56,13 @@ from mujoco import rollout as mj_rollout
 from rich.console import Console
 from rich.table import Table
 
+from shared import protocol as P
 from shared.config import ConfigError
 from shared.scenario import load_scenario
 from shared.scene import build_spec, compile_model, get_full_state, initial_data
 from shared.tools.bench import machine
 from shared.tools.speed_report import update
-from planner_client.build import build_motion_planner
+from planner_client.build import build_controller
 from planner_client.problem import apply_planning_model, tune_planning_model
 
 SCENARIOS = ("navigation", "push_pull", "push_pull_fast", "pick_place")
@@ -72,7 +74,8 @@ def measure(scenario, iterations: int, nthread: int, rounds: int = 20, backend: 
             device: str = "cuda:0") -> dict:
     """Median planner iteration and median bare rollouts, measured in alternating blocks.
 
-    The planner runs closed loop (its u0 applied to its own copy of the world). The bare rollouts
+    The controller runs closed loop (its command applied to its own copy of the world, a state
+    per step as a lock-step world publishes it). The bare rollouts
     replay exactly the planner's own work: the [S, T] samples and start states of its last
     iterations, on the world model over the same seconds (no planner sensors), on the planner's
     own model without sensors, and on it with the sensors its costs read. Blocks alternate
@@ -80,7 +83,8 @@ def measure(scenario, iterations: int, nthread: int, rounds: int = 20, backend: 
     virtual machine's drifting speed hit all four alike; each pool is used only in its own block
     so idle threads never compete.
     """
-    planner = build_motion_planner(scenario, nthread, backend=backend, device=device)
+    controller = build_controller(scenario, nthread, backend=backend, device=device)
+    planner = controller.planner
     model = planner.problem.model
     data = initial_data(scenario, model)      # the scenario's start pose (the Panda's ready pose)
     world = compile_model(scenario)
@@ -104,18 +108,24 @@ def measure(scenario, iterations: int, nthread: int, rounds: int = 20, backend: 
             if i >= 3:                      # the first calls of a block warm caches and threads
                 times[key].append(took if took is not None else time.perf_counter() - t)
 
+    controller.begin("lockstep", model.opt.timestep)
+    seq = iter(range(10**9))
+
     def plan_step() -> float:
-        """One planner iteration, timed alone: the world's step and the copies kept for the
-        replays around it are the harness's work, not the planner's (60 µs of navigation's)."""
-        x0 = get_full_state(model, data).copy()
-        t = time.perf_counter()
-        it = planner.iterate(x0)
-        took = time.perf_counter() - t
+        """One controller step, timed by itself (the command's ``plan_time``): the world's
+        step and the copies kept for the replays around it are the harness's work, not the
+        planner's (60 µs of navigation's)."""
+        cmd = controller.step(P.State(
+            session="bench", seq=next(seq), time=float(data.time), qpos=data.qpos.copy(),
+            qvel=data.qvel.copy(), act=data.act.copy(), mocap_pos=data.mocap_pos.copy(),
+            mocap_quat=data.mocap_quat.copy()))
+        # the start state the iteration rolled out from: the mirror's (no delays: no prediction)
+        x0 = get_full_state(model, controller.mirror.data).copy()
         work.append((x0, planner.last_samples.copy()))
         del work[:-block]
-        data.ctrl[:] = it.result.u0.numpy()
+        data.ctrl[:] = cmd.ctrl
         mujoco.mj_step(model, data)
-        return took
+        return cmd.plan_time
 
     counter = iter(range(10**9))
 
@@ -141,7 +151,7 @@ def measure(scenario, iterations: int, nthread: int, rounds: int = 20, backend: 
                 timed("own", own_rollout)
                 timed("sensors", sensor_rollout)
     finally:
-        planner.close()
+        controller.close()
     med = {k: float(np.median(v)) for k, v in times.items()}
     return {"scenario": scenario.name, "samples": samples, "horizon": horizon,
             "hz": round(1.0 / med["plan"], 2),

@@ -1,11 +1,14 @@
-"""The world server's network loop: handshake, state publishing, command intake, episode log.
+"""The world server's network loop: handshake, state publishing, command intake, control ops.
 
+The episode itself (the world, its log, the steps commands drive, the summary) is
+:class:`server.episode.Episode`; this module serves it over ZeroMQ and schedules its steps.
 Lock-step: state ``seq`` is published and the world waits for the command answering it (the
 state is re-published every ``republish`` seconds meanwhile, for late subscribers). Real-time:
 the world holds its start state until the first command, then steps on the wall clock playing
 the newest command's time-indexed plan (:mod:`shared.timed_plan`; a command without a plan holds
 its ``ctrl``); when the plan runs out, or no command arrived for ``command_timeout``, the robot's
-safe control (zero velocity) holds until a fresh one arrives. Bad messages are logged with their reason and dropped; nothing received is executed.
+safe control (zero velocity) holds until a fresh one arrives. Bad messages are logged with their
+reason and dropped; nothing received is executed.
 
 The world is anything implementing :class:`server.interface.World` (the simulated
 :class:`server.world.SimWorld` by default, a user's bridge with ``--world``): this loop only
@@ -16,7 +19,6 @@ calls its methods, never MuJoCo's data. With hardware faults (``--hardware``, th
 from __future__ import annotations
 
 import logging
-import secrets
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -27,21 +29,17 @@ import zmq
 from shared import protocol as P
 from shared.endpoints import Endpoints, socket
 from shared.evaluation.episode import episode_log_path
-from shared.evaluation.metrics import MetricsEvaluator, describe, mean_hz
-from shared.evaluation.timing import describe_timing, timing_summary
 from shared.hardware import HardwareConfig
 from shared.scenario import Scenario
 from shared.security import Authenticator, HandshakeMonitor, WorldKeys, curve_server, \
     describe_handshake_failure
-from shared.timed_plan import PlanPlayer, TimedPlan, held
-from server.episode_log import EpisodeLog, read_log
-from server.hardware import FaultyWorld
-from server.interface import Outcome, World, world_name
+from shared.timed_plan import PlanPlayer
+from server.episode import Episode
+from server.episode_log import EpisodeLog
+from server.interface import Outcome, World
 from server.world import SimWorld
 
 log = logging.getLogger("m3p2i.server")
-
-_KEEP_STATE_TIMES = 4096   # states whose times are kept, for the age of the commands answering them
 
 
 @dataclass
@@ -65,7 +63,7 @@ class WorldServer:
         # the faults the world shows (docs/hardware.md): --hardware's, else the scenario's
         self.hardware = scenario.hardware if hardware is None else hardware
         self.world_class = world          # built afresh for each episode: world(scenario, seed)
-        self.world: World | None = None
+        self.episode: Episode | None = None
         self.opt = options or ServerOptions()
         self.log_template = str(log_path)
         self.viewer = viewer
@@ -101,37 +99,23 @@ class WorldServer:
     def _begin_episode(self, seed: int) -> None:
         """A new episode from ``seed``'s start: a fresh world (as a new process would build it),
         a new session (the planner re-handshakes and starts over) and its own episode log."""
-        if self.world is not None:
-            self.world.close()
-        self.world = self.world_class(self.scenario, seed)
-        if self.hardware.active:
-            self.world = FaultyWorld(self.world, self.hardware, realtime=self.opt.mode == "realtime")
-        self.world.reset()
-        self.metrics = MetricsEvaluator(self.scenario, self.world.model)   # bad frames fail here
-        self.session = secrets.token_hex(4)
-        self.seed = seed
-        self.seq = 0
-        self._over = False                # the summary is written; a kept world waits for a reset
+        if self.episode is not None:
+            self.episode.world.close()
+        self.episode = Episode(self.scenario, seed, episode_log_path(self.log_template, seed),
+                               self.world_class, self.hardware, self.opt.mode, self.curve)
         self._ending = False              # the safe stop, metrics and summary are being written
-        self._in_step = False             # a world step is between its physics and its log record
-        self._pending: int | None = None  # a signal that landed there, raised once it is logged
-        self._plan_times: list[float] = []
-        self._state_times: dict[int, float] = {}     # seq -> world time of recent states
-        self._plan_time_of: dict[int, float] = {}    # seq -> planning time, until first applied
-        self._lag = 0.0                               # of the newest command, world seconds
         self.player = PlanPlayer()
-        self._action = ""
-        self.action_changes: list[tuple[float, str]] = []
         self._paused = False              # control op pause: the world neither steps nor waits out time
-        self._published = -1              # the newest seq published (or lost: drop_state)
-        self.dropped = 0                  # states the simulated link lost
-        self.log = EpisodeLog(episode_log_path(self.log_template, seed))
-        self.log.write("header", scenario=self.scenario.name, scenario_hash=self.scenario.hash,
-                       source=self.scenario.source, mode=self.opt.mode, dt=self.world.dt,
-                       session=self.session, nq=self.world.model.nq, nu=self.world.model.nu,
-                       seed=seed, initial=self.world.initial, curve=self.curve,
-                       world=world_name(self.world_class),
-                       **(self.world.header() if isinstance(self.world, FaultyWorld) else {}))
+
+    @property
+    def world(self) -> World:
+        """The current episode's world."""
+        return self.episode.world
+
+    @property
+    def log(self) -> EpisodeLog:
+        """The current episode's log."""
+        return self.episode.log
 
     # ------------------------------------------------------------------ loop
 
@@ -161,24 +145,11 @@ class WorldServer:
                 self._linger()
         except KeyboardInterrupt:
             self._stop = True
-            self.world.status = "stopped"
+            self.episode.abort()
             log.info("interrupted")
         finally:
             self._ending = True                  # a signal from now on must not cost the summary
-            self._stop_world()                   # a robot holds still whatever ended the episode
-            if self.world.status == "running":   # ended by a seeded reset
-                self.world.status = "stopped"
-            outcome = self.world.outcome()
-            hz = mean_hz(self._plan_times)
-            metrics, timing = self._episode_metrics(outcome.status)
-            self.log.write("summary", status=outcome.status, time=outcome.time,
-                           measures=outcome.measures, planner_hz=hz, steps=self.seq,
-                           rejected=self._rejected, actions=self.action_changes,
-                           **({"dropped": self.dropped} if self.hardware.active else {}),
-                           metrics=metrics, timing=timing)
-            self.log.close()
-            self._over = True
-        outcome.measures["planner_hz"] = hz
+            outcome = self.episode.finish(self._rejected)
         return outcome
 
     def interrupt(self, signum: int, frame=None) -> None:
@@ -191,18 +162,10 @@ class WorldServer:
         self._stop = True
         if self._ending:
             return
-        if self._in_step:
-            self._pending = signum
+        if self.episode.in_step:
+            self.episode.pending = signum
             return
         raise KeyboardInterrupt(f"signal {signum}")
-
-    def _stop_world(self) -> None:
-        """The world's safe stop; its failure is logged loudly, and the summary still written."""
-        try:
-            self.world.stop()
-        except Exception as exc:   # noqa: BLE001 - the operator must hear of it, and the log end
-            log.exception("the world's safe stop failed: the robot may still be moving")
-            self.log.event("stop_failed", reason=f"{type(exc).__name__}: {exc}")
 
     def _await_next_episode(self) -> bool:
         """Between episodes of a kept world: publish the final state (so planners know the
@@ -216,29 +179,16 @@ class WorldServer:
                 return False
         return self._next_seed is not None and not self._stop
 
-    def _episode_metrics(self, status: str) -> tuple[dict | None, dict | None]:
-        """shared.evaluation's metrics and timing of the logged steps (the log is line-buffered,
-        so complete on disk). A failure here is logged, never allowed to cost the summary."""
-        try:
-            records = read_log(self.log.path)
-            metrics = self.metrics.evaluate(records, status=status)
-            timing = timing_summary(records)
-        except Exception:   # noqa: BLE001 - the summary must be written whatever went wrong
-            log.exception("could not compute the episode metrics")
-            return None, None
-        log.info("metrics: %s", describe(metrics))
-        log.info("timing: %s", describe_timing(timing))
-        return metrics.as_dict(), timing
-
     def _running(self) -> bool:
         return self.world.status == "running" and not self._stop and self._next_seed is None
 
     def _run_lockstep(self) -> None:
+        """Each state waits for the command answering it; ``plan_every`` world steps under it,
+        then the next state (:meth:`Episode.play`)."""
         self._publish()
-        while (cmd := self._next_command(lambda c: c.seq == self.seq)) is not None:
-            self._count_plan(cmd)
-            self._play_lockstep(cmd)
-            self._note_action(cmd.action)
+        while (cmd := self._next_command(lambda c: c.seq == self.episode.seq)) is not None:
+            self.episode.play(cmd, self.opt.plan_every, self._after_step)
+            self._publish()
 
     def _next_command(self, wanted) -> P.Command | None:
         """The next valid command ``wanted`` accepts, the pending state re-published every
@@ -251,27 +201,12 @@ class WorldServer:
             if cmd is not None and wanted(cmd) and not self._paused:
                 return cmd
             if time.monotonic() - last_pub >= self.opt.republish:
-                if self.seq == 0 and self.opt.wait_planner and not self._paused and \
+                if self.episode.seq == 0 and self.opt.wait_planner and not self._paused and \
                         time.monotonic() - started > self.opt.wait_planner:
                     raise TimeoutError(f"no planner command within {self.opt.wait_planner} s")
                 self._publish()
                 last_pub = time.monotonic()
         return None
-
-    def _play_lockstep(self, cmd: P.Command) -> None:
-        """``plan_every`` world steps under the command (its plan's knots by time, or its ctrl
-        held; the safe control past the plan's end), then the state is published. One step by
-        default; more emulate, deterministically, a planner that slow against a real-time world."""
-        plan = (TimedPlan(cmd.plan_t0, cmd.plan_dt, cmd.plan_ctrl, cmd.seq) if cmd.has_plan
-                else held(cmd.ctrl, self.world.time, cmd.seq))
-        # the lag, as in real time: from the answered state's time (its measurement's) to now;
-        # 0 unless the world publishes its states late (a state delay)
-        self._lag = max(0.0, self.world.time - self._state_times.get(cmd.seq, self.world.time))
-        for _ in range(self.opt.plan_every):
-            self._apply(plan.at(self.world.time), cmd.seq, publish=False)
-            if not self._running():
-                break
-        self._publish()
 
     def _run_realtime(self) -> None:
         period = self.world.dt / self.opt.realtime_factor
@@ -286,7 +221,7 @@ class WorldServer:
         while self._running():
             if cmd is not None:
                 latest_at = time.monotonic()
-                self._receive(cmd)
+                self.player.receive(self.episode.receive(cmd))
             now = time.monotonic()
             if self._paused:
                 # the world's clock stands still (plans are dated in world time, so they stay
@@ -301,11 +236,12 @@ class WorldServer:
             if now >= next_tick:
                 fresh = now - latest_at <= self.opt.command_timeout
                 if fresh and stale:
-                    self.log.event("commands_fresh", seq=self.seq)
+                    self.log.event("commands_fresh", seq=self.episode.seq)
                 elif not fresh and not stale:
                     log.warning("no command for %.2f s: holding the robot (safe control)",
                                 self.opt.command_timeout)
-                    self.log.event("commands_stale", seq=self.seq, age=now - latest_at)
+                    self.log.event("commands_stale", seq=self.episode.seq,
+                                   age=now - latest_at)
                     self.player.clear()
                 stale = not fresh
                 ctrl, source = self._playing() if fresh else (None, -1)
@@ -321,22 +257,6 @@ class WorldServer:
                     next_tick = now
             cmd = self._poll(max(0.0, next_tick - time.monotonic()))
 
-    def _receive(self, cmd: P.Command) -> None:
-        """A real-time command: its lag (published as ``state.lag``) and its plan, if any; a
-        command without a plan holds its ``ctrl`` until the next one (protocol 1's meaning)."""
-        sent = self._state_times.get(cmd.seq)
-        if sent is not None:
-            self._lag = max(0.0, self.world.time - sent)
-        self._count_plan(cmd)
-        self._note_action(cmd.action)
-        self.player.receive(TimedPlan(cmd.plan_t0, cmd.plan_dt, cmd.plan_ctrl, cmd.seq)
-                            if cmd.has_plan else held(cmd.ctrl, self.world.time, cmd.seq))
-
-    def _count_plan(self, cmd: P.Command) -> None:
-        """Its planning time counts (Hz statistics) once, on the first step it drives."""
-        if cmd.plan_time > 0:
-            self._plan_time_of[cmd.seq] = cmd.plan_time
-
     def _playing(self) -> tuple[np.ndarray | None, int]:
         """The control for the world's time and the state ``seq`` it was planned from;
         ``(None, seq)`` when that plan ran out, ``(None, -1)`` before any command."""
@@ -351,69 +271,24 @@ class WorldServer:
 
     # ------------------------------------------------------------------ steps
 
-    def _note_action(self, action: str) -> None:
-        if action != self._action:
-            self._action = action
-            self.action_changes.append((self.world.time, action))
-            self.log.event("action", time=self.world.time, action=action)
-
-    def _apply(self, ctrl: np.ndarray | None, source: int = -1, publish: bool = True,
+    def _apply(self, ctrl: np.ndarray | None, source: int = -1,
                cmd_age: float | None = None) -> None:
-        """One world step under ``ctrl`` (None: the safe control), planned from state
-        ``source`` (-1: none); the step's log record has the control's age (world seconds since
-        that state) and source, from which shared.evaluation.timing tells whether the planner
-        kept up. Real time also records ``cmd_age``: wall seconds from the newest command's
-        arrival to the moment this step's control was chosen (what the stale-command watchdog
-        compares with ``command_timeout``; None before the first command and in lock-step), so
-        a soak test can prove from the log that no stale command drove the robot."""
-        now = self.world.time
-        source = source if ctrl is not None else -1
-        age = now - self._state_times.get(source, now) if source >= 0 else 0.0
-        plan_time = self._plan_time_of.pop(source, 0.0)
-        if plan_time:
-            self._plan_times.append(plan_time)
-        self._in_step = True              # from the physics to its log record: no signal between
-        try:
-            self.world.step(self.world.safe_command() if ctrl is None else ctrl)
-            for event in self.world.events:
-                log.info("disturbance: %s moved at t=%.2f s", event["object"], event["time"])
-                self.log.event("disturbance", **event)
-            self.world.events.clear()
-            self.seq += 1
-            s = self.world.true_state()
-            self.log.write("step", seq=self.seq, time=s.time, qpos=s.qpos, qvel=s.qvel,
-                           act=s.act, mocap_pos=s.mocap_pos, mocap_quat=s.mocap_quat,
-                           ctrl=self.world.ctrl, action=self._action, safe=ctrl is None,
-                           plan_seq=source, age=age, plan_time=plan_time, cmd_age=cmd_age,
-                           extras=self.world.extras)
-        finally:
-            self._in_step = False
-        if self._pending is not None:
-            signum, self._pending = self._pending, None
-            raise KeyboardInterrupt(f"signal {signum}")
+        """Real time: one logged world step (:meth:`Episode.apply`), then its state published."""
+        self.episode.apply(ctrl, source, cmd_age)
+        self._after_step()
+        self._publish()
+
+    def _after_step(self) -> None:
         if self.viewer is not None:
             self.viewer.sync()
-        if publish:
-            self._publish()
 
     def _publish(self) -> None:
-        """The world's current state as state ``seq``. A state the world's
-        link loses (:meth:`World.drop_state`, asked once per ``seq``) is not sent: lock-step
-        re-sends it on the ``republish`` timer (the loss costs wall time, never world time),
-        real time sends the next step's."""
-        s = self.world.state()
-        state = P.State(session=self.session, seq=self.seq, time=s.time, qpos=s.qpos,
-                        qvel=s.qvel, act=s.act, mocap_pos=s.mocap_pos, mocap_quat=s.mocap_quat,
-                        status=self.world.status, extras=dict(self.world.extras), lag=self._lag)
-        self._state_times[self.seq] = state.time
-        self._state_times.pop(self.seq - _KEEP_STATE_TIMES, None)
-        self._plan_time_of.pop(self.seq - _KEEP_STATE_TIMES, None)
-        if self.seq != self._published:
-            self._published = self.seq
-            if self.world.drop_state():
-                self.dropped += 1
-                return
-        self.pub.send(P.encode(state))
+        """The world's current state as state ``seq``. A state the world's link loses
+        (:meth:`Episode.publish`) is not sent: lock-step re-sends it on the ``republish`` timer
+        (the loss costs wall time, never world time), real time sends the next step's."""
+        state = self.episode.publish()
+        if state is not None:
+            self.pub.send(P.encode(state))
 
     def _poll(self, timeout_s: float) -> P.Command | None:
         """Serve control requests and drain commands; return the newest valid command."""
@@ -438,7 +313,7 @@ class WorldServer:
             cmd = P.decode(frame, expect="command")
         except P.ProtocolError as exc:
             return self._reject(str(exc))
-        if cmd.session != self.session:
+        if cmd.session != self.episode.session:
             return None   # for an earlier run of this server: silently outdated, not malformed
         if cmd.ctrl.shape != (self.world.model.nu,):
             return self._reject(f"command.ctrl has shape {list(cmd.ctrl.shape)}, "
@@ -494,8 +369,8 @@ class WorldServer:
         log.info("planner connected (%s)", msg.client)
         self.rep.send(P.encode(P.Welcome(
             scenario=self.scenario.name, scenario_hash=self.scenario.hash, mode=self.opt.mode,
-            dt=self.world.dt, nu=int(self.world.model.nu), session=self.session,
-            seed=self.seed if self.opt.keep_serving else None)))
+            dt=self.world.dt, nu=int(self.world.model.nu), session=self.episode.session,
+            seed=self.episode.seed if self.opt.keep_serving else None)))
         self._publish()
 
     def _control(self, msg: P.Control) -> None:
@@ -503,17 +378,11 @@ class WorldServer:
         (an unknown or robot body to move); either way logged."""
         if msg.op == "move":
             try:
-                event = self.world.move_object(msg.object, msg.pos, msg.quat)
+                self.episode.move(msg.object, msg.pos, msg.quat)
             except ValueError as exc:
-                log.warning("control move refused: %s", exc)
-                self.log.event("control_refused", op=msg.op, object=msg.object, reason=str(exc))
                 self.rep.send(P.encode(P.Error(reason=f"move refused: {exc}")))
                 return
-            log.info("disturbance: %s moved by a control op at t=%.2f s", msg.object, event["time"])
-            self.log.event("control", op=msg.op, object=msg.object)
-            self.log.event("disturbance", **event)
             # a new state: a lock-step world waits for the command answering the moved one
-            self.seq += 1
             self._publish()
         elif msg.op == "reset" and msg.seed is not None and not self.opt.keep_serving:
             reason = ("a reset with a seed begins a new episode, and this world serves one: "
@@ -525,13 +394,13 @@ class WorldServer:
             self.log.event("control", op=msg.op, **({"seed": msg.seed} if msg.seed is not None else {}))
         if msg.op == "shutdown":
             self._stop = True
-            self.world.status = "stopped"
-        elif msg.op == "reset" and self.opt.keep_serving and (msg.seed is not None or self._over):
+            self.episode.abort()
+        elif msg.op == "reset" and self.opt.keep_serving and (msg.seed is not None or
+                                                              self.episode.finished):
             # run() ends this episode and begins the seed's (after one: the same seed again)
-            self._next_seed = self.seed if msg.seed is None else msg.seed
+            self._next_seed = self.episode.seed if msg.seed is None else msg.seed
         elif msg.op == "reset":
-            self.world.reset()
-            self.seq += 1
+            self.episode.reset()
             self._publish()
         elif msg.op in ("pause", "resume"):
             if self._paused != (msg.op == "pause"):
@@ -539,12 +408,12 @@ class WorldServer:
                          self.world.time)
             self._paused = msg.op == "pause"
             if self._paused:
-                self._stop_world()       # a robot must not go on with its last command
+                self.episode.stop_world()   # a robot must not go on with its last command
         self.rep.send(P.encode(msg))
 
     def close(self) -> None:
-        if self.world is not None:
-            self.world.close()
+        if self.episode is not None:
+            self.episode.world.close()
         for m in self.monitors.values():
             m.close()
         for s in (self.rep, self.pub, self.pull):

@@ -1,11 +1,13 @@
-"""The world interface: everything :class:`server.app.WorldServer` needs from a world.
+"""The world interface: everything the server (:class:`server.episode.Episode` and
+:class:`server.app.WorldServer`) needs from a world.
 
-The server owns the network side (handshake, sessions, the lock-step or real-time loop, the
-stale-command watchdog, plan playing, control ops, the episode log and its metrics); a world
-only applies controls and reports its state. :class:`server.world.SimWorld` (MuJoCo) is one
-implementation; :class:`server.bridge.Bridge` is the base of a world the server does not
-simulate (a robot, another simulator); ``m3p2i-server --world package.module:Class`` serves any
-subclass of :class:`World` (docs/bridge.md).
+The server owns the episode (sessions, the episode log and its metrics, plan playing, control
+ops) and the network side (handshake, the lock-step or real-time loop, the stale-command
+watchdog); a world only applies controls and reports its state.
+:class:`server.world.SimWorld` (MuJoCo) is one implementation; :class:`server.bridge.Bridge` is
+the base of a world the server does not simulate (a robot, another simulator);
+``m3p2i-server --world package.module:Class`` serves any subclass of :class:`World`
+(docs/bridge.md).
 
 How the server uses a world, per episode:
 

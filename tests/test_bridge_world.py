@@ -281,7 +281,8 @@ def test_a_bridge_that_fails_mid_episode_is_stopped_and_its_log_summarised(tmp_p
     try:
         end = time.monotonic() + 5
         while runner.is_alive() and time.monotonic() < end:
-            push.send(P.encode(P.Command(session=server.session, seq=0, ctrl=np.array([1.0, 0.0]))))
+            push.send(P.encode(P.Command(session=server.episode.session, seq=0,
+                                         ctrl=np.array([1.0, 0.0]))))
             time.sleep(0.02)
         runner.join(5)
         assert not runner.is_alive()

@@ -149,28 +149,23 @@ def test_compensation_makes_up_most_of_what_a_300_ms_round_trip_costs(tmp_path):
     ("realtime", 4, 4 + 3)])      # the lead (a 0.2 s lag) already holds the state delay
 def test_the_plan_is_dated_when_it_reaches_the_world_and_planned_for_when_it_acts(mode, dated, acts):
     from shared import protocol as P
-    from shared.endpoints import Endpoints
     from planner_client.build import build_motion_planner
-    from planner_client.loop import PlannerClient
+    from planner_client.controller import Controller
     from planner_client.task import FixedModes
-    from planner_client.timing import LeadEstimate
     nav = load_scenario("navigation")                       # world steps of 0.05 s
     planner = build_motion_planner(nav, threads=1)
-    client = PlannerClient(planner, FixedModes(("navigate",)), Endpoints(port=15995), nav.name,
-                           nav.hash, diagnostics=False,
-                           delays=DelayConfig(actuation_ms=150.0, state_ms=100.0))
+    controller = Controller(planner, FixedModes(("navigate",)),
+                            delays=DelayConfig(actuation_ms=150.0, state_ms=100.0))
     try:
         model = planner.problem.model
-        client.welcome = P.Welcome(nav.name, nav.hash, mode, 0.05, model.nu, "s")
-        if mode == "realtime":
-            client._lead = LeadEstimate(0.05)
+        controller.begin(mode, 0.05)      # real time: a lead estimate, from the lag observed
         state = P.State(session="s", seq=7, time=1.0, qpos=np.zeros(model.nq),
                         qvel=np.zeros(model.nv), act=np.zeros(model.na),
                         mocap_pos=np.zeros((model.nmocap, 3)),
                         mocap_quat=np.tile([1.0, 0, 0, 0], (model.nmocap, 1)), lag=0.2)
-        x0 = client.mirror.apply(state)
-        start, _, _ = client._plan_start(state, x0)
+        x0 = controller.mirror.apply(state)
+        start, _, _ = controller._plan_start(state, x0)
         assert start == pytest.approx(1.0 + 0.05 * dated)
-        assert client.mirror.data.time == pytest.approx(1.0 + 0.05 * acts)
+        assert controller.mirror.data.time == pytest.approx(1.0 + 0.05 * acts)
     finally:
-        client.close()
+        controller.close()

@@ -12,13 +12,13 @@ import torch
 from shared import protocol as P
 from shared.scenario import load_scenario
 from planner_client.build import build_motion_planner
+from planner_client.controller import Controller
 from planner_client.loop import PlannerClient
 from planner_client.mirror import Mirror
 from planner_client.problem import build_problem
 from planner_client.rollout import RolloutEngine
 from planner_client.sensors import SensorRequest
 from planner_client.task import FixedModes
-from shared.endpoints import Endpoints
 
 
 @pytest.fixture(scope="module")
@@ -178,19 +178,6 @@ def test_diagnostics_are_made_only_while_someone_subscribes():
         ctx.term()
 
 
-class _Outbox:
-    """Stands in for the command socket: keeps what the client sends."""
-
-    def __init__(self):
-        self.sent = []
-
-    def send(self, frame):
-        self.sent.append(P.decode(frame, expect="command"))
-
-    def close(self, linger=None):
-        pass
-
-
 class _Faulty:
     """An objective that returns NaN everywhere while ``broken`` is set (a diverged model or a
     faulty cost term)."""
@@ -207,19 +194,18 @@ def test_no_finite_cost_sends_the_safe_control_and_says_why(nav, caplog):
     planner = build_motion_planner(nav, threads=1)
     faulty = _Faulty(planner.problem.objectives["navigate"])
     planner.problem.objectives["navigate"] = faulty
-    client = PlannerClient(planner, FixedModes(("navigate",)), Endpoints(port=15990), nav.name,
-                           nav.hash, diagnostics=False)
-    client.push.close(0)
-    client.push = outbox = _Outbox()
-    safe = client.robot.safe_stop()
+    controller = Controller(planner, FixedModes(("navigate",)))
+    controller.begin("lockstep", nav.world.timestep)
+    safe = controller.robot.safe_stop()
     model = planner.problem.model
     plans = []
     try:
         def step(seq, broken):
             faulty.broken = broken
             state = dataclasses.replace(_state(model, 0.05 * seq), seq=seq)
-            client._step(state, lambda s, it: plans.append(it))
-            return outbox.sent[-1].ctrl
+            command = controller.step(state)
+            plans.append(controller.last.iteration)
+            return command.ctrl
 
         for seq in range(3):
             assert not np.array_equal(step(seq, False), safe)       # a plan is sent
@@ -237,5 +223,6 @@ def test_no_finite_cost_sends_the_safe_control_and_says_why(nav, caplog):
         assert plans[-1].fault is None
         np.testing.assert_array_equal(ctrl, plans[-1].command)
         assert any("resumed" in r.getMessage() for r in caplog.records)
+        assert controller.stats.safe_fallbacks == 4
     finally:
-        client.close()
+        controller.close()

@@ -169,13 +169,13 @@ def test_a_signal_as_the_episode_ends_still_leaves_the_summary(tmp_path):
     with _navigation_world(tmp_path, keep_serving=True) as server:
         with pytest.raises(KeyboardInterrupt):
             server.interrupt(signal.SIGTERM)      # serving: the episode ends as on Ctrl-C
-        metrics = server._episode_metrics
+        metrics = server.episode.evaluate
 
         def signalled_while_ending(status):
             server.interrupt(signal.SIGTERM)      # what the handler does when SIGTERM lands here
             return metrics(status)
 
-        server._episode_metrics = signalled_while_ending
+        server.episode.evaluate = signalled_while_ending
         outcome = server.run()                    # _stop is set: the episode ends at once
     assert outcome.status == "stopped"
     records = read_log(tmp_path / "episode.jsonl")

@@ -57,7 +57,7 @@ def _events(server: WorldServer, what: str) -> list[dict]:
 def test_a_moved_cube_is_published_and_logged_as_a_disturbance(world):
     server = world("pick_place")
     half = np.sqrt(0.5)
-    seq = server.seq
+    seq = server.episode.seq
     reply = _ask(server, P.Control(op="move", object="cube_a", pos=np.array([0.5, 0.1, 1.1]),
                                    quat=np.array([half, 0.0, 0.0, half])))
     assert isinstance(reply, P.Control) and reply.op == "move"
@@ -65,7 +65,7 @@ def test_a_moved_cube_is_published_and_logged_as_a_disturbance(world):
     np.testing.assert_allclose(server.world.data.xpos[cube.id], [0.5, 0.1, 1.1])
     np.testing.assert_allclose(server.world.data.xquat[cube.id], [half, 0, 0, half], atol=1e-12)
     # a new state: a lock-step world now waits for the command answering the moved world
-    assert server.seq == seq + 1
+    assert server.episode.seq == seq + 1
     state = server.world.state()
     adr = server.world.model.jnt_qposadr[cube.jntadr[0]]
     np.testing.assert_allclose(state.qpos[adr:adr + 3], [0.5, 0.1, 1.1])
@@ -93,12 +93,12 @@ def test_a_fixed_obstacle_moves_through_its_mocap_body(world):
 def test_moving_a_robot_body_or_an_unknown_name_is_refused_with_the_reason(world, name, reason):
     server = world("pick_place")
     qpos = server.world.data.qpos.copy()
-    seq = server.seq
+    seq = server.episode.seq
     reply = _ask(server, P.Control(op="move", object=name, pos=np.array([0.5, 0.0, 1.2])))
     assert isinstance(reply, P.Error)
     assert reason in reply.reason and "cube_a" in reply.reason    # names what can be moved
     np.testing.assert_array_equal(server.world.data.qpos, qpos)    # nothing moved
-    assert server.seq == seq
+    assert server.episode.seq == seq
     assert not _events(server, "disturbance")
     (refused,) = _events(server, "control_refused")
     assert refused["object"] == name and reason in refused["reason"]
@@ -110,10 +110,11 @@ def test_a_paused_lockstep_world_takes_no_command_until_resumed(world):
     push = zmq.Context.instance().socket(zmq.PUSH)
     push.setsockopt(zmq.LINGER, 0)
     push.connect(server.pull.getsockopt_string(zmq.LAST_ENDPOINT))
-    cmd = P.encode(P.Command(session=server.session, seq=server.seq, ctrl=np.zeros(server.world.model.nu)))
+    cmd = P.encode(P.Command(session=server.episode.session, seq=server.episode.seq,
+                             ctrl=np.zeros(server.world.model.nu)))
     try:
         server.opt.republish = 0.05
-        wanted = [lambda c: c.seq == server.seq]
+        wanted = [lambda c: c.seq == server.episode.seq]
 
         def send_then_wait():
             push.send(cmd)
@@ -130,7 +131,7 @@ def test_a_paused_lockstep_world_takes_no_command_until_resumed(world):
             return original(timeout)
         server._poll = poll
         got = send_then_wait()
-        assert got is not None and got.seq == server.seq
+        assert got is not None and got.seq == server.episode.seq
         assert len(calls) >= 5               # nothing was taken while paused
     finally:
         push.close(0)
@@ -177,7 +178,7 @@ def test_a_replay_reads_the_log_and_the_recorded_diagnostics(world):
     from shared.tools.view import action_timeline, diagnostics_record, load_replay, metrics_text
     server = world("navigation")
     for action in ("go", "go", "wait", "wait"):
-        server._note_action(action)
+        server.episode.note_action(action)
         server._apply(None)
     server.log.close()
     diag = P.Diagnostics(seq=2, action="wait", alternatives=["wait"], mode_names=["wait"],

@@ -104,13 +104,13 @@ def kept_world(tmp_path):
 
 
 def test_a_kept_world_begins_the_seeds_episode_on_a_seeded_reset(kept_world, tmp_path):
-    first = kept_world.session
+    first = kept_world.episode.session
     assert kept_world.log.path == tmp_path / "seed-3.jsonl"
     assert isinstance(_ask(kept_world, P.Control(op="reset", seed=7)), P.Control)
     assert not kept_world._running()          # the running episode ends ...
     kept_world._serve_episode()
     kept_world._begin_episode(kept_world._next_seed)   # ... as run() does, and the next begins
-    assert kept_world.session != first and kept_world.seq == 0
+    assert kept_world.episode.session != first and kept_world.episode.seq == 0
     assert episode.summary(episode.read_log(tmp_path / "seed-3.jsonl"))["status"] == "stopped"
     assert episode.header(episode.read_log(tmp_path / "seed-7.jsonl"))["seed"] == 7
     fresh = WorldServer(load_scenario("navigation"), Endpoints(port=free_port_block()),

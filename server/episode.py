@@ -1,0 +1,267 @@
+"""One episode of the world, without the network: its life from start to summary.
+
+:class:`Episode` owns the world instance (a fresh one per episode, wrapped in
+:class:`server.hardware.FaultyWorld` when hardware faults are on), its session and state
+numbering, the episode log (header, steps, events, summary) and the bookkeeping that turns
+commands into logged world steps: when each state was published (for the age of the commands
+answering it), the planning time of each command, the task-level action.
+
+:class:`server.app.WorldServer` serves an episode over ZeroMQ (lock-step or real time);
+:mod:`shared.tools.inprocess` drives one from a planner in the same process. Both call the same
+methods in the same order, so a lock-step episode is the same step for step.
+"""
+
+from __future__ import annotations
+
+import logging
+import secrets
+from collections.abc import Callable
+from pathlib import Path
+
+import numpy as np
+
+from shared import protocol as P
+from shared.evaluation.metrics import MetricsEvaluator, describe, mean_hz
+from shared.evaluation.timing import describe_timing, timing_summary
+from shared.hardware import HardwareConfig
+from shared.scenario import Scenario
+from shared.timed_plan import TimedPlan, held
+from server.episode_log import EpisodeLog, read_log
+from server.hardware import FaultyWorld
+from server.interface import Outcome, World, world_name
+from server.world import SimWorld
+
+log = logging.getLogger("m3p2i.server")
+
+_KEEP_STATE_TIMES = 4096   # states whose times are kept, for the age of the commands answering them
+
+
+class Episode:
+    """A world from ``seed``'s start, logged to ``log_path``: :meth:`publish` its state,
+    :meth:`play` (lock-step) or :meth:`apply` (one step) the commands answering it, apply the
+    control ops, and :meth:`finish` with the safe stop and the summary."""
+
+    def __init__(self, scenario: Scenario, seed: int, log_path: Path,
+                 world_class: type[World] = SimWorld, hardware: HardwareConfig | None = None,
+                 mode: str = "lockstep", curve: bool = False):
+        """A fresh world (as a new process would build it), reset, a new session and the
+        log's header. ``hardware``: the faults the world shows (default: the scenario's);
+        ``mode`` and ``curve`` are the server's, for the header (a real-time world's faults run
+        on the wall clock)."""
+        self.scenario = scenario
+        self.hardware = scenario.hardware if hardware is None else hardware
+        self.seed = seed
+        self.world: World = world_class(scenario, seed)
+        if self.hardware.active:
+            self.world = FaultyWorld(self.world, self.hardware, realtime=mode == "realtime")
+        self.world.reset()
+        self.metrics = MetricsEvaluator(scenario, self.world.model)   # bad frames fail here
+        self.session = secrets.token_hex(4)
+        self.seq = 0                      # the newest state's number: world steps and ops
+        self.finished = False             # the summary is written
+        self.in_step = False              # a world step is between its physics and its log record
+        self.pending: int | None = None   # a signal that landed there, raised once it is logged
+        self.lag = 0.0                    # of the newest command, world seconds
+        self.action = ""
+        self.action_changes: list[tuple[float, str]] = []
+        self.dropped = 0                  # states the simulated link lost
+        self._plan_times: list[float] = []
+        self._state_times: dict[int, float] = {}     # seq -> world time of recent states
+        self._plan_time_of: dict[int, float] = {}    # seq -> planning time, until first applied
+        self._published = -1              # the newest seq published (or lost: drop_state)
+        self.log = EpisodeLog(log_path)
+        self.log.write("header", scenario=scenario.name, scenario_hash=scenario.hash,
+                       source=scenario.source, mode=mode, dt=self.world.dt,
+                       session=self.session, nq=self.world.model.nq, nu=self.world.model.nu,
+                       seed=seed, initial=self.world.initial, curve=curve,
+                       world=world_name(world_class),
+                       **(self.world.header() if isinstance(self.world, FaultyWorld) else {}))
+
+    @property
+    def dt(self) -> float:
+        """The world's step, s."""
+        return self.world.dt
+
+    @property
+    def running(self) -> bool:
+        return self.world.status == "running"
+
+    # ------------------------------------------------------------------ states
+
+    def publish(self) -> P.State | None:
+        """The world's current state as state ``seq``, its time kept for the age of the
+        commands answering it; None when the world's link loses it (:meth:`World.drop_state`,
+        asked once per ``seq``: the same state asked for again is delivered)."""
+        s = self.world.state()
+        state = P.State(session=self.session, seq=self.seq, time=s.time, qpos=s.qpos,
+                        qvel=s.qvel, act=s.act, mocap_pos=s.mocap_pos, mocap_quat=s.mocap_quat,
+                        status=self.world.status, extras=dict(self.world.extras), lag=self.lag)
+        self._state_times[self.seq] = state.time
+        self._state_times.pop(self.seq - _KEEP_STATE_TIMES, None)
+        self._plan_time_of.pop(self.seq - _KEEP_STATE_TIMES, None)
+        if self.seq != self._published:
+            self._published = self.seq
+            if self.world.drop_state():
+                self.dropped += 1
+                return None
+        return state
+
+    # ------------------------------------------------------------------ commands
+
+    def play(self, cmd: P.Command, steps: int = 1,
+             after_step: Callable[[], None] | None = None) -> None:
+        """Lock-step: ``steps`` world steps under ``cmd`` (its plan's knots by time, or its
+        ctrl held; the safe control past the plan's end), fewer when the episode ends; then its
+        action is noted. One step by default; more emulate, deterministically, a planner that
+        slow against a real-time world. ``after_step`` runs after each logged step."""
+        self._count_plan(cmd)
+        plan = (TimedPlan(cmd.plan_t0, cmd.plan_dt, cmd.plan_ctrl, cmd.seq) if cmd.has_plan
+                else held(cmd.ctrl, self.world.time, cmd.seq))
+        # the lag, as in real time: from the answered state's time (its measurement's) to now;
+        # 0 unless the world publishes its states late (a state delay)
+        self.lag = max(0.0, self.world.time - self._state_times.get(cmd.seq, self.world.time))
+        for _ in range(steps):
+            self.apply(plan.at(self.world.time), cmd.seq)
+            if after_step is not None:
+                after_step()
+            if not self.running:
+                break
+        self.note_action(cmd.action)
+
+    def receive(self, cmd: P.Command) -> TimedPlan:
+        """Real time: a command's lag (published as ``state.lag``), planning time and action;
+        returns its plan as the world plays it (a command without a plan holds its ``ctrl``
+        until the next one: protocol 1's meaning)."""
+        sent = self._state_times.get(cmd.seq)
+        if sent is not None:
+            self.lag = max(0.0, self.world.time - sent)
+        self._count_plan(cmd)
+        self.note_action(cmd.action)
+        return (TimedPlan(cmd.plan_t0, cmd.plan_dt, cmd.plan_ctrl, cmd.seq) if cmd.has_plan
+                else held(cmd.ctrl, self.world.time, cmd.seq))
+
+    def _count_plan(self, cmd: P.Command) -> None:
+        """Its planning time counts (Hz statistics) once, on the first step it drives."""
+        if cmd.plan_time > 0:
+            self._plan_time_of[cmd.seq] = cmd.plan_time
+
+    def note_action(self, action: str) -> None:
+        """The task-level action the steps from now on are logged with; a change is an event."""
+        if action != self.action:
+            self.action = action
+            self.action_changes.append((self.world.time, action))
+            self.log.event("action", time=self.world.time, action=action)
+
+    def apply(self, ctrl: np.ndarray | None, source: int = -1,
+              cmd_age: float | None = None) -> None:
+        """One world step under ``ctrl`` (None: the safe control), planned from state
+        ``source`` (-1: none); the step's log record has the control's age (world seconds since
+        that state) and source, from which shared.evaluation.timing tells whether the planner
+        kept up. Real time also records ``cmd_age``: wall seconds from the newest command's
+        arrival to the moment this step's control was chosen (what the stale-command watchdog
+        compares with ``command_timeout``; None before the first command and in lock-step), so
+        a soak test can prove from the log that no stale command drove the robot.
+
+        A signal that lands between the physics and the log record (:attr:`pending`) is
+        raised as KeyboardInterrupt once the step is logged: the log holds every step taken."""
+        now = self.world.time
+        source = source if ctrl is not None else -1
+        age = now - self._state_times.get(source, now) if source >= 0 else 0.0
+        plan_time = self._plan_time_of.pop(source, 0.0)
+        if plan_time:
+            self._plan_times.append(plan_time)
+        self.in_step = True               # from the physics to its log record: no signal between
+        try:
+            self.world.step(self.world.safe_command() if ctrl is None else ctrl)
+            for event in self.world.events:
+                log.info("disturbance: %s moved at t=%.2f s", event["object"], event["time"])
+                self.log.event("disturbance", **event)
+            self.world.events.clear()
+            self.seq += 1
+            s = self.world.true_state()
+            self.log.write("step", seq=self.seq, time=s.time, qpos=s.qpos, qvel=s.qvel,
+                           act=s.act, mocap_pos=s.mocap_pos, mocap_quat=s.mocap_quat,
+                           ctrl=self.world.ctrl, action=self.action, safe=ctrl is None,
+                           plan_seq=source, age=age, plan_time=plan_time, cmd_age=cmd_age,
+                           extras=self.world.extras)
+        finally:
+            self.in_step = False
+        if self.pending is not None:
+            signum, self.pending = self.pending, None
+            raise KeyboardInterrupt(f"signal {signum}")
+
+    # ------------------------------------------------------------------ control ops
+
+    def move(self, name: str, pos: np.ndarray, quat: np.ndarray | None = None) -> None:
+        """Control op ``move``: the object put at ``pos`` (``quat``), logged as a disturbance;
+        a new state (a lock-step world waits for the command answering the moved one). A robot
+        body or an unknown name raises ValueError, logged as refused."""
+        try:
+            event = self.world.move_object(name, pos, quat)
+        except ValueError as exc:
+            log.warning("control move refused: %s", exc)
+            self.log.event("control_refused", op="move", object=name, reason=str(exc))
+            raise
+        log.info("disturbance: %s moved by a control op at t=%.2f s", name, event["time"])
+        self.log.event("control", op="move", object=name)
+        self.log.event("disturbance", **event)
+        self.seq += 1
+
+    def reset(self) -> None:
+        """Control op ``reset`` within the episode: the world back to its start, a new state."""
+        self.world.reset()
+        self.seq += 1
+
+    def abort(self) -> None:
+        """End the episode as ``stopped`` (a shutdown, Ctrl-C, a step limit)."""
+        self.world.status = "stopped"
+
+    def stop_world(self) -> None:
+        """The world's safe stop; its failure is logged loudly, and the summary still written."""
+        try:
+            self.world.stop()
+        except Exception as exc:   # noqa: BLE001 - the operator must hear of it, and the log end
+            log.exception("the world's safe stop failed: the robot may still be moving")
+            self.log.event("stop_failed", reason=f"{type(exc).__name__}: {exc}")
+
+    # ------------------------------------------------------------------ the end
+
+    def finish(self, rejected: int = 0) -> Outcome:
+        """The episode's end, whatever ended it: the robot's safe stop, the outcome (a world
+        still running is ``stopped``), the metrics and the summary record (``rejected``: the
+        bad messages the server refused); the log is closed. The outcome's measures gain
+        ``planner_hz``."""
+        self.stop_world()                    # a robot holds still whatever ended the episode
+        if self.running:                     # ended by a seeded reset, a shutdown, a limit
+            self.abort()
+        outcome = self.world.outcome()
+        hz = mean_hz(self._plan_times)
+        metrics, timing = self.evaluate(outcome.status)
+        self.log.write("summary", status=outcome.status, time=outcome.time,
+                       measures=outcome.measures, planner_hz=hz, steps=self.seq,
+                       rejected=rejected, actions=self.action_changes,
+                       **({"dropped": self.dropped} if self.hardware.active else {}),
+                       metrics=metrics, timing=timing)
+        self.log.close()
+        self.finished = True
+        outcome.measures["planner_hz"] = hz
+        return outcome
+
+    def evaluate(self, status: str) -> tuple[dict | None, dict | None]:
+        """shared.evaluation's metrics and timing of the logged steps (the log is line-buffered,
+        so complete on disk). A failure here is logged, never allowed to cost the summary."""
+        try:
+            records = read_log(self.log.path)
+            metrics = self.metrics.evaluate(records, status=status)
+            timing = timing_summary(records)
+        except Exception:   # noqa: BLE001 - the summary must be written whatever went wrong
+            log.exception("could not compute the episode metrics")
+            return None, None
+        log.info("metrics: %s", describe(metrics))
+        log.info("timing: %s", describe_timing(timing))
+        return metrics.as_dict(), timing
+
+    def close(self) -> None:
+        """Release the world (and the log, when the episode did not finish)."""
+        self.log.close()
+        self.world.close()

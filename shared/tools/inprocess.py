@@ -1,0 +1,161 @@
+"""Run a whole episode in one process: the world and the controller, no ZeroMQ.
+
+What ``m3p2i run NAME --seed S`` does in lock-step with two processes, done with function calls:
+the world publishes state ``seq``, the controller answers it (thesis Alg. 1), the world plays
+the command's plan for ``plan_every`` steps (its knot for each step's world time, the safe
+control past its end), and publishes the next state. The episode, its log and its summary are
+the two-process run's step for step, bit for bit (tests/test_inprocess.py checks it); only the
+session id, the wall-clock times and the planning times differ.
+
+One call for a whole episode::
+
+    from shared.tools.inprocess import run_episode
+
+    result = run_episode("navigation", seed=0)
+    result.status, result.summary["time"], result.log_path
+
+The building blocks, for a notebook, a learning pipeline or a robot's own loop::
+
+    from shared.tools.inprocess import build_controller, build_episode
+
+    controller = build_controller("navigation", seed=0)      # planner_client.controller
+    episode = build_episode("navigation", seed=0)             # server.episode
+    controller.begin("lockstep", episode.dt)
+    state = episode.publish()
+    while not controller.over(state):
+        command = controller.step(state)       # P.Command: ctrl now, and the dated plan
+        episode.play(command)                  # one world step under it
+        state = episode.publish()
+    outcome = episode.finish()
+    controller.close()
+    episode.close()
+
+This module composes both processes' packages, so only the composition layer (``shared.tools``)
+may import it: never the contract, ``shared.evaluation``, ``server`` or ``planner_client``.
+"""
+
+from __future__ import annotations
+
+import tempfile
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+
+from shared import protocol as P
+from shared.evaluation.episode import read_log, summary
+from shared.hardware import HardwareConfig, load_hardware
+from shared.scenario import Scenario, load_scenario
+from server.episode import Episode
+from server.interface import Outcome, World
+from server.world import SimWorld
+from planner_client.build import build_controller as _build_controller
+from planner_client.controller import Controller, LoopStats
+
+__all__ = ["EpisodeResult", "build_controller", "build_episode", "drive", "run_episode",
+           "Controller", "Episode"]
+
+OnStep = Callable[[P.State, P.Command], None]
+"""Called with each state and the command answering it, once the world has played it."""
+
+
+@dataclass(frozen=True)
+class EpisodeResult:
+    """How an in-process episode ended: the world's outcome (measures with ``planner_hz``),
+    the log's summary record, where the log is, and what the controller did."""
+    outcome: Outcome
+    summary: dict
+    log_path: Path
+    stats: LoopStats
+
+    @property
+    def status(self) -> str:
+        """success | timeout | stopped."""
+        return self.outcome.status
+
+    @property
+    def success(self) -> bool:
+        return self.outcome.status == "success"
+
+
+def _scenario(scenario: str | Path | Scenario) -> Scenario:
+    return scenario if isinstance(scenario, Scenario) else load_scenario(scenario)
+
+
+def build_controller(scenario: str | Path | Scenario, seed: int | None = 0, threads: int = 0,
+                     backend: str | None = None, device: str | None = None) -> Controller:
+    """The planner of ``scenario`` (a name, a YAML path or a loaded scenario) as
+    ``m3p2i-planner --seed seed`` builds it, without sockets: sampling with ``seed`` (None:
+    the scenario's ``planner.mppi.seed``); ``threads``, ``backend`` and ``device`` as the
+    planner's options of those names. Call :meth:`Controller.begin` before the first step."""
+    return _build_controller(_scenario(scenario), threads, seed, backend, device)
+
+
+def build_episode(scenario: str | Path | Scenario, seed: int = 0,
+                  log_path: str | Path | None = None,
+                  hardware: HardwareConfig | str | None = None,
+                  world: type[World] = SimWorld) -> Episode:
+    """The world of ``scenario`` from ``seed``'s start as ``m3p2i-server --seed seed`` builds
+    it in lock-step, logging to ``log_path`` (default: ``episode.jsonl`` in a new temporary
+    folder). ``hardware``: a profile name, a file or a config of the faults the world shows
+    (default: the scenario's ``hardware:``); ``world``: a :class:`server.interface.World`
+    class (default: the simulation)."""
+    if log_path is None:
+        log_path = Path(tempfile.mkdtemp(prefix="m3p2i-")) / "episode.jsonl"
+    if isinstance(hardware, str):
+        hardware = load_hardware(hardware)
+    return Episode(_scenario(scenario), seed, Path(log_path), world, hardware)
+
+
+def _published(episode: Episode) -> P.State:
+    """The episode's current state as a lock-step planner gets it: a state the world's link
+    loses is published again (the loss costs a two-process world wall time, not world time)."""
+    state = episode.publish()
+    return state if state is not None else episode.publish()
+
+
+def drive(episode: Episode, controller: Controller, plan_every: int = 1,
+          max_steps: int | None = None, on_step: OnStep | None = None) -> Outcome:
+    """Lock-step: ``controller`` answers each state of ``episode`` and the world plays each
+    command for ``plan_every`` steps, until the episode ends (or ``max_steps`` world steps:
+    then it is ``stopped``). The episode is always finished (its summary written, the robot
+    stopped), whatever raised; returns its outcome."""
+    try:
+        controller.begin("lockstep", episode.dt)
+        state = _published(episode)
+        controller.check_layout(state)
+        while not controller.over(state):
+            command = controller.step(state)
+            if command is None:
+                raise ValueError(f"state {state.seq} does not fit the planner's model "
+                                 f"(logged above)")
+            episode.play(command, plan_every)
+            if on_step is not None:
+                on_step(state, command)
+            if max_steps is not None and episode.seq >= max_steps and episode.running:
+                episode.abort()
+            state = _published(episode)
+    finally:
+        outcome = episode.finish()
+    return outcome
+
+
+def run_episode(scenario: str | Path | Scenario, seed: int = 0,
+                log_path: str | Path | None = None, plan_every: int = 1,
+                hardware: HardwareConfig | str | None = None, max_steps: int | None = None,
+                on_step: OnStep | None = None, threads: int = 0) -> EpisodeResult:
+    """One lock-step episode of ``scenario`` in this process: the same steps, log and summary
+    as ``m3p2i run SCENARIO --seed seed --plan-every plan_every [--hardware ...]`` (world
+    and planner seeded with ``seed``). ``max_steps`` stops the episode after that many world
+    steps; ``on_step`` sees each state and the command answering it."""
+    sc = _scenario(scenario)
+    controller = build_controller(sc, seed, threads)
+    try:
+        episode = build_episode(sc, seed, log_path, hardware)
+        try:
+            outcome = drive(episode, controller, plan_every, max_steps, on_step)
+        finally:
+            episode.close()
+    finally:
+        controller.close()
+    return EpisodeResult(outcome, summary(read_log(episode.log.path)) or {}, episode.log.path,
+                         controller.stats)
