@@ -15,6 +15,7 @@ time that really passed; in lock-step that time is one step and the lead is zero
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import time
 from collections.abc import Callable
@@ -103,7 +104,10 @@ class PlannerClient:
         self.task = task
         self.renew = renew
         self.endpoints = endpoints
-        self.hello = P.Hello(scenario=scenario_name, scenario_hash=scenario_hash)
+        self.hello = P.Hello(scenario=scenario_name, scenario_hash=scenario_hash,
+                             versions=list(P.VERSIONS))
+        self.version = P.PROTOCOL_VERSION   # of the commands: the one the world chose
+        self._warned_version: int | None = None
         self.server_timeout = server_timeout
         self.exit_on_done = exit_on_done
         self.delays = delays or planner.problem.scenario.planner.delays
@@ -154,15 +158,21 @@ class PlannerClient:
     # ------------------------------------------------------------------ handshake
 
     def handshake(self, retry: float = 1.0, give_up: float | None = None) -> P.Welcome:
-        """Send hello until a server answers; raise HandshakeRefused on an error reply."""
+        """Send hello until a server answers; raise HandshakeRefused on an error reply.
+
+        The hello offers :data:`P.VERSIONS`, written in the oldest; the world answers in the one
+        it chose. A world from before the negotiation refuses that hello with an error of its
+        own version and no ``versions``: then the plain hello of that version is sent, once."""
         start = time.monotonic()
         warned = False
+        plain: int | None = None    # the version of a world that does not negotiate
         while True:
             req = socket(self.ctx, zmq.REQ)
             self._secure(req)
             monitor = HandshakeMonitor(req, hangups=True)
             req.connect(self.endpoints.control)
-            req.send(P.encode(self.hello))
+            req.send(P.encode(self.hello, min(P.VERSIONS)) if plain is None else
+                     P.encode(dataclasses.replace(self.hello, versions=None), plain))
             try:
                 answered = self._await_reply(req, monitor, retry)
             except HandshakeRefused:
@@ -174,11 +184,14 @@ class PlannerClient:
                 frame = req.recv()
                 req.close(0)
                 try:
-                    reply = P.decode(frame, expect=("welcome", "error"))
+                    reply, version = P.decode_versioned(frame, expect=("welcome", "error"),
+                                                        versions=P.VERSIONS)
                 except P.ProtocolError as exc:
                     raise HandshakeRefused(f"server sent an invalid reply: {exc}") from None
                 if isinstance(reply, P.Error):
-                    raise HandshakeRefused(reply.reason)
+                    plain = self._plain_hello(reply, version, plain)
+                    continue
+                self._speak(version)
                 if reply.nu != self.planner.problem.model.nu:
                     raise HandshakeRefused(f"server model has nu={reply.nu}, planner model has "
                                            f"nu={self.planner.problem.model.nu}")
@@ -207,6 +220,27 @@ class PlannerClient:
             if give_up is not None and time.monotonic() - start > give_up:
                 raise TimeoutError(f"no server answered at {self.endpoints.control} "
                                    f"within {give_up:.0f} s")
+
+    def _plain_hello(self, error: P.Error, version: int, plain: int | None) -> int:
+        """The version to say a plain hello in after the world refused ours with ``error``
+        (written in ``version``); raises :class:`HandshakeRefused` when retrying cannot help."""
+        if plain is None and error.versions is None and version in P.VERSIONS:
+            log.info("the world (protocol version %d) does not negotiate versions (%s): "
+                     "saying hello in version %d", version, error.reason, version)
+            return version
+        if version not in P.VERSIONS and error.versions is None:
+            raise HandshakeRefused(f"{error.reason} (the world speaks protocol version {version}, "
+                                   f"this planner speaks versions {P.VERSIONS_TEXT})")
+        raise HandshakeRefused(error.reason)
+
+    def _speak(self, version: int) -> None:
+        """Commands from now on in ``version``, the world's choice; an older one is said once."""
+        self.version = version
+        if version < P.PROTOCOL_VERSION and self._warned_version != version:
+            self._warned_version = version
+            log.warning("the world speaks protocol version %d only: commands carry no plan, and "
+                        "it holds each command's ctrl until the next (the robot follows the "
+                        "planner's lag)", version)
 
     def _new_episode(self, seed: int | None) -> None:
         """Start over for a new episode of the world (``renew``), sampling with the world's
@@ -286,7 +320,7 @@ class PlannerClient:
                     last_state_at = time.monotonic()
                 continue
             try:
-                state = P.decode(self.sub.recv(), expect="state")
+                state = P.decode(self.sub.recv(), expect="state", versions=P.VERSIONS)
             except P.ProtocolError as exc:
                 log.warning("dropped a bad state message: %s", exc)
                 continue
@@ -358,7 +392,7 @@ class PlannerClient:
         self._answer = P.encode(P.Command(
             session=state.session, seq=state.seq, ctrl=ctrl, plan_time=plan_time,
             action=decision.action, plan_ctrl=plan, plan_t0=None if plan is None else start,
-            plan_dt=None if plan is None else self.planner.dt))
+            plan_dt=None if plan is None else self.planner.dt), self.version)
         self._answered = (state.session, state.seq)
         self.push.send(self._answer)
         steps = state.seq - self._last_start[1] if self._last_start else 0
