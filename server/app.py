@@ -106,7 +106,9 @@ class WorldServer:
             self.world.close()
         self.world = self.world_class(self.scenario, seed)
         if self.hardware.active:
-            self.world = FaultyWorld(self.world, self.hardware, realtime=self.opt.mode == "realtime")
+            self.world = FaultyWorld(self.world, self.hardware,
+                                     realtime=self.opt.mode == "realtime",
+                                     realtime_factor=self.opt.realtime_factor)
         self.world.reset()
         self.metrics = MetricsEvaluator(self.scenario, self.world.model)   # bad frames fail here
         self.session = secrets.token_hex(4)
