@@ -20,6 +20,7 @@ time that really passed; in lock-step that time is one step and the lead is zero
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import time
 
@@ -56,7 +57,10 @@ class PlannerClient:
         can), to rehearse on a fast machine what a slower computer does."""
         self.controller = controller
         self.endpoints = endpoints
-        self.hello = P.Hello(scenario=scenario_name, scenario_hash=scenario_hash)
+        self.hello = P.Hello(scenario=scenario_name, scenario_hash=scenario_hash,
+                             versions=list(P.VERSIONS))
+        self.version = P.PROTOCOL_VERSION   # of the commands: the one the world chose
+        self._warned_version: int | None = None
         self.server_timeout = server_timeout
         self.exit_on_done = exit_on_done
         self.min_period = 1.0 / max_rate if max_rate > 0 else 0.0
@@ -93,15 +97,21 @@ class PlannerClient:
     # ------------------------------------------------------------------ handshake
 
     def handshake(self, retry: float = 1.0, give_up: float | None = None) -> P.Welcome:
-        """Send hello until a server answers; raise HandshakeRefused on an error reply."""
+        """Send hello until a server answers; raise HandshakeRefused on an error reply.
+
+        The hello offers :data:`P.VERSIONS`, written in the oldest; the world answers in the one
+        it chose. A world from before the negotiation refuses that hello with an error of its
+        own version and no ``versions``: then the plain hello of that version is sent, once."""
         start = time.monotonic()
         warned = False
+        plain: int | None = None    # the version of a world that does not negotiate
         while True:
             req = socket(self.ctx, zmq.REQ)
             self._secure(req)
             monitor = HandshakeMonitor(req, hangups=True)
             req.connect(self.endpoints.control)
-            req.send(P.encode(self.hello))
+            req.send(P.encode(self.hello, min(P.VERSIONS)) if plain is None else
+                     P.encode(dataclasses.replace(self.hello, versions=None), plain))
             try:
                 answered = self._await_reply(req, monitor, retry)
             except HandshakeRefused:
@@ -113,11 +123,14 @@ class PlannerClient:
                 frame = req.recv()
                 req.close(0)
                 try:
-                    reply = P.decode(frame, expect=("welcome", "error"))
+                    reply, version = P.decode_versioned(frame, expect=("welcome", "error"),
+                                                        versions=P.VERSIONS)
                 except P.ProtocolError as exc:
                     raise HandshakeRefused(f"server sent an invalid reply: {exc}") from None
                 if isinstance(reply, P.Error):
-                    raise HandshakeRefused(reply.reason)
+                    plain = self._plain_hello(reply, version, plain)
+                    continue
+                self._speak(version)
                 nu = self.controller.planner.problem.model.nu
                 if reply.nu != nu:
                     raise HandshakeRefused(f"server model has nu={reply.nu}, planner model has "
@@ -136,6 +149,27 @@ class PlannerClient:
             if give_up is not None and time.monotonic() - start > give_up:
                 raise TimeoutError(f"no server answered at {self.endpoints.control} "
                                    f"within {give_up:.0f} s")
+
+    def _plain_hello(self, error: P.Error, version: int, plain: int | None) -> int:
+        """The version to say a plain hello in after the world refused ours with ``error``
+        (written in ``version``); raises :class:`HandshakeRefused` when retrying cannot help."""
+        if plain is None and error.versions is None and version in P.VERSIONS:
+            log.info("the world (protocol version %d) does not negotiate versions (%s): "
+                     "saying hello in version %d", version, error.reason, version)
+            return version
+        if version not in P.VERSIONS and error.versions is None:
+            raise HandshakeRefused(f"{error.reason} (the world speaks protocol version {version}, "
+                                   f"this planner speaks versions {P.VERSIONS_TEXT})")
+        raise HandshakeRefused(error.reason)
+
+    def _speak(self, version: int) -> None:
+        """Commands from now on in ``version``, the world's choice; an older one is said once."""
+        self.version = version
+        if version < P.PROTOCOL_VERSION and self._warned_version != version:
+            self._warned_version = version
+            log.warning("the world speaks protocol version %d only: commands carry no plan, and "
+                        "it holds each command's ctrl until the next (the robot follows the "
+                        "planner's lag)", version)
 
     def _secure(self, sock: zmq.Socket) -> None:
         """A socket to the world: a CURVE client holding the world's public key, with keys."""
@@ -192,7 +226,7 @@ class PlannerClient:
                     last_state_at = time.monotonic()
                 continue
             try:
-                state = P.decode(self.sub.recv(), expect="state")
+                state = P.decode(self.sub.recv(), expect="state", versions=P.VERSIONS)
             except P.ProtocolError as exc:
                 log.warning("dropped a bad state message: %s", exc)
                 continue
@@ -232,7 +266,7 @@ class PlannerClient:
         command = self.controller.step(state)
         if command is None:
             return
-        self._answer = P.encode(command)
+        self._answer = P.encode(command, self.version)
         self._answered = (state.session, state.seq)
         self.push.send(self._answer)
         if self.diag is not None and self._listened():

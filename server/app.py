@@ -92,6 +92,7 @@ class WorldServer:
             self.poller.register(m.mon, zmq.POLLIN)
         self._refused = 0
         self._rejected = 0
+        self.version = P.PROTOCOL_VERSION    # states are written in it: the newest handshake's
         self._stop = False
         self._next_seed: int | None = None   # a seeded reset asked for this episode next
         self._begin_episode(seed)
@@ -102,7 +103,8 @@ class WorldServer:
         if self.episode is not None:
             self.episode.world.close()
         self.episode = Episode(self.scenario, seed, episode_log_path(self.log_template, seed),
-                               self.world_class, self.hardware, self.opt.mode, self.curve)
+                               self.world_class, self.hardware, self.opt.mode, self.curve,
+                               realtime_factor=self.opt.realtime_factor)
         self._ending = False              # the safe stop, metrics and summary are being written
         self.player = PlanPlayer()
         self._paused = False              # control op pause: the world neither steps nor waits out time
@@ -288,7 +290,7 @@ class WorldServer:
         (the loss costs wall time, never world time), real time sends the next step's."""
         state = self.episode.publish()
         if state is not None:
-            self.pub.send(P.encode(state))
+            self.pub.send(P.encode(state, self.version))
 
     def _poll(self, timeout_s: float) -> P.Command | None:
         """Serve control requests and drain commands; return the newest valid command."""
@@ -310,7 +312,7 @@ class WorldServer:
 
     def _accept_command(self, frame: bytes) -> P.Command | None:
         try:
-            cmd = P.decode(frame, expect="command")
+            cmd = P.decode(frame, expect="command", versions=P.VERSIONS)
         except P.ProtocolError as exc:
             return self._reject(str(exc))
         if cmd.session != self.episode.session:
@@ -349,7 +351,8 @@ class WorldServer:
     def _serve_control(self) -> None:
         frame = self.rep.recv()
         try:
-            msg = P.decode(frame, expect=("hello", "control"))
+            msg, version = P.decode_versioned(frame, expect=("hello", "control"),
+                                              versions=P.VERSIONS)
         except P.ProtocolError as exc:
             self._reject(str(exc))
             self.rep.send(P.encode(P.Error(reason=f"refused: {exc}")))
@@ -357,20 +360,31 @@ class WorldServer:
         if isinstance(msg, P.Control):
             self._control(msg)
             return
+        # a planner that offered versions learns from an error's own ones that we negotiated
+        speaks = list(P.VERSIONS) if msg.versions is not None else None
+        try:
+            chosen = P.choose_version(msg, version)
+        except P.ProtocolError as exc:
+            reason = f"refused: {exc}"
+            log.error(reason)
+            self.log.event("handshake_refused", reason=reason)
+            self.rep.send(P.encode(P.Error(reason=reason, versions=speaks)))
+            return
         if msg.scenario_hash != self.scenario.hash:
             reason = (f"scenario mismatch: the server runs {self.scenario.name!r} "
                       f"(hash {self.scenario.hash}), the planner loaded {msg.scenario!r} "
                       f"(hash {msg.scenario_hash}); start both with the same scenario file")
             log.error(reason)
             self.log.event("handshake_refused", reason=reason)
-            self.rep.send(P.encode(P.Error(reason=reason)))
+            self.rep.send(P.encode(P.Error(reason=reason, versions=speaks), chosen))
             return
-        self.log.event("handshake", client=msg.client)
-        log.info("planner connected (%s)", msg.client)
+        self.log.event("handshake", client=msg.client, version=chosen)
+        log.info("planner connected (%s, protocol version %d)", msg.client, chosen)
+        self.version = chosen
         self.rep.send(P.encode(P.Welcome(
             scenario=self.scenario.name, scenario_hash=self.scenario.hash, mode=self.opt.mode,
             dt=self.world.dt, nu=int(self.world.model.nu), session=self.episode.session,
-            seed=self.episode.seed if self.opt.keep_serving else None)))
+            seed=self.episode.seed if self.opt.keep_serving else None), chosen))
         self._publish()
 
     def _control(self, msg: P.Control) -> None:

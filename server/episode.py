@@ -43,17 +43,18 @@ class Episode:
 
     def __init__(self, scenario: Scenario, seed: int, log_path: Path,
                  world_class: type[World] = SimWorld, hardware: HardwareConfig | None = None,
-                 mode: str = "lockstep", curve: bool = False):
+                 mode: str = "lockstep", curve: bool = False, realtime_factor: float = 1.0):
         """A fresh world (as a new process would build it), reset, a new session and the
         log's header. ``hardware``: the faults the world shows (default: the scenario's);
         ``mode`` and ``curve`` are the server's, for the header (a real-time world's faults run
-        on the wall clock)."""
+        on the wall clock, scaled by ``realtime_factor`` into world seconds)."""
         self.scenario = scenario
         self.hardware = scenario.hardware if hardware is None else hardware
         self.seed = seed
         self.world: World = world_class(scenario, seed)
         if self.hardware.active:
-            self.world = FaultyWorld(self.world, self.hardware, realtime=mode == "realtime")
+            self.world = FaultyWorld(self.world, self.hardware, realtime=mode == "realtime",
+                                     realtime_factor=realtime_factor)
         self.world.reset()
         self.metrics = MetricsEvaluator(scenario, self.world.model)   # bad frames fail here
         self.session = secrets.token_hex(4)

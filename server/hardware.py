@@ -13,8 +13,10 @@ docs/hardware.md).
 - drops: :meth:`FaultyWorld.drop_state` tells the server to lose a state message.
 
 Lock-step: delays count world steps (``ms / dt`` rounded up) and every draw comes from generators
-seeded by the episode seed, so a faulty episode repeats exactly. Real-time: delays are
-wall-clock seconds. Nothing here reads the wall clock in lock-step.
+seeded by the episode seed, so a faulty episode repeats exactly. Real-time: delays are world
+seconds on the wall clock, scaled by the world's ``realtime_factor`` (a world at half speed
+delays twice as long in wall time), so they are the world steps a planner declares
+(``--compensate``) at any factor. Nothing here reads the wall clock in lock-step.
 """
 
 from __future__ import annotations
@@ -93,15 +95,17 @@ def draw_mismatch(model: mujoco.MjModel, world: World, config: HardwareConfig,
 
 class FaultyWorld(World):
     """``inner`` with the faults of ``config``; the server uses it as any world. ``realtime``:
-    delays in wall-clock seconds (``clock``), else in world steps."""
+    delays in world seconds, read as ``clock()`` (wall seconds) times ``realtime_factor`` (the
+    world seconds a wall second holds); else in world steps."""
 
     def __init__(self, inner: World, config: HardwareConfig, realtime: bool = False,
-                 clock: Callable[[], float] = time.monotonic):
+                 clock: Callable[[], float] = time.monotonic, realtime_factor: float = 1.0):
         # World.__init__ is not called: the inner world owns the model and the episode's state
         self.inner = inner
         self.config = config
         self.realtime = realtime
         self._clock = clock
+        self.realtime_factor = realtime_factor
         dt = inner.dt
         if realtime:
             self._actuation = DelayLine(config.actuation_delay_ms / 1000.0)
@@ -164,7 +168,7 @@ class FaultyWorld(World):
         self._free_dof = model.jnt_dofadr[free]
 
     def _now(self) -> float:
-        return self._clock() if self.realtime else float(self._steps)
+        return self._clock() * self.realtime_factor if self.realtime else float(self._steps)
 
     # ------------------------------------------------------------------ the episode
 

@@ -21,6 +21,11 @@ import numpy as np
 PROTOCOL_VERSION = 2
 """2 added the time-indexed plan of a command (``plan_*``), ``state.lag`` and the diagnostics' timing;
 a peer of another version is refused with both versions named (docs/protocol.md)."""
+VERSIONS = (1, 2)
+"""The versions this code speaks. The planner's ``hello`` offers them (``versions``), the world
+answers in the highest both speak, and each side then encodes with that one (docs/protocol.md,
+"Version negotiation"). 1: commands without a plan, held by the world."""
+VERSIONS_TEXT = ", ".join(map(str, VERSIONS))
 MAX_MESSAGE_BYTES = 8 * 1024 * 1024
 """Frames above this are refused before decoding (ZMQ_MAXMSGSIZE is set to the same value)."""
 
@@ -79,6 +84,7 @@ class Hello:
     scenario: str
     scenario_hash: str
     client: str = "m3p2i-planner"
+    versions: list[int] | None = None   # the versions the planner speaks (None: only the hello's v)
     type = "hello"
 
 
@@ -163,8 +169,11 @@ class Diagnostics:
 
 @dataclass
 class Error:
-    """Either side: a refusal (e.g. handshake mismatch) with a human-readable reason."""
+    """Either side: a refusal (e.g. handshake mismatch) with a human-readable reason.
+    ``versions``: the versions the world speaks, in its answer to a ``hello`` that offered some
+    (it tells a planner that the world negotiated, so that it does not retry in another form)."""
     reason: str
+    versions: list[int] | None = None
     type = "error"
 
 
@@ -186,9 +195,10 @@ class Control:
 
 MESSAGES = {cls.type: cls for cls in (Hello, Welcome, State, Command, Diagnostics, Error, Control)}
 
-# field name -> (kind, required); kinds: str, int, float, array, strlist, floatmap
+# field name -> (kind, required); kinds: str, int, float, array, strlist, intlist, floatmap
 _SCHEMA: dict[str, dict[str, tuple[str, bool]]] = {
-    "hello": {"scenario": ("str", True), "scenario_hash": ("str", True), "client": ("str", False)},
+    "hello": {"scenario": ("str", True), "scenario_hash": ("str", True), "client": ("str", False),
+              "versions": ("intlist", False)},
     "welcome": {"scenario": ("str", True), "scenario_hash": ("str", True), "mode": ("str", True),
                 "dt": ("float", True), "nu": ("int", True), "session": ("str", True),
                 "seed": ("int", False)},
@@ -204,19 +214,31 @@ _SCHEMA: dict[str, dict[str, tuple[str, bool]]] = {
                     "top": ("array", True), "plan_time": ("float", True),
                     "lead": ("float", False), "steps": ("int", False),
                     "top_modes": ("array", False)},
-    "error": {"reason": ("str", True)},
+    "error": {"reason": ("str", True), "versions": ("intlist", False)},
     "control": {"op": ("str", True), "object": ("str", False), "pos": ("array", False),
                 "quat": ("array", False), "seed": ("int", False)},
 }
+# version 1 is version 2 without these fields (docs/protocol.md); hello.versions and
+# error.versions, the negotiation, are read in both
+_NOT_IN_V1 = {"welcome": {"seed"}, "state": {"lag"}, "command": {"plan_ctrl", "plan_t0", "plan_dt"},
+              "diagnostics": {"lead", "steps", "top_modes"},
+              "control": {"object", "pos", "quat", "seed"}}
+_SCHEMAS = {2: _SCHEMA, 1: {kind: {name: spec for name, spec in fields.items()
+                                   if name not in _NOT_IN_V1.get(kind, ())}
+                            for kind, fields in _SCHEMA.items()}}
 _STATUSES = {"running", "success", "timeout", "stopped"}
 _MODES = {"lockstep", "realtime"}
 _OPS = {"reset", "shutdown", "pause", "resume", "move"}
 
 
-def encode(msg: Any) -> bytes:
-    """Message dataclass -> one msgpack frame."""
-    out: dict[str, Any] = {"type": msg.type, "v": PROTOCOL_VERSION}
-    for name, (kind, required) in _SCHEMA[msg.type].items():
+def encode(msg: Any, version: int = PROTOCOL_VERSION) -> bytes:
+    """Message dataclass -> one msgpack frame in protocol ``version`` (one of :data:`VERSIONS`):
+    fields that version does not have are left out (a version-1 command carries no plan)."""
+    if version not in _SCHEMAS:
+        raise ProtocolError(f"cannot encode protocol version {version} (this side speaks "
+                            f"{_names(VERSIONS)})")
+    out: dict[str, Any] = {"type": msg.type, "v": version}
+    for name, (kind, required) in _SCHEMAS[version][msg.type].items():
         value = getattr(msg, name)
         if value is None and not required:
             continue
@@ -226,6 +248,8 @@ def encode(msg: Any) -> bytes:
             value = {str(k): float(v) for k, v in value.items()}
         elif kind == "strlist":
             value = [str(v) for v in value]
+        elif kind == "intlist":
+            value = [int(v) for v in value]
         out[name] = value
     frame = msgpack.packb(out, use_bin_type=True)
     if len(frame) > MAX_MESSAGE_BYTES:
@@ -234,13 +258,22 @@ def encode(msg: Any) -> bytes:
     return frame
 
 
-def decode(frame: bytes, expect: str | tuple[str, ...] | None = None) -> Any:
+def decode(frame: bytes, expect: str | tuple[str, ...] | None = None,
+           versions: tuple[int, ...] = (PROTOCOL_VERSION,)) -> Any:
     """One frame -> message dataclass; raises :class:`ProtocolError` for anything malformed.
 
     Args:
         frame: the raw bytes received.
         expect: message type(s) acceptable on this socket; others are refused.
+        versions: the protocol versions accepted (each read with its own fields).
     """
+    return decode_versioned(frame, expect, versions)[0]
+
+
+def decode_versioned(frame: bytes, expect: str | tuple[str, ...] | None = None,
+                     versions: tuple[int, ...] = (PROTOCOL_VERSION,)) -> tuple[Any, int]:
+    """:func:`decode`, and the version the frame was written in. An ``error`` is read at any
+    version (its ``reason``, and ``versions`` when valid): a refused peer must learn why."""
     if not isinstance(frame, (bytes, bytearray, memoryview)):
         raise ProtocolError("frame is not bytes")
     if len(frame) > MAX_MESSAGE_BYTES:
@@ -260,12 +293,19 @@ def decode(frame: bytes, expect: str | tuple[str, ...] | None = None) -> Any:
     # an error's reason is read at any version: a refused peer must learn why, not just "v3?"
     readable_error = (kind == "error" and isinstance(version, int) and not isinstance(version, bool)
                       and isinstance(obj.get("reason"), str))
-    if version != PROTOCOL_VERSION and not readable_error:
+    known = version in versions and version in _SCHEMAS
+    if not known and not readable_error:
+        offered = obj.get("versions") if kind == "hello" else None
+        if _is_intlist(offered):
+            raise ProtocolError(f"no common protocol version: the peer speaks "
+                                f"{_names(offered)}, this side speaks {_names(versions)}")
         raise ProtocolError(f"protocol version {version!r} not supported "
-                            f"(this side speaks version {PROTOCOL_VERSION})")
-    if version != PROTOCOL_VERSION:
-        return Error(reason=obj["reason"][:4096])
-    schema = _SCHEMA[kind]
+                            f"(this side speaks {_names(versions)})")
+    if not known:
+        theirs = obj.get("versions")
+        return Error(reason=obj["reason"][:4096],
+                     versions=list(theirs)[:64] if _is_intlist(theirs) else None), version
+    schema = _SCHEMAS[version][kind]
     unknown = set(obj) - set(schema) - {"type", "v"}
     if unknown:
         raise ProtocolError(f"{kind}: unknown field(s) {sorted(map(str, unknown))}")
@@ -278,7 +318,31 @@ def decode(frame: bytes, expect: str | tuple[str, ...] | None = None) -> Any:
         fields[name] = _check_field(kind, name, ftype, obj[name])
     msg = MESSAGES[kind](**fields)
     _check_values(msg)
-    return msg
+    return msg, version
+
+
+def _is_intlist(value: Any) -> bool:
+    return isinstance(value, list) and 0 < len(value) <= 64 and all(
+        isinstance(v, int) and not isinstance(v, bool) for v in value)
+
+
+def _names(versions) -> str:
+    """``version 2`` or ``versions 1, 2``: for messages naming a side's versions."""
+    versions = list(versions)
+    return (f"version{'s' if len(versions) != 1 else ''} "
+            f"{', '.join(str(v) for v in versions)}")
+
+
+def choose_version(hello: Hello, version: int, speaks: tuple[int, ...] = VERSIONS) -> int:
+    """The version a world answers ``hello`` (written in ``version``) in: the highest both
+    speak. A hello without ``versions`` (a planner from before the negotiation) speaks its own
+    ``v`` only. Raises :class:`ProtocolError` naming both sides' versions when none is common."""
+    offered = hello.versions if hello.versions is not None else [version]
+    common = set(offered) & set(speaks)
+    if not common:
+        raise ProtocolError(f"no common protocol version: the planner speaks {_names(offered)}, "
+                            f"this world speaks {_names(speaks)}")
+    return max(common)
 
 
 def _check_field(kind: str, name: str, ftype: str, value: Any) -> Any:
@@ -301,6 +365,10 @@ def _check_field(kind: str, name: str, ftype: str, value: Any) -> Any:
         if not isinstance(value, list) or not all(isinstance(v, str) for v in value):
             raise ProtocolError(f"{what}: expected a list of strings")
         return value
+    if ftype == "intlist":
+        if not _is_intlist(value):
+            raise ProtocolError(f"{what}: expected a list of 1 to 64 integers")
+        return list(value)
     if ftype == "floatmap":
         if not isinstance(value, dict) or not all(
                 isinstance(k, str) and isinstance(v, (int, float)) and not isinstance(v, bool)

@@ -115,6 +115,41 @@ def test_a_realtime_delay_is_wall_clock(push):
     assert applied == [0.0, 0.0, 0.0, 0.5, 0.5]
 
 
+@pytest.mark.parametrize("factor", [1.0, 0.5, 2.0])
+def test_realtime_delays_are_the_declared_world_steps_at_any_realtime_factor(push, tmp_path,
+                                                                             factor):
+    # --compensate declares the delays as world steps (steps_of); the world at
+    # --realtime-factor 0.5 steps every dt / 0.5 wall seconds: its delays must count world
+    # seconds too, or a 120 ms delay (3 steps declared at dt 0.05) acts after 2
+    from server.app import ServerOptions, WorldServer
+    from shared.endpoints import Endpoints
+    from shared.tools.launch import free_port_block
+
+    ms = 120.0
+    server = WorldServer(push, Endpoints(port=free_port_block()), tmp_path / "log.jsonl",
+                         options=ServerOptions(mode="realtime", realtime_factor=factor),
+                         hardware=HardwareConfig(actuation_delay_ms=ms, state_delay_ms=ms))
+    try:
+        world = server.world
+        wall = [1000.0]
+        world._clock = lambda: wall[0]          # the monotonic clock, stepped as real time does
+        world.reset()
+        declared = steps_of(ms, world.dt)
+        assert declared == 3
+        go, applied, seen = u(0.5), None, None
+        for k in range(1, 10):
+            world.step(go if k == 1 else u(0.0))   # sent at step 1
+            if applied is None and np.allclose(world.ctrl, go):
+                applied = k - 1                 # world steps the command waited
+            if seen is None and world.state().time > 0:   # published as the step is taken
+                seen = k - 1                    # world steps since step 1's measurement
+            wall[0] += world.dt / factor
+        assert applied == declared
+        assert seen == declared
+    finally:
+        server.close()
+
+
 def test_a_delayed_state_was_measured_the_delay_ago(push):
     world = faulty(push, state_delay_ms=100.0)          # 2 steps
     for _ in range(5):

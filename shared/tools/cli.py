@@ -8,7 +8,9 @@ over the wire.
 from __future__ import annotations
 
 import os
+import signal
 import sys
+import threading
 import time
 from pathlib import Path
 from typing import Optional
@@ -125,6 +127,12 @@ def run(
     view: bool = typer.Option(False, "--view", help="Serve the browser view (m3p2i view) of the "
                               "episode and print its URL; needs m3p2i\\[view]."),
     view_port: int = typer.Option(0, help="With --view: the page's port (0: a free one)."),
+    view_exit: Optional[bool] = typer.Option(None, "--view-exit/--view-keep", help="With --view, "
+                                             "once the episode is over: exit, or keep the page "
+                                             "up showing the episode's replay until Ctrl-C "
+                                             "(then exit with the episode's code). Default: "
+                                             "keep when stdin and stdout are a terminal, exit "
+                                             "otherwise (scripts, tests)."),
     seed: Seed = 0,
     verbose: Verbose = False,
     keys: Keys = None,
@@ -146,19 +154,36 @@ def run(
     typer.echo(f"running {sc.name} ({mode}{', hardware ' + hardware if hardware else ''}"
                f"{', delays compensated' if delays else ''}"
                f"{', delays estimated' if estimate_delays else ''}); logs in {run_dir}")
+    if view_exit is None:          # an interactive run keeps its page; a script must not block
+        view_exit = not (sys.stdin.isatty() and sys.stdout.isatty())
+    codes = []
+
+    def kept(result, url: str) -> None:
+        codes.append(_report_run(result, sc.name, run_dir, timeout, mode, plan_every))
+        typer.echo(f"episode over; view still at {url}: Ctrl-C to quit")
+        sys.stdout.flush()
+
     try:
         result = run_episode(EpisodeLaunch(scenario=sc.source, run_dir=run_dir, seed=seed,
                                            mode=mode, port=port, timeout=timeout, window=window,
                                            verbose=verbose, plan_every=plan_every, view=view,
                                            view_port=view_port, keys=keys,
+                                           view_keep=view and not view_exit,
                                            hardware=hardware or "", delays=delays,
                                            estimate_delays=estimate_delays,
                                            max_rate=planner_max_rate,
                                            realtime_factor=realtime_factor),
-                             on_view=lambda url: typer.echo(f"view: {url}"))
+                             on_view=lambda url: typer.echo(f"view: {url}"), on_kept=kept)
     except RuntimeError as exc:      # the view could not serve its page
         typer.echo(f"error: {exc}", err=True)
         raise typer.Exit(2) from None
+    raise typer.Exit(codes[0] if codes else
+                     _report_run(result, sc.name, run_dir, timeout, mode, plan_every))
+
+
+def _report_run(result, name: str, run_dir: Path, timeout: float, mode: str,
+                plan_every: int) -> int:
+    """``m3p2i run``'s report of an episode (its outcome, or why it has none): the exit code."""
     if result.reason == "timeout":
         typer.echo(f"error: no outcome within {timeout:.0f} s; stopping", err=True)
     elif result.reason == "interrupted":
@@ -172,12 +197,12 @@ def run(
     summary = result.summary
     if summary is None:
         typer.echo(f"error: no episode summary in {result.log_path}", err=True)
-        raise typer.Exit(1)
+        return 1
     measures = dict(summary.get("measures", {}), planner_hz=summary.get("planner_hz", 0.0))
-    typer.echo(f"{sc.name}: " + summary_line(summary["status"], summary["time"], measures))
+    typer.echo(f"{name}: " + summary_line(summary["status"], summary["time"], measures))
     if summary.get("timing") and (mode == "realtime" or plan_every > 1):
         typer.echo(f"timing: {describe_timing(summary['timing'])}")
-    raise typer.Exit(0 if summary["status"] == "success" else 1)
+    return 0 if summary["status"] == "success" else 1
 
 
 @app.command("bench")
@@ -449,7 +474,13 @@ def view(
                                           "(as diagnostics.jsonl beside the episode log)."),
     duration: Optional[float] = typer.Option(None, help="Stop after this many seconds "
                                              "(default: until Ctrl-C)."),
-    keys: Keys = None,
+    keys: Optional[Path] = typer.Option(None, help="CURVE key folder of the planner's side "
+                                        "(m3p2i keys DIR), for a world and planner run with "
+                                        "--keys: the view connects with the planner's key pair."),
+    replay_after: Optional[Path] = typer.Option(None, help="Live: on SIGUSR1 (what `m3p2i run "
+                                                "--view` sends once its episode is over) the "
+                                                "same page replays this episode log or run "
+                                                "folder, until Ctrl-C."),
 ) -> None:
     """Show a world and its planner in a browser: the scene from the scenario's model, the
     planner's best sampled trajectories coloured by mode, the executed path, the action and its
@@ -464,6 +495,9 @@ def view(
         typer.echo("error: give a SCENARIO for a live view, or --log to replay an episode", err=True)
         raise typer.Exit(2)
     bind = "0.0.0.0" if public else "127.0.0.1"
+    over = threading.Event()       # the episode is over: --replay-after takes the page over
+    if replay_after is not None and log is None:
+        signal.signal(signal.SIGUSR1, lambda *_: over.set())
     try:
         if log is not None:
             try:
@@ -478,10 +512,23 @@ def view(
     except ImportError as exc:
         typer.echo(f"error: {exc}", err=True)
         raise typer.Exit(2) from None
+    if log is None:
+        shown.stop = over if replay_after is not None else shown.stop
     typer.echo(f"view: {shown.url}")
     sys.stdout.flush()
     try:
         shown.serve(duration)
+        if over.is_set():
+            shown.close(keep_server=True)
+            try:
+                shown = V.ReplayView(V.load_replay(replay_after), bind, view_port,
+                                     server=shown.server)
+            except (ConfigError, FileNotFoundError, ValueError) as exc:
+                typer.echo(f"error: no replay of {replay_after}: {exc}", err=True)
+                raise typer.Exit(1) from None
+            typer.echo(f"replay: {replay_after}")
+            sys.stdout.flush()
+            shown.serve(None)
     except KeyboardInterrupt:
         pass
     finally:

@@ -6,6 +6,7 @@ The two sides still meet only over the wire; this module only starts and stops t
 
 from __future__ import annotations
 
+import signal
 import socket as pysocket
 import subprocess
 import sys
@@ -129,6 +130,7 @@ class EpisodeLaunch:
     verbose: bool = False           # children write to this terminal instead of log files
     view: bool = False              # serve the browser view (m3p2i view) beside the episode
     view_port: int = 0              # its page's port (0: a free one)
+    view_keep: bool = False         # after the episode, the view replays it until interrupted
     keys: Path | None = None        # CURVE key folder (m3p2i keys): both processes use it
     keep_serving: bool = False      # a warm pair (shared.tools.warm): episodes until shut down,
     log: str = ""                   # each logged to this template ('{seed}' in it)
@@ -168,20 +170,27 @@ class EpisodeLaunch:
         the episode log, so that ``m3p2i view --log`` replays the trajectories too."""
         cmd = [sys.executable, "-m", "shared.tools", "view", self.scenario, "--port", str(port),
                "--view-port", str(view_port), "--record", str(self.run_dir / "diagnostics.jsonl")]
+        if self.view_keep:      # on SIGUSR1, the same page replays the episode
+            cmd += ["--replay-after", str(self.run_dir)]
         return cmd + (["--keys", str(self.keys)] if self.keys is not None else [])
 
 
 def run_episode(launch: EpisodeLaunch, stop: threading.Event | None = None,
-                on_view: Callable[[str], None] | None = None) -> EpisodeRun:
+                on_view: Callable[[str], None] | None = None,
+                on_kept: Callable[[EpisodeRun, str], None] | None = None) -> EpisodeRun:
     """Run one episode to its end, its time-out, a planner crash, Ctrl-C or ``stop``; all
     processes are always gone on return (terminated, then killed after 5 s). With
     ``launch.view`` the browser view starts first (so it sees the episode from its first state)
-    and ``on_view`` gets its URL once the page is served."""
+    and ``on_view`` gets its URL once the page is served. With ``launch.view_keep`` too, an
+    episode that the world ended by itself leaves the page up: the world and the planner are
+    stopped, the view switches to the episode's replay, ``on_kept`` gets the episode's result
+    and the URL, and this returns that result on Ctrl-C (or ``stop``, or the view's exit)."""
     launch.run_dir.mkdir(parents=True, exist_ok=True)
     port = launch.port or free_port_block()
     log_path = launch.run_dir / "episode.jsonl"
     outs, procs = {}, {}
     reason = ""
+    kept: EpisodeRun | None = None
     started = time.monotonic()
     try:
         if launch.view:
@@ -211,13 +220,24 @@ def run_episode(launch: EpisodeLaunch, stop: threading.Event | None = None,
                 reason = "interrupted"
                 break
             time.sleep(0.1)
+        if launch.view and launch.view_keep and not reason and procs["view"].poll() is None:
+            stop_processes([procs["server"], procs["planner"]])
+            kept = EpisodeRun(log_path=log_path, summary=read_summary(log_path), reason="",
+                              wall_time=time.monotonic() - started)
+            procs["view"].send_signal(signal.SIGUSR1)     # the page replays the episode
+            if on_kept is not None:
+                on_kept(kept, url)
+            while procs["view"].poll() is None and not (stop is not None and stop.is_set()):
+                time.sleep(0.2)
     except KeyboardInterrupt:
-        reason = "interrupted"
+        reason = reason if kept else "interrupted"
     finally:
         stop_processes(procs.values())
         for out in outs.values():
             if out is not None:
                 out.close()
+    if kept is not None:
+        return kept
     return EpisodeRun(log_path=log_path, summary=read_summary(log_path), reason=reason,
                       wall_time=time.monotonic() - started)
 

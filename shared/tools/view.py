@@ -409,14 +409,18 @@ class LiveView:
         if self.record is not None:
             self.record.write(d)
 
-    def close(self) -> None:
+    def close(self, keep_server: bool = False) -> None:
+        """Stop receiving (and recording); with ``keep_server`` the page stays served, for a
+        :class:`ReplayView` to take over (``m3p2i run --view`` once its episode is over)."""
         self.stop.set()
-        for s in (self.state_sub, self.diag_sub):
-            s.close(0)
-        self.ctx.term()
-        if self.record is not None:
-            self.record.close()
-        self.server.stop()
+        if not self.ctx.closed:
+            for s in (self.state_sub, self.diag_sub):
+                s.close(0)
+            self.ctx.term()
+            if self.record is not None:
+                self.record.close()
+        if not keep_server:
+            self.server.stop()
 
 
 # ------------------------------------------------------------------------------ replay
@@ -494,15 +498,20 @@ def metrics_text(summary: dict | None) -> str:
 class ReplayView:
     """Plays an episode log with a time slider, the same drawing as live."""
 
-    def __init__(self, replay: Replay, host: str, port: int):
+    def __init__(self, replay: Replay, host: str, port: int, server=None):
+        """``server``: a page already served (a live view's, whose episode is over): its scene
+        and panel are replaced by the replay's, and a browser showing it stays connected."""
         viser = import_viser()
         self.replay = replay
         sc = replay.scenario
         self.model = compile_model(sc)
         self.data = initial_data(sc, self.model)
         self.robot = robot_frame(sc, self.model)
-        self.server = viser.ViserServer(host=host, port=port, label=f"m3p2i replay {sc.name}",
-                                        verbose=False)
+        if server is not None:
+            server.scene.reset()
+            server.gui.reset()
+        self.server = server or viser.ViserServer(host=host, port=port,
+                                                  label=f"m3p2i replay {sc.name}", verbose=False)
         self.drawing = SceneDrawing(self.server, self.model, self.data)
         self.path = self._robot_path()
         times = replay.times
