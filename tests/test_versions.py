@@ -18,6 +18,7 @@ from shared.endpoints import Endpoints
 from shared.scenario import load_scenario
 from shared.tools.launch import free_port_block
 from planner_client.build import build_motion_planner
+from planner_client.controller import Controller
 from planner_client.loop import HandshakeRefused, PlannerClient
 from planner_client.task import FixedModes
 from server.world import SimWorld
@@ -35,8 +36,8 @@ def planner(nav):
 
 
 def _client(planner, nav, port: int) -> PlannerClient:
-    client = PlannerClient(planner, FixedModes(("navigate",)), Endpoints(port=port), nav.name,
-                           nav.hash, diagnostics=False)
+    client = PlannerClient(Controller(planner, FixedModes(("navigate",))), Endpoints(port=port),
+                           nav.name, nav.hash, diagnostics=False)
     return client
 
 

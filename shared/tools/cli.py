@@ -474,9 +474,7 @@ def view(
                                           "(as diagnostics.jsonl beside the episode log)."),
     duration: Optional[float] = typer.Option(None, help="Stop after this many seconds "
                                              "(default: until Ctrl-C)."),
-    keys: Optional[Path] = typer.Option(None, help="CURVE key folder of the planner's side "
-                                        "(m3p2i keys DIR), for a world and planner run with "
-                                        "--keys: the view connects with the planner's key pair."),
+    keys: Keys = None,
     replay_after: Optional[Path] = typer.Option(None, help="Live: on SIGUSR1 (what `m3p2i run "
                                                 "--view` sends once its episode is over) the "
                                                 "same page replays this episode log or run "
