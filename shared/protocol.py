@@ -24,6 +24,10 @@ a peer of another version is refused with both versions named (docs/protocol.md)
 MAX_MESSAGE_BYTES = 8 * 1024 * 1024
 """Frames above this are refused before decoding (ZMQ_MAXMSGSIZE is set to the same value)."""
 
+MIN_PLAN_DT = 1e-6
+"""Seconds: a command's ``plan_dt`` below this is refused (a microsecond is far under any
+world's control period; a subnormal one would make the plan's index overflow)."""
+
 _DTYPES = {"<f8", "<f4", "<i4", "<i8", "|u1", "|b1"}
 _MAX_ARRAY_ELEMENTS = 4_000_000
 _MAX_ARRAY_DIMS = 4
@@ -342,6 +346,14 @@ def _check_plan(cmd: Command) -> None:
                             f"(nu of ctrl), got {list(cmd.plan_ctrl.shape)}")
     if cmd.plan_dt <= 0:
         raise ProtocolError(f"command.plan_dt must be > 0, got {cmd.plan_dt}")
+    if cmd.plan_dt < MIN_PLAN_DT:
+        raise ProtocolError(f"command.plan_dt must be >= {MIN_PLAN_DT} s, got {cmd.plan_dt}: no "
+                            f"world plays controls that short, and a world's tick would index "
+                            f"its plan past any integer")
+    if not np.isfinite(cmd.plan_t0 + cmd.plan_ctrl.shape[0] * cmd.plan_dt):
+        raise ProtocolError(f"command: the plan must end at a finite world time, got plan_t0 "
+                            f"{cmd.plan_t0} + {cmd.plan_ctrl.shape[0]} knots x plan_dt "
+                            f"{cmd.plan_dt}")
 
 
 def _check_control(msg: Control) -> None:

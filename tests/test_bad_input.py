@@ -1,0 +1,64 @@
+"""Bad input never crashes anything: absurd values from a peer, a scenario file or a browser are
+refused with a reason (or played safely), never an exception that ends a process."""
+
+from __future__ import annotations
+
+import math
+
+import msgpack
+import numpy as np
+import pytest
+
+from shared import protocol as P
+from shared.timed_plan import PlanPlayer, TimedPlan, playing
+
+V = P.PROTOCOL_VERSION
+
+
+def _plan_command(t0: float, dt: float, knots: int = 3) -> bytes:
+    arr = lambda a: P.encode_array(np.asarray(a, dtype=float))  # noqa: E731
+    return msgpack.packb({"type": "command", "v": V, "session": "s", "seq": 1,
+                          "ctrl": arr([0.0, 0.0]), "plan_ctrl": arr(np.zeros((knots, 2))),
+                          "plan_t0": t0, "plan_dt": dt}, use_bin_type=True)
+
+
+# ---------------------------------------------------------------- 1: a plan's indexing is total
+
+@pytest.mark.parametrize("t0, dt, t", [
+    (0.0, 5e-324, 0.02),          # the reported one: (t - t0) / dt overflows to inf
+    (0.0, 5e-324, 1e308),
+    (-1e308, 1e-3, 1e308),        # t - t0 is inf
+    (0.0, 1e308, 1e308),
+    (0.0, math.inf, math.inf),    # a held command at t = inf: inf / inf is NaN
+    (0.0, 0.01, math.nan),
+])
+def test_a_plan_answers_every_time_without_raising(t0, dt, t):
+    plan = TimedPlan(t0, dt, np.zeros((3, 2)))
+    got = plan.at(t)
+    assert got is None or got.shape == (2,)
+    player = PlanPlayer()
+    player.receive(plan)
+    player.control(t)
+    playing([plan], t)
+
+
+def test_an_index_beyond_the_plan_is_past_its_end():
+    plan = TimedPlan(0.0, 5e-324, np.zeros((3, 2)))
+    assert plan.index(0.0) == 0
+    assert plan.index(0.02) is None
+
+
+@pytest.mark.parametrize("t0, dt, reason", [
+    (0.0, 5e-324, "plan_dt"),
+    (0.0, 1e-9, "plan_dt"),
+    (1e308, 1e308, "finite"),
+])
+def test_a_command_with_an_absurd_plan_is_refused_with_the_reason(t0, dt, reason):
+    with pytest.raises(P.ProtocolError) as info:
+        P.decode(_plan_command(t0, dt), expect="command")
+    assert reason in str(info.value)
+
+
+def test_a_sane_plan_still_decodes():
+    cmd = P.decode(_plan_command(12.5, 0.01), expect="command")
+    assert cmd.has_plan and cmd.plan_dt == 0.01
