@@ -1070,10 +1070,11 @@ def _objectives(s: Section, errors: ErrorLog,
         fixed = errors.call(o.opt, "fixed", {}, dict, "a mapping actuator -> value", default={})
         numbers = {}
         for k, v in fixed.items():
-            if isinstance(v, bool) or not isinstance(v, (int, float)):
-                errors.add(ConfigError(s.source, f"{o.path}.fixed.{k}", "must be a number", v))
-            else:
-                numbers[k] = float(v)
+            try:
+                numbers[k] = number(v)
+            except ValueError:
+                errors.add(ConfigError(s.source, f"{o.path}.fixed.{k}", "must be a finite number",
+                                       v))
         errors.call(o.done)
         out[name] = ObjectiveConfig(terms=base.terms + terms, fixed={**base.fixed, **numbers})
     if not s.data:

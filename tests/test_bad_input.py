@@ -62,3 +62,49 @@ def test_a_command_with_an_absurd_plan_is_refused_with_the_reason(t0, dt, reason
 def test_a_sane_plan_still_decodes():
     cmd = P.decode(_plan_command(12.5, 0.01), expect="command")
     assert cmd.has_plan and cmd.plan_dt == 0.01
+
+
+# ---------------------------------------------------------------- 2: .inf and .nan in a file
+
+NON_FINITE = [
+    ("hardware: {actuation_delay_ms: .inf}\n", "hardware.actuation_delay_ms"),
+    ("hardware: {state_delay_ms: .nan}\n", "hardware.state_delay_ms"),
+    ("planner: {delays: {actuation_ms: .inf}}\n", "planner.delays.actuation_ms"),
+    ("planner: {delays: {max_ms: -.inf}}\n", "planner.delays.max_ms"),
+]
+
+
+def _based_on_navigation(tmp_path, extra: str):
+    path = tmp_path / "odd.yaml"
+    path.write_text(f"base: navigation\nname: odd\n{extra}")
+    return path
+
+
+@pytest.mark.parametrize("extra, key", NON_FINITE, ids=[k for _, k in NON_FINITE])
+def test_m3p2i_check_refuses_non_finite_numbers_naming_file_and_key(tmp_path, extra, key):
+    from typer.testing import CliRunner
+    from shared.tools.cli import app
+    path = _based_on_navigation(tmp_path, extra)
+    result = CliRunner().invoke(app, ["check", str(path)])
+    assert result.exit_code == 2, result.output
+    assert f"{path}: {key}: must be a finite number" in result.output
+
+
+def test_the_loader_refuses_non_finite_numbers(tmp_path):
+    from shared.config import ConfigError
+    from shared.scenario import load_scenario
+    for extra, key in NON_FINITE:
+        with pytest.raises(ConfigError) as info:
+            load_scenario(_based_on_navigation(tmp_path, extra))
+        assert key in str(info.value) and "finite" in str(info.value)
+
+
+def test_m3p2i_run_refuses_an_infinite_delay_before_starting_anything(tmp_path):
+    from typer.testing import CliRunner
+    from shared.tools.cli import app
+    run_dir = tmp_path / "run"
+    path = _based_on_navigation(tmp_path, NON_FINITE[2][0])
+    result = CliRunner().invoke(app, ["run", str(path), "--run-dir", str(run_dir)])
+    assert result.exit_code == 2, result.output
+    assert "planner.delays.actuation_ms: must be a finite number" in result.output
+    assert not run_dir.exists()
