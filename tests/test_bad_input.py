@@ -108,3 +108,78 @@ def test_m3p2i_run_refuses_an_infinite_delay_before_starting_anything(tmp_path):
     assert result.exit_code == 2, result.output
     assert "planner.delays.actuation_ms: must be a finite number" in result.output
     assert not run_dir.exists()
+
+
+# ---------------------------------------------------------------- 3: only the view's own page
+
+def _ws_open(port: int, origin: str | None, host: str | None = None) -> str:
+    """A websocket handshake with viser's subprotocol, as a browser page at ``origin`` (asking
+    for ``host``) would send it: 'accepted' (and the scene's first message arrived) or the
+    refusal."""
+    import base64
+    import os
+    import socket
+    import viser
+    key = base64.b64encode(os.urandom(16)).decode()
+    lines = ["GET / HTTP/1.1", f"Host: {host or f'127.0.0.1:{port}'}", "Upgrade: websocket",
+             "Connection: Upgrade", f"Sec-WebSocket-Key: {key}",
+             "Sec-WebSocket-Version: 13", f"Sec-WebSocket-Protocol: viser-v{viser.__version__}"]
+    if origin is not None:
+        lines.append(f"Origin: {origin}")
+    with socket.create_connection(("127.0.0.1", port), timeout=10) as sock:
+        sock.sendall(("\r\n".join(lines) + "\r\n\r\n").encode())
+        reply = b""
+        while b"\r\n\r\n" not in reply:
+            chunk = sock.recv(65536)
+            assert chunk, reply
+            reply += chunk
+        status = int(reply.split(b" ", 2)[1])
+        if status != 101:
+            return f"refused {status}"
+        head, _, rest = reply.partition(b"\r\n\r\n")
+        if not rest:
+            rest = sock.recv(65536)      # the scene's first websocket frame
+        return "accepted" if rest else "accepted, nothing sent"
+
+
+@pytest.fixture
+def live_view():
+    pytest.importorskip("viser")
+    from shared.endpoints import Endpoints
+    from shared.scenario import load_scenario
+    from shared.tools.launch import free_port_block
+    from shared.tools.view import LiveView
+    views = []
+
+    def make(bind: str = "127.0.0.1", **kw) -> LiveView:
+        view = LiveView(load_scenario("navigation"), Endpoints(port=free_port_block()), bind,
+                        free_port_block(count=1), **kw)
+        views.append(view)
+        return view
+    yield make
+    for view in views:
+        view.close()
+
+
+def test_a_page_of_another_origin_cannot_open_the_views_websocket(live_view):
+    port = live_view().server.get_port()
+    assert _ws_open(port, "http://evil.example") == "refused 403"
+    assert _ws_open(port, f"http://evil.example:{port}", host=f"evil.example:{port}") == \
+        "refused 403"                                                # DNS rebinding
+    assert _ws_open(port, "null") == "refused 403"                   # a sandboxed page
+    assert _ws_open(port, f"http://127.0.0.1:{port}") == "accepted"
+    assert _ws_open(port, f"http://localhost:{port}", host=f"localhost:{port}") == "accepted"
+    assert _ws_open(port, None) == "accepted"                        # not a browser
+
+
+def test_a_public_view_accepts_its_machines_names_and_addresses_only():
+    from shared.tools.view import OriginPolicy
+    public = OriginPolicy(public=True, names=frozenset({"lab-pc"}))
+    for host in ("lab-pc:8080", "192.168.1.20:8080", "[fe80::1]:8080", "localhost:8080"):
+        assert public.refusal(f"http://{host}", host) is None, host
+    assert public.refusal("http://evil.example:8080", "evil.example:8080")   # DNS rebinding
+    assert public.refusal("http://evil.example", "lab-pc:8080")
+    local = OriginPolicy()
+    assert local.refusal("http://192.168.1.20:8080", "192.168.1.20:8080")
+    assert local.refusal("http://[::1]:8080", "[::1]:8080") is None
+
