@@ -183,3 +183,41 @@ def test_a_public_view_accepts_its_machines_names_and_addresses_only():
     assert local.refusal("http://192.168.1.20:8080", "192.168.1.20:8080")
     assert local.refusal("http://[::1]:8080", "[::1]:8080") is None
 
+
+# ---------------------------------------------------------------- 4, 5: m3p2i view's options
+
+class _FakeView:
+    """Stands in for LiveView in the command line's tests: what it was given."""
+    made: list[dict] = []
+
+    def __init__(self, *args, **kwargs):
+        _FakeView.made.append({"args": args, **kwargs})
+        self.url = "http://127.0.0.1:1/"
+
+    def serve(self, duration=None):
+        pass
+
+    def close(self):
+        pass
+
+
+def _view_cli(monkeypatch, *argv: str):
+    from typer.testing import CliRunner
+    from shared.tools import view as V
+    from shared.tools.cli import app
+    monkeypatch.setattr(V, "LiveView", _FakeView)
+    _FakeView.made.clear()
+    result = CliRunner().invoke(app, ["view", "navigation", *argv])
+    assert result.exit_code == 0, result.output
+    (made,) = _FakeView.made
+    return made
+
+
+def test_m3p2i_view_keys_needs_only_the_planners_pair(monkeypatch, tmp_path):
+    import shutil
+    from shared.security import make_keys
+    make_keys(tmp_path / "keys")
+    shutil.rmtree(tmp_path / "keys" / "world")      # a planner machine holds only DIR/planner
+    made = _view_cli(monkeypatch, "--keys", str(tmp_path / "keys"))
+    own = (tmp_path / "keys" / "planner" / "planner.key").read_bytes()
+    assert made["keys"].own.public.decode() in own.decode()

@@ -483,7 +483,7 @@ def view(
         else:
             sc = _load_or_exit(scenario)
             shown = V.LiveView(sc, Endpoints(host, port), bind, view_port, record=record,
-                               keys=_keys_or_exit(keys))
+                               keys=_keys_or_exit(keys, world=False))
     except ImportError as exc:
         typer.echo(f"error: {exc}", err=True)
         raise typer.Exit(2) from None
@@ -522,14 +522,17 @@ def _declared_delays_or_exit(sc, hardware: str | None) -> tuple[float, float]:
     return delays
 
 
-def _keys_or_exit(keys: Optional[Path]):
+def _keys_or_exit(keys: Optional[Path], world: bool = True):
     """Both sides' keys checked before either process starts (a bad key folder is one clear
-    error here, not two processes failing); the planner's (tools use its pair), or None."""
+    error here, not two processes failing); the planner's (tools use its pair), or None.
+    ``world=False``: a tool that starts no world (m3p2i view), which may run on a planner
+    machine holding only ``DIR/planner``, needs and checks only the planner's keys."""
     if keys is None:
         return None
     from shared.security import load_planner_keys, load_world_keys
     try:
-        load_world_keys(keys)
+        if world:
+            load_world_keys(keys)
         return load_planner_keys(keys)
     except ConfigError as exc:
         typer.echo(f"error: {exc}", err=True)
