@@ -221,3 +221,19 @@ def test_m3p2i_view_keys_needs_only_the_planners_pair(monkeypatch, tmp_path):
     made = _view_cli(monkeypatch, "--keys", str(tmp_path / "keys"))
     own = (tmp_path / "keys" / "planner" / "planner.key").read_bytes()
     assert made["keys"].own.public.decode() in own.decode()
+
+
+def test_a_public_view_has_no_controls_unless_asked(monkeypatch):
+    assert _view_cli(monkeypatch)["controls"] is True
+    assert _view_cli(monkeypatch, "--public")["controls"] is False
+    assert _view_cli(monkeypatch, "--public", "--public-controls")["controls"] is True
+
+
+def test_a_view_without_controls_shows_no_buttons_and_sends_nothing(live_view):
+    from shared.tools.view import LiveView
+    view: LiveView = live_view(controls=False)
+    assert view.buttons == {} and view.gizmos == {}
+    assert set(live_view().buttons) == {"Pause", "Resume", "Reset"}
+    sent = []
+    view.control.send = lambda msg: sent.append(msg) or (True, "ok")
+    assert view._send(P.Control(op="pause")) is False and not sent

@@ -449,8 +449,12 @@ def view(
                              "state is on PORT+1, the planner's diagnostics on PORT+3."),
     view_port: int = typer.Option(8080, help="Port of the page (the next free one if taken)."),
     public: bool = typer.Option(False, "--public", help="Serve the page on every network "
-                                "interface, not only loopback. Anyone who reaches it can pause, "
-                                "reset and disturb the world: only on a network you trust."),
+                                "interface, not only loopback, to watch only: its pause, reset "
+                                "and move controls are off (see --public-controls)."),
+    public_controls: bool = typer.Option(False, "--public-controls", help="With --public: keep "
+                                         "the controls, so that anyone who reaches the page can "
+                                         "pause, reset and disturb the world (with the "
+                                         "planner's keys): only on a network you trust."),
     record: Optional[Path] = typer.Option(None, help="Live: also write the planner's diagnostics "
                                           "(trajectories, mode weights) to this file, for a replay "
                                           "(as diagnostics.jsonl beside the episode log)."),
@@ -483,7 +487,8 @@ def view(
         else:
             sc = _load_or_exit(scenario)
             shown = V.LiveView(sc, Endpoints(host, port), bind, view_port, record=record,
-                               keys=_keys_or_exit(keys, world=False))
+                               keys=_keys_or_exit(keys, world=False),
+                               controls=not public or public_controls)
     except ImportError as exc:
         typer.echo(f"error: {exc}", err=True)
         raise typer.Exit(2) from None

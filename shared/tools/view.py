@@ -382,11 +382,13 @@ class LiveView:
     """Draws the running world and planner; serves until :meth:`close` (or ``stop`` is set)."""
 
     def __init__(self, scenario: Scenario, endpoints: Endpoints, host: str, port: int,
-                 record: Path | None = None, keys: PlannerKeys | None = None):
+                 record: Path | None = None, keys: PlannerKeys | None = None,
+                 controls: bool = True):
         self.scenario = scenario
         self.model = compile_model(scenario)
         self.data = initial_data(scenario, self.model)
         self.robot = robot_frame(scenario, self.model)
+        self.controls = controls      # False: the page only shows (pause, reset, move: none)
         self.server = viser_server(host, port, f"m3p2i {scenario.name}")
         self.drawing = SceneDrawing(self.server, self.model, self.data)
         self.info = PanelInfo(scenario=scenario.name)
@@ -419,15 +421,19 @@ class LiveView:
     def _build_gui(self) -> None:
         gui = self.server.gui
         self.panel = gui.add_markdown(self.info.markdown())
+        self.buttons, self.gizmos = {}, {}
+        if not self.controls:
+            gui.add_markdown("*controls off* (a `--public` view without `--public-controls`)")
+            return
         pause = gui.add_button("Pause")
         resume = gui.add_button("Resume")
         reset = gui.add_button("Reset")
         pause.on_click(lambda _: self._send(P.Control(op="pause")))
         resume.on_click(lambda _: self._send(P.Control(op="resume")))
         reset.on_click(lambda _: self._reset())
+        self.buttons = {"Pause": pause, "Resume": resume, "Reset": reset}
         movable = gui.add_checkbox("move objects", False, hint="Show a handle on each object: "
                                    "drag it to move the object; the world logs a disturbance.")
-        self.gizmos = {}
         mj_data = self.data
         for obj in self.scenario.world.objects:
             body = self.model.body(obj.name)
@@ -447,6 +453,9 @@ class LiveView:
         movable.on_update(show_handles)
 
     def _send(self, msg: P.Control) -> bool:
+        if not self.controls:
+            log.warning("control %s not sent: this view's controls are off", msg.op)
+            return False
         ok, text = self.control.send(msg)
         self.info.note = text if ok else f"**refused**: {text}"
         log.info("control %s: %s", msg.op, text)
