@@ -256,7 +256,7 @@ def decode(frame: bytes, expect: str | tuple[str, ...] | None = None) -> Any:
     if not isinstance(obj, dict):
         raise ProtocolError(f"message must be a map, got {type(obj).__name__}")
     kind = obj.get("type")
-    if kind not in _SCHEMA:
+    if not isinstance(kind, str) or kind not in _SCHEMA:
         raise ProtocolError(f"unknown message type {kind!r} (expected one of {sorted(_SCHEMA)})")
     if expect is not None and kind not in ((expect,) if isinstance(expect, str) else expect):
         raise ProtocolError(f"unexpected message type {kind!r} here (expected {expect})")

@@ -124,3 +124,10 @@ def test_a_refusal_from_a_peer_of_another_version_is_read_with_its_reason():
 def test_a_command_without_a_plan_is_still_a_command():
     back = P.decode(P.encode(P.Command(session="s", seq=1, ctrl=np.zeros(2))))
     assert not back.has_plan and back.plan_t0 is None
+
+
+@pytest.mark.parametrize("kind", [{"a": 1}, [1], 1.5, None, b"state"])
+def test_a_type_that_is_not_a_string_is_refused(kind):
+    # found by tests/test_fuzz.py: an unhashable type (a map, a list) raised TypeError
+    with pytest.raises(P.ProtocolError, match="unknown message type"):
+        P.decode(msgpack.packb({"type": kind, "v": V}, use_bin_type=True))
