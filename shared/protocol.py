@@ -12,6 +12,7 @@ caller logs and drops it.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -57,12 +58,15 @@ def decode_array(obj: Any, what: str) -> np.ndarray:
     if not isinstance(obj, dict) or obj.get("nd") is not True:
         raise ProtocolError(f"{what}: expected an array map {{nd, dtype, shape, data}}")
     dtype, shape, data = obj.get("dtype"), obj.get("shape"), obj.get("data")
-    if dtype not in _DTYPES:
+    if not isinstance(dtype, str) or dtype not in _DTYPES:
         raise ProtocolError(f"{what}: unsupported dtype {dtype!r} (expected one of {sorted(_DTYPES)})")
     if (not isinstance(shape, list) or len(shape) > _MAX_ARRAY_DIMS
             or not all(isinstance(n, int) and not isinstance(n, bool) and n >= 0 for n in shape)):
         raise ProtocolError(f"{what}: bad shape {shape!r}")
-    count = int(np.prod(shape)) if shape else 1
+    if any(n > _MAX_ARRAY_ELEMENTS for n in shape):
+        raise ProtocolError(f"{what}: shape {shape} has a dimension over the limit "
+                            f"{_MAX_ARRAY_ELEMENTS}")
+    count = math.prod(shape)      # exact (np.prod wraps around in int64: 2**63 · 2 is 0)
     if count > _MAX_ARRAY_ELEMENTS:
         raise ProtocolError(f"{what}: {count} elements is over the limit {_MAX_ARRAY_ELEMENTS}")
     if not isinstance(data, bytes) or len(data) != count * np.dtype(dtype).itemsize:

@@ -131,3 +131,18 @@ def test_a_type_that_is_not_a_string_is_refused(kind):
     # found by tests/test_fuzz.py: an unhashable type (a map, a list) raised TypeError
     with pytest.raises(P.ProtocolError, match="unknown message type"):
         P.decode(msgpack.packb({"type": kind, "v": V}, use_bin_type=True))
+
+
+@pytest.mark.parametrize("array, reason", [
+    ({"nd": True, "dtype": {"a": 1}, "shape": [1], "data": b"\x00" * 8}, "unsupported dtype"),
+    ({"nd": True, "dtype": ["<f8"], "shape": [1], "data": b"\x00" * 8}, "unsupported dtype"),
+    # np.prod wraps around in int64: 2**63 · 2 "is" 0 elements, and b"" matched it
+    ({"nd": True, "dtype": "<f8", "shape": [2**63, 2], "data": b""}, "over the limit"),
+    ({"nd": True, "dtype": "<f8", "shape": [2**64 - 1], "data": b""}, "over the limit"),
+    ({"nd": True, "dtype": "<f8", "shape": [2**32, 2**32, 0], "data": b""}, "over the limit"),
+])
+def test_arrays_with_unhashable_dtypes_or_overflowing_shapes_are_refused(array, reason):
+    # found by tests/test_fuzz.py: TypeError, and ValueError from numpy's reshape
+    with pytest.raises(P.ProtocolError) as info:
+        P.decode(_raw(type="command", v=V, session="s", seq=1, ctrl=array))
+    assert reason in str(info.value)
