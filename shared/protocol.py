@@ -337,6 +337,32 @@ def _check_values(msg: Any) -> None:
                             f"per trajectory of top), got {list(msg.top_modes.shape)}")
     if isinstance(msg, State) and msg.lag < 0:
         raise ProtocolError("state.lag must be >= 0")
+    if isinstance(msg, State):
+        _check_state_shapes(msg)
+    if isinstance(msg, Diagnostics):
+        if msg.mode_weights.ndim != 1:
+            raise ProtocolError(f"diagnostics.mode_weights: expected shape [N] (one per mode), "
+                                f"got {list(msg.mode_weights.shape)}")
+        if msg.top.ndim != 3 or msg.top.shape[2] != 3:
+            raise ProtocolError(f"diagnostics.top: expected shape [M, T, 3], got "
+                                f"{list(msg.top.shape)}")
+
+
+def _check_state_shapes(msg: State) -> None:
+    """``qpos``, ``qvel``, ``act`` [n]; ``mocap_pos`` [nmocap, 3] and ``mocap_quat`` [nmocap, 4]
+    (both empty, of any shape, for a model without mocap bodies)."""
+    for name in ("qpos", "qvel", "act"):
+        if getattr(msg, name).ndim != 1:
+            raise ProtocolError(f"state.{name}: expected shape [n], got "
+                                f"{list(getattr(msg, name).shape)}")
+    pos, quat = msg.mocap_pos, msg.mocap_quat
+    if pos.size == 0 and quat.size == 0:
+        return
+    if pos.ndim != 2 or pos.shape[1] != 3:
+        raise ProtocolError(f"state.mocap_pos: expected shape [nmocap, 3], got {list(pos.shape)}")
+    if quat.shape != (pos.shape[0], 4):
+        raise ProtocolError(f"state.mocap_quat: expected shape [{pos.shape[0]}, 4] (as "
+                            f"mocap_pos), got {list(quat.shape)}")
 
 
 def _check_plan(cmd: Command) -> None:

@@ -146,3 +146,37 @@ def test_arrays_with_unhashable_dtypes_or_overflowing_shapes_are_refused(array, 
     with pytest.raises(P.ProtocolError) as info:
         P.decode(_raw(type="command", v=V, session="s", seq=1, ctrl=array))
     assert reason in str(info.value)
+
+
+def _state_raw(**kw):
+    base = dict(type="state", v=V, session="s", seq=1, time=0.0, qpos=_arr([0, 0]),
+                qvel=_arr([0, 0]), act=_arr([]), mocap_pos=_arr(np.zeros((1, 3))),
+                mocap_quat=_arr(np.ones((1, 4))))
+    return _raw(**{**base, **kw})
+
+
+def _diag_raw(**kw):
+    base = dict(type="diagnostics", v=V, seq=1, action="a", alternatives=[], mode_names=["m"],
+                mode_weights=_arr([1.0]), top=_arr(np.zeros((1, 4, 3))), plan_time=0.0)
+    return _raw(**{**base, **kw})
+
+
+@pytest.mark.parametrize("frame, reason", [
+    (_state_raw(qpos=_arr(np.zeros((0, 0)))), "state.qpos: expected shape [n]"),
+    (_state_raw(qvel=_arr(np.zeros((2, 1)))), "state.qvel: expected shape [n]"),
+    (_state_raw(mocap_pos=_arr(np.zeros((1, 2)))), "state.mocap_pos: expected shape [nmocap, 3]"),
+    (_state_raw(mocap_quat=_arr(np.ones((2, 4)))), "state.mocap_quat: expected shape [1, 4]"),
+    (_diag_raw(mode_weights=_arr(np.zeros((1, 1)))), "diagnostics.mode_weights: expected shape"),
+    (_diag_raw(top=_arr(np.zeros((1, 4)))), "diagnostics.top: expected shape [M, T, 3]"),
+    (_diag_raw(top=_arr(np.zeros((1, 4, 2)))), "diagnostics.top: expected shape [M, T, 3]"),
+])
+def test_arrays_of_other_shapes_than_documented_are_refused(frame, reason):
+    # found by tests/test_fuzz.py: a 2-d mode_weights reached the view (float(row): TypeError)
+    with pytest.raises(P.ProtocolError) as info:
+        P.decode(frame)
+    assert reason in str(info.value)
+
+
+def test_a_state_without_mocap_bodies_may_send_empty_arrays():
+    back = P.decode(_state_raw(mocap_pos=_arr([]), mocap_quat=_arr([])))
+    assert back.mocap_pos.size == back.mocap_quat.size == 0
