@@ -657,7 +657,7 @@ def _world(s: Section, errors: ErrorLog) -> WorldConfig | None:
     """The world, or None when a faulty object, randomisation or disturbance was recorded in
     ``errors`` (the model of a faulty world is not the file's)."""
     n_before = len(errors.errors)
-    timestep = s.req("timestep", positive, "seconds > 0")
+    timestep = s.req("timestep", _timestep, _TIMESTEP)
     arena = None
     if s.has("arena"):
         a = s.section("arena")
@@ -850,8 +850,8 @@ def _planner(s: Section) -> PlannerConfig:
                         aip_period=s.opt("aip_period", 0.2, positive, "simulated seconds"),
                         confirm=s.opt("confirm", {}, _confirm_times, "seconds >= 0, or a map "
                                       "{factor: seconds or {state: seconds}, '*': seconds}"),
-                        timestep=s.opt("timestep", None, positive, "seconds > 0, a multiple of "
-                                       "world.timestep"),
+                        timestep=s.opt("timestep", None, _timestep, f"{_TIMESTEP}, a multiple "
+                                       "of world.timestep"),
                         backend=s.opt("backend", "mujoco", one_of(ROLLOUT_BACKENDS)),
                         device=s.opt("device", "cuda:0", rollout_device, "cpu, cuda or cuda:N"),
                         nconmax=s.opt("nconmax", None, positive_int, "contacts per world"),
@@ -960,6 +960,18 @@ def _estimate(s: Section) -> EstimateConfig:
         still_speed=s.opt("still_speed", 0.0, non_negative, "m/s >= 0"))
     s.done()
     return cfg
+
+
+_TIMESTEP = "seconds in [1e-06, 10]"
+
+
+def _timestep(value: Any) -> float:
+    """A world's or a planning step: a microsecond to ten seconds (beyond, no simulation; a
+    subnormal one made every count of steps overflow)."""
+    v = number(value)
+    if not 1e-6 <= v <= 10.0:
+        raise ValueError("must be between a microsecond and 10 s")
+    return v
 
 
 def _weight(value: Any) -> float:

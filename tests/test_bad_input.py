@@ -237,3 +237,27 @@ def test_a_view_without_controls_shows_no_buttons_and_sends_nothing(live_view):
     sent = []
     view.control.send = lambda msg: sent.append(msg) or (True, "ok")
     assert view._send(P.Control(op="pause")) is False and not sent
+
+
+# ---------------------------------------------------------------- 10: found by the fuzzer
+
+@pytest.mark.parametrize("extra, key", [
+    ("world: {timestep: 5.0e-324}\n", "world.timestep"),
+    ("planner: {timestep: 5.0e-324}\n", "planner.timestep"),
+    ("planner: {timestep: 1.0e+300}\n", "planner.timestep"),
+])
+def test_an_absurd_timestep_is_refused_naming_the_key(tmp_path, extra, key):
+    # found by tests/test_fuzz.py: world.timestep 5e-324 made planner.timestep / world.timestep
+    # inf, and round(inf) raised OverflowError out of the loader
+    import yaml
+    from shared.config import ConfigError
+    from shared.scenario import SCENARIO_DIR, load_scenario
+    raw = _based_on_navigation(tmp_path, extra)
+    if extra.startswith("world"):         # world: a whole section, not merged with the base's
+        data = yaml.safe_load((SCENARIO_DIR / "navigation.yaml").read_text())
+        data["world"]["timestep"] = 5e-324
+        data.setdefault("planner", {})["timestep"] = 0.05
+        raw.write_text(yaml.safe_dump(data))
+    with pytest.raises(ConfigError) as info:
+        load_scenario(raw)
+    assert f"{raw}: {key}" in str(info.value)
