@@ -321,8 +321,8 @@ def _check_field(kind: str, name: str, ftype: str, value: Any) -> Any:
 def _check_values(msg: Any) -> None:
     if isinstance(msg, State) and msg.status not in _STATUSES:
         raise ProtocolError(f"state.status: {msg.status!r} (expected one of {sorted(_STATUSES)})")
-    if isinstance(msg, Welcome) and msg.mode not in _MODES:
-        raise ProtocolError(f"welcome.mode: {msg.mode!r} (expected one of {sorted(_MODES)})")
+    if isinstance(msg, Welcome):
+        _check_welcome(msg)
     if isinstance(msg, Control):
         _check_control(msg)
     if isinstance(msg, (State, Command)) and msg.seq < 0:
@@ -363,6 +363,19 @@ def _check_state_shapes(msg: State) -> None:
     if quat.shape != (pos.shape[0], 4):
         raise ProtocolError(f"state.mocap_quat: expected shape [{pos.shape[0]}, 4] (as "
                             f"mocap_pos), got {list(quat.shape)}")
+
+
+def _check_welcome(msg: Welcome) -> None:
+    """The world's step as the scenario loader allows it (a microsecond to 10 s), ``nu >= 0``,
+    a seed as ``control`` takes one."""
+    if msg.mode not in _MODES:
+        raise ProtocolError(f"welcome.mode: {msg.mode!r} (expected one of {sorted(_MODES)})")
+    if not MIN_PLAN_DT <= msg.dt <= 10.0:
+        raise ProtocolError(f"welcome.dt: {msg.dt} s (expected seconds in [{MIN_PLAN_DT}, 10])")
+    if msg.nu < 0:
+        raise ProtocolError(f"welcome.nu: {msg.nu} (expected >= 0)")
+    if msg.seed is not None and not 0 <= msg.seed < 2**32:
+        raise ProtocolError(f"welcome.seed: {msg.seed} (expected 0 <= seed < 2**32)")
 
 
 def _check_plan(cmd: Command) -> None:
