@@ -312,8 +312,8 @@ def _check_field(kind: str, name: str, ftype: str, value: Any) -> Any:
     if ftype == "floatmap":
         if not isinstance(value, dict) or not all(
                 isinstance(k, str) and isinstance(v, (int, float)) and not isinstance(v, bool)
-                for k, v in value.items()):
-            raise ProtocolError(f"{what}: expected a map of names to numbers")
+                and math.isfinite(v) for k, v in value.items()):
+            raise ProtocolError(f"{what}: expected a map of names to finite numbers")
         return {k: float(v) for k, v in value.items()}
     raise AssertionError(ftype)
 
