@@ -134,11 +134,14 @@ def _install_origin_guard() -> None:
     replaced by a proxy) so that the server it starts checks :data:`_guard_next`'s policy in
     ``process_request``, ahead of viser's own (which serves the page's files)."""
     import http
-    from viser.infra import _infra
-    if isinstance(_infra.websockets, _Proxy):
+    try:
+        from viser.infra import _infra
+        real = _infra.websockets
+        serve = real.asyncio.server.serve
+    except (ImportError, AttributeError):     # another viser: viser_server says so
         return
-    real = _infra.websockets
-    serve = real.asyncio.server.serve
+    if isinstance(real, _Proxy):
+        return
 
     def guarded_serve(*args, process_request=None, **kwargs):
         global _guard_applied
