@@ -10,9 +10,10 @@ real grasp, so a cube that slips in the world is seen in the next state, and onc
 observes it lost (within ``aip_period`` plus ``planner.confirm``) it is released here too.
 
 How the contacts are dropped without recompiling: one contact bit that no geom of the scene uses
-is added to every geom outside the robot; an attached object's geoms carry that bit alone, so
-they still meet the table and the other objects (bit shared) but never the robot (bit absent,
-and the object no longer has the robot's bits). The weld is activated through ``eq_active0``,
+is added to every colliding geom outside the robot (not to a visual marker, which collides with
+nothing); an attached object's geoms carry that bit alone, so they still meet the table and the
+other objects (bit shared) but never the robot (bit absent, and the object no longer has the
+robot's bits). The weld is activated through ``eq_active0``,
 because ``mujoco.rollout`` starts every rollout from a reset MjData, whose equality flags are
 the model's, and through the mirror's ``eq_active`` for the prediction over the plan's lead.
 
@@ -92,9 +93,13 @@ class Attachments:
             geoms = np.flatnonzero(model.body_rootid[model.geom_bodyid] == body)
             self.welds.append(_Weld(a, model.equality(EQUALITY_PREFIX + a.object).id, body, to,
                                     geoms))
-        outside = ~np.isin(model.body_rootid[model.geom_bodyid], list(robots))
+        # only geoms that collide: a visual marker (both masks 0) given the bit would meet the
+        # table, the objects and a carried cube in every rollout
+        collides = (model.geom_contype != 0) | (model.geom_conaffinity != 0)
+        outside = ~np.isin(model.body_rootid[model.geom_bodyid], list(robots)) & collides
         model.geom_contype[outside] |= self.bit
         model.geom_conaffinity[outside] |= self.bit
+        self._bit_of = np.where(collides, self.bit, 0).astype(model.geom_contype.dtype)
         self._contype = model.geom_contype.copy()          # each geom's bits when detached
         self._conaffinity = model.geom_conaffinity.copy()
 
@@ -145,8 +150,8 @@ class Attachments:
                 log.info("t=%.2f s: %s %s %s in the planner's model", time, w.cfg.object,
                          "welded to" if on else "released from", w.cfg.to)
                 if on:
-                    m.geom_contype[w.geoms] = self.bit
-                    m.geom_conaffinity[w.geoms] = self.bit
+                    m.geom_contype[w.geoms] = self._bit_of[w.geoms]
+                    m.geom_conaffinity[w.geoms] = self._bit_of[w.geoms]
                 else:
                     m.geom_contype[w.geoms] = self._contype[w.geoms]
                     m.geom_conaffinity[w.geoms] = self._conaffinity[w.geoms]

@@ -16,11 +16,15 @@ reports, in ``state.lag``, how long after it the command that answered it arrive
 
 from __future__ import annotations
 
+import logging
+
 import mujoco
 import numpy as np
 
 from shared.timed_plan import TimedPlan
 from planner_client.timing import predict
+
+log = logging.getLogger("m3p2i.planner")
 
 
 class ActuationDelayEstimate:
@@ -41,7 +45,16 @@ class ActuationDelayEstimate:
         robot = [j for j in range(model.njnt) if not free[j]]
         self._dofs = np.array([model.jnt_dofadr[j] for j in robot], dtype=int)   # [R]
         self._scratch = mujoco.MjData(model)
-        self._state_kind = mujoco.mjtState.mjSTATE_FULLPHYSICS
+        # the whole state the prediction starts from: the physics, and what decides the model's
+        # constraints and fixed bodies (a carried cube's weld, the mocap poses; MuJoCo 4's
+        # FULLPHYSICS has neither)
+        S = mujoco.mjtState
+        self._state_kind = (S.mjSTATE_FULLPHYSICS | S.mjSTATE_EQ_ACTIVE | S.mjSTATE_MOCAP_POS
+                            | S.mjSTATE_MOCAP_QUAT | S.mjSTATE_USERDATA)
+        # the longest gap between two states that is scored: as long as the longest delay
+        # candidate (a planner that slow sees no state in between), 3 steps at least
+        self.max_gap = max(3, max_steps)
+        self.too_long = 0                               # gaps not scored for their length
         self._prev: tuple[float, np.ndarray] | None = None
 
     def observe(self, data: mujoco.MjData, plans: list[TimedPlan], safe: np.ndarray) -> None:
@@ -55,7 +68,15 @@ class ActuationDelayEstimate:
         if prev is None or not len(self._dofs):
             return
         steps = round((time - prev[0]) / self.world_dt)
-        if not 1 <= steps <= 3:          # a new episode, or a gap too long to score
+        if steps > self.max_gap:
+            self.too_long += 1
+            if self.too_long in (1, 10, 100) or self.too_long % 1000 == 0:
+                log.warning("actuation delay estimate: states %d world steps apart, over the "
+                            "%d it scores: not scored (%d such gaps so far); a planner this "
+                            "slow gets no estimate: raise planner.delays.max_ms", steps,
+                            self.max_gap, self.too_long)
+            return
+        if steps < 1:                    # a new episode (time went back), or the same state
             return
         target = data.qvel[self._dofs]
         m, d = self.model, self._scratch

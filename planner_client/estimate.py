@@ -8,7 +8,9 @@ received velocities by finite differences of the filtered poses, filtered again:
 velocity in the world frame, angular velocity in the body's frame (MuJoCo's free-joint
 convention), from ``mju_subQuat``. A jump faster than ``max_speed`` is a teleport (a disturbance,
 a cube put back by hand): the filters restart at the new pose, velocity 0. A filtered velocity
-slower than ``still_speed`` is the filters' noise, not motion: it is taken as 0.
+slower than ``still_speed`` is the filters' noise, not motion: it is taken as 0. A state with
+the time stamp of the previous one is the same measurement again and changes nothing; an older
+one begins a new episode.
 
 The same filters serve the free bodies (the scenario's movable objects, :class:`FreeBodyEstimator`)
 and the mocap bodies (its fixed objects, which a world may still move: a table, a scripted
@@ -42,7 +44,9 @@ class PoseFilter:
     def __call__(self, time: float, pos: np.ndarray, quat: np.ndarray) -> None:
         """Take the poses measured at ``time`` (``pos [N, 3]``, ``quat [N, 4]``)."""
         dt = None if self._time is None else time - self._time
-        if dt is None or dt <= 0:            # the first state, or a new episode: start afresh
+        if dt == 0:                          # the same measurement again (a duplicate): no news
+            return
+        if dt is None or not dt > 0:         # the first state, or a new episode: start afresh
             self.pos[:], self.quat[:], self.vel[:] = pos, quat, 0.0
         else:
             self._advance(pos, quat, dt)

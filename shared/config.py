@@ -11,6 +11,7 @@ Unknown keys are errors (a typo must never silently fall back to a default).
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable, Iterable, Sequence
 from contextlib import contextmanager
 from pathlib import Path
@@ -174,8 +175,8 @@ class Section:
     def _convert(self, key: str, value: Any, kind, expected: str | None):
         self._seen.add(key)
         if isinstance(kind, type):
-            if kind is float and isinstance(value, int) and not isinstance(value, bool):
-                return float(value)
+            if kind is float and isinstance(value, (int, float)) and not isinstance(value, bool):
+                return self._convert(key, value, number, expected)
             if kind in (int, float) and isinstance(value, bool):
                 raise self.error(key, "wrong type", value, expected or kind.__name__)
             if kind is not object and not isinstance(value, kind):
@@ -190,9 +191,17 @@ class Section:
 # Converters for Section.req/opt: each raises ValueError with the reason.
 
 def number(value: Any) -> float:
+    """A finite number: YAML's ``.inf`` and ``.nan`` are refused (``nan < 0`` is false, so a NaN
+    would pass every range check after this one; no key of a file means "unbounded" by inf)."""
     if isinstance(value, bool) or not isinstance(value, (int, float)):
         raise ValueError("wrong type")
-    return float(value)
+    try:
+        v = float(value)
+    except OverflowError:         # an int beyond float's range
+        raise ValueError("must be a finite number") from None
+    if not math.isfinite(v):
+        raise ValueError("must be a finite number")
+    return v
 
 
 def positive(value: Any) -> float:

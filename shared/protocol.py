@@ -12,6 +12,7 @@ caller logs and drops it.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -28,6 +29,10 @@ answers in the highest both speak, and each side then encodes with that one (doc
 VERSIONS_TEXT = ", ".join(map(str, VERSIONS))
 MAX_MESSAGE_BYTES = 8 * 1024 * 1024
 """Frames above this are refused before decoding (ZMQ_MAXMSGSIZE is set to the same value)."""
+
+MIN_PLAN_DT = 1e-6
+"""Seconds: a command's ``plan_dt`` below this is refused (a microsecond is far under any
+world's control period; a subnormal one would make the plan's index overflow)."""
 
 _DTYPES = {"<f8", "<f4", "<i4", "<i8", "|u1", "|b1"}
 _MAX_ARRAY_ELEMENTS = 4_000_000
@@ -58,12 +63,15 @@ def decode_array(obj: Any, what: str) -> np.ndarray:
     if not isinstance(obj, dict) or obj.get("nd") is not True:
         raise ProtocolError(f"{what}: expected an array map {{nd, dtype, shape, data}}")
     dtype, shape, data = obj.get("dtype"), obj.get("shape"), obj.get("data")
-    if dtype not in _DTYPES:
+    if not isinstance(dtype, str) or dtype not in _DTYPES:
         raise ProtocolError(f"{what}: unsupported dtype {dtype!r} (expected one of {sorted(_DTYPES)})")
     if (not isinstance(shape, list) or len(shape) > _MAX_ARRAY_DIMS
             or not all(isinstance(n, int) and not isinstance(n, bool) and n >= 0 for n in shape)):
         raise ProtocolError(f"{what}: bad shape {shape!r}")
-    count = int(np.prod(shape)) if shape else 1
+    if any(n > _MAX_ARRAY_ELEMENTS for n in shape):
+        raise ProtocolError(f"{what}: shape {shape} has a dimension over the limit "
+                            f"{_MAX_ARRAY_ELEMENTS}")
+    count = math.prod(shape)      # exact (np.prod wraps around in int64: 2**63 · 2 is 0)
     if count > _MAX_ARRAY_ELEMENTS:
         raise ProtocolError(f"{what}: {count} elements is over the limit {_MAX_ARRAY_ELEMENTS}")
     if not isinstance(data, bytes) or len(data) != count * np.dtype(dtype).itemsize:
@@ -285,7 +293,7 @@ def decode_versioned(frame: bytes, expect: str | tuple[str, ...] | None = None,
     if not isinstance(obj, dict):
         raise ProtocolError(f"message must be a map, got {type(obj).__name__}")
     kind = obj.get("type")
-    if kind not in _SCHEMA:
+    if not isinstance(kind, str) or kind not in _SCHEMA:
         raise ProtocolError(f"unknown message type {kind!r} (expected one of {sorted(_SCHEMA)})")
     if expect is not None and kind not in ((expect,) if isinstance(expect, str) else expect):
         raise ProtocolError(f"unexpected message type {kind!r} here (expected {expect})")
@@ -372,8 +380,8 @@ def _check_field(kind: str, name: str, ftype: str, value: Any) -> Any:
     if ftype == "floatmap":
         if not isinstance(value, dict) or not all(
                 isinstance(k, str) and isinstance(v, (int, float)) and not isinstance(v, bool)
-                for k, v in value.items()):
-            raise ProtocolError(f"{what}: expected a map of names to numbers")
+                and math.isfinite(v) for k, v in value.items()):
+            raise ProtocolError(f"{what}: expected a map of names to finite numbers")
         return {k: float(v) for k, v in value.items()}
     raise AssertionError(ftype)
 
@@ -381,8 +389,8 @@ def _check_field(kind: str, name: str, ftype: str, value: Any) -> Any:
 def _check_values(msg: Any) -> None:
     if isinstance(msg, State) and msg.status not in _STATUSES:
         raise ProtocolError(f"state.status: {msg.status!r} (expected one of {sorted(_STATUSES)})")
-    if isinstance(msg, Welcome) and msg.mode not in _MODES:
-        raise ProtocolError(f"welcome.mode: {msg.mode!r} (expected one of {sorted(_MODES)})")
+    if isinstance(msg, Welcome):
+        _check_welcome(msg)
     if isinstance(msg, Control):
         _check_control(msg)
     if isinstance(msg, (State, Command)) and msg.seq < 0:
@@ -397,6 +405,45 @@ def _check_values(msg: Any) -> None:
                             f"per trajectory of top), got {list(msg.top_modes.shape)}")
     if isinstance(msg, State) and msg.lag < 0:
         raise ProtocolError("state.lag must be >= 0")
+    if isinstance(msg, State):
+        _check_state_shapes(msg)
+    if isinstance(msg, Diagnostics):
+        if msg.mode_weights.ndim != 1:
+            raise ProtocolError(f"diagnostics.mode_weights: expected shape [N] (one per mode), "
+                                f"got {list(msg.mode_weights.shape)}")
+        if msg.top.ndim != 3 or msg.top.shape[2] != 3:
+            raise ProtocolError(f"diagnostics.top: expected shape [M, T, 3], got "
+                                f"{list(msg.top.shape)}")
+
+
+def _check_state_shapes(msg: State) -> None:
+    """``qpos``, ``qvel``, ``act`` [n]; ``mocap_pos`` [nmocap, 3] and ``mocap_quat`` [nmocap, 4]
+    (both empty, of any shape, for a model without mocap bodies)."""
+    for name in ("qpos", "qvel", "act"):
+        if getattr(msg, name).ndim != 1:
+            raise ProtocolError(f"state.{name}: expected shape [n], got "
+                                f"{list(getattr(msg, name).shape)}")
+    pos, quat = msg.mocap_pos, msg.mocap_quat
+    if pos.size == 0 and quat.size == 0:
+        return
+    if pos.ndim != 2 or pos.shape[1] != 3:
+        raise ProtocolError(f"state.mocap_pos: expected shape [nmocap, 3], got {list(pos.shape)}")
+    if quat.shape != (pos.shape[0], 4):
+        raise ProtocolError(f"state.mocap_quat: expected shape [{pos.shape[0]}, 4] (as "
+                            f"mocap_pos), got {list(quat.shape)}")
+
+
+def _check_welcome(msg: Welcome) -> None:
+    """The world's step as the scenario loader allows it (a microsecond to 10 s), ``nu >= 0``,
+    a seed as ``control`` takes one."""
+    if msg.mode not in _MODES:
+        raise ProtocolError(f"welcome.mode: {msg.mode!r} (expected one of {sorted(_MODES)})")
+    if not MIN_PLAN_DT <= msg.dt <= 10.0:
+        raise ProtocolError(f"welcome.dt: {msg.dt} s (expected seconds in [{MIN_PLAN_DT}, 10])")
+    if msg.nu < 0:
+        raise ProtocolError(f"welcome.nu: {msg.nu} (expected >= 0)")
+    if msg.seed is not None and not 0 <= msg.seed < 2**32:
+        raise ProtocolError(f"welcome.seed: {msg.seed} (expected 0 <= seed < 2**32)")
 
 
 def _check_plan(cmd: Command) -> None:
@@ -410,6 +457,14 @@ def _check_plan(cmd: Command) -> None:
                             f"(nu of ctrl), got {list(cmd.plan_ctrl.shape)}")
     if cmd.plan_dt <= 0:
         raise ProtocolError(f"command.plan_dt must be > 0, got {cmd.plan_dt}")
+    if cmd.plan_dt < MIN_PLAN_DT:
+        raise ProtocolError(f"command.plan_dt must be >= {MIN_PLAN_DT} s, got {cmd.plan_dt}: no "
+                            f"world plays controls that short, and a world's tick would index "
+                            f"its plan past any integer")
+    if not np.isfinite(cmd.plan_t0 + cmd.plan_ctrl.shape[0] * cmd.plan_dt):
+        raise ProtocolError(f"command: the plan must end at a finite world time, got plan_t0 "
+                            f"{cmd.plan_t0} + {cmd.plan_ctrl.shape[0]} knots x plan_dt "
+                            f"{cmd.plan_dt}")
 
 
 def _check_control(msg: Control) -> None:

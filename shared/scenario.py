@@ -663,7 +663,7 @@ def _world(s: Section, errors: ErrorLog) -> WorldConfig | None:
     world is not the file's; :func:`_declared_world` stands in for it in name checks). Every
     fault of the section is recorded, not only the first."""
     n_before = len(errors.errors)
-    timestep = errors.call(s.req, "timestep", positive, "seconds > 0")
+    timestep = errors.call(s.req, "timestep", _timestep, _TIMESTEP)
     arena = errors.call(lambda: _arena(s.section("arena"))) if s.has("arena") else None
     battery = errors.call(lambda: _battery(s.section("battery"))) if s.has("battery") else None
     objects = []
@@ -895,8 +895,8 @@ def _planner(s: Section) -> PlannerConfig:
                         aip_period=s.opt("aip_period", 0.2, positive, "simulated seconds"),
                         confirm=s.opt("confirm", {}, _confirm_times, "seconds >= 0, or a map "
                                       "{factor: seconds or {state: seconds}, '*': seconds}"),
-                        timestep=s.opt("timestep", None, positive, "seconds > 0, a multiple of "
-                                       "world.timestep"),
+                        timestep=s.opt("timestep", None, _timestep, f"{_TIMESTEP}, a multiple "
+                                       "of world.timestep"),
                         backend=s.opt("backend", "mujoco", one_of(ROLLOUT_BACKENDS)),
                         device=s.opt("device", "cuda:0", rollout_device, "cpu, cuda or cuda:N"),
                         nconmax=s.opt("nconmax", None, positive_int, "contacts per world"),
@@ -1007,6 +1007,18 @@ def _estimate(s: Section) -> EstimateConfig:
     return cfg
 
 
+_TIMESTEP = "seconds in [1e-06, 10]"
+
+
+def _timestep(value: Any) -> float:
+    """A world's or a planning step: a microsecond to ten seconds (beyond, no simulation; a
+    subnormal one made every count of steps overflow)."""
+    v = number(value)
+    if not 1e-6 <= v <= 10.0:
+        raise ValueError("must be between a microsecond and 10 s")
+    return v
+
+
 def _weight(value: Any) -> float:
     v = number(value)
     if not 0.0 < v <= 1.0:
@@ -1115,10 +1127,11 @@ def _objectives(s: Section, errors: ErrorLog,
         fixed = errors.call(o.opt, "fixed", {}, dict, "a mapping actuator -> value", default={})
         numbers = {}
         for k, v in fixed.items():
-            if isinstance(v, bool) or not isinstance(v, (int, float)):
-                errors.add(ConfigError(s.source, f"{o.path}.fixed.{k}", "must be a number", v))
-            else:
-                numbers[k] = float(v)
+            try:
+                numbers[k] = number(v)
+            except ValueError:
+                errors.add(ConfigError(s.source, f"{o.path}.fixed.{k}", "must be a finite number",
+                                       v))
         errors.call(o.done)
         out[name] = ObjectiveConfig(terms=base.terms + terms, fixed={**base.fixed, **numbers})
     if not s.data:

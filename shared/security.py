@@ -29,9 +29,9 @@ from __future__ import annotations
 import ipaddress
 import logging
 import os
-import queue
 import shutil
 import stat
+from collections import deque
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -290,13 +290,18 @@ class Refusal:
 class Authenticator:
     """ZAP for every CURVE-server socket of one context (pyzmq's ThreadAuthenticator): accepts
     the client keys in ``allowed``; each refusal is logged (with the peer's address and key)
-    and queued for :meth:`refusals`, so the owner can write it to its own log from its thread."""
+    and queued for :meth:`refusals`, so the owner can write it to its own log from its thread.
+    The queue keeps the newest :attr:`MAX_QUEUED` (an owner that never reads it, as the planner,
+    must not grow it while a peer with a wrong key retries); :attr:`dropped` counts the rest."""
+
+    MAX_QUEUED = 256
 
     def __init__(self, ctx: zmq.Context, allowed: frozenset[bytes], what: str):
         self.allowed = allowed
         self.what = what
-        self._refused: queue.SimpleQueue[Refusal] = queue.SimpleQueue()
+        self._refused: deque[Refusal] = deque(maxlen=self.MAX_QUEUED)   # appends: thread-safe
         self._count = 0
+        self.dropped = 0
         self._auth = _AddressAuthenticator(ctx, log=logging.getLogger("m3p2i.security.zap"))
         self._auth.start()
         self._auth.configure_curve_callback("*", credentials_provider=self)
@@ -310,16 +315,18 @@ class Authenticator:
             log.warning("%s refused a peer at %s: public key %s is not in the allow list "
                         "(%d refusals so far)", self.what, refusal.address, refusal.key,
                         self._count)
-        self._refused.put(refusal)
+        if len(self._refused) == self.MAX_QUEUED:
+            self.dropped += 1
+        self._refused.append(refusal)
         return False
 
     def refusals(self) -> list[Refusal]:
-        """The refusals since the last call (thread-safe)."""
+        """The refusals since the last call, the newest :attr:`MAX_QUEUED` (thread-safe)."""
         out = []
         while True:
             try:
-                out.append(self._refused.get_nowait())
-            except queue.Empty:
+                out.append(self._refused.popleft())
+            except IndexError:
                 return out
 
     def stop(self) -> None:

@@ -47,8 +47,10 @@ class TimedPlan:
         """The knot holding at world time ``t``; None before ``t0`` or from :attr:`end` on."""
         if t + _EPS < self.t0:
             return None
-        i = int((t - self.t0) / self.dt + _EPS)
-        return i if i < self.ctrl.shape[0] else None
+        # total for any float: a quotient too large for the plan (an overflow to inf from a tiny
+        # dt or a huge span) is past its end, and so is NaN (t = inf of a held plan, t = NaN)
+        k = (t - self.t0) / self.dt + _EPS
+        return int(k) if k < self.ctrl.shape[0] else None
 
     def at(self, t: float) -> np.ndarray | None:
         """Zero-order hold: ``ctrl [nu]`` at world time ``t``, or None outside the plan."""

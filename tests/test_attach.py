@@ -218,3 +218,24 @@ def test_a_held_filter_needs_an_attachment():
     raw["planner"]["estimate"] = {"held_filter": 0.1}
     with pytest.raises(ConfigError, match=r"planner.estimate.held_filter.*nothing is attached"):
         parse_scenario(raw, "pp.yaml")
+
+
+def test_the_attach_bit_goes_only_to_geoms_that_collide():
+    # a visual marker (contype = conaffinity = 0) must stay out of every contact: with the bit,
+    # it met the table and the cubes in every rollout, and a carried cube hit a goal marker
+    raw = _pick_place()
+    raw["world"]["objects"].append({"name": "goal_mark", "shape": "cylinder", "size": [0.05, 0.002],
+                                    "pos": [0.3, 0.0, 1.002], "visual": True})
+    sc = parse_scenario(raw, str(SCENARIO_DIR / "pick_place.yaml"))
+    model = build_problem(sc).model
+    mark = model.geom("goal_mark").id
+    assert model.geom_contype[mark] == 0 and model.geom_conaffinity[mark] == 0
+    att = Attachments(model, sc.planner.model.attach)
+    assert model.geom_contype[mark] == 0 and model.geom_conaffinity[mark] == 0
+    data = initial_data(sc, model)
+    mujoco.mj_forward(model, data)
+    att.update(data, {"holding": "holding"}, 1.0)
+    cube = att.welds[0].geoms
+    assert not any(model.geom_contype[g] & model.geom_conaffinity[mark]
+                   or model.geom_contype[mark] & model.geom_conaffinity[g] for g in cube)
+    assert model.geom_contype[model.geom("table").id] & att.bit

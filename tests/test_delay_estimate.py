@@ -100,3 +100,54 @@ def test_estimated_delays_do_what_declared_ones_do(tmp_path):
     log = (tmp_path / "estimated" / "planner.log").read_text()
     assert "actuation delay estimated at 4 world steps (200 ms)" in log
     assert "state delay measured at 2 world steps (100 ms)" in log      # state.lag, lock-step
+
+
+def test_the_scored_prediction_starts_from_the_whole_state_welds_and_mocap_included():
+    # the weld of a carried cube (eq_active) and the fixed objects' poses (mocap) are state too:
+    # without them the candidates were scored on a world with the cube unwelded, the table home
+    import mujoco
+    from planner_client.problem import build_problem
+    sc = load_scenario("pick_place")
+    model = build_problem(sc).model
+    assert model.neq and model.nmocap
+    estimate = ActuationDelayEstimate(model, model.opt.timestep, max_steps=2)
+    data = mujoco.MjData(model)
+    data.eq_active[:] = 1
+    data.mocap_pos[:] += 0.25
+    mujoco.mj_forward(model, data)
+    seen = []
+    import planner_client.delay_estimate as D
+
+    def spy(m, d, *args, **kwargs):
+        seen.append((d.eq_active.copy(), d.mocap_pos.copy()))
+    estimate.observe(data, [], np.zeros(model.nu))
+    data.time += model.opt.timestep
+    orig, D.predict = D.predict, spy
+    try:
+        estimate.observe(data, [], np.zeros(model.nu))
+    finally:
+        D.predict = orig
+    assert len(seen) == 3
+    for eq_active, mocap_pos in seen:
+        assert eq_active.all()
+        np.testing.assert_array_equal(mocap_pos, data.mocap_pos)
+
+
+def test_a_planner_slower_than_three_world_steps_is_still_scored(caplog):
+    # states 5 world steps apart (a planner that slow sees no state between): the gate was
+    # 1..3 steps, so the estimate never answered and said nothing
+    import mujoco
+    sc = load_scenario("navigation")
+    model = compile_model(sc)
+    dt = model.opt.timestep
+    estimate = ActuationDelayEstimate(model, dt, max_steps=8)
+    data = mujoco.MjData(model)
+    for k in range(3):
+        data.time = 5 * k * dt
+        estimate.observe(data, [], np.zeros(model.nu))
+    assert estimate.observed == 2
+    data.time += 100 * dt                    # a gap longer than any candidate: not scored, said
+    with caplog.at_level("WARNING", logger="m3p2i.planner"):
+        estimate.observe(data, [], np.zeros(model.nu))
+    assert estimate.observed == 2
+    assert "not scored" in caplog.text

@@ -190,3 +190,20 @@ def test_still_speed_zeroes_a_resting_objects_velocity(push):
     cfg = EstimateConfig(object_velocities="from_poses", pose_filter=0.15, velocity_filter=0.3)
     assert run(cfg) == 0.0
     assert run(dataclasses.replace(cfg, still_speed=0.12)) > 0.99
+
+
+def test_a_state_with_the_same_time_stamp_is_a_duplicate_not_a_new_episode():
+    from planner_client.estimate import PoseFilter
+    cfg = EstimateConfig(pose_filter=0.5, velocity_filter=0.5)
+    f = PoseFilter(1, cfg)
+    quat = np.array([[1.0, 0.0, 0.0, 0.0]])
+    for k in range(10):
+        f(k * DT, np.array([[0.1 * k, 0.0, 0.0]]), quat)
+    pos, vel = f.pos.copy(), f.vel.copy()
+    assert vel[0, 0] > 0.5
+    f(9 * DT, np.array([[0.93, 0.0, 0.0]]), quat)     # the last state again, re-measured
+    np.testing.assert_array_equal(f.pos, pos)
+    np.testing.assert_array_equal(f.vel, vel)
+    f(0.0, np.array([[5.0, 0.0, 0.0]]), quat)          # time went back: a new episode
+    np.testing.assert_array_equal(f.pos, [[5.0, 0.0, 0.0]])
+    assert not f.vel.any()

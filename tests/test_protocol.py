@@ -124,3 +124,88 @@ def test_a_refusal_from_a_peer_of_another_version_is_read_with_its_reason():
 def test_a_command_without_a_plan_is_still_a_command():
     back = P.decode(P.encode(P.Command(session="s", seq=1, ctrl=np.zeros(2))))
     assert not back.has_plan and back.plan_t0 is None
+
+
+@pytest.mark.parametrize("kind", [{"a": 1}, [1], 1.5, None, b"state"])
+def test_a_type_that_is_not_a_string_is_refused(kind):
+    # found by tests/test_fuzz.py: an unhashable type (a map, a list) raised TypeError
+    with pytest.raises(P.ProtocolError, match="unknown message type"):
+        P.decode(msgpack.packb({"type": kind, "v": V}, use_bin_type=True))
+
+
+@pytest.mark.parametrize("array, reason", [
+    ({"nd": True, "dtype": {"a": 1}, "shape": [1], "data": b"\x00" * 8}, "unsupported dtype"),
+    ({"nd": True, "dtype": ["<f8"], "shape": [1], "data": b"\x00" * 8}, "unsupported dtype"),
+    # np.prod wraps around in int64: 2**63 · 2 "is" 0 elements, and b"" matched it
+    ({"nd": True, "dtype": "<f8", "shape": [2**63, 2], "data": b""}, "over the limit"),
+    ({"nd": True, "dtype": "<f8", "shape": [2**64 - 1], "data": b""}, "over the limit"),
+    ({"nd": True, "dtype": "<f8", "shape": [2**32, 2**32, 0], "data": b""}, "over the limit"),
+])
+def test_arrays_with_unhashable_dtypes_or_overflowing_shapes_are_refused(array, reason):
+    # found by tests/test_fuzz.py: TypeError, and ValueError from numpy's reshape
+    with pytest.raises(P.ProtocolError) as info:
+        P.decode(_raw(type="command", v=V, session="s", seq=1, ctrl=array))
+    assert reason in str(info.value)
+
+
+def _state_raw(**kw):
+    base = dict(type="state", v=V, session="s", seq=1, time=0.0, qpos=_arr([0, 0]),
+                qvel=_arr([0, 0]), act=_arr([]), mocap_pos=_arr(np.zeros((1, 3))),
+                mocap_quat=_arr(np.ones((1, 4))))
+    return _raw(**{**base, **kw})
+
+
+def _diag_raw(**kw):
+    base = dict(type="diagnostics", v=V, seq=1, action="a", alternatives=[], mode_names=["m"],
+                mode_weights=_arr([1.0]), top=_arr(np.zeros((1, 4, 3))), plan_time=0.0)
+    return _raw(**{**base, **kw})
+
+
+@pytest.mark.parametrize("frame, reason", [
+    (_state_raw(qpos=_arr(np.zeros((0, 0)))), "state.qpos: expected shape [n]"),
+    (_state_raw(qvel=_arr(np.zeros((2, 1)))), "state.qvel: expected shape [n]"),
+    (_state_raw(mocap_pos=_arr(np.zeros((1, 2)))), "state.mocap_pos: expected shape [nmocap, 3]"),
+    (_state_raw(mocap_quat=_arr(np.ones((2, 4)))), "state.mocap_quat: expected shape [1, 4]"),
+    (_diag_raw(mode_weights=_arr(np.zeros((1, 1)))), "diagnostics.mode_weights: expected shape"),
+    (_diag_raw(top=_arr(np.zeros((1, 4)))), "diagnostics.top: expected shape [M, T, 3]"),
+    (_diag_raw(top=_arr(np.zeros((1, 4, 2)))), "diagnostics.top: expected shape [M, T, 3]"),
+])
+def test_arrays_of_other_shapes_than_documented_are_refused(frame, reason):
+    # found by tests/test_fuzz.py: a 2-d mode_weights reached the view (float(row): TypeError)
+    with pytest.raises(P.ProtocolError) as info:
+        P.decode(frame)
+    assert reason in str(info.value)
+
+
+def test_a_state_without_mocap_bodies_may_send_empty_arrays():
+    back = P.decode(_state_raw(mocap_pos=_arr([]), mocap_quat=_arr([])))
+    assert back.mocap_pos.size == back.mocap_quat.size == 0
+
+
+def _welcome_raw(**kw):
+    base = dict(type="welcome", v=V, scenario="a", scenario_hash="h", mode="realtime", dt=0.05,
+                nu=2, session="s")
+    return _raw(**{**base, **kw})
+
+
+@pytest.mark.parametrize("frame, reason", [
+    (_welcome_raw(dt=-1e308), "welcome.dt"),
+    (_welcome_raw(dt=-0.0), "welcome.dt"),
+    (_welcome_raw(dt=5e-324), "welcome.dt"),
+    (_welcome_raw(nu=-3), "welcome.nu"),
+    (_welcome_raw(seed=-1), "welcome.seed"),
+    (_welcome_raw(seed=2**40), "welcome.seed"),
+])
+def test_a_welcome_with_an_impossible_world_is_refused(frame, reason):
+    # found by tests/test_fuzz.py: dt -1e308 was accepted (the planner divides by it, and a
+    # negative seed makes numpy's default_rng raise)
+    with pytest.raises(P.ProtocolError) as info:
+        P.decode(frame)
+    assert reason in str(info.value)
+
+
+@pytest.mark.parametrize("value", [float("nan"), float("inf"), -float("inf")])
+def test_a_state_extra_that_is_not_a_finite_number_is_refused(value):
+    # found by tests/test_fuzz.py: extras {'battery': nan} were accepted
+    with pytest.raises(P.ProtocolError, match="state.extras"):
+        P.decode(_state_raw(extras={"battery": value}))

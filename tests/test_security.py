@@ -273,3 +273,21 @@ def test_m3p2i_run_passes_the_keys_to_both_processes(tmp_path, keys):
     launch = EpisodeLaunch(scenario="navigation", run_dir=tmp_path, keys=keys)
     for cmd in launch.commands(5555).values():
         assert cmd[cmd.index("--keys") + 1] == str(keys)
+
+
+def test_the_refusals_queue_is_bounded_when_nobody_drains_it():
+    # the planner never reads its diagnostics authenticator's refusals: a viewer retrying with
+    # a wrong key must not grow the queue for ever
+    from shared.security import Authenticator
+    ctx = zmq.Context()
+    auth = Authenticator(ctx, frozenset(), "test")
+    try:
+        for _ in range(5000):
+            assert auth.callback("*", b"x" * 40) is False
+        got = auth.refusals()
+        assert len(got) <= 1000
+        assert len(got) == Authenticator.MAX_QUEUED and auth.dropped == 5000 - len(got)
+        assert auth.refusals() == []
+    finally:
+        auth.stop()
+        ctx.term()

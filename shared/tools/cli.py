@@ -467,8 +467,12 @@ def view(
     port: Port = DEFAULT_PORT,
     view_port: int = typer.Option(8080, help="Port of the page (the next free one if taken)."),
     public: bool = typer.Option(False, "--public", help="Serve the page on every network "
-                                "interface, not only loopback. Anyone who reaches it can pause, "
-                                "reset and disturb the world: only on a network you trust."),
+                                "interface, not only loopback, to watch only: its pause, reset "
+                                "and move controls are off (see --public-controls)."),
+    public_controls: bool = typer.Option(False, "--public-controls", help="With --public: keep "
+                                         "the controls, so that anyone who reaches the page can "
+                                         "pause, reset and disturb the world (with the "
+                                         "planner's keys): only on a network you trust."),
     record: Optional[Path] = typer.Option(None, help="Live: also write the planner's diagnostics "
                                           "(trajectories, mode weights) to this file, for a replay "
                                           "(as diagnostics.jsonl beside the episode log)."),
@@ -506,7 +510,8 @@ def view(
         else:
             sc = _load_or_exit(scenario)
             shown = V.LiveView(sc, Endpoints(host, port), bind, view_port, record=record,
-                               keys=_keys_or_exit(keys))
+                               keys=_keys_or_exit(keys, world=False),
+                               controls=not public or public_controls)
     except ImportError as exc:
         typer.echo(f"error: {exc}", err=True)
         raise typer.Exit(2) from None
@@ -558,14 +563,17 @@ def _declared_delays_or_exit(sc, hardware: str | None) -> tuple[float, float]:
     return delays
 
 
-def _keys_or_exit(keys: Optional[Path]):
+def _keys_or_exit(keys: Optional[Path], world: bool = True):
     """Both sides' keys checked before either process starts (a bad key folder is one clear
-    error here, not two processes failing); the planner's (tools use its pair), or None."""
+    error here, not two processes failing); the planner's (tools use its pair), or None.
+    ``world=False``: a tool that starts no world (m3p2i view), which may run on a planner
+    machine holding only ``DIR/planner``, needs and checks only the planner's keys."""
     if keys is None:
         return None
     from shared.security import load_planner_keys, load_world_keys
     try:
-        load_world_keys(keys)
+        if world:
+            load_world_keys(keys)
         return load_planner_keys(keys)
     except ConfigError as exc:
         typer.echo(f"error: {exc}", err=True)

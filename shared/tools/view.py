@@ -55,6 +55,130 @@ def import_viser():
     return viser
 
 
+# ------------------------------------------------------------------------------ origin check
+#
+# A browser lets any web page open a websocket to any address, 127.0.0.1 included, and the view's
+# websocket carries the scene and the controls (pause, reset, move): an open tab on a hostile
+# site could drive the world. viser checks no Origin, so the view refuses (HTTP 403) a websocket
+# handshake that announces an Origin other than the page's own: ``http://`` + the Host it was
+# asked for, where that host is loopback (127.0.0.1, localhost, ::1) or, for a --public view, an
+# IP address or this machine's name. The host rule defeats DNS rebinding (a hostile name that
+# resolves to 127.0.0.1 makes its page same-origin with itself). A handshake without an Origin
+# is not from a browser page (browsers always send one) and is accepted: a program that can
+# reach the port could forge any header, so the check guards browsers, it is no password.
+
+_LOOPBACK_NAMES = frozenset({"127.0.0.1", "localhost", "::1"})
+
+
+@dataclass(frozen=True)
+class OriginPolicy:
+    """Which pages may open the view's websocket; :meth:`refusal` says why one may not."""
+    public: bool = False
+    names: frozenset[str] = frozenset()     # with ``public``: this machine's names
+
+    @classmethod
+    def for_bind(cls, bind: str) -> OriginPolicy:
+        import socket as _socket
+        if bind in ("127.0.0.1", "localhost", "::1"):
+            return cls()
+        names = {_socket.gethostname(), _socket.getfqdn(), bind}
+        return cls(public=True, names=frozenset(n.lower() for n in names if n))
+
+    def refusal(self, origin: str | None, host: str | None) -> str | None:
+        if origin is None:
+            return None
+        if not host or origin.lower() != f"http://{host.lower()}":
+            return f"origin {origin!r} is not this page's (http://{host})"
+        name = host.lower().rsplit(":", 1)[0] if not host.endswith("]") else host.lower()
+        name = name.strip("[]")
+        if name in _LOOPBACK_NAMES:
+            return None
+        if self.public and (name in self.names or _is_ip(name)):
+            return None
+        return (f"host {name!r} is not loopback" + ("" if not self.public else
+                                                     ", an IP address or this machine's name"))
+
+
+def _is_ip(name: str) -> bool:
+    import ipaddress
+    try:
+        ipaddress.ip_address(name)
+    except ValueError:
+        return False
+    return True
+
+
+_guard_lock = threading.Lock()
+_guard_next: OriginPolicy | None = None     # the policy of the ViserServer being constructed
+_guard_applied = False
+
+
+class _Proxy:
+    """A module with some attributes replaced (the rest read from the real one)."""
+
+    def __init__(self, real, **override):
+        self._real, self._override = real, override
+
+    def __getattr__(self, name: str):
+        return self._override[name] if name in self._override else getattr(self._real, name)
+
+
+def _install_origin_guard() -> None:
+    """Wrap viser's call of websockets' ``serve`` (only viser's: its module's ``websockets`` is
+    replaced by a proxy) so that the server it starts checks :data:`_guard_next`'s policy in
+    ``process_request``, ahead of viser's own (which serves the page's files)."""
+    import http
+    try:
+        from viser.infra import _infra
+        real = _infra.websockets
+        serve = real.asyncio.server.serve
+    except (ImportError, AttributeError):     # another viser: viser_server says so
+        return
+    if isinstance(real, _Proxy):
+        return
+
+    def guarded_serve(*args, process_request=None, **kwargs):
+        global _guard_applied
+        policy = _guard_next
+        if policy is None:
+            return serve(*args, process_request=process_request, **kwargs)
+
+        def check(connection, request):
+            if request.headers.get("Upgrade", "").lower() == "websocket":
+                origins, hosts = (request.headers.get_all(h) for h in ("Origin", "Host"))
+                why = ("several Origin or Host headers" if len(origins) > 1 or len(hosts) != 1
+                       else policy.refusal(origins[0] if origins else None, hosts[0]))
+                if why is not None:
+                    log.warning("refused a websocket from %s: %s", connection.remote_address, why)
+                    return connection.respond(http.HTTPStatus.FORBIDDEN, f"refused: {why}\n")
+            return None if process_request is None else process_request(connection, request)
+        _guard_applied = True
+        return serve(*args, process_request=check, **kwargs)
+
+    _infra.websockets = _Proxy(real, asyncio=_Proxy(real.asyncio, server=_Proxy(
+        real.asyncio.server, serve=guarded_serve)))
+
+
+def viser_server(host: str, port: int, label: str):
+    """A started ViserServer whose websocket accepts only its own pages
+    (:class:`OriginPolicy`); ImportError when viser is missing or its server cannot be guarded."""
+    global _guard_next, _guard_applied
+    viser = import_viser()
+    with _guard_lock:
+        _install_origin_guard()
+        _guard_next, _guard_applied = OriginPolicy.for_bind(host), False
+        try:
+            server = viser.ViserServer(host=host, port=port, label=label, verbose=False)
+        finally:
+            _guard_next, applied = None, _guard_applied
+    if not applied:
+        server.stop()
+        raise ImportError(f"viser {getattr(viser, '__version__', '?')} starts its web server in "
+                          f"a way m3p2i cannot guard (the websocket's Origin check): use the "
+                          f"viser version of m3p2i[view]")
+    return server
+
+
 def rgb255(rgba) -> tuple[int, int, int]:
     return tuple(int(round(255 * min(max(c, 0.0), 1.0))) for c in rgba[:3])
 
@@ -255,14 +379,14 @@ class LiveView:
     """Draws the running world and planner; serves until :meth:`close` (or ``stop`` is set)."""
 
     def __init__(self, scenario: Scenario, endpoints: Endpoints, host: str, port: int,
-                 record: Path | None = None, keys: PlannerKeys | None = None):
-        viser = import_viser()
+                 record: Path | None = None, keys: PlannerKeys | None = None,
+                 controls: bool = True):
         self.scenario = scenario
         self.model = compile_model(scenario)
         self.data = initial_data(scenario, self.model)
         self.robot = robot_frame(scenario, self.model)
-        self.server = viser.ViserServer(host=host, port=port, label=f"m3p2i {scenario.name}",
-                                        verbose=False)
+        self.controls = controls      # False: the page only shows (pause, reset, move: none)
+        self.server = viser_server(host, port, f"m3p2i {scenario.name}")
         self.drawing = SceneDrawing(self.server, self.model, self.data)
         self.info = PanelInfo(scenario=scenario.name)
         self.ctx = zmq.Context()
@@ -294,15 +418,19 @@ class LiveView:
     def _build_gui(self) -> None:
         gui = self.server.gui
         self.panel = gui.add_markdown(self.info.markdown())
+        self.buttons, self.gizmos = {}, {}
+        if not self.controls:
+            gui.add_markdown("*controls off* (a `--public` view without `--public-controls`)")
+            return
         pause = gui.add_button("Pause")
         resume = gui.add_button("Resume")
         reset = gui.add_button("Reset")
         pause.on_click(lambda _: self._send(P.Control(op="pause")))
         resume.on_click(lambda _: self._send(P.Control(op="resume")))
         reset.on_click(lambda _: self._reset())
+        self.buttons = {"Pause": pause, "Resume": resume, "Reset": reset}
         movable = gui.add_checkbox("move objects", False, hint="Show a handle on each object: "
                                    "drag it to move the object; the world logs a disturbance.")
-        self.gizmos = {}
         mj_data = self.data
         for obj in self.scenario.world.objects:
             body = self.model.body(obj.name)
@@ -322,6 +450,9 @@ class LiveView:
         movable.on_update(show_handles)
 
     def _send(self, msg: P.Control) -> bool:
+        if not self.controls:
+            log.warning("control %s not sent: this view's controls are off", msg.op)
+            return False
         ok, text = self.control.send(msg)
         self.info.note = text if ok else f"**refused**: {text}"
         log.info("control %s: %s", msg.op, text)
@@ -501,7 +632,6 @@ class ReplayView:
     def __init__(self, replay: Replay, host: str, port: int, server=None):
         """``server``: a page already served (a live view's, whose episode is over): its scene
         and panel are replaced by the replay's, and a browser showing it stays connected."""
-        viser = import_viser()
         self.replay = replay
         sc = replay.scenario
         self.model = compile_model(sc)
@@ -510,8 +640,7 @@ class ReplayView:
         if server is not None:
             server.scene.reset()
             server.gui.reset()
-        self.server = server or viser.ViserServer(host=host, port=port,
-                                                  label=f"m3p2i replay {sc.name}", verbose=False)
+        self.server = server or viser_server(host, port, f"m3p2i replay {sc.name}")
         self.drawing = SceneDrawing(self.server, self.model, self.data)
         self.path = self._robot_path()
         times = replay.times
