@@ -53,7 +53,7 @@ def test_unknown_key_is_an_error_not_a_default(nav_raw):
 def test_wrong_type_names_value_and_expectation(nav_raw):
     nav_raw["world"]["timestep"] = "fast"
     msg = _error(nav_raw)
-    assert "world.timestep" in msg and "'fast'" in msg and "seconds > 0" in msg
+    assert "world.timestep" in msg and "'fast'" in msg and "seconds in [1e-06, 10]" in msg
 
 
 def test_bad_robot_name_lists_the_registered_robots(nav_raw):

@@ -515,8 +515,8 @@ def view(
     except ImportError as exc:
         typer.echo(f"error: {exc}", err=True)
         raise typer.Exit(2) from None
-    if log is None:
-        shown.stop = over if replay_after is not None else shown.stop
+    if log is None and replay_after is not None:
+        shown.stop = over          # the live view serves until the episode is over
     typer.echo(f"view: {shown.url}")
     sys.stdout.flush()
     try:
