@@ -130,6 +130,14 @@ def test_the_old_names_hardware_and_dash_dash_hardware_mean_faults(tmp_path):
     assert result.exit_code == 2 and "--faults: neither a profile nor a file" in result.output
 
 
+def test_a_log_written_before_the_rename_still_tells_its_faults():
+    old = [{"kind": "header", "hardware": {"drop_rate": 0.1}, "hardware_mismatch": {"mass": {}},
+            "hardware_delays": {"actuation": 1}}]
+    assert episode.faults(old) == {"faults": {"drop_rate": 0.1}, "faults_mismatch": {"mass": {}},
+                                   "faults_delays": {"actuation": 1}}
+    assert episode.faults([{"kind": "header"}]) == {}
+
+
 def test_both_names_at_once_are_an_error_naming_the_file_and_both_keys(tmp_path):
     raw = load_yaml(find_scenario("push"))
     with pytest.raises(ConfigError) as err:
