@@ -68,7 +68,7 @@ def main(
     actuation_delay_ms: Optional[float] = typer.Option(
         None, min=0.0, help="Declared actuation delay of the robot (ms from a command reaching "
         "the world to the actuators acting on it), overriding planner.delays.actuation_ms: the "
-        "planner plans from the state predicted for when its plan acts (docs/hardware.md)."),
+        "planner plans from the state predicted for when its plan acts (docs/faults.md)."),
     state_delay_ms: Optional[float] = typer.Option(
         None, min=0.0, help="Declared state delay (ms from a measurement to its state being "
         "published), overriding planner.delays.state_ms."),

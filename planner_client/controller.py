@@ -31,7 +31,7 @@ import numpy as np
 
 from shared import protocol as P
 from shared.evaluation.metrics import mean_hz
-from shared.hardware import steps_of
+from shared.faults import steps_of
 from shared.layout import StateSizes
 from shared.scene import STATE_FIELDS, get_full_state
 from shared.scenario import DelayConfig

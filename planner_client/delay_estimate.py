@@ -1,7 +1,7 @@
 """The robot's actuation delay, estimated online from how it answers the controls it was sent.
 
 No message shows an actuation delay (a command reaches the world, the drives act on it later;
-docs/hardware.md), but the robot's motion does: between two received states, the planner's
+docs/faults.md), but the robot's motion does: between two received states, the planner's
 own model stepped under the controls the world played ``d`` world steps earlier predicts the
 robot's new velocities best for the true ``d``. :class:`ActuationDelayEstimate` keeps, for each
 candidate ``d`` in ``0..max_steps``, an exponentially weighted mean of that one-state prediction

@@ -10,7 +10,7 @@ answered it: planning plus transport, both ways). In lock-step the world waits a
 unless the world publishes its states late: then it is their state delay, which a planner
 estimating its delays (``planner.delays.estimate``) plans ahead by.
 
-Delays no message shows (``planner.delays``, declared: docs/hardware.md) come on top: a state
+Delays no message shows (``planner.delays``, declared: docs/faults.md) come on top: a state
 published ``state_ms`` after its measurement, and actuators that act ``actuation_ms`` after a
 control reaches the world. The plan is dated when it reaches the world: ``t_s + lead`` in real
 time, where the lag is measured from the state's measurement time and so holds the state delay,

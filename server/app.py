@@ -12,8 +12,8 @@ reason and dropped; nothing received is executed.
 
 The world is anything implementing :class:`server.interface.World` (the simulated
 :class:`server.world.SimWorld` by default, a user's bridge with ``--world``): this loop only
-calls its methods, never MuJoCo's data. With hardware faults (``--hardware``, the scenario's
-``hardware:`` section; docs/hardware.md) it is wrapped in :class:`server.hardware.FaultyWorld`.
+calls its methods, never MuJoCo's data. With simulated faults (``--faults``, the scenario's
+``faults:`` section; docs/faults.md) it is wrapped in :class:`server.faults.FaultyWorld`.
 """
 
 from __future__ import annotations
@@ -29,7 +29,7 @@ import zmq
 from shared import protocol as P
 from shared.endpoints import Endpoints, socket
 from shared.evaluation.episode import episode_log_path
-from shared.hardware import HardwareConfig
+from shared.faults import FaultConfig
 from shared.scenario import Scenario
 from shared.security import Authenticator, HandshakeMonitor, WorldKeys, curve_server, \
     describe_handshake_failure
@@ -58,10 +58,10 @@ class WorldServer:
     def __init__(self, scenario: Scenario, endpoints: Endpoints, log_path: Path,
                  options: ServerOptions | None = None, viewer=None, seed: int = 0,
                  keys: WorldKeys | None = None, world: type[World] = SimWorld,
-                 hardware: HardwareConfig | None = None):
+                 faults: FaultConfig | None = None):
         self.scenario = scenario
-        # the faults the world shows (docs/hardware.md): --hardware's, else the scenario's
-        self.hardware = scenario.hardware if hardware is None else hardware
+        # the faults the world shows (docs/faults.md): --faults's, else the scenario's
+        self.faults = scenario.faults if faults is None else faults
         self.world_class = world          # built afresh for each episode: world(scenario, seed)
         self.episode: Episode | None = None
         self.opt = options or ServerOptions()
@@ -103,7 +103,7 @@ class WorldServer:
         if self.episode is not None:
             self.episode.world.close()
         self.episode = Episode(self.scenario, seed, episode_log_path(self.log_template, seed),
-                               self.world_class, self.hardware, self.opt.mode, self.curve,
+                               self.world_class, self.faults, self.opt.mode, self.curve,
                                realtime_factor=self.opt.realtime_factor)
         self._ending = False              # the safe stop, metrics and summary are being written
         self.player = PlanPlayer()

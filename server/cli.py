@@ -11,12 +11,12 @@ from typing import Optional
 
 import typer
 
-from shared.cli_common import (MODES, Hardware, Host, Insecure, Keys, Mode, PlanEvery, Port,
+from shared.cli_common import (MODES, Faults, Host, Insecure, Keys, Mode, PlanEvery, Port,
                                RealtimeFactor, ScenarioOption, Verbose, Window, default_run_dir,
                                print_errors, setup_logging, summary_line)
 from shared.config import ConfigError
 from shared.endpoints import DEFAULT_HOST, DEFAULT_PORT, Endpoints
-from shared.hardware import load_hardware
+from shared.faults import load_faults
 from shared.scenario import load_scenario
 from shared.scene import scene_framing
 from shared.security import ExposureError, keys_for_cli, load_world_keys
@@ -70,14 +70,14 @@ def main(
                                "the file, model names included) and --world's class, and exit: "
                                "0 sound, 2 faulty."),
     seed: int = typer.Option(0, help="Seed of the scenario's randomised start (world.randomize) "
-                             "and of the hardware profile's faults."),
+                             "and of the simulated faults (--faults)."),
     world: Optional[str] = typer.Option(None, "--world", help="The world to serve instead of "
                                         "the MuJoCo simulation: package.module:Class naming a "
                                         "subclass of server.bridge.Bridge (a robot) or "
                                         "server.interface.World, imported from the installed "
                                         "packages, PYTHONPATH or the current directory "
                                         "(docs/bridge.md). A robot runs --mode realtime."),
-    hardware: Hardware = None,
+    faults: Faults = None,
     verbose: Verbose = False,
 ) -> None:
     setup_logging(verbose, "m3p2i.server")
@@ -91,10 +91,10 @@ def main(
         world_class, world_error = None, exc
         typer.echo(f"error: {exc}", err=True)
     errors = scenario_errors(scenario)     # every error of the file, before anything starts
-    hardware_config = None
-    if hardware is not None:
+    fault_config = None
+    if faults is not None:
         try:
-            hardware_config = load_hardware(hardware)
+            fault_config = load_faults(faults)
         except ConfigError as exc:
             errors = [*errors, exc]
     print_errors(errors, err=not check)
@@ -116,7 +116,7 @@ def main(
                          plan_every=plan_every, keep_serving=keep_serving)
     try:
         server = WorldServer(sc, Endpoints(host, port), log_file, opts, seed=seed,
-                             keys=world_keys, world=world_class, hardware=hardware_config)
+                             keys=world_keys, world=world_class, faults=fault_config)
     except ConfigError as exc:   # e.g. a metrics frame the compiled model lacks
         typer.echo(f"error: {exc}", err=True)
         raise typer.Exit(2) from None

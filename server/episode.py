@@ -1,7 +1,7 @@
 """One episode of the world, without the network: its life from start to summary.
 
 :class:`Episode` owns the world instance (a fresh one per episode, wrapped in
-:class:`server.hardware.FaultyWorld` when hardware faults are on), its session and state
+:class:`server.faults.FaultyWorld` when simulated faults are on), its session and state
 numbering, the episode log (header, steps, events, summary) and the bookkeeping that turns
 commands into logged world steps: when each state was published (for the age of the commands
 answering it), the planning time of each command, the task-level action.
@@ -23,11 +23,11 @@ import numpy as np
 from shared import protocol as P
 from shared.evaluation.metrics import MetricsEvaluator, describe, mean_hz
 from shared.evaluation.timing import describe_timing, timing_summary
-from shared.hardware import HardwareConfig
+from shared.faults import FaultConfig
 from shared.scenario import Scenario
 from shared.timed_plan import TimedPlan, held
 from server.episode_log import EpisodeLog, read_log
-from server.hardware import FaultyWorld
+from server.faults import FaultyWorld
 from server.interface import Outcome, World, world_name
 from server.world import SimWorld
 
@@ -42,18 +42,18 @@ class Episode:
     control ops, and :meth:`finish` with the safe stop and the summary."""
 
     def __init__(self, scenario: Scenario, seed: int, log_path: Path,
-                 world_class: type[World] = SimWorld, hardware: HardwareConfig | None = None,
+                 world_class: type[World] = SimWorld, faults: FaultConfig | None = None,
                  mode: str = "lockstep", curve: bool = False, realtime_factor: float = 1.0):
         """A fresh world (as a new process would build it), reset, a new session and the
-        log's header. ``hardware``: the faults the world shows (default: the scenario's);
+        log's header. ``faults``: the faults the world shows (default: the scenario's);
         ``mode`` and ``curve`` are the server's, for the header (a real-time world's faults run
         on the wall clock, scaled by ``realtime_factor`` into world seconds)."""
         self.scenario = scenario
-        self.hardware = scenario.hardware if hardware is None else hardware
+        self.faults = scenario.faults if faults is None else faults
         self.seed = seed
         self.world: World = world_class(scenario, seed)
-        if self.hardware.active:
-            self.world = FaultyWorld(self.world, self.hardware, realtime=mode == "realtime",
+        if self.faults.active:
+            self.world = FaultyWorld(self.world, self.faults, realtime=mode == "realtime",
                                      realtime_factor=realtime_factor)
         self.world.reset()
         self.metrics = MetricsEvaluator(scenario, self.world.model)   # bad frames fail here
@@ -241,7 +241,7 @@ class Episode:
         self.log.write("summary", status=outcome.status, time=outcome.time,
                        measures=outcome.measures, planner_hz=hz, steps=self.seq,
                        rejected=rejected, actions=self.action_changes,
-                       **({"dropped": self.dropped} if self.hardware.active else {}),
+                       **({"dropped": self.dropped} if self.faults.active else {}),
                        metrics=metrics, timing=timing)
         self.log.close()
         self.finished = True

@@ -20,7 +20,7 @@ How the server uses a world, per episode:
    calling ``step`` every ``dt`` of wall-clock time, so ``step`` must return well within the
    period (send the command, read the newest measurement: never sleep out the period).
    Between steps a control holds (zero-order hold). The episode log records ``true_state()``
-   (by default ``state()``; :class:`server.hardware.FaultyWorld`'s noisy, late ``state()`` is
+   (by default ``state()``; :class:`server.faults.FaultyWorld`'s noisy, late ``state()`` is
    only what the planner is sent), and a state for which ``drop_state()`` is true is lost.
 4. ``status`` is read after each step (``running``, ``success``, ``timeout``; the server sets
    ``stopped``); ``events`` are logged and cleared by the server; ``extras`` are published.
@@ -138,12 +138,12 @@ class World(ABC):
     def true_state(self) -> WorldState:
         """The state as it is, for the episode log and its metrics; ``state()`` is what the
         planner is sent. They differ only in a world that simulates measurement faults
-        (:class:`server.hardware.FaultyWorld`: noise, delay)."""
+        (:class:`server.faults.FaultyWorld`: noise, delay)."""
         return self.state()
 
     def drop_state(self) -> bool:
         """Whether the link loses the state about to be published (asked once per state;
-        :class:`server.hardware.FaultyWorld`'s ``drop_rate``). None is lost by default."""
+        :class:`server.faults.FaultyWorld`'s ``drop_rate``). None is lost by default."""
         return False
 
     def safe_command(self) -> np.ndarray:

@@ -14,7 +14,7 @@ from typing import Annotated, Optional
 import typer
 from rich.logging import RichHandler
 
-from shared.hardware import PROFILES
+from shared.faults import PROFILES
 
 # --- options shared by m3p2i-server, m3p2i-planner and m3p2i's commands --------------------
 
@@ -52,18 +52,19 @@ PlanEvery = Annotated[int, typer.Option(
 RealtimeFactor = Annotated[float, typer.Option(
     "--realtime-factor", min=0.01, help="realtime: simulated seconds per wall second; 0.5 runs "
     "the world at half speed, so every planner rate counts double against it.")]
-Hardware = Annotated[Optional[str], typer.Option(
-    "--hardware", help="Make the simulated world behave like hardware (docs/hardware.md): a "
-    f"profile ({', '.join(PROFILES)}) or a YAML file of hardware: keys (delays, noise, dropped "
-    "states, withheld velocities, control period, model mismatch, binary gripper). Replaces the "
-    "scenario's own hardware: section. Only the world is told: the planner keeps the nominal "
-    "model (m3p2i run --compensate declares the delays to it). lockstep: faults drawn from "
-    "--seed, delays in world steps (repeatable); realtime: wall-clock delays.")]
+Faults = Annotated[Optional[str], typer.Option(
+    "--faults", "--hardware", help="Simulated faults for the world, to rehearse a robot "
+    f"(docs/faults.md): a fault profile ({', '.join(PROFILES)}) or a YAML file of faults: keys "
+    "(delays, noise, dropped states, withheld velocities, control period, model mismatch, "
+    "binary gripper). Replaces the scenario's own faults: section. Only the world is told: the "
+    "planner keeps the nominal model (m3p2i run --compensate declares the delays to it). "
+    "lockstep: faults drawn from --seed, delays in world steps (repeatable); realtime: "
+    "wall-clock delays. (--hardware is its older name.)")]
 EstimateDelays = Annotated[bool, typer.Option(
     "--estimate-delays", help="The planner measures the robot's delays online "
     "(planner.delays.estimate): the state delay from the lag the world reports, the actuation "
     "delay from how the robot answers the controls sent; declared delays stand until then "
-    "(docs/hardware.md).")]
+    "(docs/faults.md).")]
 Window = Annotated[bool, typer.Option(
     "--window/--no-window", "--viewer", help="Open MuJoCo's own viewer window on "
     "the world's machine (needs a display); drag objects in it to disturb the world. "

@@ -21,7 +21,7 @@ from shared.config import (ConfigError, ErrorLog, Section, flag, load_yaml, non_
                            one_of, positive, positive_int, string_list, vector)
 from shared.config_files import find, shipped
 from shared.geometry import AXES
-from shared.hardware import NOMINAL, HardwareConfig, parse_hardware
+from shared.faults import NOMINAL, OLD_NAME, FaultConfig, parse_faults, read_old_name
 from shared.predicates import Predicate, parse_predicate
 from shared.robots import ROBOTS, get_robot
 from shared.task_template import FactorTemplate, TaskTemplate, parse_task
@@ -292,7 +292,7 @@ class EstimateConfig:
 @dataclass(frozen=True)
 class DelayConfig:
     """``planner.delays``: delays of the robot that no message shows, declared so the planner
-    plans for the state its plan will meet (docs/hardware.md, "Delay compensation").
+    plans for the state its plan will meet (docs/faults.md, "Delay compensation").
     ``actuation_ms``: from a command reaching the world to the actuators acting on it;
     ``state_ms``: from a measurement to its state being published (a state's ``time`` is
     its measurement's). ``estimate``: measure them online instead, the state delay from
@@ -355,8 +355,8 @@ class Scenario:
     # the plan interface, YAML key ``plan``: task action -> the objective that executes it
     action_objectives: dict[str, str] = field(default_factory=dict)
     metrics: MetricsConfig = field(default_factory=MetricsConfig)
-    # the world server's faults (docs/hardware.md); the planner keeps the nominal model
-    hardware: HardwareConfig = NOMINAL
+    # the world server's simulated faults (docs/faults.md); the planner keeps the nominal model
+    faults: FaultConfig = NOMINAL
     raw: dict = field(repr=False, default_factory=dict)
 
 
@@ -411,7 +411,9 @@ def with_base(raw: Any, source: str, _seen: tuple[Path, ...] = ()) -> Any:
     """``base: NAME or path`` (a path relative to ``source``'s folder first): the scenario
     ``raw`` over the one it names, mappings merged key by key; a list or a value replaces the
     base's, ``null`` removes the key. ``name`` is not inherited (default: the file's stem). A
-    base may have its own base. Raises :class:`ConfigError` naming the file and the base."""
+    base may have its own base. Raises :class:`ConfigError` naming the file and the base.
+    Every file's ``hardware:``, the old name of ``faults:``, is read as ``faults:`` first."""
+    raw = read_old_name(raw, source)
     if not isinstance(raw, dict) or "base" not in raw:
         return raw
     spec = raw["base"]
@@ -461,7 +463,10 @@ def find_objectives(name_or_path: str | os.PathLike) -> Path:
 
 def scenario_hash(raw: dict, included: Sequence[dict] = ()) -> str:
     """Hash of the scenario's content, of the objective files it includes and of the robot
-    model file it names."""
+    model file it names. ``faults:`` is hashed under its old name, ``hardware:``: a scenario
+    keeps its hash (bench results, logs, an older peer's) whichever name it uses."""
+    if "faults" in raw:
+        raw = {(OLD_NAME if k == "faults" else k): v for k, v in raw.items()}
     h = hashlib.sha256(json.dumps(raw, sort_keys=True, default=str).encode())
     for inc in included:
         h.update(json.dumps(inc, sort_keys=True, default=str).encode())
@@ -504,9 +509,9 @@ def _read(raw: dict, source: str, errors: ErrorLog) -> ScenarioReading:
             errors.add(ConfigError(source, "planner.timestep", "not a whole multiple of "
                                    "world.timestep", planner.timestep,
                                    f"{world.timestep} × 1, 2, 3, ... seconds"))
-    hardware = NOMINAL
-    if top.has("hardware"):     # a profile's name or a mapping
-        hardware = errors.call(parse_hardware, top.opt("hardware", None), source, default=NOMINAL)
+    faults = NOMINAL
+    if top.has("faults"):     # a profile's name or a mapping
+        faults = errors.call(parse_faults, top.opt("faults", None), source, default=NOMINAL)
     library, included = _includes(top, errors)
     objectives = errors.call(lambda: _objectives(top.section("objectives"), errors, library),
                              default={})
@@ -572,7 +577,7 @@ def _read(raw: dict, source: str, errors: ErrorLog) -> ScenarioReading:
                         episode=episode or EpisodeConfig(max_time=0.0, success=()),
                         planner=planner, objectives=objectives, modes=modes, task=task,
                         observers=observers, action_objectives=action_objectives, metrics=metrics,
-                        hardware=hardware, raw=raw)
+                        faults=faults, raw=raw)
     return ScenarioReading(scenario, errors.errors, model_ok)
 
 

@@ -284,18 +284,18 @@ def test_bench_modes_are_checked_and_recorded(tmp_path):
         "realtime, planner at most 15 Hz, world at 0.5x wall clock"}
 
 
-def test_bench_hardware_and_compensation_are_checked_and_reach_the_processes(tmp_path):
+def test_bench_faults_and_compensation_are_checked_and_reach_the_processes(tmp_path):
     (tmp_path / "slow.yaml").write_text("actuation_delay_ms: 40\n")
     path = write_bench(tmp_path, [
-        {"case": "a", "scenario": "navigation", "trials": 1, "hardware": "lab", "compensate": True},
-        {"case": "b", "scenario": "navigation", "trials": 1, "hardware": "slow.yaml"}])
+        {"case": "a", "scenario": "navigation", "trials": 1, "faults": "lab", "compensate": True},
+        {"case": "b", "scenario": "navigation", "trials": 1, "faults": "slow.yaml"}])
     a, b = load_bench(path).cases
-    assert a.delays == (25.0, 25.0) and a.mode_label == "lockstep, hardware lab, compensated"
-    assert b.hardware == str(tmp_path / "slow.yaml") and b.delays is None
+    assert a.delays == (25.0, 25.0) and a.mode_label == "lockstep, faults lab, compensated"
+    assert b.faults == str(tmp_path / "slow.yaml") and b.delays is None
     for case, key, message in [
-            ({"hardware": "office"}, "hardware", "neither a profile nor a file"),
+            ({"faults": "office"}, "faults", "neither a profile nor a file"),
             ({"compensate": True}, "compensate", "no delay to compensate"),
-            ({"hardware": "lab", "compensate": "yes"}, "compensate", "wrong type"),
+            ({"faults": "lab", "compensate": "yes"}, "compensate", "wrong type"),
             ({"compensate": "estimate"}, "compensate", "no delay to compensate")]:
         path = write_bench(tmp_path, [{"case": "c", "scenario": "navigation", "trials": 1, **case}])
         with pytest.raises(ConfigError, match=message) as err:
@@ -319,13 +319,13 @@ def test_bench_hardware_and_compensation_are_checked_and_reach_the_processes(tmp
     assert server[server.index("--realtime-factor") + 1] == "0.5"
     assert "--realtime-factor" not in EpisodeLaunch(scenario="n.yaml", run_dir=tmp_path).commands(5555)["server"]
     path = write_bench(tmp_path, [{"case": "f", "scenario": "navigation", "trials": 1,
-                                   "hardware": "lab", "compensate": "estimate"}])
+                                   "faults": "lab", "compensate": "estimate"}])
     (f,) = load_bench(path).cases
     assert f.estimate_delays and f.delays is None and f.mode_label.endswith("delays estimated")
     assert "--estimate-delays" in EpisodeLaunch(scenario="n.yaml", run_dir=tmp_path,
                                                 estimate_delays=True).commands(5555)["planner"]
     robustness = load_bench("robustness").cases
-    assert {c.hardware for c in robustness} == {"", "lab", "harsh"}
+    assert {c.faults for c in robustness} == {"", "lab", "harsh"}
     assert all(c.delays is not None for c in robustness if c.case.endswith("_comp"))
 
 

@@ -87,7 +87,7 @@ def test_shared_options_are_declared_once():
     run, view = _params(m3p2i_app, "run"), _params(m3p2i_app, "view")
     for name, where in (("host", (server, planner, view)), ("keys", (server, planner, run, view)),
                         ("insecure", (server, planner)), ("verbose", (server, planner, run)),
-                        ("mode", (server, run)), ("hardware", (server, run)),
+                        ("mode", (server, run)), ("faults", (server, run)),
                         ("plan_every", (server, run)), ("window", (server, run)),
                         ("estimate_delays", (planner, run))):
         shown = {(tuple(p[name].opts), tuple(p[name].secondary_opts), p[name].help)

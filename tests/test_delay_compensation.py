@@ -1,4 +1,4 @@
-"""Delay compensation (planner.delays, `m3p2i run --compensate`; docs/hardware.md): the planner
+"""Delay compensation (planner.delays, `m3p2i run --compensate`; docs/faults.md): the planner
 plans from the state its plan will meet, past delays no message shows."""
 
 from __future__ import annotations
@@ -11,11 +11,11 @@ import pytest
 import yaml
 
 from shared.config import ConfigError
-from shared.hardware import HardwareConfig
+from shared.faults import FaultConfig
 from shared.scenario import DelayConfig, load_scenario
 from shared.scene import compile_model
 from shared.timed_plan import PlanPlayer, TimedPlan
-from server.hardware import FaultyWorld
+from server.faults import FaultyWorld
 from server.world import SimWorld
 from planner_client.timing import predict
 
@@ -38,7 +38,7 @@ def _plans(nu: int) -> list[TimedPlan]:
 
 def _run_until(world: FaultyWorld, player: PlanPlayer, t: float) -> None:
     """What the server does each step: the plan's control for the world's time, delayed by
-    the hardware."""
+    the faulty world."""
     while world.time < t - 1e-9:
         ctrl = player.control(world.time)[0]
         world.step(world.safe_command() if ctrl is None else ctrl)
@@ -58,7 +58,7 @@ def test_the_compensated_prediction_is_the_worlds_state_when_the_plan_acts():
     sent, each acting 60 ms after the world plays it, is the true state at 0.36 s; planning
     from the received state as if it were now is off by centimetres."""
     sc = load_scenario("pick_place")
-    world = FaultyWorld(SimWorld(sc, 0), HardwareConfig(actuation_delay_ms=ACTUATION_MS,
+    world = FaultyWorld(SimWorld(sc, 0), FaultConfig(actuation_delay_ms=ACTUATION_MS,
                                                         state_delay_ms=STATE_MS))
     model = compile_model(sc)
     dt = model.opt.timestep
@@ -104,11 +104,11 @@ def test_delays_are_read_and_checked_with_file_key_and_expectation(tmp_path):
         assert key in str(err.value) and "bad.yaml" in str(err.value)
 
 
-def test_compensate_declares_the_hardwares_delays_to_the_planner_only(tmp_path):
+def test_compensate_declares_the_faults_delays_to_the_planner_only(tmp_path):
     from typer.testing import CliRunner
     from shared.tools.cli import app
     from shared.tools.launch import EpisodeLaunch
-    launch = EpisodeLaunch(scenario="navigation.yaml", run_dir=tmp_path, hardware="lab",
+    launch = EpisodeLaunch(scenario="navigation.yaml", run_dir=tmp_path, faults="lab",
                            delays=(25.0, 25.0))
     cmds = launch.commands(5000)
     assert cmds["planner"][-4:] == ["--actuation-delay-ms", "25.0", "--state-delay-ms", "25.0"]
@@ -132,12 +132,12 @@ def test_compensation_makes_up_most_of_what_a_300_ms_round_trip_costs(tmp_path):
     against 7.95 s, and 2.98 s without delays)."""
     from shared.config_files import shipped
     from shared.tools.launch import EpisodeLaunch, run_episode
-    hardware = tmp_path / "delays.yaml"
-    hardware.write_text("actuation_delay_ms: 200\nstate_delay_ms: 100\n")
+    faults = tmp_path / "delays.yaml"
+    faults.write_text("actuation_delay_ms: 200\nstate_delay_ms: 100\n")
     times = {}
     for delays in (None, (200.0, 100.0)):
         run = run_episode(EpisodeLaunch(scenario=str(shipped("scenarios") / "navigation.yaml"),
-                                        run_dir=tmp_path / str(delays), hardware=str(hardware),
+                                        run_dir=tmp_path / str(delays), faults=str(faults),
                                         delays=delays, timeout=300))
         assert run.summary is not None and run.summary["status"] == "success", run.reason
         times[delays] = run.summary["time"]

@@ -1,5 +1,5 @@
 """Delays estimated online (planner.delays.estimate, `m3p2i run --estimate-delays`;
-docs/hardware.md): the actuation delay from how the robot answers the controls sent, the state
+docs/faults.md): the actuation delay from how the robot answers the controls sent, the state
 delay from the lag a world reports, in lock-step too."""
 
 from __future__ import annotations
@@ -7,11 +7,11 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from shared.hardware import HardwareConfig
+from shared.faults import FaultConfig
 from shared.scenario import load_scenario
 from shared.scene import compile_model
 from shared.timed_plan import PlanPlayer, TimedPlan
-from server.hardware import FaultyWorld
+from server.faults import FaultyWorld
 from server.world import SimWorld
 from planner_client.delay_estimate import ActuationDelayEstimate
 
@@ -20,7 +20,7 @@ def _drive(scenario: str, actuation_ms: float, speed: float, states: int = 60):
     """The scenario's world behind ``actuation_ms`` of actuation delay, played a new random
     plan every state (as a planner answering each one), and an estimate fed each state."""
     sc = load_scenario(scenario)
-    world = FaultyWorld(SimWorld(sc, 0), HardwareConfig(actuation_delay_ms=actuation_ms))
+    world = FaultyWorld(SimWorld(sc, 0), FaultConfig(actuation_delay_ms=actuation_ms))
     model = compile_model(sc)
     dt = world.dt
     estimate = ActuationDelayEstimate(model, dt, max_steps=8)
@@ -90,10 +90,10 @@ def test_estimated_delays_do_what_declared_ones_do(tmp_path):
     3.25 s; 7.95 s unaware), and says what it found."""
     from shared.config_files import shipped
     from shared.tools.launch import EpisodeLaunch, run_episode
-    hardware = tmp_path / "delays.yaml"
-    hardware.write_text("actuation_delay_ms: 200\nstate_delay_ms: 100\n")
+    faults = tmp_path / "delays.yaml"
+    faults.write_text("actuation_delay_ms: 200\nstate_delay_ms: 100\n")
     run = run_episode(EpisodeLaunch(scenario=str(shipped("scenarios") / "navigation.yaml"),
-                                    run_dir=tmp_path / "estimated", hardware=str(hardware),
+                                    run_dir=tmp_path / "estimated", faults=str(faults),
                                     estimate_delays=True, timeout=300))
     assert run.summary is not None and run.summary["status"] == "success", run.reason
     assert run.summary["time"] < 0.7 * 7.95

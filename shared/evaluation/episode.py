@@ -62,6 +62,20 @@ def header(records: list[dict]) -> dict:
     return records[0] if records and records[0].get("kind") == "header" else {}
 
 
+def faults(records: list[dict]) -> dict:
+    """The simulated faults a log's world showed, from its header: ``{"faults": config,
+    "faults_mismatch": factors, "faults_delays": ...}`` (server/faults.py), also from a log
+    written before they were named so (``hardware``, ``hardware_mismatch``, ...); empty for
+    none."""
+    head, out = header(records), {}
+    for part in ("", "_mismatch", "_delays"):
+        for name in ("faults", "hardware"):
+            if name + part in head:
+                out["faults" + part] = head[name + part]
+                break
+    return out
+
+
 def steps(records: list[dict]) -> list[dict]:
     """The ``step`` records, in order (state after each world step)."""
     return [r for r in records if r.get("kind") == "step"]

@@ -39,6 +39,7 @@ from rich.progress import (BarColumn, MofNCompleteColumn, Progress, SpinnerColum
 from shared.evaluation import episode
 from shared.config import ConfigError, Section, flag, load_yaml, one_of, positive, positive_int
 from shared.config_files import find
+from shared.faults import read_old_name
 from shared.tools.launch import MODES, EpisodeLaunch, mode_conflicts, run_episode
 from shared.evaluation.metrics import MetricsEvaluator
 from shared.scenario import Scenario, find_scenario, load_scenario, parse_scenario
@@ -73,7 +74,7 @@ class BenchCase:
     trials: int
     mode: str = "lockstep"       # lockstep | realtime (run one at a time, on every core)
     plan_every: int = 1          # lockstep: world steps per command (a slow planner, repeatably)
-    hardware: str = ""           # the world's faults: a profile, or a file's absolute path
+    faults: str = ""             # the world's simulated faults: a profile, or a file's path
     delays: tuple[float, float] | None = None   # compensate: (actuation, state) ms declared
     estimate_delays: bool = False  # compensate: estimate (the planner measures them online)
     max_rate: float = 0.0        # realtime: the planner's plans per second at most (0: no cap)
@@ -82,14 +83,15 @@ class BenchCase:
     @property
     def mode_label(self) -> str:
         """As results.csv records it: ``lockstep``, ``realtime``, ``lockstep, plan every 3``,
-        with ``, hardware lab`` and ``, compensated`` when the case sets them."""
+        with ``, faults lab`` and ``, compensated`` when the case sets them (rows written
+        before the rename say ``, hardware lab``)."""
         label = f"lockstep, plan every {self.plan_every}" if self.plan_every > 1 else self.mode
         if self.max_rate:
             label += f", planner at most {self.max_rate:g} Hz"
         if self.realtime_factor != 1.0:
             label += f", world at {self.realtime_factor:g}x wall clock"
-        if self.hardware:
-            label += f", hardware {Path(self.hardware).stem}"
+        if self.faults:
+            label += f", faults {Path(self.faults).stem}"
         if self.estimate_delays:
             return label + ", delays estimated"
         return label + (", compensated" if self.delays is not None else "")
@@ -104,28 +106,28 @@ class BenchConfig:
     sweep: Sweep = Sweep()       # every case runs once per combination of these values
 
 
-def _with_hardware(case: BenchCase, c: Section, bench: Path) -> BenchCase:
-    """A case's ``hardware`` (profile, or file relative to the bench file) and ``compensate``
+def _with_faults(case: BenchCase, c: Section, bench: Path) -> BenchCase:
+    """A case's ``faults`` (profile, or file relative to the bench file) and ``compensate``
     (``true``: declare its delays to the planner; ``estimate``: the planner measures them
     online), checked now, not trial by trial."""
-    from shared.hardware import PROFILES, load_hardware
-    spec = c.opt("hardware", "", str, "a profile (nominal, lab, harsh) or a YAML file")
+    from shared.faults import PROFILES, load_faults
+    spec = c.opt("faults", "", str, "a profile (nominal, lab, harsh) or a YAML file")
     compensate = c.opt("compensate", False, _compensation,
                        "true (declare the delays), false, or estimate (measured online)")
     if spec and spec not in PROFILES:
         if not (bench.parent / spec).is_file():
-            raise c.error("hardware", "neither a profile nor a file", spec,
-                          f"one of: {', '.join(PROFILES)}, or a YAML file of hardware: keys "
+            raise c.error("faults", "neither a profile nor a file", spec,
+                          f"one of: {', '.join(PROFILES)}, or a YAML file of faults: keys "
                           f"(relative to the bench file)")
         spec = str((bench.parent / spec).resolve())
-    hw = load_hardware(spec) if spec else None     # a bad file's error names its own key
-    delays = hw.delays if compensate and hw is not None else None
+    faults = load_faults(spec) if spec else None   # a bad file's error names its own key
+    delays = faults.delays if compensate and faults is not None else None
     if compensate and delays is None:
         raise c.error("compensate", "no delay to compensate", compensate,
-                      "a case whose hardware sets actuation_delay_ms or state_delay_ms")
+                      "a case whose faults set actuation_delay_ms or state_delay_ms")
     if compensate == "estimate":
-        return dataclasses.replace(case, hardware=spec, estimate_delays=True)
-    return dataclasses.replace(case, hardware=spec, delays=delays)
+        return dataclasses.replace(case, faults=spec, estimate_delays=True)
+    return dataclasses.replace(case, faults=spec, delays=delays)
 
 
 def _compensation(value) -> bool | str:
@@ -145,6 +147,8 @@ def load_bench(name_or_path: str | os.PathLike) -> BenchConfig:
     top = Section(load_yaml(path), str(path))
     cases, names = [], set()
     for c in top.items("cases", required=True):
+        # a case's hardware: (the old name of faults:) read as faults:
+        c = Section(read_old_name(c.data, c.source, c.path), c.source, c.path)
         case = BenchCase(case=c.req("case", str), variant=c.opt("variant", "", str),
                          scenario=c.req("scenario", str, "a scenario name or YAML path"),
                          trials=c.req("trials", positive_int),
@@ -153,7 +157,7 @@ def load_bench(name_or_path: str | os.PathLike) -> BenchConfig:
                          max_rate=c.opt("max_rate", 0.0, positive, "plans per second > 0"),
                          realtime_factor=c.opt("realtime_factor", 1.0, positive,
                                                "world seconds per wall second > 0"))
-        case = _with_hardware(case, c, path)
+        case = _with_faults(case, c, path)
         for key, why, value, expected in mode_conflicts(case.mode, case.plan_every,
                                                         case.max_rate, case.realtime_factor):
             raise c.error(key, why, value, expected)
@@ -405,7 +409,7 @@ def run_trial(trial: Trial, opts: BenchOptions, threads: int, stop: threading.Ev
     run_dir = opts.out_dir / rel
     launch = EpisodeLaunch(scenario=trial.scenario.source, run_dir=run_dir, seed=trial.seed,
                            timeout=opts.timeout, threads=threads, mode=trial.case.mode,
-                           plan_every=trial.case.plan_every, hardware=trial.case.hardware,
+                           plan_every=trial.case.plan_every, faults=trial.case.faults,
                            delays=trial.case.delays, estimate_delays=trial.case.estimate_delays,
                            max_rate=trial.case.max_rate, realtime_factor=trial.case.realtime_factor)
     if slot is not None:
@@ -444,7 +448,7 @@ def pair_key(trial: Trial) -> tuple:
     """Trials with the same key can share a warm pair: same scenario file, processes' options
     and log folder."""
     return (trial.case_dir, trial.case.scenario, trial.case.mode, trial.case.plan_every,
-            trial.case.hardware, trial.case.delays, trial.case.estimate_delays,
+            trial.case.faults, trial.case.delays, trial.case.estimate_delays,
             trial.case.max_rate, trial.case.realtime_factor)
 
 

@@ -17,7 +17,7 @@ from typing import Optional
 
 import typer
 
-from shared.cli_common import (EstimateDelays, Hardware, Host, Keys, Mode, PlanEvery, Port,
+from shared.cli_common import (EstimateDelays, Faults, Host, Keys, Mode, PlanEvery, Port,
                                RealtimeFactor, RunDir, ScenarioArgument, Seed, Timeout, Verbose,
                                Window, default_run_dir, error_blocks, flow_help, summary_line)
 from shared.endpoints import DEFAULT_HOST, DEFAULT_PORT
@@ -109,8 +109,8 @@ def run(
     scenario: ScenarioArgument,
     mode: Mode = "lockstep",
     plan_every: PlanEvery = 1,
-    hardware: Hardware = None,
-    compensate: bool = typer.Option(False, "--compensate", help="Declare the hardware's "
+    faults: Faults = None,
+    compensate: bool = typer.Option(False, "--compensate", help="Declare the simulated faults' "
                                     "actuation and state delays to the planner (as a robot's "
                                     "owner who measured them would, in planner.delays): it plans "
                                     "from the state predicted for when its plan acts."),
@@ -145,13 +145,13 @@ def run(
         expected = expected.replace("mode: ", "--mode ").replace("plan_every", "--plan-every")
         typer.echo(f"error: {flags[key]} {value}: {why} (expected {expected})", err=True)
         raise typer.Exit(2)
-    if hardware is not None:      # first: a mistyped profile is refused at once
-        hardware = _hardware_or_exit(hardware)
+    if faults is not None:      # first: a mistyped profile is refused at once
+        faults = _faults_or_exit(faults)
     sc = _load_or_exit(scenario)
     _keys_or_exit(keys)
-    delays = _declared_delays_or_exit(sc, hardware) if compensate else None
+    delays = _declared_delays_or_exit(sc, faults) if compensate else None
     run_dir = run_dir or default_run_dir(sc.name)
-    typer.echo(f"running {sc.name} ({mode}{', hardware ' + hardware if hardware else ''}"
+    typer.echo(f"running {sc.name} ({mode}{', faults ' + faults if faults else ''}"
                f"{', delays compensated' if delays else ''}"
                f"{', delays estimated' if estimate_delays else ''}); logs in {run_dir}")
     if view_exit is None:          # an interactive run keeps its page; a script must not block
@@ -169,7 +169,7 @@ def run(
                                            verbose=verbose, plan_every=plan_every, view=view,
                                            view_port=view_port, keys=keys,
                                            view_keep=view and not view_exit,
-                                           hardware=hardware or "", delays=delays,
+                                           faults=faults or "", delays=delays,
                                            estimate_delays=estimate_delays,
                                            max_rate=planner_max_rate,
                                            realtime_factor=realtime_factor),
@@ -538,26 +538,26 @@ def view(
         shown.close()
 
 
-def _hardware_or_exit(spec: str) -> str:
-    """``--hardware`` checked before either process starts; what the server is passed (a
+def _faults_or_exit(spec: str) -> str:
+    """``--faults`` checked before either process starts; what the server is passed (a
     profile's name, or the file's absolute path: the server may run elsewhere than here)."""
-    from shared.hardware import PROFILES, load_hardware
+    from shared.faults import PROFILES, load_faults
     try:
-        load_hardware(spec)
+        load_faults(spec)
     except ConfigError as exc:
         typer.echo(f"error: {exc}", err=True)
         raise typer.Exit(2) from None
     return spec if spec in PROFILES else str(Path(spec).resolve())
 
 
-def _declared_delays_or_exit(sc, hardware: str | None) -> tuple[float, float]:
-    """``--compensate``: the (actuation, state) delays in ms of ``--hardware``, else of the
-    scenario's hardware: section, for the planner to declare; exit 2 when there are none."""
-    from shared.hardware import load_hardware
-    delays = (load_hardware(hardware) if hardware else sc.hardware).delays
+def _declared_delays_or_exit(sc, faults: str | None) -> tuple[float, float]:
+    """``--compensate``: the (actuation, state) delays in ms of ``--faults``, else of the
+    scenario's faults: section, for the planner to declare; exit 2 when there are none."""
+    from shared.faults import load_faults
+    delays = (load_faults(faults) if faults else sc.faults).delays
     if delays is None:
-        typer.echo("error: --compensate: no delay to compensate (give --hardware PROFILE, or a "
-                   "scenario whose hardware: section sets actuation_delay_ms or state_delay_ms)",
+        typer.echo("error: --compensate: no delay to compensate (give --faults PROFILE, or a "
+                   "scenario whose faults: section sets actuation_delay_ms or state_delay_ms)",
                    err=True)
         raise typer.Exit(2)
     return delays

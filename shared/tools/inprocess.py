@@ -43,7 +43,7 @@ from pathlib import Path
 
 from shared import protocol as P
 from shared.evaluation.episode import read_log, summary
-from shared.hardware import HardwareConfig, load_hardware
+from shared.faults import FaultConfig, load_faults
 from shared.scenario import Scenario, load_scenario
 from server.episode import Episode
 from server.interface import Outcome, World
@@ -92,18 +92,18 @@ def build_controller(scenario: str | Path | Scenario, seed: int | None = 0, thre
 
 def build_episode(scenario: str | Path | Scenario, seed: int = 0,
                   log_path: str | Path | None = None,
-                  hardware: HardwareConfig | str | None = None,
+                  faults: FaultConfig | str | None = None,
                   world: type[World] = SimWorld) -> Episode:
     """The world of ``scenario`` from ``seed``'s start as ``m3p2i-server --seed seed`` builds
     it in lock-step, logging to ``log_path`` (default: ``episode.jsonl`` in a new temporary
-    folder). ``hardware``: a profile name, a file or a config of the faults the world shows
-    (default: the scenario's ``hardware:``); ``world``: a :class:`server.interface.World`
+    folder). ``faults``: a profile name, a file or a config of the faults the world shows
+    (default: the scenario's ``faults:``); ``world``: a :class:`server.interface.World`
     class (default: the simulation)."""
     if log_path is None:
         log_path = Path(tempfile.mkdtemp(prefix="m3p2i-")) / "episode.jsonl"
-    if isinstance(hardware, str):
-        hardware = load_hardware(hardware)
-    return Episode(_scenario(scenario), seed, Path(log_path), world, hardware)
+    if isinstance(faults, str):
+        faults = load_faults(faults)
+    return Episode(_scenario(scenario), seed, Path(log_path), world, faults)
 
 
 def _published(episode: Episode) -> P.State:
@@ -141,16 +141,16 @@ def drive(episode: Episode, controller: Controller, plan_every: int = 1,
 
 def run_episode(scenario: str | Path | Scenario, seed: int = 0,
                 log_path: str | Path | None = None, plan_every: int = 1,
-                hardware: HardwareConfig | str | None = None, max_steps: int | None = None,
+                faults: FaultConfig | str | None = None, max_steps: int | None = None,
                 on_step: OnStep | None = None, threads: int = 0) -> EpisodeResult:
     """One lock-step episode of ``scenario`` in this process: the same steps, log and summary
-    as ``m3p2i run SCENARIO --seed seed --plan-every plan_every [--hardware ...]`` (world
+    as ``m3p2i run SCENARIO --seed seed --plan-every plan_every [--faults ...]`` (world
     and planner seeded with ``seed``). ``max_steps`` stops the episode after that many world
     steps; ``on_step`` sees each state and the command answering it."""
     sc = _scenario(scenario)
     controller = build_controller(sc, seed, threads)
     try:
-        episode = build_episode(sc, seed, log_path, hardware)
+        episode = build_episode(sc, seed, log_path, faults)
         try:
             outcome = drive(episode, controller, plan_every, max_steps, on_step)
         finally:

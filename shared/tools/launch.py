@@ -121,7 +121,7 @@ class EpisodeLaunch:
     timeout: float = 900.0          # wall-clock seconds before both processes are stopped
     threads: int = 0                # planner rollout threads (0: the scenario's / one per core)
     plan_every: int = 1             # lockstep: world steps per command (emulates a slow planner)
-    hardware: str = ""              # server only: a hardware profile or file (docs/hardware.md)
+    faults: str = ""                # server only: a fault profile or file (docs/faults.md)
     delays: tuple[float, float] | None = None   # planner only: declared (actuation, state) ms
     estimate_delays: bool = False   # planner only: measure the delays online
     max_rate: float = 0.0           # planner only: at most this many plans per second (0: no cap)
@@ -149,8 +149,8 @@ class EpisodeLaunch:
             server += ["--plan-every", str(self.plan_every)]
         if self.realtime_factor != 1.0:
             server += ["--realtime-factor", repr(self.realtime_factor)]
-        if self.hardware:            # the planner is not told: it keeps the nominal model
-            server += ["--hardware", self.hardware]
+        if self.faults:              # the planner is not told: it keeps the nominal model
+            server += ["--faults", self.faults]
         planner = [sys.executable, "-m", "planner_client", *common]
         if self.keep_serving:
             planner.append("--keep-running")

@@ -1,6 +1,7 @@
-"""Hardware's faults (server/hardware.py, shared/hardware.py, docs/hardware.md): each fault
-happens as configured, the profiles load, bad values are refused clearly, and ``--hardware``
-reaches the world's command line and not the planner's."""
+"""Simulated faults (server/faults.py, shared/faults.py, docs/faults.md): each fault happens
+as configured, the profiles load, bad values are refused clearly, ``--faults`` reaches the
+world's command line and not the planner's, and the old names (``hardware:``, ``--hardware``)
+still mean the same."""
 
 from __future__ import annotations
 
@@ -10,17 +11,21 @@ import math
 import mujoco
 import numpy as np
 import pytest
+import typer
+import yaml
 from typer.testing import CliRunner
 
 from planner_client.problem import build_problem
 from shared.config import ConfigError, load_yaml
-from shared.hardware import NOMINAL, PROFILES, HardwareConfig, MismatchConfig, load_hardware
+from shared.evaluation import episode
+from shared.faults import NOMINAL, PROFILES, FaultConfig, MismatchConfig, load_faults
 from shared.scenario import find_scenario, load_scenario, parse_scenario
 from shared.tools.cli import app as m3p2i
+from shared.tools.bench import load_bench
 from shared.tools.launch import EpisodeLaunch
 from server.cli import app as server_cli
-from server.hardware import FaultyWorld
-from shared.hardware import steps_of
+from server.faults import FaultyWorld
+from shared.faults import steps_of
 from server.world import SimWorld
 
 
@@ -35,13 +40,13 @@ def u(x: float, y: float = 0.0) -> np.ndarray:
 
 
 def faulty(sc, seed: int = 0, **faults) -> FaultyWorld:
-    return FaultyWorld(SimWorld(sc, seed), HardwareConfig(**faults))
+    return FaultyWorld(SimWorld(sc, seed), FaultConfig(**faults))
 
 
 # ---------------------------------------------------------------- configuration
 
 def test_profiles_hold_the_issues_numbers():
-    assert not PROFILES["nominal"].active and NOMINAL == HardwareConfig()
+    assert not PROFILES["nominal"].active and NOMINAL == FaultConfig()
     lab = PROFILES["lab"]
     assert lab.actuation_delay_ms + lab.state_delay_ms >= 50      # round trip
     assert lab.position_noise_m == 0.005 and lab.drop_rate == 0.10
@@ -49,43 +54,110 @@ def test_profiles_hold_the_issues_numbers():
     harsh = PROFILES["harsh"]
     for f in ("actuation_delay_ms", "state_delay_ms", "position_noise_m", "drop_rate"):
         assert getattr(harsh, f) > getattr(lab, f), f
-    assert load_hardware("lab") is lab
+    assert load_faults("lab") is lab
 
 
 def test_a_file_or_a_section_overrides_a_profile(tmp_path):
-    f = tmp_path / "hw.yaml"
-    f.write_text("hardware: {profile: lab, drop_rate: 0.2, mismatch: {gain: 0}}\n")
-    hw = load_hardware(str(f))
-    assert hw == dataclasses.replace(PROFILES["lab"], drop_rate=0.2,
+    f = tmp_path / "faults.yaml"
+    f.write_text("faults: {profile: lab, drop_rate: 0.2, mismatch: {gain: 0}}\n")
+    faults = load_faults(str(f))
+    assert faults == dataclasses.replace(PROFILES["lab"], drop_rate=0.2,
                                      mismatch=MismatchConfig(mass=0.3, friction=0.3, gain=0.0))
     f.write_text("state_delay_ms: 40\n")         # the keys at the top level
-    assert load_hardware(str(f)) == HardwareConfig(state_delay_ms=40.0)
+    assert load_faults(str(f)) == FaultConfig(state_delay_ms=40.0)
     raw = load_yaml(find_scenario("push"))
-    assert parse_scenario({**raw, "hardware": "harsh"}, "push.yaml").hardware is PROFILES["harsh"]
-    assert load_scenario("push").hardware == NOMINAL
+    assert parse_scenario({**raw, "faults": "harsh"}, "push.yaml").faults is PROFILES["harsh"]
+    assert load_scenario("push").faults == NOMINAL
 
 
 @pytest.mark.parametrize("value, key, expected", [
-    ({"drop_rate": 1.5}, "hardware.drop_rate", "[0, 1)"),
-    ({"state_delay_ms": -5}, "hardware.state_delay_ms", "milliseconds"),
-    ({"gripper": "sticky"}, "hardware.gripper", "continuous or binary"),
-    ({"hide_velocities": "yes"}, "hardware.hide_velocities", "true or false"),
-    ({"mismatch": {"mass": 2}}, "hardware.mismatch.mass", "±30 %"),
-    ({"noise": 0.1}, "hardware.noise", "position_noise_m"),
-    ("lab2", "hardware", "nominal, lab, harsh"),
-    ({"profile": "lab2"}, "hardware.profile", "nominal, lab, harsh"),
+    ({"drop_rate": 1.5}, "faults.drop_rate", "[0, 1)"),
+    ({"state_delay_ms": -5}, "faults.state_delay_ms", "milliseconds"),
+    ({"gripper": "sticky"}, "faults.gripper", "continuous or binary"),
+    ({"hide_velocities": "yes"}, "faults.hide_velocities", "true or false"),
+    ({"mismatch": {"mass": 2}}, "faults.mismatch.mass", "±30 %"),
+    ({"noise": 0.1}, "faults.noise", "position_noise_m"),
+    ("lab2", "faults", "nominal, lab, harsh"),
+    ({"profile": "lab2"}, "faults.profile", "nominal, lab, harsh"),
 ])
 def test_bad_values_name_file_key_value_and_what_was_expected(value, key, expected):
     raw = load_yaml(find_scenario("push"))
     with pytest.raises(ConfigError) as err:
-        parse_scenario({**raw, "hardware": value}, "my.yaml")
+        parse_scenario({**raw, "faults": value}, "my.yaml")
     text = str(err.value)
     assert "my.yaml" in text and key in text and expected in text, text
 
 
 def test_an_unknown_profile_or_file_is_refused():
     with pytest.raises(ConfigError, match="neither a profile nor a file.*nominal, lab, harsh"):
-        load_hardware("no_such_profile")
+        load_faults("no_such_profile")
+
+
+def test_the_old_names_hardware_and_dash_dash_hardware_mean_faults(tmp_path):
+    # hardware: and --hardware, the names before faults: and --faults, read the same
+    raw = load_yaml(find_scenario("push"))
+    spec = {"profile": "lab", "drop_rate": 0.2}
+    new = parse_scenario({**raw, "faults": spec}, "push.yaml")
+    old = parse_scenario({**raw, "hardware": spec}, "push.yaml")
+    assert old.faults == new.faults == dataclasses.replace(PROFILES["lab"], drop_rate=0.2)
+    # one hash for both names (bench results, logs and peers keep matching), not the nominal's
+    assert old.hash == new.hash != parse_scenario(raw, "push.yaml").hash
+    # over a base: each file's old name is read as the new one before they merge
+    (tmp_path / "base.yaml").write_text("base: push\nname: base\nhardware: {profile: lab}\n")
+    (tmp_path / "mine.yaml").write_text("base: base.yaml\nname: mine\nfaults: {drop_rate: 0.3}\n")
+    assert load_scenario(tmp_path / "mine.yaml").faults == \
+        dataclasses.replace(PROFILES["lab"], drop_rate=0.3)
+    f = tmp_path / "old.yaml"
+    f.write_text("hardware: harsh\n")            # a faults file under the old key
+    assert load_faults(str(f)) is PROFILES["harsh"]
+    # a bench case's hardware:
+    bench = tmp_path / "bench.yaml"
+    case = {"case": "a", "scenario": "navigation", "trials": 1, "compensate": True}
+    cases = []
+    for key in ("faults", "hardware"):
+        bench.write_text(yaml.safe_dump({"cases": [{**case, key: "lab"}]}))
+        cases.append(load_bench(bench).cases[0])
+    assert cases[0] == cases[1] and cases[0].faults == "lab" and cases[0].delays == (25.0, 25.0)
+    assert cases[0].mode_label == "lockstep, faults lab, compensated"
+    # --hardware: a second name of the same option, on m3p2i-server and m3p2i run
+    server = typer.main.get_command(server_cli)
+    run = typer.main.get_command(m3p2i).commands["run"]
+    for flag in ("--faults", "--hardware"):
+        ctx = server.make_context("m3p2i-server", ["-s", "push", flag, "lab"])
+        assert ctx.params["faults"] == "lab", flag
+        assert run.make_context("run", ["push", flag, "lab"]).params["faults"] == "lab", flag
+    result = CliRunner().invoke(server_cli, ["--scenario", "push", "--check", "--hardware", "x"])
+    assert result.exit_code == 2 and "--faults: neither a profile nor a file" in result.output
+
+
+def test_a_log_written_before_the_rename_still_tells_its_faults():
+    old = [{"kind": "header", "hardware": {"drop_rate": 0.1}, "hardware_mismatch": {"mass": {}},
+            "hardware_delays": {"actuation": 1}}]
+    assert episode.faults(old) == {"faults": {"drop_rate": 0.1}, "faults_mismatch": {"mass": {}},
+                                   "faults_delays": {"actuation": 1}}
+    assert episode.faults([{"kind": "header"}]) == {}
+
+
+def test_both_names_at_once_are_an_error_naming_the_file_and_both_keys(tmp_path):
+    raw = load_yaml(find_scenario("push"))
+    with pytest.raises(ConfigError) as err:
+        parse_scenario({**raw, "faults": "lab", "hardware": "harsh"}, "my.yaml")
+    assert "my.yaml" in str(err.value) and "faults:" in str(err.value) \
+        and "hardware:" in str(err.value), err.value
+    (tmp_path / "mine.yaml").write_text("base: push\nname: mine\nfaults: lab\nhardware: lab\n")
+    with pytest.raises(ConfigError, match="mine.yaml: hardware: both faults: and hardware:"):
+        load_scenario(tmp_path / "mine.yaml")
+    f = tmp_path / "both.yaml"
+    f.write_text("faults: lab\nhardware: lab\n")
+    with pytest.raises(ConfigError, match="both.yaml: hardware: both faults: and hardware:"):
+        load_faults(str(f))
+    bench = tmp_path / "bench.yaml"
+    bench.write_text(yaml.safe_dump({"cases": [{"case": "a", "scenario": "navigation",
+                                                "trials": 1, "faults": "lab",
+                                                "hardware": "lab"}]}))
+    with pytest.raises(ConfigError, match="both faults: and hardware:") as err:
+        load_bench(bench)
+    assert err.value.source == str(bench) and err.value.path == "cases[0].hardware"
 
 
 # ---------------------------------------------------------------- the faults
@@ -104,7 +176,7 @@ def test_a_delayed_command_takes_effect_after_the_delay_in_world_steps(push):
 
 def test_a_realtime_delay_is_wall_clock(push):
     clock = [0.0]
-    world = FaultyWorld(SimWorld(push), HardwareConfig(actuation_delay_ms=50.0), realtime=True,
+    world = FaultyWorld(SimWorld(push), FaultConfig(actuation_delay_ms=50.0), realtime=True,
                         clock=lambda: clock[0])
     go = u(0.5)
     applied = []
@@ -128,7 +200,7 @@ def test_realtime_delays_are_the_declared_world_steps_at_any_realtime_factor(pus
     ms = 120.0
     server = WorldServer(push, Endpoints(port=free_port_block()), tmp_path / "log.jsonl",
                          options=ServerOptions(mode="realtime", realtime_factor=factor),
-                         hardware=HardwareConfig(actuation_delay_ms=ms, state_delay_ms=ms))
+                         faults=FaultConfig(actuation_delay_ms=ms, state_delay_ms=ms))
     try:
         world = server.world
         wall = [1000.0]
@@ -197,7 +269,7 @@ def test_noise_has_the_configured_spread_and_quaternions_stay_unit(push):
 
 def test_joint_noise_is_on_the_arms_hinges_and_a_fingers_slide_is_exact():
     world = FaultyWorld(SimWorld(load_scenario("pick_place")),
-                        HardwareConfig(joint_noise_rad=0.001, position_noise_m=0.005))
+                        FaultConfig(joint_noise_rad=0.001, position_noise_m=0.005))
     truth = world.true_state()
     hinges = world.model.jnt_qposadr[world.model.jnt_type == mujoco.mjtJoint.mjJNT_HINGE]
     samples = np.array([world.measure(truth).qpos - truth.qpos for _ in range(500)])
@@ -228,7 +300,7 @@ def test_states_are_dropped_at_the_configured_rate(push):
 
 def test_a_binary_gripper_only_opens_or_closes():
     sc = load_scenario("pick_place")
-    world = FaultyWorld(SimWorld(sc), HardwareConfig(gripper="binary"))
+    world = FaultyWorld(SimWorld(sc), FaultConfig(gripper="binary"))
     g = world.robot.ctrl_names.index("gripper")
     lo, hi = world.model.actuator_ctrlrange[g]
     for command, expected in ((0.05, hi), (0.03, lo), (hi, hi), (0.0, lo)):
@@ -239,7 +311,7 @@ def test_a_binary_gripper_only_opens_or_closes():
 
 
 def test_mismatch_reaches_the_world_and_not_the_planner(push):
-    hw = HardwareConfig(mismatch=MismatchConfig(mass=0.3, friction=0.3, gain=0.2))
+    hw = FaultConfig(mismatch=MismatchConfig(mass=0.3, friction=0.3, gain=0.2))
     nominal = SimWorld(push).model
     world = FaultyWorld(SimWorld(push, seed=7), hw)
     planner = build_problem(push).model
@@ -283,11 +355,11 @@ def test_the_server_wraps_its_world_only_for_faults_and_logs_truth_and_faults(pu
     from server.episode_log import read_log
 
     server = WorldServer(push, Endpoints(port=free_port_block()), tmp_path / "a.jsonl",
-                         hardware=PROFILES["nominal"])
+                         faults=PROFILES["nominal"])
     assert type(server.world) is SimWorld        # nominal: the simulation itself, bit for bit
     server.close()
     server = WorldServer(push, Endpoints(port=free_port_block()), tmp_path / "b.jsonl", seed=5,
-                         hardware=dataclasses.replace(PROFILES["lab"], drop_rate=0.5))
+                         faults=dataclasses.replace(PROFILES["lab"], drop_rate=0.5))
     try:
         assert isinstance(server.world, FaultyWorld)
         for _ in range(3):
@@ -305,10 +377,12 @@ def test_the_server_wraps_its_world_only_for_faults_and_logs_truth_and_faults(pu
         server.log.close()
         records = read_log(tmp_path / "b.jsonl")
         header = records[0]
-        assert header["hardware"]["drop_rate"] == 0.5 and "box" in header["hardware_mismatch"]["mass"]
+        assert header["faults"]["drop_rate"] == 0.5 and "box" in header["faults_mismatch"]["mass"]
         # lab's 25 ms each way at 50 ms steps: one step each (rounded up)
-        assert header["hardware_delays"] == {"actuation": 1, "state": 1, "unit": "steps",
-                                             "control_period_steps": 1}
+        assert header["faults_delays"] == {"actuation": 1, "state": 1, "unit": "steps",
+                                           "control_period_steps": 1}
+        assert episode.faults(records) == {k: header[k] for k in
+                                           ("faults", "faults_mismatch", "faults_delays")}
         step = [r for r in records if r.get("kind", r.get("type")) == "step"][-1]
         assert np.allclose(step["qpos"], server.world.true_state().qpos)   # the log: the truth
         assert not np.allclose(step["qpos"], server.world.state().qpos)    # the planner: noise
@@ -319,19 +393,20 @@ def test_the_server_wraps_its_world_only_for_faults_and_logs_truth_and_faults(pu
 # ---------------------------------------------------------------- the command lines
 
 def test_the_flag_reaches_the_worlds_command_line_only(tmp_path):
-    cmds = EpisodeLaunch(scenario="push.yaml", run_dir=tmp_path, hardware="lab").commands(5555)
+    cmds = EpisodeLaunch(scenario="push.yaml", run_dir=tmp_path, faults="lab").commands(5555)
     server = cmds["server"]
-    assert server[server.index("--hardware") + 1] == "lab"
-    assert "--hardware" not in cmds["planner"]
-    assert "--hardware" not in EpisodeLaunch(scenario="push.yaml", run_dir=tmp_path).commands(5555)["server"]
+    assert server[server.index("--faults") + 1] == "lab"
+    assert "--faults" not in cmds["planner"]
+    assert "--faults" not in EpisodeLaunch(scenario="push.yaml",
+                                           run_dir=tmp_path).commands(5555)["server"]
 
 
 def test_a_bad_flag_stops_both_commands_before_anything_starts(tmp_path):
-    result = CliRunner().invoke(m3p2i, ["run", "push", "--hardware", "lab2",
+    result = CliRunner().invoke(m3p2i, ["run", "push", "--faults", "lab2",
                                         "--run-dir", str(tmp_path)])
     assert result.exit_code == 2 and "neither a profile nor a file" in result.output
     assert not any(tmp_path.iterdir())
-    result = CliRunner().invoke(server_cli, ["--scenario", "push", "--check", "--hardware", "lab2"])
+    result = CliRunner().invoke(server_cli, ["--scenario", "push", "--check", "--faults", "lab2"])
     assert result.exit_code == 2 and "lab2" in result.output
-    result = CliRunner().invoke(server_cli, ["--scenario", "push", "--check", "--hardware", "harsh"])
+    result = CliRunner().invoke(server_cli, ["--scenario", "push", "--check", "--faults", "harsh"])
     assert result.exit_code == 0, result.output

@@ -1,10 +1,11 @@
-"""Hardware's faults for a simulated world: the ``hardware:`` section of a scenario, the named
-profiles (``nominal``, ``lab``, ``harsh``) and ``--hardware PROFILE|FILE``.
+"""Simulated faults for a world: the ``faults:`` section of a scenario, the named fault
+profiles (``nominal``, ``lab``, ``harsh``) and ``--faults PROFILE|FILE`` (``hardware:`` and
+``--hardware`` are their old names, still accepted).
 
-Only the world server reads it (:mod:`server.hardware` applies it); the planner keeps the
+Only the world server reads it (:mod:`server.faults` applies it); the planner keeps the
 nominal model and is never told, unless ``m3p2i run --compensate`` declares the delays to it as
-``planner.delays`` (what a robot's owner would measure). Every fault is off by default. The keys, their units and the
-profiles' numbers are documented in ``docs/hardware.md``.
+``planner.delays`` (what a robot's owner would measure). Every fault is off by default. The
+keys, their units and the profiles' numbers are documented in ``docs/faults.md``.
 """
 
 from __future__ import annotations
@@ -18,6 +19,8 @@ from typing import Any
 from shared.config import ConfigError, Section, flag, load_yaml, non_negative, one_of
 
 GRIPPER_MODES = ("continuous", "binary")
+# the scenario key's and the option's name before they were ``faults`` (read as ``faults``)
+OLD_NAME = "hardware"
 
 
 @dataclass(frozen=True)
@@ -37,8 +40,8 @@ class MismatchConfig:
 
 
 @dataclass(frozen=True)
-class HardwareConfig:
-    """The faults a simulated world shows (all off by default; docs/hardware.md)."""
+class FaultConfig:
+    """The faults a simulated world shows (all off by default; docs/faults.md)."""
     actuation_delay_ms: float = 0.0   # a command reaches the actuators this much later
     state_delay_ms: float = 0.0       # a published state was measured this much earlier
     position_noise_m: float = 0.0     # Gaussian σ on a base's slides, free bodies' and mocap positions
@@ -61,30 +64,30 @@ class HardwareConfig:
     @property
     def active(self) -> bool:
         """Whether any fault is on (an inactive config leaves the world untouched)."""
-        return self != HardwareConfig()
+        return self != FaultConfig()
 
     def to_dict(self) -> dict[str, Any]:
         """The config as plain values (the episode log's header)."""
         return dataclasses.asdict(self)
 
 
-NOMINAL = HardwareConfig()
-PROFILES: dict[str, HardwareConfig] = {
+NOMINAL = FaultConfig()
+PROFILES: dict[str, FaultConfig] = {
     # the simulation as it is: no fault
     "nominal": NOMINAL,
     # a well-kept lab: 50 ms round trip, a tracker with 5 mm noise over Wi-Fi losing one state
     # in ten, arm encoders good to 0.001 rad, object velocities not measured, a parallel gripper
     # that opens or closes, and a model whose masses and frictions are right within ±30 %
-    "lab": HardwareConfig(actuation_delay_ms=25.0, state_delay_ms=25.0, position_noise_m=0.005,
-                          angle_noise_rad=0.005, joint_noise_rad=0.001, drop_rate=0.10, hide_velocities=True,
-                          control_period_ms=0.0, gripper="binary",
-                          mismatch=MismatchConfig(mass=0.3, friction=0.3, gain=0.1)),
+    "lab": FaultConfig(actuation_delay_ms=25.0, state_delay_ms=25.0, position_noise_m=0.005,
+                       angle_noise_rad=0.005, joint_noise_rad=0.001, drop_rate=0.10, hide_velocities=True,
+                       control_period_ms=0.0, gripper="binary",
+                       mismatch=MismatchConfig(mass=0.3, friction=0.3, gain=0.1)),
     # a bad day: 150 ms round trip, 15 mm noise, a third of the states lost, a 50 Hz actuator
     # loop, masses and frictions off by up to ±50 %, actuator gains by ±25 %
-    "harsh": HardwareConfig(actuation_delay_ms=75.0, state_delay_ms=75.0, position_noise_m=0.015,
-                            angle_noise_rad=0.015, joint_noise_rad=0.003, drop_rate=0.30, hide_velocities=True,
-                            control_period_ms=20.0, gripper="binary",
-                            mismatch=MismatchConfig(mass=0.5, friction=0.5, gain=0.25)),
+    "harsh": FaultConfig(actuation_delay_ms=75.0, state_delay_ms=75.0, position_noise_m=0.015,
+                         angle_noise_rad=0.015, joint_noise_rad=0.003, drop_rate=0.30, hide_velocities=True,
+                         control_period_ms=20.0, gripper="binary",
+                         mismatch=MismatchConfig(mass=0.5, friction=0.5, gain=0.25)),
 }
 
 
@@ -95,8 +98,8 @@ def _fraction(value: Any) -> float:
     return v
 
 
-def parse_hardware(data: Any, source: str, path: str = "hardware") -> HardwareConfig:
-    """A ``hardware:`` value: a profile's name, or a mapping of keys (optionally ``profile:``,
+def parse_faults(data: Any, source: str, path: str = "faults") -> FaultConfig:
+    """A ``faults:`` value: a profile's name, or a mapping of keys (optionally ``profile:``,
     the base its other keys override). Raises :class:`ConfigError` naming file, key, value and
     what was expected."""
     if isinstance(data, str):
@@ -130,29 +133,43 @@ def parse_hardware(data: Any, source: str, path: str = "hardware") -> HardwareCo
         gain=m.opt("gain", base.mismatch.gain, _fraction, frac))
     m.done()
     s.done()
-    return HardwareConfig(**values)
+    return FaultConfig(**values)
 
 
-def _profile(name: str, source: str, path: str) -> HardwareConfig:
+def _profile(name: str, source: str, path: str) -> FaultConfig:
     if name not in PROFILES:
-        raise ConfigError(source, path, "unknown hardware profile", name,
+        raise ConfigError(source, path, "unknown fault profile", name,
                           f"one of: {', '.join(PROFILES)} (or a mapping of keys)")
     return PROFILES[name]
 
 
-def load_hardware(spec: str) -> HardwareConfig:
-    """``--hardware``'s value: a profile's name, or a YAML file holding a ``hardware:`` value
-    (a profile's name or a mapping), or that mapping at its top level."""
+def load_faults(spec: str) -> FaultConfig:
+    """``--faults``'s value: a profile's name, or a YAML file holding a ``faults:`` value (a
+    profile's name or a mapping; ``hardware:``, its old name, too), or that mapping at its top
+    level."""
     if spec in PROFILES:
         return PROFILES[spec]
     path = Path(spec)
     if not path.is_file():
-        raise ConfigError("--hardware", "", "neither a profile nor a file", spec,
+        raise ConfigError("--faults", "", "neither a profile nor a file", spec,
                           f"one of: {', '.join(PROFILES)}, or a YAML file")
-    raw = load_yaml(path)
-    if isinstance(raw, dict) and set(raw) == {"hardware"}:
-        return parse_hardware(raw["hardware"], str(path))
-    return parse_hardware(raw, str(path), "")
+    raw = read_old_name(load_yaml(path), str(path))
+    if isinstance(raw, dict) and set(raw) == {"faults"}:
+        return parse_faults(raw["faults"], str(path))
+    return parse_faults(raw, str(path), "")
+
+
+def read_old_name(raw: Any, source: str, path: str = "") -> Any:
+    """The mapping ``raw`` (a scenario, a bench case, a faults file) with the old key
+    ``hardware`` renamed ``faults``: the one place the old name is read. Both at once raise a
+    :class:`ConfigError` naming ``source`` and both keys."""
+    if not isinstance(raw, dict) or OLD_NAME not in raw:
+        return raw
+    if "faults" in raw:
+        raise ConfigError(source, f"{path}.{OLD_NAME}" if path else OLD_NAME,
+                          "both faults: and hardware: (its old name) given", raw[OLD_NAME],
+                          "one of them: faults:")
+    return {("faults" if k == OLD_NAME else k): v for k, v in raw.items()}
 
 
 def steps_of(ms: float, dt: float) -> int:

@@ -1,6 +1,6 @@
-"""A world with hardware's faults: :class:`FaultyWorld` wraps any :class:`World` and makes it
-behave like a robot in a lab (the scenario's ``hardware:`` section or ``--hardware``;
-docs/hardware.md).
+"""A world with simulated faults: :class:`FaultyWorld` wraps any :class:`World` and makes it
+behave like a robot in a lab (the scenario's ``faults:`` section or ``--faults``;
+docs/faults.md).
 
 - actuation delay: the commands pass a delay line before they reach the inner world;
 - state delay and noise: each state is measured (noise added, free objects' velocities
@@ -29,7 +29,7 @@ from typing import Any
 import mujoco
 import numpy as np
 
-from shared.hardware import HardwareConfig, steps_of
+from shared.faults import FaultConfig, steps_of
 from server.interface import Outcome, World, WorldError, WorldState
 from server.world import SimWorld
 
@@ -62,7 +62,7 @@ class DelayLine:
         return self._current
 
 
-def draw_mismatch(model: mujoco.MjModel, world: World, config: HardwareConfig,
+def draw_mismatch(model: mujoco.MjModel, world: World, config: FaultConfig,
                   seed: int) -> dict[str, dict[str, float]]:
     """Scale ``model`` in place by factors drawn from ``seed``, uniform in ``[1 - f, 1 + f]``:
     each scenario object's bodies' masses and inertias (``mass``), its geoms' frictions
@@ -98,7 +98,7 @@ class FaultyWorld(World):
     delays in world seconds, read as ``clock()`` (wall seconds) times ``realtime_factor`` (the
     world seconds a wall second holds); else in world steps."""
 
-    def __init__(self, inner: World, config: HardwareConfig, realtime: bool = False,
+    def __init__(self, inner: World, config: FaultConfig, realtime: bool = False,
                  clock: Callable[[], float] = time.monotonic, realtime_factor: float = 1.0):
         # World.__init__ is not called: the inner world owns the model and the episode's state
         self.inner = inner
@@ -117,7 +117,7 @@ class FaultyWorld(World):
         self.mismatch: dict[str, dict[str, float]] = {}
         if config.mismatch.active:
             if not isinstance(inner, SimWorld):
-                raise WorldError(f"hardware.mismatch scales a simulated model; the world "
+                raise WorldError(f"faults.mismatch scales a simulated model; the world "
                                  f"{type(inner).__name__} simulates none (set the mismatch "
                                  f"fractions to 0)")
             self.mismatch = draw_mismatch(inner.model, inner, config, inner.seed)
@@ -267,9 +267,11 @@ class FaultyWorld(World):
 
     def header(self) -> dict:
         """What the episode log's header records of the faults: the config, the mismatch
-        factors drawn, the delays and control period in the units this mode counts."""
+        factors drawn, the delays and control period in the units this mode counts (a log
+        written before the rename names them ``hardware*``:
+        :func:`shared.evaluation.episode.faults` reads both)."""
         unit = "s" if self.realtime else "steps"
-        return {"hardware": self.config.to_dict(), "hardware_mismatch": self.mismatch,
-                "hardware_delays": {"actuation": self._actuation.delay,
-                                    "state": self._states.delay, "unit": unit,
-                                    "control_period_steps": self.period_steps}}
+        return {"faults": self.config.to_dict(), "faults_mismatch": self.mismatch,
+                "faults_delays": {"actuation": self._actuation.delay,
+                                  "state": self._states.delay, "unit": unit,
+                                  "control_period_steps": self.period_steps}}
