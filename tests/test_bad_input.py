@@ -67,8 +67,10 @@ def test_a_sane_plan_still_decodes():
 # ---------------------------------------------------------------- 2: .inf and .nan in a file
 
 NON_FINITE = [
-    ("hardware: {actuation_delay_ms: .inf}\n", "hardware.actuation_delay_ms"),
-    ("hardware: {state_delay_ms: .nan}\n", "hardware.state_delay_ms"),
+    # the repros, in the old name of faults: (read as faults:, and named so)
+    ("hardware: {actuation_delay_ms: .inf}\n", "faults.actuation_delay_ms"),
+    ("hardware: {state_delay_ms: .nan}\n", "faults.state_delay_ms"),
+    ("faults: {position_noise_m: .nan}\n", "faults.position_noise_m"),
     ("planner: {delays: {actuation_ms: .inf}}\n", "planner.delays.actuation_ms"),
     ("planner: {delays: {max_ms: -.inf}}\n", "planner.delays.max_ms"),
 ]
@@ -103,7 +105,7 @@ def test_m3p2i_run_refuses_an_infinite_delay_before_starting_anything(tmp_path):
     from typer.testing import CliRunner
     from shared.tools.cli import app
     run_dir = tmp_path / "run"
-    path = _based_on_navigation(tmp_path, NON_FINITE[2][0])
+    path = _based_on_navigation(tmp_path, "planner: {delays: {actuation_ms: .inf}}\n")
     result = CliRunner().invoke(app, ["run", str(path), "--run-dir", str(run_dir)])
     assert result.exit_code == 2, result.output
     assert "planner.delays.actuation_ms: must be a finite number" in result.output
