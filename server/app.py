@@ -400,7 +400,9 @@ class WorldServer:
             # run() ends this episode and begins the seed's (after one: the same seed again)
             self._next_seed = self.episode.seed if msg.seed is None else msg.seed
         elif msg.op == "reset":
+            # a new session: the planner starts over; plans dated in the old run are void
             self.episode.reset()
+            self.player.clear()
             self._publish()
         elif msg.op in ("pause", "resume"):
             if self._paused != (msg.op == "pause"):

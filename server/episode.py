@@ -58,6 +58,7 @@ class Episode:
         self.metrics = MetricsEvaluator(scenario, self.world.model)   # bad frames fail here
         self.session = secrets.token_hex(4)
         self.seq = 0                      # the newest state's number: world steps and ops
+        self.resets = 0                   # plain resets (control op) within the episode
         self.finished = False             # the summary is written
         self.in_step = False              # a world step is between its physics and its log record
         self.pending: int | None = None   # a signal that landed there, raised once it is logged
@@ -208,9 +209,19 @@ class Episode:
         self.seq += 1
 
     def reset(self) -> None:
-        """Control op ``reset`` within the episode: the world back to its start, a new state."""
+        """Control op ``reset`` within the episode: the world back to its start, a new state of
+        a new session, so that the planner handshakes again and starts over as for a new
+        episode (task layer, beliefs, welds of held objects and warm start as a fresh planner
+        has them: the old ones belong to a world that is gone). Logged as a ``reset`` event
+        with the world time it cut short; the log and its summary go on (docs/protocol.md)."""
+        cut = self.world.time
         self.world.reset()
+        self.session = secrets.token_hex(4)
         self.seq += 1
+        self.resets += 1
+        self.lag = 0.0
+        self.action = ""                  # the restarted planner's first action is a change
+        self.log.event("reset", time=cut, session=self.session, seq=self.seq)
 
     def abort(self) -> None:
         """End the episode as ``stopped`` (a shutdown, Ctrl-C, a step limit)."""
@@ -240,6 +251,7 @@ class Episode:
         self.log.write("summary", status=outcome.status, time=outcome.time,
                        measures=outcome.measures, planner_hz=hz, steps=self.seq,
                        rejected=rejected, actions=self.action_changes,
+                       **({"resets": self.resets} if self.resets else {}),
                        **({"dropped": self.dropped} if self.hardware.active else {}),
                        metrics=metrics, timing=timing)
         self.log.close()
