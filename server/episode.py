@@ -58,6 +58,7 @@ class Episode:
         self.metrics = MetricsEvaluator(scenario, self.world.model)   # bad frames fail here
         self.session = secrets.token_hex(4)
         self.seq = 0                      # the newest state's number: world steps and ops
+        self.steps = 0                    # world steps taken (and logged)
         self.resets = 0                   # plain resets (control op) within the episode
         self.finished = False             # the summary is written
         self.in_step = False              # a world step is between its physics and its log record
@@ -179,6 +180,7 @@ class Episode:
                 self.log.event("disturbance", **event)
             self.world.events.clear()
             self.seq += 1
+            self.steps += 1
             s = self.world.true_state()
             self.log.write("step", seq=self.seq, time=s.time, qpos=s.qpos, qvel=s.qvel,
                            act=s.act, mocap_pos=s.mocap_pos, mocap_quat=s.mocap_quat,
@@ -249,7 +251,7 @@ class Episode:
         hz = mean_hz(self._plan_times)
         metrics, timing = self.evaluate(outcome.status)
         self.log.write("summary", status=outcome.status, time=outcome.time,
-                       measures=outcome.measures, planner_hz=hz, steps=self.seq,
+                       measures=outcome.measures, planner_hz=hz, steps=self.steps,
                        rejected=rejected, actions=self.action_changes,
                        **({"resets": self.resets} if self.resets else {}),
                        **({"dropped": self.dropped} if self.hardware.active else {}),

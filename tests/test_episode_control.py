@@ -5,10 +5,11 @@ steps."""
 
 from __future__ import annotations
 
-
+import numpy as np
 import pytest
 
 from shared.evaluation.episode import read_log
+from shared.tools.inprocess import build_episode
 from tests.helpers import StateWatcher, free_port_block, start_planner, start_server, stop, \
     wait_episode, wait_until
 
@@ -57,4 +58,23 @@ def test_a_reset_while_carrying_is_followed_by_a_whole_successful_episode(tmp_pa
     assert reset["time"] == pytest.approx(before[-1]["time"])
     assert summary["resets"] == 1
     assert after[-1]["time"] < 10.0                       # the restarted part, not a time-out
+
+
+def test_the_summarys_steps_count_world_steps_not_control_ops(tmp_path):
+    """``move`` and ``reset`` publish new states (the state number goes on) but step nothing."""
+    episode = build_episode("pick_place", seed=0, log_path=tmp_path / "e.jsonl")
+    try:
+        for _ in range(3):
+            episode.apply(None)
+        episode.move("cube_a", np.array([0.5, 0.0, 0.45]))
+        episode.apply(None)
+        episode.reset()
+        for _ in range(2):
+            episode.apply(None)
+        episode.finish()
+    finally:
+        episode.close()
+    records = read_log(tmp_path / "e.jsonl")
+    assert len(_steps(records)) == 6
+    assert records[-1]["steps"] == 6 and records[-1]["metrics"]["steps"] == 6
 
