@@ -25,7 +25,7 @@ from shared.evaluation.metrics import MetricsEvaluator, describe, mean_hz
 from shared.evaluation.timing import describe_timing, timing_summary
 from shared.hardware import HardwareConfig
 from shared.scenario import Scenario
-from shared.timed_plan import TimedPlan, held
+from shared.timed_plan import PlanPlayer, TimedPlan, held
 from server.episode_log import EpisodeLog, read_log
 from server.hardware import FaultyWorld
 from server.interface import Outcome, World, world_name
@@ -71,6 +71,7 @@ class Episode:
         self._state_times: dict[int, float] = {}     # seq -> world time of recent states
         self._plan_time_of: dict[int, float] = {}    # seq -> planning time, until first applied
         self._published = -1              # the newest seq published (or lost: drop_state)
+        self._player = PlanPlayer()       # lock-step: the plans received, each from its t0 on
         self.log = EpisodeLog(log_path)
         self.log.write("header", scenario=scenario.name, scenario_hash=scenario.hash,
                        source=scenario.source, mode=mode, dt=self.world.dt,
@@ -115,15 +116,22 @@ class Episode:
         """Lock-step: ``steps`` world steps under ``cmd`` (its plan's knots by time, or its
         ctrl held; the safe control past the plan's end), fewer when the episode ends; then its
         action is noted. One step by default; more emulate, deterministically, a planner that
-        slow against a real-time world. ``after_step`` runs after each logged step."""
+        slow against a real-time world. ``after_step`` runs after each logged step.
+
+        As in real time, a plan applies from its ``plan_t0`` on (:class:`PlanPlayer`): one
+        dated ahead of the world (a planner that declares a state delay the world does not
+        have) waits, and the plan playing goes on until then. A planner's usual plan is dated
+        at the state's time, so it starts at once."""
         self._count_plan(cmd)
         plan = (TimedPlan(cmd.plan_t0, cmd.plan_dt, cmd.plan_ctrl, cmd.seq) if cmd.has_plan
                 else held(cmd.ctrl, self.world.time, cmd.seq))
         # the lag, as in real time: from the answered state's time (its measurement's) to now;
         # 0 unless the world publishes its states late (a state delay)
         self.lag = max(0.0, self.world.time - self._state_times.get(cmd.seq, self.world.time))
+        self._player.receive(plan)
         for _ in range(steps):
-            self.apply(plan.at(self.world.time), cmd.seq)
+            ctrl, playing = self._player.control(self.world.time)
+            self.apply(ctrl, playing.seq if playing is not None else -1)
             if after_step is not None:
                 after_step()
             if not self.running:
@@ -223,6 +231,7 @@ class Episode:
         self.resets += 1
         self.lag = 0.0
         self.action = ""                  # the restarted planner's first action is a change
+        self._player.clear()              # plans dated before the reset are void
         self.log.event("reset", time=cut, session=self.session, seq=self.seq)
 
     def abort(self) -> None:

@@ -8,8 +8,11 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from shared import protocol as P
 from shared.evaluation.episode import read_log
-from shared.tools.inprocess import build_episode
+from shared.scenario import load_scenario
+from shared.tools.inprocess import build_episode, run_episode
+from planner_client.cli import with_delays
 from tests.helpers import StateWatcher, free_port_block, start_planner, start_server, stop, \
     wait_episode, wait_until
 
@@ -60,6 +63,15 @@ def test_a_reset_while_carrying_is_followed_by_a_whole_successful_episode(tmp_pa
     assert after[-1]["time"] < 10.0                       # the restarted part, not a time-out
 
 
+def _command(episode, ctrl, t0: float | None = None, knots: int = 20) -> P.Command:
+    """The command answering ``episode``'s newest state: ``ctrl`` held over ``knots`` knots of
+    a plan dated ``t0`` (None: the state's time, what a lock-step planner sends)."""
+    ctrl = np.asarray(ctrl, float)
+    t0 = episode.world.time if t0 is None else t0
+    return P.Command(session=episode.session, seq=episode.seq, ctrl=ctrl,
+                     plan_ctrl=np.tile(ctrl, (knots, 1)), plan_t0=t0, plan_dt=episode.dt)
+
+
 def test_the_summarys_steps_count_world_steps_not_control_ops(tmp_path):
     """``move`` and ``reset`` publish new states (the state number goes on) but step nothing."""
     episode = build_episode("pick_place", seed=0, log_path=tmp_path / "e.jsonl")
@@ -78,3 +90,43 @@ def test_the_summarys_steps_count_world_steps_not_control_ops(tmp_path):
     assert len(_steps(records)) == 6
     assert records[-1]["steps"] == 6 and records[-1]["metrics"]["steps"] == 6
 
+
+def test_lockstep_plays_the_previous_plan_until_a_plan_dated_ahead_starts(tmp_path):
+    """A planner that dates its plan ahead of the state (a declared state delay) against a
+    lock-step world that publishes at once: the plan playing goes on until the new one's
+    ``plan_t0`` (docs/protocol.md, "From plan_t0 on"), as in real time; not the safe control."""
+    episode = build_episode("navigation", seed=0, log_path=tmp_path / "e.jsonl")
+    dt = episode.dt
+    a, b = np.array([0.1, -0.1]), np.array([-0.1, 0.1])
+    try:
+        episode.publish()
+        episode.play(_command(episode, a))                      # state 0: a, from now on
+        first = episode.seq - 1
+        episode.publish()
+        ahead = _command(episode, b, t0=episode.world.time + 2 * dt)   # state 1: b, 2 steps on
+        episode.play(ahead, steps=4)
+        episode.finish()
+    finally:
+        episode.close()
+    steps = _steps(read_log(tmp_path / "e.jsonl"))
+    assert [s["safe"] for s in steps] == [False] * 5
+    assert [s["plan_seq"] for s in steps] == [first, first, first, ahead.seq, ahead.seq]
+    np.testing.assert_allclose([s["ctrl"] for s in steps], [a, a, a, b, b])
+
+
+def test_lockstep_with_a_planner_declaring_a_state_delay_moves_the_robot(tmp_path):
+    """The whole loop: a planner declaring a state delay of 3 world steps dates each plan 3
+    steps ahead; a world without that delay plays each from then on. Before the fix every step
+    was the safe control and the robot never moved. Robust: a property of every step after the
+    first plan's date, whatever the seed."""
+    nav = load_scenario("navigation")
+    ahead = 3
+    sc = with_delays(nav, None, ahead * nav.world.timestep * 1000)
+    result = run_episode(sc, seed=0, log_path=tmp_path / "e.jsonl", max_steps=30, threads=1)
+    steps = _steps(read_log(result.log_path))
+    assert len(steps) == 30
+    assert all(s["safe"] for s in steps[:ahead])           # before the first plan's date
+    assert not any(s["safe"] for s in steps[ahead:])       # then always a plan, 3 states old
+    assert all(s["plan_seq"] == s["seq"] - 1 - ahead for s in steps[ahead:])
+    start, end = np.array(steps[0]["qpos"][:2]), np.array(steps[-1]["qpos"][:2])
+    assert np.linalg.norm(end - start) > 0.1
