@@ -8,13 +8,16 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from server.app import ServerOptions, WorldServer
 from shared import protocol as P
+from shared.endpoints import Endpoints
 from shared.evaluation.episode import read_log
 from shared.scenario import load_scenario
 from shared.tools.inprocess import build_episode, run_episode
 from planner_client.cli import with_delays
 from tests.helpers import StateWatcher, free_port_block, start_planner, start_server, stop, \
     wait_episode, wait_until
+from tests.test_view_control import _ask
 
 
 def _steps(records: list[dict]) -> list[dict]:
@@ -130,3 +133,28 @@ def test_lockstep_with_a_planner_declaring_a_state_delay_moves_the_robot(tmp_pat
     assert all(s["plan_seq"] == s["seq"] - 1 - ahead for s in steps[ahead:])
     start, end = np.array(steps[0]["qpos"][:2]), np.array(steps[-1]["qpos"][:2])
     assert np.linalg.norm(end - start) > 0.1
+
+
+def test_a_kept_world_never_overwrites_the_log_of_a_seed_it_served(tmp_path):
+    """``--keep-serving``: a reset to a seed already served begins an episode whose log has a
+    path of its own; the finished episode's log keeps its steps and summary."""
+    server = WorldServer(load_scenario("navigation"), Endpoints(port=free_port_block()),
+                         tmp_path / "seed-{seed}.jsonl", ServerOptions(keep_serving=True), seed=3)
+    try:
+        server.episode.apply(None)
+        first = server.log.path
+        paths = [first]
+        for _ in range(2):
+            assert isinstance(_ask(server, P.Control(op="reset", seed=3)), P.Control)
+            server._serve_episode()                   # as run() does: this episode ends ...
+            server._begin_episode(server._next_seed)  # ... and the seed's next begins
+            server._next_seed = None
+            paths.append(server.log.path)
+    finally:
+        server.log.close()
+        server.close()
+    assert paths == [first, tmp_path / "seed-3-2.jsonl", tmp_path / "seed-3-3.jsonl"]
+    records = read_log(first)
+    assert len(_steps(records)) == 1 and records[-1]["kind"] == "summary"
+    assert read_log(paths[1])[-1]["kind"] == "summary"
+    assert [read_log(p)[0]["seed"] for p in paths] == [3, 3, 3]
