@@ -100,14 +100,27 @@ class WorldServer:
     def _begin_episode(self, seed: int) -> None:
         """A new episode from ``seed``'s start: a fresh world (as a new process would build it),
         a new session (the planner re-handshakes and starts over) and its own episode log."""
+        path = self._log_path(seed)
         if self.episode is not None:
             self.episode.world.close()
-        self.episode = Episode(self.scenario, seed, episode_log_path(self.log_template, seed),
-                               self.world_class, self.faults, self.opt.mode, self.curve,
-                               realtime_factor=self.opt.realtime_factor)
+        self.episode = Episode(self.scenario, seed, path, self.world_class, self.faults,
+                               self.opt.mode, self.curve, realtime_factor=self.opt.realtime_factor)
         self._ending = False              # the safe stop, metrics and summary are being written
         self.player = PlanPlayer()
         self._paused = False              # control op pause: the world neither steps nor waits out time
+
+    def _log_path(self, seed: int) -> Path:
+        """The log of ``seed``'s episode. A later episode of a kept world never overwrites a
+        log on disk (a seed served again): it gets ``-2``, ``-3``, ... before the suffix."""
+        path = episode_log_path(self.log_template, seed)
+        if self.episode is None:
+            return path
+        free, n = path, 2
+        while free.exists():
+            free, n = path.with_name(f"{path.stem}-{n}{path.suffix}"), n + 1
+        if free != path:
+            log.info("seed %d served before: its episode log is %s", seed, free)
+        return free
 
     @property
     def world(self) -> World:
@@ -414,7 +427,9 @@ class WorldServer:
             # run() ends this episode and begins the seed's (after one: the same seed again)
             self._next_seed = self.episode.seed if msg.seed is None else msg.seed
         elif msg.op == "reset":
+            # a new session: the planner starts over; plans dated in the old run are void
             self.episode.reset()
+            self.player.clear()
             self._publish()
         elif msg.op in ("pause", "resume"):
             if self._paused != (msg.op == "pause"):

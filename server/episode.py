@@ -25,7 +25,7 @@ from shared.evaluation.metrics import MetricsEvaluator, describe, mean_hz
 from shared.evaluation.timing import describe_timing, timing_summary
 from shared.faults import FaultConfig
 from shared.scenario import Scenario
-from shared.timed_plan import TimedPlan, held
+from shared.timed_plan import PlanPlayer, TimedPlan, held
 from server.episode_log import EpisodeLog, read_log
 from server.faults import FaultyWorld
 from server.interface import Outcome, World, world_name
@@ -59,6 +59,8 @@ class Episode:
         self.metrics = MetricsEvaluator(scenario, self.world.model)   # bad frames fail here
         self.session = secrets.token_hex(4)
         self.seq = 0                      # the newest state's number: world steps and ops
+        self.steps = 0                    # world steps taken (and logged)
+        self.resets = 0                   # plain resets (control op) within the episode
         self.finished = False             # the summary is written
         self.in_step = False              # a world step is between its physics and its log record
         self.pending: int | None = None   # a signal that landed there, raised once it is logged
@@ -70,6 +72,7 @@ class Episode:
         self._state_times: dict[int, float] = {}     # seq -> world time of recent states
         self._plan_time_of: dict[int, float] = {}    # seq -> planning time, until first applied
         self._published = -1              # the newest seq published (or lost: drop_state)
+        self._player = PlanPlayer()       # lock-step: the plans received, each from its t0 on
         self.log = EpisodeLog(log_path)
         self.log.write("header", scenario=scenario.name, scenario_hash=scenario.hash,
                        source=scenario.source, mode=mode, dt=self.world.dt,
@@ -114,15 +117,22 @@ class Episode:
         """Lock-step: ``steps`` world steps under ``cmd`` (its plan's knots by time, or its
         ctrl held; the safe control past the plan's end), fewer when the episode ends; then its
         action is noted. One step by default; more emulate, deterministically, a planner that
-        slow against a real-time world. ``after_step`` runs after each logged step."""
+        slow against a real-time world. ``after_step`` runs after each logged step.
+
+        As in real time, a plan applies from its ``plan_t0`` on (:class:`PlanPlayer`): one
+        dated ahead of the world (a planner that declares a state delay the world does not
+        have) waits, and the plan playing goes on until then. A planner's usual plan is dated
+        at the state's time, so it starts at once."""
         self._count_plan(cmd)
         plan = (TimedPlan(cmd.plan_t0, cmd.plan_dt, cmd.plan_ctrl, cmd.seq) if cmd.has_plan
                 else held(cmd.ctrl, self.world.time, cmd.seq))
         # the lag, as in real time: from the answered state's time (its measurement's) to now;
         # 0 unless the world publishes its states late (a state delay)
         self.lag = max(0.0, self.world.time - self._state_times.get(cmd.seq, self.world.time))
+        self._player.receive(plan)
         for _ in range(steps):
-            self.apply(plan.at(self.world.time), cmd.seq)
+            ctrl, playing = self._player.control(self.world.time)
+            self.apply(ctrl, playing.seq if playing is not None else -1)
             if after_step is not None:
                 after_step()
             if not self.running:
@@ -179,6 +189,7 @@ class Episode:
                 self.log.event("disturbance", **event)
             self.world.events.clear()
             self.seq += 1
+            self.steps += 1
             s = self.world.true_state()
             self.log.write("step", seq=self.seq, time=s.time, qpos=s.qpos, qvel=s.qvel,
                            act=s.act, mocap_pos=s.mocap_pos, mocap_quat=s.mocap_quat,
@@ -209,9 +220,20 @@ class Episode:
         self.seq += 1
 
     def reset(self) -> None:
-        """Control op ``reset`` within the episode: the world back to its start, a new state."""
+        """Control op ``reset`` within the episode: the world back to its start, a new state of
+        a new session, so that the planner handshakes again and starts over as for a new
+        episode (task layer, beliefs, welds of held objects and warm start as a fresh planner
+        has them: the old ones belong to a world that is gone). Logged as a ``reset`` event
+        with the world time it cut short; the log and its summary go on (docs/protocol.md)."""
+        cut = self.world.time
         self.world.reset()
+        self.session = secrets.token_hex(4)
         self.seq += 1
+        self.resets += 1
+        self.lag = 0.0
+        self.action = ""                  # the restarted planner's first action is a change
+        self._player.clear()              # plans dated before the reset are void
+        self.log.event("reset", time=cut, session=self.session, seq=self.seq)
 
     def abort(self) -> None:
         """End the episode as ``stopped`` (a shutdown, Ctrl-C, a step limit)."""
@@ -239,8 +261,9 @@ class Episode:
         hz = mean_hz(self._plan_times)
         metrics, timing = self.evaluate(outcome.status)
         self.log.write("summary", status=outcome.status, time=outcome.time,
-                       measures=outcome.measures, planner_hz=hz, steps=self.seq,
+                       measures=outcome.measures, planner_hz=hz, steps=self.steps,
                        rejected=rejected, actions=self.action_changes,
+                       **({"resets": self.resets} if self.resets else {}),
                        **({"dropped": self.dropped} if self.faults.active else {}),
                        metrics=metrics, timing=timing)
         self.log.close()

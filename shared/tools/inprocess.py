@@ -131,7 +131,7 @@ def drive(episode: Episode, controller: Controller, plan_every: int = 1,
             episode.play(command, plan_every)
             if on_step is not None:
                 on_step(state, command)
-            if max_steps is not None and episode.seq >= max_steps and episode.running:
+            if max_steps is not None and episode.steps >= max_steps and episode.running:
                 episode.abort()
             state = _published(episode)
     finally:
