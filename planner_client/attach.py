@@ -51,48 +51,63 @@ def add_attach_welds(spec: mujoco.MjSpec, attach: tuple[Attach, ...]) -> None:
         for key, name in (("object", a.object), ("to", a.to)):
             if name not in bodies:
                 raise KeyError((i, key, name, sorted(bodies)))
-        spec.add_equality(name=EQUALITY_PREFIX + a.object, type=mujoco.mjtEq.mjEQ_WELD,
-                          objtype=mujoco.mjtObj.mjOBJ_BODY, name1=a.object, name2=a.to,
-                          active=False, data=np.zeros(mujoco.mjNEQDATA))
+        spec.add_equality(
+            name=EQUALITY_PREFIX + a.object,
+            type=mujoco.mjtEq.mjEQ_WELD,
+            objtype=mujoco.mjtObj.mjOBJ_BODY,
+            name1=a.object,
+            name2=a.to,
+            active=False,
+            data=np.zeros(mujoco.mjNEQDATA),
+        )
 
 
 @dataclass
 class _Weld:
     cfg: Attach
-    eq: int                  # equality id
-    body: int                # the object's body
-    to: int                  # the robot body it is welded to
-    geoms: np.ndarray        # [G] the object's geoms
+    eq: int  # equality id
+    body: int  # the object's body
+    to: int  # the robot body it is welded to
+    geoms: np.ndarray  # [G] the object's geoms
     on: bool = False
-    rel: np.ndarray | None = None   # [7] filtered pose in ``to``'s frame, while on and tracked
+    rel: np.ndarray | None = None  # [7] filtered pose in ``to``'s frame, while on and tracked
 
 
 class Attachments:
     """Switches each attachment on and off in ``model`` (the planner's own, shared with its
     rollouts) from the task's observation."""
 
-    def __init__(self, model: mujoco.MjModel, attach: tuple[Attach, ...],
-                 held_filter: float = 1.0, slip: float = 0.02):
+    def __init__(
+        self,
+        model: mujoco.MjModel,
+        attach: tuple[Attach, ...],
+        held_filter: float = 1.0,
+        slip: float = 0.02,
+    ):
         self.model = model
         self.held_filter = held_filter
         self.slip = slip
         self.welds: list[_Weld] = []
         if not attach:
             return
-        used = int(np.bitwise_or.reduce(np.concatenate([model.geom_contype,
-                                                        model.geom_conaffinity])))
+        used = int(
+            np.bitwise_or.reduce(np.concatenate([model.geom_contype, model.geom_conaffinity]))
+        )
         free = [1 << k for k in range(31) if not used & (1 << k)]
         if not free:
-            raise ValueError("planner.model.attach needs one contact bit that no geom uses; "
-                             "every one of the 31 is taken")
+            raise ValueError(
+                "planner.model.attach needs one contact bit that no geom uses; "
+                "every one of the 31 is taken"
+            )
         self.bit = free[0]
         robots = set()
         for a in attach:
             body, to = model.body(a.object).id, model.body(a.to).id
             robots.add(int(model.body_rootid[to]))
             geoms = np.flatnonzero(model.body_rootid[model.geom_bodyid] == body)
-            self.welds.append(_Weld(a, model.equality(EQUALITY_PREFIX + a.object).id, body, to,
-                                    geoms))
+            self.welds.append(
+                _Weld(a, model.equality(EQUALITY_PREFIX + a.object).id, body, to, geoms)
+            )
         # only geoms that collide: a visual marker (both masks 0) given the bit would meet the
         # table, the objects and a carried cube in every rollout
         collides = (model.geom_contype != 0) | (model.geom_conaffinity != 0)
@@ -100,7 +115,7 @@ class Attachments:
         model.geom_contype[outside] |= self.bit
         model.geom_conaffinity[outside] |= self.bit
         self._bit_of = np.where(collides, self.bit, 0).astype(model.geom_contype.dtype)
-        self._contype = model.geom_contype.copy()          # each geom's bits when detached
+        self._contype = model.geom_contype.copy()  # each geom's bits when detached
         self._conaffinity = model.geom_conaffinity.copy()
 
     def track(self, data: mujoco.MjData, received_qpos: np.ndarray | None = None) -> bool:
@@ -116,8 +131,11 @@ class Attachments:
         for weld in self.welds:
             if not weld.on or weld.rel is None:
                 continue
-            measured = (relative_pose(data, weld.body, weld.to) if received_qpos is None else
-                        _received_relative_pose(m, data, received_qpos, weld.body, weld.to))
+            measured = (
+                relative_pose(data, weld.body, weld.to)
+                if received_qpos is None
+                else _received_relative_pose(m, data, received_qpos, weld.body, weld.to)
+            )
             if np.linalg.norm(measured[:3] - weld.rel[:3]) > self.slip:
                 weld.rel = measured
             else:
@@ -145,10 +163,15 @@ class Attachments:
                 m.eq_data[w.eq, :3] = relative_pose(data, w.body, w.to)[:3]
                 m.eq_data[w.eq, 3:6] = 0.0
                 m.eq_data[w.eq, 6:10] = relative_pose(data, w.to, w.body)[3:]
-                m.eq_data[w.eq, 10] = 1.0                       # torque scale
+                m.eq_data[w.eq, 10] = 1.0  # torque scale
             if on != w.on:
-                log.info("t=%.2f s: %s %s %s in the planner's model", time, w.cfg.object,
-                         "welded to" if on else "released from", w.cfg.to)
+                log.info(
+                    "t=%.2f s: %s %s %s in the planner's model",
+                    time,
+                    w.cfg.object,
+                    "welded to" if on else "released from",
+                    w.cfg.to,
+                )
                 if on:
                     m.geom_contype[w.geoms] = self._bit_of[w.geoms]
                     m.geom_conaffinity[w.geoms] = self._bit_of[w.geoms]
@@ -166,8 +189,9 @@ class Attachments:
         return tuple(w.cfg.object for w in self.welds if w.on)
 
 
-def _hold_at(model: mujoco.MjModel, data: mujoco.MjData, body: int, to: int,
-             rel: np.ndarray) -> None:
+def _hold_at(
+    model: mujoco.MjModel, data: mujoco.MjData, body: int, to: int, rel: np.ndarray
+) -> None:
     """Set free ``body``'s ``qpos`` to ``to``'s pose composed with ``rel`` ``[7]`` and its
     ``qvel`` to ``to``'s rigid motion there (linear in the world frame, angular in the body's:
     the free joint's convention)."""
@@ -177,27 +201,28 @@ def _hold_at(model: mujoco.MjModel, data: mujoco.MjData, body: int, to: int,
     mujoco.mju_rotVecQuat(pos, rel[:3], data.xquat[to])
     pos += data.xpos[to]
     mujoco.mju_mulQuat(quat, data.xquat[to], rel[3:])
-    data.qpos[qadr:qadr + 3], data.qpos[qadr + 3:qadr + 7] = pos, quat
-    vel = np.zeros(6)                                    # [angular, linear] at to's origin, world
+    data.qpos[qadr : qadr + 3], data.qpos[qadr + 3 : qadr + 7] = pos, quat
+    vel = np.zeros(6)  # [angular, linear] at to's origin, world
     mujoco.mj_objectVelocity(model, data, mujoco.mjtObj.mjOBJ_XBODY, to, vel, 0)
     linear = vel[3:] + np.cross(vel[:3], pos - data.xpos[to])
     angular = np.zeros(3)
     inv = np.zeros(4)
     mujoco.mju_negQuat(inv, quat)
     mujoco.mju_rotVecQuat(angular, vel[:3], inv)
-    data.qvel[vadr:vadr + 3], data.qvel[vadr + 3:vadr + 6] = linear, angular
+    data.qvel[vadr : vadr + 3], data.qvel[vadr + 3 : vadr + 6] = linear, angular
 
 
-def _received_relative_pose(model: mujoco.MjModel, data: mujoco.MjData, qpos: np.ndarray,
-                            body: int, frame: int) -> np.ndarray:
+def _received_relative_pose(
+    model: mujoco.MjModel, data: mujoco.MjData, qpos: np.ndarray, body: int, frame: int
+) -> np.ndarray:
     """``[7]``: free ``body``'s pose in ``qpos [nq]`` (a free joint's qpos is its body's world
     pose) in the frame of body ``frame`` as ``data`` has it."""
     qadr = model.jnt_qposadr[model.body_jntadr[body]]
-    quat = qpos[qadr + 3:qadr + 7]
+    quat = qpos[qadr + 3 : qadr + 7]
     norm = np.linalg.norm(quat)
-    if not norm > 0:           # no orientation received (a bridge's zeros): the mirrored one
+    if not norm > 0:  # no orientation received (a bridge's zeros): the mirrored one
         return relative_pose(data, body, frame)
-    return _in_frame(data, frame, qpos[qadr:qadr + 3], quat / norm)
+    return _in_frame(data, frame, qpos[qadr : qadr + 3], quat / norm)
 
 
 def relative_pose(data: mujoco.MjData, body: int, frame: int) -> np.ndarray:

@@ -7,21 +7,26 @@ from collections.abc import Callable
 
 import torch
 
-from shared.endpoints import Endpoints
-from shared.predicates import check_frames
-from shared.scenario import Scenario
+from planner_client.aip import ActiveInferencePlanner
 from planner_client.backends import make_backend
 from planner_client.controller import Controller
 from planner_client.loop import PlannerClient
 from planner_client.motion import MotionPlanner
-from planner_client.problem import build_problem, mppi_config
-from planner_client.aip import ActiveInferencePlanner
 from planner_client.observers import SymbolicObserver
+from planner_client.problem import build_problem, mppi_config
 from planner_client.task import ActiveInferenceTask, FixedModes, TaskLayer
+from shared.endpoints import Endpoints
+from shared.predicates import check_frames
+from shared.scenario import Scenario
 
 
-def build_motion_planner(scenario: Scenario, threads: int = 0, seed: int | None = None,
-                         backend: str | None = None, device: str | None = None) -> MotionPlanner:
+def build_motion_planner(
+    scenario: Scenario,
+    threads: int = 0,
+    seed: int | None = None,
+    backend: str | None = None,
+    device: str | None = None,
+) -> MotionPlanner:
     """The scenario's motion planner; ``backend`` and ``device`` override ``planner.backend``
     and ``planner.device`` (the warp backend checks the model against MJWarp's limits here)."""
     # The planner's tensors are small ([S, T, ·] with S·T ~ 3000): torch's intra-op threads gain
@@ -38,10 +43,17 @@ def build_motion_planner(scenario: Scenario, threads: int = 0, seed: int | None 
     engine = None
     if (backend or pc.backend) != "mujoco":
         # every mode rolls out planner.samples: the worlds are allocated for all of them now
-        engine = make_backend(backend or pc.backend, problem.model,
-                              samples=len(modes) * pc.samples, horizon=pc.horizon,
-                              nthread=nthread, device=device or pc.device, nconmax=pc.nconmax,
-                              njmax=pc.njmax, source=scenario.source)
+        engine = make_backend(
+            backend or pc.backend,
+            problem.model,
+            samples=len(modes) * pc.samples,
+            horizon=pc.horizon,
+            nthread=nthread,
+            device=device or pc.device,
+            nconmax=pc.nconmax,
+            njmax=pc.njmax,
+            source=scenario.source,
+        )
     return MotionPlanner(problem, cfg, pc.samples, modes, nthread=nthread, backend=engine)
 
 
@@ -53,30 +65,46 @@ def build_task(scenario: Scenario, planner: MotionPlanner) -> TaskLayer:
     for factor, cfg in scenario.observers.items():
         for _, pred in cfg.rules:
             check_frames(pred, problem.resolve, scenario.source, f"observers.{factor}")
-    return ActiveInferenceTask(ActiveInferencePlanner(scenario.task),
-                               SymbolicObserver(scenario.observers, problem.resolve),
-                               scenario.action_objectives, scenario.planner.aip_period,
-                               scenario.planner.confirm)
+    return ActiveInferenceTask(
+        ActiveInferencePlanner(scenario.task),
+        SymbolicObserver(scenario.observers, problem.resolve),
+        scenario.action_objectives,
+        scenario.planner.aip_period,
+        scenario.planner.confirm,
+    )
 
 
-def build_controller(scenario: Scenario, threads: int = 0, seed: int | None = None,
-                     backend: str | None = None, device: str | None = None) -> Controller:
+def build_controller(
+    scenario: Scenario,
+    threads: int = 0,
+    seed: int | None = None,
+    backend: str | None = None,
+    device: str | None = None,
+) -> Controller:
     """The control loop of ``scenario`` (thesis Alg. 1): its motion planner and task layer,
     sampling with ``seed`` (None: ``planner.mppi.seed``); a new episode with a seed rebuilds
     both, sampling with that seed."""
+
     def renew(episode_seed: int | None):
-        planner = build_motion_planner(scenario, threads,
-                                       seed if episode_seed is None else episode_seed,
-                                       backend, device)
+        planner = build_motion_planner(
+            scenario, threads, seed if episode_seed is None else episode_seed, backend, device
+        )
         return planner, build_task(scenario, planner)
 
     planner, task = renew(None)
     return Controller(planner, task, renew=renew)
 
 
-def build_client(scenario: Scenario, endpoints: Endpoints, threads: int = 0,
-                 seed: int | None = None, backend: str | None = None, device: str | None = None,
-                 before_connect: Callable[[], None] | None = None, **options) -> PlannerClient:
+def build_client(
+    scenario: Scenario,
+    endpoints: Endpoints,
+    threads: int = 0,
+    seed: int | None = None,
+    backend: str | None = None,
+    device: str | None = None,
+    before_connect: Callable[[], None] | None = None,
+    **options,
+) -> PlannerClient:
     """The planner client of ``scenario``; ``before_connect`` runs once the planner and task
     are built (the slow part: imports, model compilation) and before any socket is opened:
     a hot spare waits there."""

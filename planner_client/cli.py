@@ -6,12 +6,20 @@ import dataclasses
 import logging
 import sys
 from pathlib import Path
-from typing import Optional
 
 import typer
 
-from shared.cli_common import (EstimateDelays, Host, Insecure, Keys, Port, ScenarioOption,
-                               Verbose, print_errors, setup_logging)
+from shared.cli_common import (
+    EstimateDelays,
+    Host,
+    Insecure,
+    Keys,
+    Port,
+    ScenarioOption,
+    Verbose,
+    print_errors,
+    setup_logging,
+)
 from shared.config import ConfigError
 from shared.endpoints import DEFAULT_HOST, DEFAULT_PORT, Endpoints
 from shared.scenario import load_scenario
@@ -27,7 +35,8 @@ HELP = (
     "authenticated and encrypted. "
     "Exit code: 0 when the episode ends in success, 1 otherwise, 2 on a configuration error, "
     "3 when the server refuses the handshake (scenario, protocol version or key) or its first "
-    "state has other sizes than the scenario's model (`m3p2i layout SCENARIO` prints them).")
+    "state has other sizes than the scenario's model (`m3p2i layout SCENARIO` prints them)."
+)
 
 log = logging.getLogger("m3p2i.planner")
 
@@ -37,63 +46,94 @@ def main(
     scenario: ScenarioOption,
     host: Host = DEFAULT_HOST,
     port: Port = DEFAULT_PORT,
-    diagnostics_host: str = typer.Option(DEFAULT_HOST, help="Address on this machine to bind "
-                                         "the diagnostics (port+3) to; a network address "
-                                         "needs --keys, or --insecure."),
+    diagnostics_host: str = typer.Option(
+        DEFAULT_HOST,
+        help="Address on this machine to bind "
+        "the diagnostics (port+3) to; a network address "
+        "needs --keys, or --insecure.",
+    ),
     keys: Keys = None,
     insecure: Insecure = False,
-    threads: int = typer.Option(0, help="Rollout threads (0: the scenario's planner.threads, "
-                                "else one per core)."),
+    threads: int = typer.Option(
+        0, help="Rollout threads (0: the scenario's planner.threads, else one per core)."
+    ),
     server_timeout: float = typer.Option(2.0, help="Seconds of silence before reconnecting."),
-    keep_running: bool = typer.Option(False, help="Keep planning across episodes instead of "
-                                      "exiting when the episode ends."),
-    seed: Optional[int] = typer.Option(None, help="Sampling seed (default: planner.mppi.seed of "
-                                       "the scenario)."),
-    backend: Optional[str] = typer.Option(
-        None, help="Rollout backend, overriding the scenario's planner.backend: 'mujoco' "
+    keep_running: bool = typer.Option(
+        False, help="Keep planning across episodes instead of exiting when the episode ends."
+    ),
+    seed: int | None = typer.Option(
+        None, help="Sampling seed (default: planner.mppi.seed of the scenario)."
+    ),
+    backend: str | None = typer.Option(
+        None,
+        help="Rollout backend, overriding the scenario's planner.backend: 'mujoco' "
         "(mujoco.rollout's thread pool on the CPU, the default) or 'warp' (MuJoCo Warp, from the "
         "m3p2i\\[gpu] extra: thousands of samples on a GPU; it compiles its kernels on first use, "
-        "cached in ~/.cache/warp)."),
-    device: Optional[str] = typer.Option(
-        None, help="The warp backend's device, overriding planner.device: cuda:0 (default), "
-        "cuda:N, or cpu (slow, for tests without a GPU)."),
-    check: bool = typer.Option(False, "--check", help="Only check the scenario (every error of "
-                               "the file, cost terms and model names included) and exit: 0 "
-                               "sound, 2 faulty."),
-    standby: bool = typer.Option(False, help="Hot spare for a supervisor: load the scenario "
-                                 "and compile the models, print 'standby: ready', then wait for "
-                                 "a line on standard input before connecting (end of input: exit "
-                                 "1 unconnected). It then takes over in a fraction of a second "
-                                 "instead of a cold start's several."),
-    actuation_delay_ms: Optional[float] = typer.Option(
-        None, min=0.0, help="Declared actuation delay of the robot (ms from a command reaching "
+        "cached in ~/.cache/warp).",
+    ),
+    device: str | None = typer.Option(
+        None,
+        help="The warp backend's device, overriding planner.device: cuda:0 (default), "
+        "cuda:N, or cpu (slow, for tests without a GPU).",
+    ),
+    check: bool = typer.Option(
+        False,
+        "--check",
+        help="Only check the scenario (every error of "
+        "the file, cost terms and model names included) and exit: 0 "
+        "sound, 2 faulty.",
+    ),
+    standby: bool = typer.Option(
+        False,
+        help="Hot spare for a supervisor: load the scenario "
+        "and compile the models, print 'standby: ready', then wait for "
+        "a line on standard input before connecting (end of input: exit "
+        "1 unconnected). It then takes over in a fraction of a second "
+        "instead of a cold start's several.",
+    ),
+    actuation_delay_ms: float | None = typer.Option(
+        None,
+        min=0.0,
+        help="Declared actuation delay of the robot (ms from a command reaching "
         "the world to the actuators acting on it), overriding planner.delays.actuation_ms: the "
-        "planner plans from the state predicted for when its plan acts (docs/faults.md)."),
-    state_delay_ms: Optional[float] = typer.Option(
-        None, min=0.0, help="Declared state delay (ms from a measurement to its state being "
-        "published), overriding planner.delays.state_ms."),
+        "planner plans from the state predicted for when its plan acts (docs/faults.md).",
+    ),
+    state_delay_ms: float | None = typer.Option(
+        None,
+        min=0.0,
+        help="Declared state delay (ms from a measurement to its state being "
+        "published), overriding planner.delays.state_ms.",
+    ),
     estimate_delays: EstimateDelays = False,
-    max_rate: float = typer.Option(0.0, min=0.0, help="At most this many plans per second "
-                                   "(0: as fast as the machine allows): rehearse what a slower "
-                                   "computer does, e.g. a planner under a third of a 100 Hz arm's "
-                                   "rate with --max-rate 25 (in real time; lock-step has "
-                                   "m3p2i-server --plan-every)."),
+    max_rate: float = typer.Option(
+        0.0,
+        min=0.0,
+        help="At most this many plans per second "
+        "(0: as fast as the machine allows): rehearse what a slower "
+        "computer does, e.g. a planner under a third of a 100 Hz arm's "
+        "rate with --max-rate 25 (in real time; lock-step has "
+        "m3p2i-server --plan-every).",
+    ),
     verbose: Verbose = False,
 ) -> None:
     setup_logging(verbose, "m3p2i.planner")
-    if not check:   # before anything else: an exposed robot is refused at once
-        planner_keys = _security({"--host": host, "--diagnostics-host": diagnostics_host},
-                                 keys, insecure)
+    if not check:  # before anything else: an exposed robot is refused at once
+        planner_keys = _security(
+            {"--host": host, "--diagnostics-host": diagnostics_host}, keys, insecure
+        )
     from planner_client.planner_check import scenario_errors
-    errors = scenario_errors(scenario)     # every error of the file, before anything starts
+
+    errors = scenario_errors(scenario)  # every error of the file, before anything starts
     print_errors(errors, err=not check)
     if errors or check:
         raise typer.Exit(2 if errors else 0)
     from planner_client.build import build_client
     from shared.scenario import ROLLOUT_BACKENDS, rollout_device
+
     if backend is not None and backend not in ROLLOUT_BACKENDS:
-        typer.echo(f"error: --backend {backend!r}: expected one of {', '.join(ROLLOUT_BACKENDS)}",
-                   err=True)
+        typer.echo(
+            f"error: --backend {backend!r}: expected one of {', '.join(ROLLOUT_BACKENDS)}", err=True
+        )
         raise typer.Exit(2)
     try:
         device = device if device is None else rollout_device(device)
@@ -102,15 +142,25 @@ def main(
         raise typer.Exit(2) from None
     from planner_client.controller import LayoutMismatch
     from planner_client.loop import HandshakeRefused
+
     try:
-        sc = with_delays(load_scenario(scenario), actuation_delay_ms, state_delay_ms,
-                         estimate_delays)
-        client = build_client(sc, Endpoints(host, port), threads=threads, seed=seed,
-                              backend=backend, device=device,
-                              server_timeout=server_timeout, exit_on_done=not keep_running,
-                              keys=planner_keys, diagnostics_host=diagnostics_host,
-                              max_rate=max_rate,
-                              before_connect=_await_go if standby else None)
+        sc = with_delays(
+            load_scenario(scenario), actuation_delay_ms, state_delay_ms, estimate_delays
+        )
+        client = build_client(
+            sc,
+            Endpoints(host, port),
+            threads=threads,
+            seed=seed,
+            backend=backend,
+            device=device,
+            server_timeout=server_timeout,
+            exit_on_done=not keep_running,
+            keys=planner_keys,
+            diagnostics_host=diagnostics_host,
+            max_rate=max_rate,
+            before_connect=_await_go if standby else None,
+        )
     except ConfigError as exc:
         typer.echo(f"error: {exc}", err=True)
         raise typer.Exit(2) from None
@@ -126,10 +176,15 @@ def main(
         stats = client.stats
     finally:
         client.close()
-    fallbacks = (f", {stats.safe_fallbacks} safe controls for want of a finite plan"
-                 if stats.safe_fallbacks else "")
-    typer.echo(f"planner: {stats.iterations} iterations, {stats.hz:.1f} Hz, "
-               f"episode {stats.final_status or 'not finished'}{fallbacks}")
+    fallbacks = (
+        f", {stats.safe_fallbacks} safe controls for want of a finite plan"
+        if stats.safe_fallbacks
+        else ""
+    )
+    typer.echo(
+        f"planner: {stats.iterations} iterations, {stats.hz:.1f} Hz, "
+        f"episode {stats.final_status or 'not finished'}{fallbacks}"
+    )
     raise typer.Exit(0 if stats.final_status == "success" else 1)
 
 
@@ -146,7 +201,7 @@ def with_delays(sc, actuation_ms: float | None, state_ms: float | None, estimate
     return dataclasses.replace(sc, planner=dataclasses.replace(sc.planner, delays=delays))
 
 
-def _security(hosts: dict[str, str], keys: Optional[Path], insecure: bool):
+def _security(hosts: dict[str, str], keys: Path | None, insecure: bool):
     """The planner's CURVE keys (None without --keys); exit 2 for a network address without keys
     (unless --insecure: then a warning) or for keys that cannot be used."""
     try:

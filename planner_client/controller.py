@@ -29,23 +29,23 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from planner_client.attach import Attachments
+from planner_client.delay_estimate import ActuationDelayEstimate
+from planner_client.mirror import Mirror, MocapState
+from planner_client.motion import Iteration, MotionPlanner
+from planner_client.task import TaskDecision, TaskLayer
+from planner_client.timing import LeadEstimate, predict, steps_between
 from shared import protocol as P
 from shared.evaluation.metrics import mean_hz
 from shared.faults import steps_of
 from shared.layout import StateSizes
-from shared.scene import STATE_FIELDS, get_full_state
 from shared.scenario import DelayConfig
+from shared.scene import STATE_FIELDS, get_full_state
 from shared.timed_plan import TimedPlan, held
-from planner_client.attach import Attachments
-from planner_client.delay_estimate import ActuationDelayEstimate
-from planner_client.motion import Iteration, MotionPlanner
-from planner_client.mirror import Mirror, MocapState
-from planner_client.task import TaskDecision, TaskLayer
-from planner_client.timing import LeadEstimate, predict, steps_between
 
 log = logging.getLogger("m3p2i.planner")
 
-_NEW_EPISODE = 1.0   # world time going back more than this (s) is a reset, not jitter
+_NEW_EPISODE = 1.0  # world time going back more than this (s) is a reset, not jitter
 
 
 class LayoutMismatch(RuntimeError):
@@ -59,19 +59,22 @@ class LayoutMismatch(RuntimeError):
 
     def explain(self, scenario_ref: str) -> str:
         """The message, with ``m3p2i layout scenario_ref`` as where to find the right layout."""
-        return (f"the world's state does not fit the planner's model of {self.scenario}: "
-                f"{'; '.join(self.mismatches)}. `m3p2i layout {scenario_ref}` prints the "
-                f"layout a world must send, index by index")
+        return (
+            f"the world's state does not fit the planner's model of {self.scenario}: "
+            f"{'; '.join(self.mismatches)}. `m3p2i layout {scenario_ref}` prints the "
+            f"layout a world must send, index by index"
+        )
 
 
 @dataclass
 class LoopStats:
     """What the loop did: iterations, their planning times, the action changes."""
+
     iterations: int = 0
     plan_times: list[float] = field(default_factory=list)
     action_changes: list[tuple[float, str, tuple[str, ...]]] = field(default_factory=list)
     final_status: str = ""
-    safe_fallbacks: int = 0     # commands that were the safe control because there was no plan
+    safe_fallbacks: int = 0  # commands that were the safe control because there was no plan
 
     @property
     def hz(self) -> float:
@@ -87,6 +90,7 @@ Renew = Callable[[int | None], tuple[MotionPlanner, TaskLayer]]
 class Tick:
     """One :meth:`Controller.step`: the state it answered, the task's decision, the M3P2I
     iteration, the plan's date (world s), and world steps since the previous plan's state."""
+
     state: P.State
     decision: TaskDecision
     iteration: Iteration
@@ -99,8 +103,13 @@ class Controller:
     """Thesis Alg. 1 without the network: :meth:`begin` an episode, then :meth:`step` on each
     state; the command it returns answers that state (echoes its ``seq``)."""
 
-    def __init__(self, planner: MotionPlanner, task: TaskLayer, delays: DelayConfig | None = None,
-                 renew: Renew | None = None):
+    def __init__(
+        self,
+        planner: MotionPlanner,
+        task: TaskLayer,
+        delays: DelayConfig | None = None,
+        renew: Renew | None = None,
+    ):
         """``delays``: the robot's unseen delays to compensate (default: the scenario's
         ``planner.delays``). ``renew``: when given, :meth:`begin` with ``new_episode`` gets a
         planner and task layer as a fresh process would build them, so no warm start, belief or
@@ -111,23 +120,24 @@ class Controller:
         self.delays = delays or planner.problem.scenario.planner.delays
         self._bind(planner)
         self.stats = LoopStats()
-        self.mode: str | None = None     # the world's: lockstep | realtime (None: lock-step)
-        self.dt: float | None = None     # the world's step, s
-        self.last: Tick | None = None    # the last step's, for diagnostics
+        self.mode: str | None = None  # the world's: lockstep | realtime (None: lock-step)
+        self.dt: float | None = None  # the world's step, s
+        self.last: Tick | None = None  # the last step's, for diagnostics
         self._action: tuple[str, tuple[str, ...]] | None = None
         self.robot = planner.problem.robot
         self._last_ctrl = self.robot.safe_stop()
         # what the world plays, oldest first: enough plans to cover a lead plus declared delays
         self._sent: deque[TimedPlan] = deque(maxlen=16)
         self._lead: LeadEstimate | None = None
-        self._actuation: ActuationDelayEstimate | None = None   # planner.delays.estimate
-        self._acting_logged: int | None = None     # the delays last logged, in world steps
+        self._actuation: ActuationDelayEstimate | None = None  # planner.delays.estimate
+        self._acting_logged: int | None = None  # the delays last logged, in world steps
         self._ahead_logged = 0
-        self._last_start: tuple[float, int] | None = None   # (t_eff, state seq) of the last plan
-        self._faults = 0        # consecutive iterations without a plan (Iteration.fault)
+        self._last_start: tuple[float, int] | None = None  # (t_eff, state seq) of the last plan
+        self._faults = 0  # consecutive iterations without a plan (Iteration.fault)
 
-    def begin(self, mode: str, dt: float, seed: int | None = None,
-              new_episode: bool = False) -> None:
+    def begin(
+        self, mode: str, dt: float, seed: int | None = None, new_episode: bool = False
+    ) -> None:
         """Start (or, after a reconnection, resume) planning against a world that runs in
         ``mode`` (lockstep | realtime) with steps of ``dt`` s: the lead and actuation delay
         estimates start afresh and the plans sent are forgotten. ``new_episode``: the world
@@ -139,8 +149,9 @@ class Controller:
         self._lead = LeadEstimate(dt) if mode == "realtime" or self.delays.estimate else None
         self._actuation = None
         if self.delays.estimate:
-            self._actuation = ActuationDelayEstimate(self.planner.problem.model, dt,
-                                                     steps_of(self.delays.max_ms, dt))
+            self._actuation = ActuationDelayEstimate(
+                self.planner.problem.model, dt, steps_of(self.delays.max_ms, dt)
+            )
             # the plans the world played that long ago must still be at hand
             self._sent = deque(maxlen=max(16, self._actuation.max_steps + 8))
         self._sent.clear()
@@ -151,8 +162,10 @@ class Controller:
         episode seed when it sends one."""
         if self.renew is None:
             return
-        log.info("new episode%s: planner and task layer rebuilt",
-                 f" (seed {seed})" if seed is not None else "")
+        log.info(
+            "new episode%s: planner and task layer rebuilt",
+            f" (seed {seed})" if seed is not None else "",
+        )
         self.planner.close()
         self.planner, self.task = self.renew(seed)
         self._bind(self.planner)
@@ -163,16 +176,21 @@ class Controller:
     def _bind(self, planner: MotionPlanner) -> None:
         """The mirror of the world in ``planner``'s model, and its attachments."""
         pc = planner.problem.scenario.planner
-        self.mirror = Mirror(planner.problem.model, estimate=pc.estimate,
-                             planar=[n for n, o in pc.model.objects.items() if o.planar])
-        self.attachments = Attachments(planner.problem.model, pc.model.attach,
-                                       held_filter=pc.estimate.held_filter)
+        self.mirror = Mirror(
+            planner.problem.model,
+            estimate=pc.estimate,
+            planar=[n for n, o in pc.model.objects.items() if o.planar],
+        )
+        self.attachments = Attachments(
+            planner.problem.model, pc.model.attach, held_filter=pc.estimate.held_filter
+        )
 
     def check_layout(self, state: P.State) -> None:
         """Raise :class:`LayoutMismatch` when ``state``'s arrays have other sizes than the
         planner's model (a bridge sending another layout: every state would be dropped)."""
         mismatches = StateSizes.of(self.planner.problem.model).mismatches(
-            {name: getattr(state, name) for name in STATE_FIELDS})
+            {name: getattr(state, name) for name in STATE_FIELDS}
+        )
         if mismatches:
             raise LayoutMismatch(self.planner.problem.scenario.name, mismatches)
 
@@ -191,23 +209,24 @@ class Controller:
         not fit the planner's model. :attr:`last` keeps the tick for :meth:`diagnostics`."""
         t0 = time.perf_counter()
         try:
-            x0 = self.mirror.apply(state)                                   # 1. mirror
+            x0 = self.mirror.apply(state)  # 1. mirror
         except ValueError as exc:
             log.error("state does not fit the planner's model: %s", exc)
             return None
         if self.attachments.track(self.mirror.data, self.mirror.received_qpos):
             x0 = self.mirror.refresh()
-        if self._actuation is not None:                                     # 2. estimate
-            self._actuation.observe(self.mirror.data, list(self._sent),
-                                    self.robot.safe_stop(self._last_ctrl))
-        decision = self.task.decide(self.mirror.data, state.extras, state.time)   # 3. task
+        if self._actuation is not None:  # 2. estimate
+            self._actuation.observe(
+                self.mirror.data, list(self._sent), self.robot.safe_stop(self._last_ctrl)
+            )
+        decision = self.task.decide(self.mirror.data, state.extras, state.time)  # 3. task
         if self.attachments.welds:
             self.attachments.update(self.mirror.data, self.task.last_observation, state.time)
-        self.planner.set_modes(decision.modes)                              # 4. modes
-        start, x0, mocap = self._plan_start(state, x0)                      # 5. plan start
-        it = self.planner.iterate(x0, mocap)                                # 6. M3P2I
+        self.planner.set_modes(decision.modes)  # 4. modes
+        start, x0, mocap = self._plan_start(state, x0)  # 5. plan start
+        it = self.planner.iterate(x0, mocap)  # 6. M3P2I
         self._note_fault(it, state.time)
-        if decision.stop or it.fault is not None:                           # 7. command
+        if decision.stop or it.fault is not None:  # 7. command
             # a safe stop keeps the hold_ctrl actuators where they were: a gripper keeps its grip;
             # without a plan (no finite cost) nothing else is safe to send
             ctrl, plan = self.robot.safe_stop(self._last_ctrl), None
@@ -218,9 +237,15 @@ class Controller:
         self._last_ctrl = ctrl
         plan_time = time.perf_counter() - t0
         command = P.Command(
-            session=state.session, seq=state.seq, ctrl=ctrl, plan_time=plan_time,
-            action=decision.action, plan_ctrl=plan, plan_t0=None if plan is None else start,
-            plan_dt=None if plan is None else self.planner.dt)
+            session=state.session,
+            seq=state.seq,
+            ctrl=ctrl,
+            plan_time=plan_time,
+            action=decision.action,
+            plan_ctrl=plan,
+            plan_t0=None if plan is None else start,
+            plan_dt=None if plan is None else self.planner.dt,
+        )
         steps = state.seq - self._last_start[1] if self._last_start else 0
         self._last_start = (start, state.seq)
         self.last = Tick(state, decision, it, plan_time, start, steps)
@@ -230,8 +255,9 @@ class Controller:
         if key != self._action:
             self._action = key
             self.stats.action_changes.append((state.time, decision.action, tuple(decision.modes)))
-            log.info("t=%.2f s: action %s, modes %s", state.time, decision.action,
-                     list(decision.modes))
+            log.info(
+                "t=%.2f s: action %s, modes %s", state.time, decision.action, list(decision.modes)
+            )
         return command
 
     def diagnostics(self) -> P.Diagnostics:
@@ -241,13 +267,21 @@ class Controller:
         tick = self.last
         it = tick.iteration
         return P.Diagnostics(
-            seq=tick.state.seq, action=tick.decision.action,
-            alternatives=list(tick.decision.alternatives), mode_names=it.modes,
-            mode_weights=it.result.mode_weights.numpy(), top=it.top, plan_time=tick.plan_time,
-            lead=tick.start - tick.state.time, steps=tick.steps, top_modes=it.top_modes)
+            seq=tick.state.seq,
+            action=tick.decision.action,
+            alternatives=list(tick.decision.alternatives),
+            mode_names=it.modes,
+            mode_weights=it.result.mode_weights.numpy(),
+            top=it.top,
+            plan_time=tick.plan_time,
+            lead=tick.start - tick.state.time,
+            steps=tick.steps,
+            top_modes=it.top_modes,
+        )
 
-    def _plan_start(self, state: P.State,
-                    x0: np.ndarray) -> tuple[float, np.ndarray, MocapState | None]:
+    def _plan_start(
+        self, state: P.State, x0: np.ndarray
+    ) -> tuple[float, np.ndarray, MocapState | None]:
         """When the new plan takes effect, the state predicted for then, and the mocap bodies
         there; the warm start is moved by the time since the last plan's start.
 
@@ -258,14 +292,18 @@ class Controller:
         or estimated, is predicted beyond the plan's date (planner_client.timing).
         """
         mocap = self.mirror.mocap()
-        ahead = acting = 0   # world steps from the state to the plan's date, and on to when it acts
+        ahead = acting = 0  # world steps from the state to the plan's date, and on to when it acts
         lockstep = self.mode != "realtime"
         if self._lead is not None:
             self._lead.observe(state.lag)
             ahead = self._lead.steps()
         if lockstep and ahead and ahead != self._ahead_logged:
-            log.info("t=%.2f s: state delay measured at %d world steps (%.0f ms)", state.time,
-                     ahead, ahead * self.dt * 1000)
+            log.info(
+                "t=%.2f s: state delay measured at %d world steps (%.0f ms)",
+                state.time,
+                ahead,
+                ahead * self.dt * 1000,
+            )
             self._ahead_logged = ahead
         if lockstep and self.delays.state_ms:
             # in real time the lag runs from the state's measurement time, so the lead already
@@ -277,20 +315,32 @@ class Controller:
         if estimated is not None:
             acting = estimated
             if estimated != self._acting_logged:
-                log.info("t=%.2f s: actuation delay estimated at %d world steps (%.0f ms)",
-                         state.time, estimated, estimated * self.dt * 1000)
+                log.info(
+                    "t=%.2f s: actuation delay estimated at %d world steps (%.0f ms)",
+                    state.time,
+                    estimated,
+                    estimated * self.dt * 1000,
+                )
                 self._acting_logged = estimated
         start = state.time
         if ahead + acting:
             dt = self.dt
             model, data = self.mirror.model, self.mirror.data
-            predict(model, data, list(self._sent), self.robot.safe_stop(self._last_ctrl), dt,
-                    ahead + acting, acting * dt)
+            predict(
+                model,
+                data,
+                list(self._sent),
+                self.robot.safe_stop(self._last_ctrl),
+                dt,
+                ahead + acting,
+                acting * dt,
+            )
             x0 = get_full_state(model, data, self.mirror.x0)
-            start = float(data.time) - acting * dt    # the same instant, in the mirror's float sums
+            start = float(data.time) - acting * dt  # the same instant, in the mirror's float sums
             if mocap is not None and mocap.moving:
-                mocap = MocapState(mocap.pos + mocap.vel * (float(data.time) - state.time),
-                                   mocap.quat, mocap.vel)
+                mocap = MocapState(
+                    mocap.pos + mocap.vel * (float(data.time) - state.time), mocap.quat, mocap.vel
+                )
         if self._last_start is not None and start >= self._last_start[0] - _NEW_EPISODE:
             self.planner.advance(steps_between(self._last_start[0], start, self.planner.dt))
         return start, x0, mocap
@@ -299,13 +349,19 @@ class Controller:
         """Logs a run of iterations without a plan once, when it starts and when it ends."""
         if it.fault is None:
             if self._faults:
-                log.info("t=%.2f s: planning resumed after %d iteration(s) on the safe control",
-                         time, self._faults)
+                log.info(
+                    "t=%.2f s: planning resumed after %d iteration(s) on the safe control",
+                    time,
+                    self._faults,
+                )
             self._faults = 0
             return
         if not self._faults:
-            log.warning("t=%.2f s: %s; sending the safe control until a plan is finite again",
-                        time, it.fault)
+            log.warning(
+                "t=%.2f s: %s; sending the safe control until a plan is finite again",
+                time,
+                it.fault,
+            )
         self._faults += 1
         self.stats.safe_fallbacks += 1
 

@@ -21,8 +21,8 @@ import logging
 import mujoco
 import numpy as np
 
-from shared.timed_plan import TimedPlan
 from planner_client.timing import predict
+from shared.timed_plan import TimedPlan
 
 log = logging.getLogger("m3p2i.planner")
 
@@ -31,30 +31,42 @@ class ActuationDelayEstimate:
     """Candidates ``0..max_steps`` world steps; ``forget``: weight of a new error in each
     candidate's running mean; ``min_states``: observations before an answer."""
 
-    def __init__(self, model: mujoco.MjModel, world_dt: float, max_steps: int,
-                 forget: float = 0.05, min_states: int = 20, margin: float = 0.8):
+    def __init__(
+        self,
+        model: mujoco.MjModel,
+        world_dt: float,
+        max_steps: int,
+        forget: float = 0.05,
+        min_states: int = 20,
+        margin: float = 0.8,
+    ):
         self.model = model
         self.world_dt = world_dt
         self.max_steps = max_steps
         self.forget = forget
         self.min_states = min_states
         self.margin = margin
-        self.errors = np.zeros(max_steps + 1)          # [D + 1] running mean squared error
+        self.errors = np.zeros(max_steps + 1)  # [D + 1] running mean squared error
         self.observed = 0
         free = model.jnt_type == mujoco.mjtJoint.mjJNT_FREE
         robot = [j for j in range(model.njnt) if not free[j]]
-        self._dofs = np.array([model.jnt_dofadr[j] for j in robot], dtype=int)   # [R]
+        self._dofs = np.array([model.jnt_dofadr[j] for j in robot], dtype=int)  # [R]
         self._scratch = mujoco.MjData(model)
         # the whole state the prediction starts from: the physics, and what decides the model's
         # constraints and fixed bodies (a carried cube's weld, the mocap poses; MuJoCo 4's
         # FULLPHYSICS has neither)
         S = mujoco.mjtState
-        self._state_kind = (S.mjSTATE_FULLPHYSICS | S.mjSTATE_EQ_ACTIVE | S.mjSTATE_MOCAP_POS
-                            | S.mjSTATE_MOCAP_QUAT | S.mjSTATE_USERDATA)
+        self._state_kind = (
+            S.mjSTATE_FULLPHYSICS
+            | S.mjSTATE_EQ_ACTIVE
+            | S.mjSTATE_MOCAP_POS
+            | S.mjSTATE_MOCAP_QUAT
+            | S.mjSTATE_USERDATA
+        )
         # the longest gap between two states that is scored: as long as the longest delay
         # candidate (a planner that slow sees no state in between), 3 steps at least
         self.max_gap = max(3, max_steps)
-        self.too_long = 0                               # gaps not scored for their length
+        self.too_long = 0  # gaps not scored for their length
         self._prev: tuple[float, np.ndarray] | None = None
 
     def observe(self, data: mujoco.MjData, plans: list[TimedPlan], safe: np.ndarray) -> None:
@@ -71,12 +83,16 @@ class ActuationDelayEstimate:
         if steps > self.max_gap:
             self.too_long += 1
             if self.too_long in (1, 10, 100) or self.too_long % 1000 == 0:
-                log.warning("actuation delay estimate: states %d world steps apart, over the "
-                            "%d it scores: not scored (%d such gaps so far); a planner this "
-                            "slow gets no estimate: raise planner.delays.max_ms", steps,
-                            self.max_gap, self.too_long)
+                log.warning(
+                    "actuation delay estimate: states %d world steps apart, over the "
+                    "%d it scores: not scored (%d such gaps so far); a planner this "
+                    "slow gets no estimate: raise planner.delays.max_ms",
+                    steps,
+                    self.max_gap,
+                    self.too_long,
+                )
             return
-        if steps < 1:                    # a new episode (time went back), or the same state
+        if steps < 1:  # a new episode (time went back), or the same state
             return
         target = data.qvel[self._dofs]
         m, d = self.model, self._scratch
@@ -97,5 +113,5 @@ class ActuationDelayEstimate:
             return None
         best = int(np.argmin(self.errors))
         if not self.errors[best] < self.margin * float(np.median(self.errors)):
-            return None          # (all equal, zero included: the controls told nothing apart)
+            return None  # (all equal, zero included: the controls told nothing apart)
         return best

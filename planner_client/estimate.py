@@ -44,9 +44,9 @@ class PoseFilter:
     def __call__(self, time: float, pos: np.ndarray, quat: np.ndarray) -> None:
         """Take the poses measured at ``time`` (``pos [N, 3]``, ``quat [N, 4]``)."""
         dt = None if self._time is None else time - self._time
-        if dt == 0:                          # the same measurement again (a duplicate): no news
+        if dt == 0:  # the same measurement again (a duplicate): no news
             return
-        if dt is None or not dt > 0:         # the first state, or a new episode: start afresh
+        if dt is None or not dt > 0:  # the first state, or a new episode: start afresh
             self.pos[:], self.quat[:], self.vel[:] = pos, quat, 0.0
         else:
             self._advance(pos, quat, dt)
@@ -69,7 +69,10 @@ class PoseFilter:
         raw[:, 3:] /= dt
         self.vel[:] = wv * raw + (1 - wv) * self.vel
         self.pos[teleport], self.quat[teleport], self.vel[teleport] = (
-            pos[teleport], quat[teleport], 0.0)
+            pos[teleport],
+            quat[teleport],
+            0.0,
+        )
 
     def velocity(self) -> np.ndarray:
         """The filtered velocities ``[N, 6]``, those of bodies slower than ``still_speed`` 0."""
@@ -80,8 +83,9 @@ class PoseFilter:
 
 def filters_poses(cfg: EstimateConfig) -> bool:
     """Whether ``cfg`` changes received poses or velocities at all."""
-    return (cfg.pose_filter < 1.0 or cfg.velocity_filter < 1.0
-            or cfg.object_velocities == "from_poses")
+    return (
+        cfg.pose_filter < 1.0 or cfg.velocity_filter < 1.0 or cfg.object_velocities == "from_poses"
+    )
 
 
 class FreeBodyEstimator:
@@ -90,28 +94,32 @@ class FreeBodyEstimator:
 
     def __init__(self, model: mujoco.MjModel, cfg: EstimateConfig):
         self.cfg = cfg
-        free = [j for j in range(model.njnt)
-                if model.jnt_type[j] == mujoco.mjtJoint.mjJNT_FREE]
-        self.qadr = np.array([model.jnt_qposadr[j] for j in free], dtype=int)   # [F]
-        self.vadr = np.array([model.jnt_dofadr[j] for j in free], dtype=int)    # [F]
+        free = [j for j in range(model.njnt) if model.jnt_type[j] == mujoco.mjtJoint.mjJNT_FREE]
+        self.qadr = np.array([model.jnt_qposadr[j] for j in free], dtype=int)  # [F]
+        self.vadr = np.array([model.jnt_dofadr[j] for j in free], dtype=int)  # [F]
         self.filter = PoseFilter(len(free), cfg)
 
     @property
     def active(self) -> bool:
         return bool(len(self.qadr)) and filters_poses(self.cfg)
 
-    def __call__(self, time: float, qpos: np.ndarray, qvel: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    def __call__(
+        self, time: float, qpos: np.ndarray, qvel: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray]:
         """The state to mirror: ``qpos [nq]`` with the free bodies' poses filtered, ``qvel [nv]``
         with their velocities estimated (``from_poses``) or as received."""
         qpos, qvel = np.array(qpos, dtype=float), np.array(qvel, dtype=float)
         f = self.filter
-        f(time, np.stack([qpos[a:a + 3] for a in self.qadr]),                  # [F, 3]
-          np.stack([qpos[a + 3:a + 7] for a in self.qadr]))                    # [F, 4]
+        f(
+            time,
+            np.stack([qpos[a : a + 3] for a in self.qadr]),  # [F, 3]
+            np.stack([qpos[a + 3 : a + 7] for a in self.qadr]),
+        )  # [F, 4]
         vel = f.velocity()
         for i, (a, v) in enumerate(zip(self.qadr, self.vadr)):
-            qpos[a:a + 3], qpos[a + 3:a + 7] = f.pos[i], f.quat[i]
+            qpos[a : a + 3], qpos[a + 3 : a + 7] = f.pos[i], f.quat[i]
             if self.cfg.object_velocities == "from_poses":
-                qvel[v:v + 6] = vel[i]
+                qvel[v : v + 6] = vel[i]
         return qpos, qvel
 
 
@@ -123,10 +131,14 @@ class MocapEstimator:
         self.cfg = cfg
         self.filter = PoseFilter(model.nmocap, cfg)
 
-    def __call__(self, time: float, pos: np.ndarray, quat: np.ndarray
-                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    def __call__(
+        self, time: float, pos: np.ndarray, quat: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """``(pos [nmocap, 3], quat [nmocap, 4], vel [nmocap, 3])``: filtered, and estimated."""
         f = self.filter
-        f(time, np.asarray(pos, dtype=float).reshape(-1, 3),
-          np.asarray(quat, dtype=float).reshape(-1, 4))
+        f(
+            time,
+            np.asarray(pos, dtype=float).reshape(-1, 3),
+            np.asarray(quat, dtype=float).reshape(-1, 4),
+        )
         return f.pos.copy(), f.quat.copy(), f.velocity()[:, :3]

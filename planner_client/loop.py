@@ -26,16 +26,22 @@ import time
 
 import zmq
 
+from planner_client.controller import Controller, LoopStats
 from shared import protocol as P
 from shared.endpoints import Endpoints, socket
-from shared.security import Authenticator, HandshakeMonitor, PlannerKeys, curve_client, \
-    curve_server, describe_handshake_failure
-from planner_client.controller import Controller, LoopStats
+from shared.security import (
+    Authenticator,
+    HandshakeMonitor,
+    PlannerKeys,
+    curve_client,
+    curve_server,
+    describe_handshake_failure,
+)
 
 log = logging.getLogger("m3p2i.planner")
 
 _HANDSHAKE_FAILURES = 20  # failed handshakes in a row, no reply between: a key problem (a
-                          # wrong key fails ~10 times a second; a restarting world not so)
+# wrong key fails ~10 times a second; a restarting world not so)
 
 
 class HandshakeRefused(RuntimeError):
@@ -46,10 +52,19 @@ class PlannerClient:
     """A :class:`Controller` served over ZeroMQ: states from a world server in, its commands
     (and, for listeners, its diagnostics) out."""
 
-    def __init__(self, controller: Controller, endpoints: Endpoints, scenario_name: str,
-                 scenario_hash: str, server_timeout: float = 2.0, exit_on_done: bool = True,
-                 diagnostics: bool = True, keys: PlannerKeys | None = None,
-                 diagnostics_host: str | None = None, max_rate: float = 0.0):
+    def __init__(
+        self,
+        controller: Controller,
+        endpoints: Endpoints,
+        scenario_name: str,
+        scenario_hash: str,
+        server_timeout: float = 2.0,
+        exit_on_done: bool = True,
+        diagnostics: bool = True,
+        keys: PlannerKeys | None = None,
+        diagnostics_host: str | None = None,
+        max_rate: float = 0.0,
+    ):
         """``controller``: the loop each state is handed to; with its ``renew``, each new
         session of the world after the first (a new episode: a world reset with a seed, or
         restarted) gets a planner and task layer as a fresh process would build them.
@@ -57,16 +72,17 @@ class PlannerClient:
         can), to rehearse on a fast machine what a slower computer does."""
         self.controller = controller
         self.endpoints = endpoints
-        self.hello = P.Hello(scenario=scenario_name, scenario_hash=scenario_hash,
-                             versions=list(P.VERSIONS))
-        self.version = P.PROTOCOL_VERSION   # of the commands: the one the world chose
+        self.hello = P.Hello(
+            scenario=scenario_name, scenario_hash=scenario_hash, versions=list(P.VERSIONS)
+        )
+        self.version = P.PROTOCOL_VERSION  # of the commands: the one the world chose
         self._warned_version: int | None = None
         self.server_timeout = server_timeout
         self.exit_on_done = exit_on_done
         self.min_period = 1.0 / max_rate if max_rate > 0 else 0.0
         self.keys = keys
         self.ctx = zmq.Context()
-        self.sub = socket(self.ctx, zmq.SUB, conflate=True)   # only the newest state matters
+        self.sub = socket(self.ctx, zmq.SUB, conflate=True)  # only the newest state matters
         self.sub.setsockopt(zmq.SUBSCRIBE, b"")
         self._secure(self.sub)
         self.sub.connect(endpoints.state)
@@ -75,24 +91,25 @@ class PlannerClient:
         self.push.connect(endpoints.command)
         self.diag = None
         self.auth = None
-        self._listeners = 0     # distinct subscriptions to the diagnostics (see _listened)
+        self._listeners = 0  # distinct subscriptions to the diagnostics (see _listened)
         if diagnostics:
             # XPUB, not PUB: it tells when someone subscribes, so that the diagnostics (the
             # viewer's top trajectories: a tenth of navigation's planning work) are made only
             # for a listener
             self.diag = socket(self.ctx, zmq.XPUB)
-            if keys is not None:   # the planner is the CURVE server of its diagnostics
+            if keys is not None:  # the planner is the CURVE server of its diagnostics
                 self.auth = Authenticator(self.ctx, keys.viewers, "the planner's diagnostics")
                 curve_server(self.diag, keys.own)
             # bound on this machine (loopback unless told): the world's address, the default,
             # is another machine's when the two run apart
-            self.diag.bind(Endpoints(diagnostics_host or endpoints.host,
-                                     endpoints.port).diagnostics)
+            self.diag.bind(
+                Endpoints(diagnostics_host or endpoints.host, endpoints.port).diagnostics
+            )
         self.welcome: P.Welcome | None = None
-        self._answered: tuple[str, int] | None = None   # (session, seq) of the last command
+        self._answered: tuple[str, int] | None = None  # (session, seq) of the last command
         self._answer = b""
-        self._handshake_failures = 0   # in a row, since the last reply
-        self._layout_checked = False   # whether a state since the last handshake was checked
+        self._handshake_failures = 0  # in a row, since the last reply
+        self._layout_checked = False  # whether a state since the last handshake was checked
 
     # ------------------------------------------------------------------ handshake
 
@@ -104,18 +121,21 @@ class PlannerClient:
         own version and no ``versions``: then the plain hello of that version is sent, once."""
         start = time.monotonic()
         warned = False
-        plain: int | None = None    # the version of a world that does not negotiate
+        plain: int | None = None  # the version of a world that does not negotiate
         while True:
             req = socket(self.ctx, zmq.REQ)
             self._secure(req)
             monitor = HandshakeMonitor(req, hangups=True)
             req.connect(self.endpoints.control)
-            req.send(P.encode(self.hello, min(P.VERSIONS)) if plain is None else
-                     P.encode(dataclasses.replace(self.hello, versions=None), plain))
+            req.send(
+                P.encode(self.hello, min(P.VERSIONS))
+                if plain is None
+                else P.encode(dataclasses.replace(self.hello, versions=None), plain)
+            )
             try:
                 answered = self._await_reply(req, monitor, retry)
             except HandshakeRefused:
-                req.close(0)   # an open socket would block the context's termination
+                req.close(0)  # an open socket would block the context's termination
                 raise
             finally:
                 monitor.close()
@@ -123,8 +143,9 @@ class PlannerClient:
                 frame = req.recv()
                 req.close(0)
                 try:
-                    reply, version = P.decode_versioned(frame, expect=("welcome", "error"),
-                                                        versions=P.VERSIONS)
+                    reply, version = P.decode_versioned(
+                        frame, expect=("welcome", "error"), versions=P.VERSIONS
+                    )
                 except P.ProtocolError as exc:
                     raise HandshakeRefused(f"server sent an invalid reply: {exc}") from None
                 if isinstance(reply, P.Error):
@@ -133,33 +154,47 @@ class PlannerClient:
                 self._speak(version)
                 nu = self.controller.planner.problem.model.nu
                 if reply.nu != nu:
-                    raise HandshakeRefused(f"server model has nu={reply.nu}, planner model has "
-                                           f"nu={nu}")
-                log.info("connected: %s, %s mode, dt %.3f s, session %s", reply.scenario,
-                         reply.mode, reply.dt, reply.session)
+                    raise HandshakeRefused(
+                        f"server model has nu={reply.nu}, planner model has nu={nu}"
+                    )
+                log.info(
+                    "connected: %s, %s mode, dt %.3f s, session %s",
+                    reply.scenario,
+                    reply.mode,
+                    reply.dt,
+                    reply.session,
+                )
                 new = self.welcome is not None and reply.session != self.welcome.session
                 self.controller.begin(reply.mode, reply.dt, reply.seed, new_episode=new)
                 self.welcome = reply
                 self._layout_checked = False
                 return reply
-            req.close(0)   # a REQ that got no reply cannot send again: make a fresh one
+            req.close(0)  # a REQ that got no reply cannot send again: make a fresh one
             if not warned:
                 log.info("waiting for a server at %s ...", self.endpoints.control)
                 warned = True
             if give_up is not None and time.monotonic() - start > give_up:
-                raise TimeoutError(f"no server answered at {self.endpoints.control} "
-                                   f"within {give_up:.0f} s")
+                raise TimeoutError(
+                    f"no server answered at {self.endpoints.control} within {give_up:.0f} s"
+                )
 
     def _plain_hello(self, error: P.Error, version: int, plain: int | None) -> int:
         """The version to say a plain hello in after the world refused ours with ``error``
         (written in ``version``); raises :class:`HandshakeRefused` when retrying cannot help."""
         if plain is None and error.versions is None and version in P.VERSIONS:
-            log.info("the world (protocol version %d) does not negotiate versions (%s): "
-                     "saying hello in version %d", version, error.reason, version)
+            log.info(
+                "the world (protocol version %d) does not negotiate versions (%s): "
+                "saying hello in version %d",
+                version,
+                error.reason,
+                version,
+            )
             return version
         if version not in P.VERSIONS and error.versions is None:
-            raise HandshakeRefused(f"{error.reason} (the world speaks protocol version {version}, "
-                                   f"this planner speaks versions {P.VERSIONS_TEXT})")
+            raise HandshakeRefused(
+                f"{error.reason} (the world speaks protocol version {version}, "
+                f"this planner speaks versions {P.VERSIONS_TEXT})"
+            )
         raise HandshakeRefused(error.reason)
 
     def _speak(self, version: int) -> None:
@@ -167,9 +202,12 @@ class PlannerClient:
         self.version = version
         if version < P.PROTOCOL_VERSION and self._warned_version != version:
             self._warned_version = version
-            log.warning("the world speaks protocol version %d only: commands carry no plan, and "
-                        "it holds each command's ctrl until the next (the robot follows the "
-                        "planner's lag)", version)
+            log.warning(
+                "the world speaks protocol version %d only: commands carry no plan, and "
+                "it holds each command's ctrl until the next (the robot follows the "
+                "planner's lag)",
+                version,
+            )
 
     def _secure(self, sock: zmq.Socket) -> None:
         """A socket to the world: a CURVE client holding the world's public key, with keys."""
@@ -197,19 +235,29 @@ class PlannerClient:
                 if event == zmq.EVENT_HANDSHAKE_FAILED_AUTH:
                     raise HandshakeRefused(
                         f"the world at {self.endpoints.control} refused this planner's key "
-                        f"({why}): " + (f"its public key {self.keys.own.public.decode()} "
-                                        f"must be in the world's DIR/world/planners/ (copy "
-                                        f"DIR/planner/planner.key there and restart the "
-                                        f"world)" if self.keys else "start it with --keys DIR"))
+                        f"({why}): "
+                        + (
+                            f"its public key {self.keys.own.public.decode()} "
+                            f"must be in the world's DIR/world/planners/ (copy "
+                            f"DIR/planner/planner.key there and restart the "
+                            f"world)"
+                            if self.keys
+                            else "start it with --keys DIR"
+                        )
+                    )
                 mismatch = event == zmq.EVENT_HANDSHAKE_FAILED_PROTOCOL and value == 0x11000002
                 if mismatch or self._handshake_failures >= _HANDSHAKE_FAILURES:
                     raise HandshakeRefused(
                         f"no secure handshake with the world at {self.endpoints.control} "
-                        f"({why}): " + (
+                        f"({why}): "
+                        + (
                             "either DIR/planner/world.key is not this world's public key, or "
-                            "the world runs without keys" if self.keys else
-                            "the world requires CURVE keys: start the planner with --keys DIR "
-                            "(the planner/ part of `m3p2i keys DIR`)"))
+                            "the world runs without keys"
+                            if self.keys
+                            else "the world requires CURVE keys: start the planner with --keys DIR "
+                            "(the planner/ part of `m3p2i keys DIR`)"
+                        )
+                    )
         return False
 
     # ------------------------------------------------------------------ loop
@@ -232,8 +280,11 @@ class PlannerClient:
                 continue
             last_state_at = time.monotonic()
             if state.session != self.welcome.session:
-                log.info("new session %s (the world restarted or began a new episode); "
-                         "handshaking again", state.session)
+                log.info(
+                    "new session %s (the world restarted or began a new episode); "
+                    "handshaking again",
+                    state.session,
+                )
                 self.handshake()
                 continue
             if not self._layout_checked:

@@ -13,10 +13,10 @@ from dataclasses import dataclass
 import mujoco
 import numpy as np
 
+from planner_client.estimate import FreeBodyEstimator, MocapEstimator, filters_poses
 from shared.protocol import State
 from shared.scenario import EstimateConfig
 from shared.scene import STATE_FIELDS, free_joint, get_full_state, set_state
-from planner_client.estimate import FreeBodyEstimator, MocapEstimator, filters_poses
 
 
 @dataclass
@@ -26,6 +26,7 @@ class MocapState:
     mjSTATE_FULLPHYSICS (the rollouts' initial state) does not include mocap poses, so they
     travel beside it and are set in every rollout thread's MjData.
     """
+
     pos: np.ndarray
     quat: np.ndarray
     vel: np.ndarray
@@ -47,19 +48,25 @@ class Mirror:
     (:func:`flatten`).
     """
 
-    def __init__(self, model: mujoco.MjModel, max_speed: float = 5.0,
-                 estimate: EstimateConfig | None = None, planar: Sequence[str] = ()):
+    def __init__(
+        self,
+        model: mujoco.MjModel,
+        max_speed: float = 5.0,
+        estimate: EstimateConfig | None = None,
+        planar: Sequence[str] = (),
+    ):
         self.model = model
         self.planar = [_free_joint(model, name) for name in planar]
         cfg = estimate or EstimateConfig()
         estimator = FreeBodyEstimator(model, cfg)
         self.estimator = estimator if estimator.active else None
-        self.mocap_estimator = (MocapEstimator(model, cfg)
-                                if model.nmocap and filters_poses(cfg) else None)
+        self.mocap_estimator = (
+            MocapEstimator(model, cfg) if model.nmocap and filters_poses(cfg) else None
+        )
         self.data = mujoco.MjData(model)
         self.x0 = np.zeros(mujoco.mj_stateSize(model, mujoco.mjtState.mjSTATE_FULLPHYSICS))
         self.max_speed = max_speed
-        self.received_qpos = np.zeros(model.nq)      # the last state's qpos as received [nq]
+        self.received_qpos = np.zeros(model.nq)  # the last state's qpos as received [nq]
         self.mocap_vel = np.zeros((model.nmocap, 3))
         self._prev_pos = np.zeros((model.nmocap, 3))
         self._prev_time: float | None = None
@@ -76,7 +83,7 @@ class Mirror:
             vel = (pos - self._prev_pos) / (time - self._prev_time)
             vel[np.linalg.norm(vel, axis=1) > self.max_speed] = 0.0
             self.mocap_vel[:] = vel
-        elif self._prev_time is not None:      # time went back: a new episode
+        elif self._prev_time is not None:  # time went back: a new episode
             self.mocap_vel[:] = 0.0
         self._prev_pos[:] = pos
         self._prev_time = time
@@ -88,14 +95,22 @@ class Mirror:
         # before any filter: a held object is measured here (planner_client.attach)
         self.received_qpos = np.asarray(arrays["qpos"], dtype=float)
         mocap_vel = None
-        if self.estimator is not None and arrays["qpos"].shape == (m.nq,) and \
-                arrays["qvel"].shape == (m.nv,):        # (a misfit is set_state's to refuse)
-            arrays["qpos"], arrays["qvel"] = self.estimator(state.time, arrays["qpos"],
-                                                            arrays["qvel"])
-        if self.mocap_estimator is not None and np.size(arrays["mocap_pos"]) == 3 * m.nmocap \
-                and np.size(arrays["mocap_quat"]) == 4 * m.nmocap:
+        if (
+            self.estimator is not None
+            and arrays["qpos"].shape == (m.nq,)
+            and arrays["qvel"].shape == (m.nv,)
+        ):  # (a misfit is set_state's to refuse)
+            arrays["qpos"], arrays["qvel"] = self.estimator(
+                state.time, arrays["qpos"], arrays["qvel"]
+            )
+        if (
+            self.mocap_estimator is not None
+            and np.size(arrays["mocap_pos"]) == 3 * m.nmocap
+            and np.size(arrays["mocap_quat"]) == 4 * m.nmocap
+        ):
             arrays["mocap_pos"], arrays["mocap_quat"], mocap_vel = self.mocap_estimator(
-                state.time, arrays["mocap_pos"], arrays["mocap_quat"])
+                state.time, arrays["mocap_pos"], arrays["mocap_quat"]
+            )
         if self.planar and arrays["qpos"].shape == (m.nq,) and arrays["qvel"].shape == (m.nv,):
             arrays["qpos"], arrays["qvel"] = arrays["qpos"].copy(), arrays["qvel"].copy()
             for qadr, vadr in self.planar:
@@ -123,8 +138,9 @@ def _free_joint(model: mujoco.MjModel, body: str) -> tuple[int, int]:
     return int(model.jnt_qposadr[j]), int(model.jnt_dofadr[j])
 
 
-def flatten(model: mujoco.MjModel, qpos: np.ndarray, qvel: np.ndarray, qadr: int,
-            vadr: int) -> None:
+def flatten(
+    model: mujoco.MjModel, qpos: np.ndarray, qvel: np.ndarray, qadr: int, vadr: int
+) -> None:
     """Lay a free object flat, in place: its height the model's start height (``qpos0``), its
     orientation the yaw of the received one, its z, roll and pitch velocities zero. For a
     planning model whose object does not rest on the floor (``planner.model.exclude:
@@ -133,7 +149,7 @@ def flatten(model: mujoco.MjModel, qpos: np.ndarray, qvel: np.ndarray, qadr: int
     that tilt through the whole horizon (the closed loop failed every trial; tested on
     push_pull, 2026-12-01)."""
     qpos[qadr + 2] = model.qpos0[qadr + 2]
-    w, x, y, z = qpos[qadr + 3:qadr + 7]
+    w, x, y, z = qpos[qadr + 3 : qadr + 7]
     yaw = math.atan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z))
-    qpos[qadr + 3:qadr + 7] = (math.cos(yaw / 2), 0.0, 0.0, math.sin(yaw / 2))
-    qvel[vadr + 2:vadr + 5] = 0.0
+    qpos[qadr + 3 : qadr + 7] = (math.cos(yaw / 2), 0.0, 0.0, math.sin(yaw / 2))
+    qvel[vadr + 2 : vadr + 5] = 0.0

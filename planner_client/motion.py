@@ -21,8 +21,8 @@ import torch
 from planner_client.backends import RolloutBackend
 from planner_client.backends.mujoco_pool import MujocoPoolBackend
 from planner_client.costs import CostTerm, RolloutBatch
-from planner_client.mppi import M3P2I, MPPIConfig, ModeSpec, PlanResult
 from planner_client.mirror import MocapState
+from planner_client.mppi import M3P2I, ModeSpec, MPPIConfig, PlanResult
 from planner_client.problem import PlanningProblem
 
 
@@ -30,10 +30,10 @@ from planner_client.problem import PlanningProblem
 class Iteration:
     result: PlanResult
     modes: list[str]
-    plan: np.ndarray           # [T, nu] the fused plan U with discrete channels resolved, or
-                               # [1, nu] the robot's safe control when there is no plan (fault)
-    dominant: str              # the mode with the largest sum of fused weights
-    fault: str | None = None   # why there is no plan this iteration (no finite cost); None: a plan
+    plan: np.ndarray  # [T, nu] the fused plan U with discrete channels resolved, or
+    # [1, nu] the robot's safe control when there is no plan (fault)
+    dominant: str  # the mode with the largest sum of fused weights
+    fault: str | None = None  # why there is no plan this iteration (no finite cost); None: a plan
     top_of: Callable[[], tuple[np.ndarray, np.ndarray]] | None = field(default=None, repr=False)
 
     @property
@@ -64,9 +64,16 @@ class Iteration:
 class MotionPlanner:
     """M3P2I over the problem's objectives; the active modes are objective names."""
 
-    def __init__(self, problem: PlanningProblem, cfg: MPPIConfig, samples: int,
-                 modes: list[str], nthread: int = 0, top_k: int = 5,
-                 backend: RolloutBackend | None = None):
+    def __init__(
+        self,
+        problem: PlanningProblem,
+        cfg: MPPIConfig,
+        samples: int,
+        modes: list[str],
+        nthread: int = 0,
+        top_k: int = 5,
+        backend: RolloutBackend | None = None,
+    ):
         """``backend``: where rollouts run (default: ``mujoco.rollout``'s pool with ``nthread``
         threads on ``problem.model``); the M3P2I state lives on its device."""
         self.problem = problem
@@ -75,18 +82,19 @@ class MotionPlanner:
         self.top_k = top_k
         self.engine = backend if backend is not None else MujocoPoolBackend(problem.model, nthread)
         self.device = self.engine.device
-        self.mppi = M3P2I(cfg, [self._mode(m) for m in modes], dtype=torch.float64,
-                          device=self.device)
+        self.mppi = M3P2I(
+            cfg, [self._mode(m) for m in modes], dtype=torch.float64, device=self.device
+        )
         self.modes = list(modes)
         self._shared = self._shared_terms()
         self._step_costs: torch.Tensor | None = None
-        self._generation = 0                             # iterations so far (Iteration.top)
+        self._generation = 0  # iterations so far (Iteration.top)
         # the planning model's timestep is fixed once built (timing.predict changes it only
         # inside its own block); read through the bindings it costs more than a term
         self._dt = float(problem.model.opt.timestep)
         # one inference-mode context for every iterate(): the decorator builds a new one per call
         self._inference = torch.inference_mode()
-        self._last_V: torch.Tensor | None = None         # [S, T, nu] of the last iterate()
+        self._last_V: torch.Tensor | None = None  # [S, T, nu] of the last iterate()
 
     def _mode(self, name: str) -> ModeSpec:
         return ModeSpec(name=name, samples=self.samples, fixed=self.problem.objectives[name].fixed)
@@ -105,8 +113,9 @@ class MotionPlanner:
         depend on the other rows, so each mode reads what it would compute itself, bit for bit."""
         if len(self.modes) < 2:
             return []
-        keys = [{wt.term.key: wt.term for wt in self.problem.objectives[m].terms}
-                for m in self.modes]
+        keys = [
+            {wt.term.key: wt.term for wt in self.problem.objectives[m].terms} for m in self.modes
+        ]
         return [term for key, term in keys[0].items() if all(key in k for k in keys[1:])]
 
     def iterate(self, x0: np.ndarray, mocap: MocapState | None = None) -> Iteration:
@@ -120,7 +129,7 @@ class MotionPlanner:
             return self._iterate(x0, mocap)
 
     def _iterate(self, x0: np.ndarray, mocap: MocapState | None) -> Iteration:
-        V = self.mppi.sample()                                    # [S, T, nu]
+        V = self.mppi.sample()  # [S, T, nu]
         self._last_V = V
         path = None
         if mocap is not None:
@@ -128,43 +137,66 @@ class MotionPlanner:
             if mocap.moving:
                 steps = np.arange(V.shape[1])[:, None, None] * self._dt
                 path = mocap.pos[None] + mocap.vel[None] * steps  # [T, nmocap, 3]
-        sd = self.engine.sensors(x0, V, path)                     # [S, T, nsensordata]
+        sd = self.engine.sensors(x0, V, path)  # [S, T, nsensordata]
         columns, dt = self.problem.columns, self._dt
         if len(self.modes) == 1:
             self._step_costs = self.problem.objectives[self.modes[0]](
-                RolloutBatch(sd, V, columns, dt))                      # [S, T]
+                RolloutBatch(sd, V, columns, dt)
+            )  # [S, T]
         else:
             shared = {t.key: t(RolloutBatch(sd, V, columns, dt)) for t in self._shared}
-            self._step_costs = torch.cat([
-                self.problem.objectives[name](RolloutBatch(sd[rows], V[rows], columns, dt),
-                                              {k: v[rows] for k, v in shared.items()})
-                for name, rows in zip(self.modes, self.mppi.mode_slices)])
+            self._step_costs = torch.cat(
+                [
+                    self.problem.objectives[name](
+                        RolloutBatch(sd[rows], V[rows], columns, dt),
+                        {k: v[rows] for k, v in shared.items()},
+                    )
+                    for name, rows in zip(self.modes, self.mppi.mode_slices)
+                ]
+            )
         result = self.mppi.update(self._step_costs)
         self._generation += 1
-        top_of = functools.partial(self._top_samples, sd, self.mppi.costs,
-                                   self.mppi.mode_slices, self._generation)
+        top_of = functools.partial(
+            self._top_samples, sd, self.mppi.costs, self.mppi.mode_slices, self._generation
+        )
         if self.device.type != "cpu":
             result = _to_host(result)
-        dominant = self.modes[0] if len(self.modes) == 1 else \
-            self.modes[int(np.argmax(result.mode_weights.numpy()))]
+        dominant = (
+            self.modes[0]
+            if len(self.modes) == 1
+            else self.modes[int(np.argmax(result.mode_weights.numpy()))]
+        )
         if not result.finite:
             # No sample had a finite cost: u0 is the previous plan, not an answer to this state.
-            return Iteration(result=result, modes=list(self.modes), top_of=top_of,
-                             plan=self.problem.robot.safe_stop()[None], dominant=dominant,
-                             fault=self._fault(result))
-        return Iteration(result=result, modes=list(self.modes), top_of=top_of,
-                         plan=self._resolve(result.U.numpy(), dominant), dominant=dominant)
+            return Iteration(
+                result=result,
+                modes=list(self.modes),
+                top_of=top_of,
+                plan=self.problem.robot.safe_stop()[None],
+                dominant=dominant,
+                fault=self._fault(result),
+            )
+        return Iteration(
+            result=result,
+            modes=list(self.modes),
+            top_of=top_of,
+            plan=self._resolve(result.U.numpy(), dominant),
+            dominant=dominant,
+        )
 
     @torch.inference_mode()
-    def _top_samples(self, sd: torch.Tensor, costs: np.ndarray, slices: list[slice],
-                     generation: int) -> tuple[np.ndarray, np.ndarray]:
+    def _top_samples(
+        self, sd: torch.Tensor, costs: np.ndarray, slices: list[slice], generation: int
+    ) -> tuple[np.ndarray, np.ndarray]:
         """:attr:`Iteration.top` and :attr:`Iteration.top_modes` of iteration ``generation``
         from its ``sensordata [S, T, ·]``, total costs ``[S]`` and mode rows: each mode's
         ``top_k`` lowest-cost samples (by the fused weights alone a viewer would see only the
         dominant mode's)."""
         if generation != self._generation:
-            raise RuntimeError("Iteration.top read after the next iterate(): the rollouts' "
-                               "sensor buffer holds that iteration's samples now")
+            raise RuntimeError(
+                "Iteration.top read after the next iterate(): the rollouts' "
+                "sensor buffer holds that iteration's samples now"
+            )
         picks, modes = [], []
         for i, rows in enumerate(slices):
             k = min(self.top_k, rows.stop - rows.start)
@@ -185,11 +217,16 @@ class MotionPlanner:
         """Why ``result`` is no plan, naming the objectives whose costs were not finite."""
         if bool(torch.isfinite(result.mode_costs).any()):
             return "the fused plan is not finite"
-        bad = [name for name, rows in zip(self.modes, self.mppi.mode_slices)
-               if not bool(torch.isfinite(self._step_costs[rows]).all())]
+        bad = [
+            name
+            for name, rows in zip(self.modes, self.mppi.mode_slices)
+            if not bool(torch.isfinite(self._step_costs[rows]).all())
+        ]
         what = f"objectives {bad} returned NaN or inf" if bad else "the summed costs overflowed"
-        return (f"no finite cost among the {self.mppi.num_samples} samples: {what} "
-                f"(diverged rollouts or a faulty cost term)")
+        return (
+            f"no finite cost among the {self.mppi.num_samples} samples: {what} "
+            f"(diverged rollouts or a faulty cost term)"
+        )
 
     @property
     def dt(self) -> float:
@@ -219,6 +256,11 @@ class MotionPlanner:
 
 def _to_host(result: PlanResult) -> PlanResult:
     """``result`` with its tensors copied to the CPU: the plan and diagnostics the loop sends."""
-    return dataclasses.replace(result, **{
-        f.name: getattr(result, f.name).cpu() for f in dataclasses.fields(result)
-        if isinstance(getattr(result, f.name), torch.Tensor)})
+    return dataclasses.replace(
+        result,
+        **{
+            f.name: getattr(result, f.name).cpu()
+            for f in dataclasses.fields(result)
+            if isinstance(getattr(result, f.name), torch.Tensor)
+        },
+    )

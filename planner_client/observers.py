@@ -16,7 +16,8 @@ class SymbolicObserver:
     def __init__(self, observers: dict[str, ObserverConfig], resolve: FrameResolver):
         self.rules: dict[str, tuple[list[tuple[str, BoundPredicate]], str]] = {
             factor: ([(state, pred.bind(resolve)) for state, pred in cfg.rules], cfg.default)
-            for factor, cfg in observers.items()}
+            for factor, cfg in observers.items()
+        }
 
     def __call__(self, data: mujoco.MjData, extras: dict[str, float]) -> dict[str, str]:
         view = WorldView(data, extras)

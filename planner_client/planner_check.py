@@ -13,18 +13,24 @@ import os
 
 import mujoco
 
-from shared.scenario_check import scenario_errors as _scenario_errors
+from planner_client.problem import (
+    actuator_names,
+    apply_planning_model,
+    build_objectives,
+    build_problem,
+    mppi_config,
+)
 from shared.config import ConfigError, ErrorLog
 from shared.frames import FrameResolver
 from shared.predicates import check_frames
 from shared.scenario import Scenario
+from shared.scenario_check import scenario_errors as _scenario_errors
 from shared.scene import build_spec
-from planner_client.problem import (actuator_names, apply_planning_model, build_objectives,
-                                    build_problem, mppi_config)
 
 
-def name_checks(scenario: Scenario, model: mujoco.MjModel, resolve: FrameResolver,
-                errors: ErrorLog) -> None:
+def name_checks(
+    scenario: Scenario, model: mujoco.MjModel, resolve: FrameResolver, errors: ErrorLog
+) -> None:
     """The names the planner looks up: its objectives' cost terms, frames and actuators, its
     observers' frames."""
     errors.call(build_objectives, scenario, resolve, actuator_names(model))
@@ -33,8 +39,9 @@ def name_checks(scenario: Scenario, model: mujoco.MjModel, resolve: FrameResolve
             errors.call(check_frames, pred, resolve, scenario.source, f"observers.{factor}")
 
 
-def model_checks(scenario: Scenario, model: mujoco.MjModel, resolve: FrameResolver,
-                 errors: ErrorLog) -> None:
+def model_checks(
+    scenario: Scenario, model: mujoco.MjModel, resolve: FrameResolver, errors: ErrorLog
+) -> None:
     """What the planner resolves against its compiled model and registries."""
     name_checks(scenario, model, resolve, errors)
     errors.call(mppi_config, scenario, model)
@@ -48,6 +55,7 @@ def warp_checks(scenario: Scenario) -> None:
     planner's model (with the sensors its costs add); compiles no kernels."""
     from planner_client.backends.warp import import_warp
     from planner_client.backends.warp_limits import check_warp
+
     import_warp(scenario.source)
     check_warp(build_problem(scenario).model, scenario.source)
 

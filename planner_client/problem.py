@@ -13,25 +13,25 @@ from dataclasses import dataclass
 
 import mujoco
 
+from planner_client.attach import add_attach_welds
+from planner_client.costs import JointInfo, Objective, TermContext, build_objective
+from planner_client.mppi import MPPIConfig
+from planner_client.sensors import SensorColumns, SensorRequest, add_sensors
 from shared.config import ConfigError, ErrorLog, Section
 from shared.frames import FrameResolver
 from shared.robots import RobotSpec, get_robot
 from shared.scenario import PlanningModel, Scenario
 from shared.scene import build_spec, compile_model, free_joint, initial_data, obstacle_names
-from planner_client.attach import add_attach_welds
-from planner_client.costs import JointInfo, Objective, TermContext, build_objective
-from planner_client.mppi import MPPIConfig
-from planner_client.sensors import SensorColumns, SensorRequest, add_sensors
 
 
 @dataclass
 class PlanningProblem:
     scenario: Scenario
     robot: RobotSpec
-    model: mujoco.MjModel              # with the sensors of every objective
+    model: mujoco.MjModel  # with the sensors of every objective
     objectives: dict[str, Objective]
-    columns: SensorColumns             # where each sensor request is in sensordata
-    robot_pos: SensorRequest           # the robot frame's position, for diagnostics
+    columns: SensorColumns  # where each sensor request is in sensordata
+    robot_pos: SensorRequest  # the robot frame's position, for diagnostics
     actuators: list[str]
     resolve: FrameResolver
 
@@ -48,7 +48,9 @@ def robot_joints(scenario: Scenario, model: mujoco.MjModel) -> dict[str, JointIn
         lo, hi = model.jnt_range[j]
         out[model.joint(j).name] = JointInfo(
             range=(float(lo), float(hi)) if model.jnt_limited[j] else None,
-            hinge=int(model.jnt_type[j]) == hinge, start=float(start[model.jnt_qposadr[j]]))
+            hinge=int(model.jnt_type[j]) == hinge,
+            start=float(start[model.jnt_qposadr[j]]),
+        )
     return out
 
 
@@ -68,21 +70,38 @@ def build_problem(scenario: Scenario, extra_sensors: list[SensorRequest] = ()) -
     add_sensors(spec, requests, resolve)
     model = compile_model(scenario, spec)
     tune_planning_model(model, scenario.planner.model)
-    return PlanningProblem(scenario, robot, model, objectives,
-                           SensorColumns.of_model(model, requests), robot_pos, actuators,
-                           FrameResolver(model, robot.frame))
+    return PlanningProblem(
+        scenario,
+        robot,
+        model,
+        objectives,
+        SensorColumns.of_model(model, requests),
+        robot_pos,
+        actuators,
+        FrameResolver(model, robot.frame),
+    )
 
 
-_SOLVERS = {"Newton": mujoco.mjtSolver.mjSOL_NEWTON, "CG": mujoco.mjtSolver.mjSOL_CG,
-            "PGS": mujoco.mjtSolver.mjSOL_PGS}
+_SOLVERS = {
+    "Newton": mujoco.mjtSolver.mjSOL_NEWTON,
+    "CG": mujoco.mjtSolver.mjSOL_CG,
+    "PGS": mujoco.mjtSolver.mjSOL_PGS,
+}
 _CONES = {"pyramidal": mujoco.mjtCone.mjCONE_PYRAMIDAL, "elliptic": mujoco.mjtCone.mjCONE_ELLIPTIC}
-_INTEGRATORS = {"Euler": mujoco.mjtIntegrator.mjINT_EULER,
-                "implicitfast": mujoco.mjtIntegrator.mjINT_IMPLICITFAST,
-                "implicit": mujoco.mjtIntegrator.mjINT_IMPLICIT, "RK4": mujoco.mjtIntegrator.mjINT_RK4}
+_INTEGRATORS = {
+    "Euler": mujoco.mjtIntegrator.mjINT_EULER,
+    "implicitfast": mujoco.mjtIntegrator.mjINT_IMPLICITFAST,
+    "implicit": mujoco.mjtIntegrator.mjINT_IMPLICIT,
+    "RK4": mujoco.mjtIntegrator.mjINT_RK4,
+}
 
-_GEOM_TYPES = {"sphere": mujoco.mjtGeom.mjGEOM_SPHERE, "capsule": mujoco.mjtGeom.mjGEOM_CAPSULE,
-               "cylinder": mujoco.mjtGeom.mjGEOM_CYLINDER, "box": mujoco.mjtGeom.mjGEOM_BOX,
-               "ellipsoid": mujoco.mjtGeom.mjGEOM_ELLIPSOID}
+_GEOM_TYPES = {
+    "sphere": mujoco.mjtGeom.mjGEOM_SPHERE,
+    "capsule": mujoco.mjtGeom.mjGEOM_CAPSULE,
+    "cylinder": mujoco.mjtGeom.mjGEOM_CYLINDER,
+    "box": mujoco.mjtGeom.mjGEOM_BOX,
+    "ellipsoid": mujoco.mjtGeom.mjGEOM_ELLIPSOID,
+}
 
 
 def apply_planning_model(spec: mujoco.MjSpec, cfg: PlanningModel, source: str) -> None:
@@ -104,24 +123,42 @@ def apply_planning_model(spec: mujoco.MjSpec, cfg: PlanningModel, source: str) -
     for i, (a, b) in enumerate(cfg.exclude):
         for name in (a, b):
             if name not in bodies:
-                raise ConfigError(source, f"planner.model.exclude[{i}]", "unknown body", name,
-                                  f"one of: {', '.join(bodies)}")
+                raise ConfigError(
+                    source,
+                    f"planner.model.exclude[{i}]",
+                    "unknown body",
+                    name,
+                    f"one of: {', '.join(bodies)}",
+                )
         spec.add_exclude(bodyname1=a, bodyname2=b)
     for name, obj in cfg.objects.items():
         body = spec.body(name)
         free = [j for j in body.joints if j.type == mujoco.mjtJoint.mjJNT_FREE] if body else []
         if not free:
-            known = [b.name for b in spec.bodies
-                     if any(j.type == mujoco.mjtJoint.mjJNT_FREE for j in b.joints)]
-            raise ConfigError(source, f"planner.model.objects.{name}", "not a free object "
-                              "of the model", name, "one of: " + (", ".join(known) or "(none)"))
+            known = [
+                b.name
+                for b in spec.bodies
+                if any(j.type == mujoco.mjtJoint.mjJNT_FREE for j in b.joints)
+            ]
+            raise ConfigError(
+                source,
+                f"planner.model.objects.{name}",
+                "not a free object of the model",
+                name,
+                "one of: " + (", ".join(known) or "(none)"),
+            )
         if obj.gravcomp is not None:
             body.gravcomp = obj.gravcomp
     for name, shape in cfg.geoms.items():
         geom = spec.geom(name)
         if geom is None:
-            raise ConfigError(source, f"planner.model.geoms.{name}", "unknown geom", name,
-                              "one of: " + ", ".join(g.name for g in spec.geoms if g.name))
+            raise ConfigError(
+                source,
+                f"planner.model.geoms.{name}",
+                "unknown geom",
+                name,
+                "one of: " + ", ".join(g.name for g in spec.geoms if g.name),
+            )
         if shape.type is not None:
             geom.type = _GEOM_TYPES[shape.type]
         if shape.size is not None:
@@ -132,8 +169,13 @@ def apply_planning_model(spec: mujoco.MjSpec, cfg: PlanningModel, source: str) -
         add_attach_welds(spec, cfg.attach)
     except KeyError as exc:
         i, key, name, known = exc.args[0]
-        raise ConfigError(source, f"planner.model.attach[{i}].{key}", "unknown body", name,
-                          f"one of: {', '.join(known)}") from None
+        raise ConfigError(
+            source,
+            f"planner.model.attach[{i}].{key}",
+            "unknown body",
+            name,
+            f"one of: {', '.join(known)}",
+        ) from None
 
 
 def tune_planning_model(model: mujoco.MjModel, cfg: PlanningModel) -> None:
@@ -152,15 +194,23 @@ def actuator_names(model: mujoco.MjModel) -> list[str]:
     return [model.actuator(i).name for i in range(model.nu)]
 
 
-def build_objectives(scenario: Scenario, resolve: FrameResolver,
-                     actuators: list[str]) -> dict[str, Objective]:
+def build_objectives(
+    scenario: Scenario, resolve: FrameResolver, actuators: list[str]
+) -> dict[str, Objective]:
     """Every objective of the scenario, checked against the term registry and the model; the
     errors of all objectives are raised together."""
-    ctx = TermContext(scenario.source, resolve, obstacle_names(scenario), actuators,
-                      robot_joints(scenario, resolve.model))
+    ctx = TermContext(
+        scenario.source,
+        resolve,
+        obstacle_names(scenario),
+        actuators,
+        robot_joints(scenario, resolve.model),
+    )
     errors = ErrorLog()
-    objectives = {name: errors.call(build_objective, name, cfg, ctx)
-                  for name, cfg in scenario.objectives.items()}
+    objectives = {
+        name: errors.call(build_objective, name, cfg, ctx)
+        for name, cfg in scenario.objectives.items()
+    }
     errors.raise_if_any()
     return objectives
 
@@ -180,7 +230,9 @@ def mppi_config(sc: Scenario, m: mujoco.MjModel) -> MPPIConfig:
     names = {f.name for f in dataclasses.fields(MPPIConfig)} - {"horizon", "nu"}
     for key, value in sc.planner.mppi.items():
         if key not in names:
-            raise s.error(key, "unknown planner parameter", value, f"one of: {', '.join(sorted(names))}")
+            raise s.error(
+                key, "unknown planner parameter", value, f"one of: {', '.join(sorted(names))}"
+            )
         values[key] = tuple(value) if isinstance(value, list) else value
     try:
         cfg = MPPIConfig(**values)
@@ -189,8 +241,12 @@ def mppi_config(sc: Scenario, m: mujoco.MjModel) -> MPPIConfig:
     # Every mode gets planner.samples rollouts, and η counts the ones that carry weight (η ≤ K):
     # M3P2I refuses a window it can never meet, so say it here, naming the file and the key.
     if cfg.eta_bounds is not None and cfg.eta_bounds[0] > sc.planner.samples:
-        raise ConfigError(sc.source, "planner.mppi.eta_bounds",
-                          f"eta_l cannot be reached with planner.samples = {sc.planner.samples} "
-                          "per mode: eta counts the samples that carry weight",
-                          list(cfg.eta_bounds), f"eta_l <= {sc.planner.samples}")
+        raise ConfigError(
+            sc.source,
+            "planner.mppi.eta_bounds",
+            f"eta_l cannot be reached with planner.samples = {sc.planner.samples} "
+            "per mode: eta counts the samples that carry weight",
+            list(cfg.eta_bounds),
+            f"eta_l <= {sc.planner.samples}",
+        )
     return cfg

@@ -33,7 +33,7 @@ class RolloutEngine:
         self._datas = [mujoco.MjData(model) for _ in range(self.nthread)]
         self._pool = mj_rollout.Rollout(nthread=self.nthread)
         bodies = np.flatnonzero(model.body_mocapid >= 0)
-        self._mocap_bodies = bodies[np.argsort(model.body_mocapid[bodies])]   # of mocap 0, 1, ...
+        self._mocap_bodies = bodies[np.argsort(model.body_mocapid[bodies])]  # of mocap 0, 1, ...
         self._shape: tuple[int, int] | None = None
 
     def _buffers(self, samples: int, horizon: int) -> None:
@@ -59,8 +59,9 @@ class RolloutEngine:
         self.model.body_pos[self._mocap_bodies] = pos
         self.model.body_quat[self._mocap_bodies] = quat
 
-    def run(self, x0: np.ndarray, control: np.ndarray,
-            mocap_path: np.ndarray | None = None) -> np.ndarray:
+    def run(
+        self, x0: np.ndarray, control: np.ndarray, mocap_path: np.ndarray | None = None
+    ) -> np.ndarray:
         """Roll out ``control [S, T, nu]`` (float64) from ``x0 [nstate]`` and the poses of
         :meth:`set_mocap`; with ``mocap_path [T, nmocap, 3]`` the mocap bodies are placed there
         at each step instead (the same path for all samples)."""
@@ -74,9 +75,18 @@ class RolloutEngine:
             self._full[..., :nu] = control
             self._full[..., nu:] = mocap_path.reshape(1, horizon, -1)
             control, spec = self._full, self.mocap_spec
-        self._pool.rollout(self._models, self._datas, self._x0, np.ascontiguousarray(control),
-                           control_spec=spec, skip_checks=True, nstep=horizon,
-                           state=None, sensordata=self._sensor, chunk_size=self._chunk)
+        self._pool.rollout(
+            self._models,
+            self._datas,
+            self._x0,
+            np.ascontiguousarray(control),
+            control_spec=spec,
+            skip_checks=True,
+            nstep=horizon,
+            state=None,
+            sensordata=self._sensor,
+            chunk_size=self._chunk,
+        )
         return self._sensor
 
     def close(self) -> None:

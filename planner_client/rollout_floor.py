@@ -25,9 +25,9 @@ import numpy as np
 from mujoco import rollout as mj_rollout
 from rich.table import Table
 
+from planner_client.problem import build_problem
 from shared.scenario import load_scenario
 from shared.scene import get_full_state, initial_data
-from planner_client.problem import build_problem
 
 _FLAGS = mujoco.mjtDisableBit
 VARIANTS = {
@@ -41,7 +41,7 @@ VARIANTS = {
 def measure(name: str, samples: int, horizon: int, nthread: int, rounds: int) -> dict[str, float]:
     """Median seconds of one bare rollout of ``samples`` × ``horizon`` per variant."""
     scenario = load_scenario(name)
-    model = build_problem(scenario).model                 # the planner's own model and sensors
+    model = build_problem(scenario).model  # the planner's own model and sensors
     x0 = get_full_state(model, initial_data(scenario, model)).copy()
     sigma = 0.5 * (model.actuator_ctrlrange[:, 1] - model.actuator_ctrlrange[:, 0])
     sigma = np.where(model.actuator_ctrllimited > 0, sigma, 1.0)
@@ -58,23 +58,36 @@ def measure(name: str, samples: int, horizon: int, nthread: int, rounds: int) ->
             for variant, m in models.items():
                 t = time.perf_counter()
                 pool.rollout(m, datas, x0[None], ctrl, nstep=horizon)
-                if r:                                     # round 0 warms threads and caches
+                if r:  # round 0 warms threads and caches
                     times[variant].append(time.perf_counter() - t)
     return {v: statistics.median(t) for v, t in times.items()}
 
 
-def floor_table(scenarios: list[str], samples: int, horizon: int, nthread: int,
-                rounds: int) -> Table:
+def floor_table(
+    scenarios: list[str], samples: int, horizon: int, nthread: int, rounds: int
+) -> Table:
     """One row per scenario and variant: the rollout's time, per step, and the planner rates it
     allows at ratio 1 and 1.2."""
-    table = Table(title=f"bare rollouts of {samples} x {horizon} on {nthread} threads "
-                        f"(median of {rounds})")
-    for col in ("scenario", "variant", "rollout ms", "µs per step", "Hz at ratio 1",
-                "Hz at ratio 1.2"):
+    table = Table(
+        title=f"bare rollouts of {samples} x {horizon} on {nthread} threads (median of {rounds})"
+    )
+    for col in (
+        "scenario",
+        "variant",
+        "rollout ms",
+        "µs per step",
+        "Hz at ratio 1",
+        "Hz at ratio 1.2",
+    ):
         table.add_column(col, justify="right")
     for name in scenarios:
         for variant, sec in measure(name, samples, horizon, nthread, rounds).items():
-            table.add_row(name, variant, f"{sec * 1e3:.2f}",
-                          f"{sec * 1e6 / (samples * horizon):.2f}",
-                          f"{1 / sec:.1f}", f"{1 / (1.2 * sec):.1f}")
+            table.add_row(
+                name,
+                variant,
+                f"{sec * 1e3:.2f}",
+                f"{sec * 1e6 / (samples * horizon):.2f}",
+                f"{1 / sec:.1f}",
+                f"{1 / (1.2 * sec):.1f}",
+            )
     return table

@@ -45,6 +45,7 @@ class SensorRequest(NamedTuple):
     every iteration (pick_place 25 times), and a tuple's hash and equality run in C: 0.09 µs
     a lookup against a frozen dataclass's 0.54 µs, warm.
     """
+
     kind: str
     obj: str
     ref: str = ""
@@ -71,8 +72,9 @@ def add_sensors(spec: mujoco.MjSpec, requests: list[SensorRequest], resolve: Fra
     for req in dict.fromkeys(requests):
         stype, _ = _KINDS[req.kind]
         if req.kind == "jointpos":
-            spec.add_sensor(name=req.name, type=stype, objtype=mujoco.mjtObj.mjOBJ_JOINT,
-                            objname=req.obj)
+            spec.add_sensor(
+                name=req.name, type=stype, objtype=mujoco.mjtObj.mjOBJ_JOINT, objname=req.obj
+            )
             continue
         objtype, objname = resolve.mujoco_ref(req.obj)
         sensor = spec.add_sensor(name=req.name, type=stype, objtype=objtype, objname=objname)
@@ -81,7 +83,7 @@ def add_sensors(spec: mujoco.MjSpec, requests: list[SensorRequest], resolve: Fra
             sensor.reftype, sensor.refname = reftype, refname
             sensor.cutoff = req.cutoff
         elif req.kind == "contactforce":
-            sensor.objtype = mujoco.mjtObj.mjOBJ_XBODY     # XBODY selects the body's subtree
+            sensor.objtype = mujoco.mjtObj.mjOBJ_XBODY  # XBODY selects the body's subtree
             sensor.reftype, sensor.refname = resolve.mujoco_ref(req.ref)
             sensor.intprm[:3] = _CONTACT_INTPRM
         elif req.ref:
@@ -120,10 +122,14 @@ class SensorColumns:
             return sensordata[..., cols]
         return sensordata.index_select(-1, cols)
 
-    def _columns_of(self, reqs: tuple[SensorRequest, ...],
-                    device: torch.device) -> slice | torch.Tensor:
+    def _columns_of(
+        self, reqs: tuple[SensorRequest, ...], device: torch.device
+    ) -> slice | torch.Tensor:
         spans = [self.spans[r] for r in reqs]
         if all(a.stop == b.start for a, b in zip(spans, spans[1:])):
             return slice(spans[0].start, spans[-1].stop)
-        return torch.tensor([i for span in spans for i in range(span.start, span.stop)],
-                            dtype=torch.long, device=device)
+        return torch.tensor(
+            [i for span in spans for i in range(span.start, span.stop)],
+            dtype=torch.long,
+            device=device,
+        )

@@ -7,10 +7,9 @@ actions become the modes of M3P2I.
 
 from __future__ import annotations
 
+import logging
 from dataclasses import dataclass
 from typing import Protocol
-
-import logging
 
 import mujoco
 import numpy as np
@@ -23,10 +22,10 @@ log = logging.getLogger("m3p2i.planner")
 
 @dataclass(frozen=True)
 class TaskDecision:
-    action: str                          # the task-level action being executed (for logs)
-    modes: tuple[str, ...]               # objectives handed to M3P2I, one mode each
-    alternatives: tuple[str, ...] = ()   # all admissible actions the task planner found
-    stop: bool = False                   # send the robot's safe stop instead of the planner's command
+    action: str  # the task-level action being executed (for logs)
+    modes: tuple[str, ...]  # objectives handed to M3P2I, one mode each
+    alternatives: tuple[str, ...] = ()  # all admissible actions the task planner found
+    stop: bool = False  # send the robot's safe stop instead of the planner's command
 
 
 class TaskLayer(Protocol):
@@ -38,8 +37,9 @@ class FixedModes:
     """The scenario's ``modes:`` list, every tick."""
 
     def __init__(self, modes: tuple[str, ...]):
-        self.decision = TaskDecision(action="+".join(modes), modes=tuple(modes),
-                                     alternatives=tuple(modes))
+        self.decision = TaskDecision(
+            action="+".join(modes), modes=tuple(modes), alternatives=tuple(modes)
+        )
 
     def decide(self, data, extras, time) -> TaskDecision:
         return self.decision
@@ -60,12 +60,12 @@ class ConfirmedObservation:
     def __init__(self, confirm: dict[str, float | dict[str, float]]):
         self.confirm = confirm
         self.state: dict[str, str] = {}
-        self._candidate: dict[str, tuple[str, float]] = {}   # factor -> (new state, seen since)
+        self._candidate: dict[str, tuple[str, float]] = {}  # factor -> (new state, seen since)
 
     def __call__(self, observed: dict[str, str], time: float) -> dict[str, str]:
         for factor, value in observed.items():
             hold = self.confirm.get(factor, self.confirm.get("*", 0.0))
-            if isinstance(hold, dict):          # per state: how long a change *to* it must last
+            if isinstance(hold, dict):  # per state: how long a change *to* it must last
                 hold = hold.get(value, 0.0)
             current = self.state.get(factor)
             if current is None or current == value or hold <= 0:
@@ -91,9 +91,14 @@ class ActiveInferenceTask:
     failure the decision says ``stop``: the loop holds the robot with its safe stop.
     """
 
-    def __init__(self, aip: ActiveInferencePlanner, observer: SymbolicObserver,
-                 action_objectives: dict[str, str], period: float,
-                 confirm: dict[str, float | dict[str, float]] | None = None):
+    def __init__(
+        self,
+        aip: ActiveInferencePlanner,
+        observer: SymbolicObserver,
+        action_objectives: dict[str, str],
+        period: float,
+        confirm: dict[str, float | dict[str, float]] | None = None,
+    ):
         self.aip, self.observer = aip, observer
         self.action_objectives = action_objectives
         self.period = period
@@ -116,7 +121,10 @@ class ActiveInferenceTask:
             keep = previous.modes if previous else ()
             if d.status == "failure" and (previous is None or previous.action != "failure"):
                 log.error("task planner failed: %s", d.reason)
-            self.decision = TaskDecision("idle" if d.status == "success" else "failure",
-                                         keep or (next(iter(self.action_objectives.values())),),
-                                         (), stop=True)
+            self.decision = TaskDecision(
+                "idle" if d.status == "success" else "failure",
+                keep or (next(iter(self.action_objectives.values())),),
+                (),
+                stop=True,
+            )
         return self.decision

@@ -63,8 +63,15 @@ def _timestep(model: mujoco.MjModel, dt: float):
         model.opt.timestep = saved
 
 
-def predict(model: mujoco.MjModel, data: mujoco.MjData, plans: list[TimedPlan], safe: np.ndarray,
-            world_dt: float, steps: int, actuation_delay: float = 0.0) -> None:
+def predict(
+    model: mujoco.MjModel,
+    data: mujoco.MjData,
+    plans: list[TimedPlan],
+    safe: np.ndarray,
+    world_dt: float,
+    steps: int,
+    actuation_delay: float = 0.0,
+) -> None:
     """Steps ``data`` (the mirrored state) ``steps`` world steps ahead, in place, under the
     controls the world will apply meanwhile (``plans``: the last ones sent, oldest first), each
     acting ``actuation_delay`` seconds after the world plays it; at the world's timestep even

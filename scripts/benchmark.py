@@ -46,7 +46,6 @@ import os
 import sys
 import time
 from pathlib import Path
-from typing import Optional
 
 import mujoco
 import numpy as np
@@ -56,22 +55,28 @@ from mujoco import rollout as mj_rollout
 from rich.console import Console
 from rich.table import Table
 
+from planner_client.build import build_controller
+from planner_client.problem import apply_planning_model, tune_planning_model
 from shared import protocol as P
 from shared.config import ConfigError
 from shared.scenario import load_scenario
 from shared.scene import build_spec, compile_model, get_full_state, initial_data
 from shared.tools.bench import machine
 from shared.tools.speed_report import update
-from planner_client.build import build_controller
-from planner_client.problem import apply_planning_model, tune_planning_model
 
 SCENARIOS = ("navigation", "push_pull", "push_pull_fast", "pick_place")
 
 app = typer.Typer(add_completion=False)
 
 
-def measure(scenario, iterations: int, nthread: int, rounds: int = 20, backend: str = "mujoco",
-            device: str = "cuda:0") -> dict:
+def measure(
+    scenario,
+    iterations: int,
+    nthread: int,
+    rounds: int = 20,
+    backend: str = "mujoco",
+    device: str = "cuda:0",
+) -> dict:
     """Median planner iteration and median bare rollouts, measured in alternating blocks.
 
     The controller runs closed loop (its command applied to its own copy of the world, a state
@@ -86,18 +91,18 @@ def measure(scenario, iterations: int, nthread: int, rounds: int = 20, backend: 
     controller = build_controller(scenario, nthread, backend=backend, device=device)
     planner = controller.planner
     model = planner.problem.model
-    data = initial_data(scenario, model)      # the scenario's start pose (the Panda's ready pose)
+    data = initial_data(scenario, model)  # the scenario's start pose (the Panda's ready pose)
     world = compile_model(scenario)
     own_spec = build_spec(scenario)
     own_spec.option.timestep = model.opt.timestep
     apply_planning_model(own_spec, scenario.planner.model, scenario.source)
     own = compile_model(scenario, own_spec)
     tune_planning_model(own, scenario.planner.model)
-    hold = round(model.opt.timestep / world.opt.timestep)   # world steps per planned step
+    hold = round(model.opt.timestep / world.opt.timestep)  # world steps per planned step
     samples, horizon = planner.mppi.num_samples, scenario.planner.horizon
     pool_data = [mujoco.MjData(world) for _ in range(nthread)]
     own_data = [mujoco.MjData(own) for _ in range(nthread)]
-    work: list[tuple[np.ndarray, np.ndarray]] = []     # (planner x0, samples) of recent iterations
+    work: list[tuple[np.ndarray, np.ndarray]] = []  # (planner x0, samples) of recent iterations
     times: dict[str, list[float]] = {"plan": [], "world": [], "own": [], "sensors": []}
     block = max(1, iterations // rounds)
 
@@ -105,7 +110,7 @@ def measure(scenario, iterations: int, nthread: int, rounds: int = 20, backend: 
         for i in range(block + 3):
             t = time.perf_counter()
             took = fn()
-            if i >= 3:                      # the first calls of a block warm caches and threads
+            if i >= 3:  # the first calls of a block warm caches and threads
                 times[key].append(took if took is not None else time.perf_counter() - t)
 
     controller.begin("lockstep", model.opt.timestep)
@@ -115,10 +120,18 @@ def measure(scenario, iterations: int, nthread: int, rounds: int = 20, backend: 
         """One controller step, timed by itself (the command's ``plan_time``): the world's
         step and the copies kept for the replays around it are the harness's work, not the
         planner's (60 µs of navigation's)."""
-        cmd = controller.step(P.State(
-            session="bench", seq=next(seq), time=float(data.time), qpos=data.qpos.copy(),
-            qvel=data.qvel.copy(), act=data.act.copy(), mocap_pos=data.mocap_pos.copy(),
-            mocap_quat=data.mocap_quat.copy()))
+        cmd = controller.step(
+            P.State(
+                session="bench",
+                seq=next(seq),
+                time=float(data.time),
+                qpos=data.qpos.copy(),
+                qvel=data.qvel.copy(),
+                act=data.act.copy(),
+                mocap_pos=data.mocap_pos.copy(),
+                mocap_quat=data.mocap_quat.copy(),
+            )
+        )
         # the start state the iteration rolled out from: the mirror's (no delays: no prediction)
         x0 = get_full_state(model, controller.mirror.data).copy()
         work.append((x0, planner.last_samples.copy()))
@@ -132,8 +145,9 @@ def measure(scenario, iterations: int, nthread: int, rounds: int = 20, backend: 
     def world_rollout():
         # sensors add no state, so the planner's x0 is a valid world state
         x0, ctrl = work[next(counter) % len(work)]
-        pool.rollout(world, pool_data, x0[None], np.repeat(ctrl, hold, axis=1),
-                     nstep=horizon * hold)
+        pool.rollout(
+            world, pool_data, x0[None], np.repeat(ctrl, hold, axis=1), nstep=horizon * hold
+        )
 
     def own_rollout():
         x0, ctrl = work[next(counter) % len(work)]
@@ -153,41 +167,66 @@ def measure(scenario, iterations: int, nthread: int, rounds: int = 20, backend: 
     finally:
         controller.close()
     med = {k: float(np.median(v)) for k, v in times.items()}
-    return {"scenario": scenario.name, "samples": samples, "horizon": horizon,
-            "hz": round(1.0 / med["plan"], 2),
-            "planning_step": float(model.opt.timestep), "world_step": float(world.opt.timestep),
-            "planning_model": scenario.planner.model.as_dict(),
-            "ratio_to_rollout": round(med["plan"] / med["world"], 3),
-            "ratio_to_own_rollout": round(med["plan"] / med["own"], 3),
-            "ratio_to_sensor_rollout": round(med["plan"] / med["sensors"], 3),
-            "iteration_ms": round(med["plan"] * 1e3, 3), "rollout_ms": round(med["world"] * 1e3, 3),
-            "own_rollout_ms": round(med["own"] * 1e3, 3),
-            "sensor_rollout_ms": round(med["sensors"] * 1e3, 3), "threads": nthread,
-            "backend": backend, "device": device if backend == "warp" else "cpu"}
+    return {
+        "scenario": scenario.name,
+        "samples": samples,
+        "horizon": horizon,
+        "hz": round(1.0 / med["plan"], 2),
+        "planning_step": float(model.opt.timestep),
+        "world_step": float(world.opt.timestep),
+        "planning_model": scenario.planner.model.as_dict(),
+        "ratio_to_rollout": round(med["plan"] / med["world"], 3),
+        "ratio_to_own_rollout": round(med["plan"] / med["own"], 3),
+        "ratio_to_sensor_rollout": round(med["plan"] / med["sensors"], 3),
+        "iteration_ms": round(med["plan"] * 1e3, 3),
+        "rollout_ms": round(med["world"] * 1e3, 3),
+        "own_rollout_ms": round(med["own"] * 1e3, 3),
+        "sensor_rollout_ms": round(med["sensors"] * 1e3, 3),
+        "threads": nthread,
+        "backend": backend,
+        "device": device if backend == "warp" else "cpu",
+    }
 
 
 @app.command()
 def main(
-    scenario: list[str] = typer.Option(list(SCENARIOS), "--scenario", "-s", help="Scenarios to run."),
+    scenario: list[str] = typer.Option(
+        list(SCENARIOS), "--scenario", "-s", help="Scenarios to run."
+    ),
     iterations: int = typer.Option(200, "--iterations", "-n", help="Timed planner iterations."),
     threads: int = typer.Option(0, help="Rollout threads (0: one per core)."),
     as_json: bool = typer.Option(False, "--json", help="One JSON object per line per case."),
-    backend: str = typer.Option("mujoco", help="Rollout backend: mujoco (mujoco.rollout on the "
-                                "CPU) or warp (MuJoCo Warp, the m3p2i\\[gpu] extra)."),
+    backend: str = typer.Option(
+        "mujoco",
+        help="Rollout backend: mujoco (mujoco.rollout on the "
+        "CPU) or warp (MuJoCo Warp, the m3p2i\\[gpu] extra).",
+    ),
     device: str = typer.Option("cuda:0", help="The warp backend's device: cuda:N or cpu."),
-    samples: str = typer.Option("", help="Samples per mode, comma-separated (1024,4096,16384): "
-                                "one case each; default: the scenario's planner.samples."),
-    horizon: int = typer.Option(0, min=0, help="Planned steps instead of the scenario's "
-                                "planner.horizon (0: the scenario's), each of its "
-                                "planner.timestep: what a longer or shorter plan would cost."),
+    samples: str = typer.Option(
+        "",
+        help="Samples per mode, comma-separated (1024,4096,16384): "
+        "one case each; default: the scenario's planner.samples.",
+    ),
+    horizon: int = typer.Option(
+        0,
+        min=0,
+        help="Planned steps instead of the scenario's "
+        "planner.horizon (0: the scenario's), each of its "
+        "planner.timestep: what a longer or shorter plan would cost.",
+    ),
     runs: int = typer.Option(1, min=1, help="Repeat the whole measurement this many times."),
-    out: Optional[Path] = typer.Option(None, help="Write every row, with the command, date and "
-                                       "machine, to this JSON file."),
-    report: Optional[Path] = typer.Option(None, help="Measure nothing: regenerate the "
-                                          "'<!-- benchmark PATH -->' blocks of --update from "
-                                          "the results files they name."),
-    update_file: Optional[Path] = typer.Option(None, "--update", help="Markdown file whose "
-                                               "benchmark blocks --report regenerates."),
+    out: Path | None = typer.Option(
+        None, help="Write every row, with the command, date and machine, to this JSON file."
+    ),
+    report: Path | None = typer.Option(
+        None,
+        help="Measure nothing: regenerate the "
+        "'<!-- benchmark PATH -->' blocks of --update from "
+        "the results files they name.",
+    ),
+    update_file: Path | None = typer.Option(
+        None, "--update", help="Markdown file whose benchmark blocks --report regenerates."
+    ),
 ) -> None:
     if report is not None or update_file is not None:
         if update_file is None:
@@ -199,17 +238,22 @@ def main(
     try:
         counts = [int(v) for v in samples.split(",") if v.strip()] or [None]
     except ValueError:
-        raise typer.BadParameter(f"{samples!r}: expected integers separated by commas",
-                                 param_hint="--samples") from None
+        raise typer.BadParameter(
+            f"{samples!r}: expected integers separated by commas", param_hint="--samples"
+        ) from None
     rows = []
     for run in range(runs):
         for name in scenario:
             for count in counts:
                 sc = load_scenario(name)
                 if count is not None:
-                    sc = dataclasses.replace(sc, planner=dataclasses.replace(sc.planner, samples=count))
+                    sc = dataclasses.replace(
+                        sc, planner=dataclasses.replace(sc.planner, samples=count)
+                    )
                 if horizon:
-                    sc = dataclasses.replace(sc, planner=dataclasses.replace(sc.planner, horizon=horizon))
+                    sc = dataclasses.replace(
+                        sc, planner=dataclasses.replace(sc.planner, horizon=horizon)
+                    )
                 try:
                     row = measure(sc, iterations, nthread, backend=backend, device=device)
                 except ConfigError as exc:
@@ -220,25 +264,52 @@ def main(
                     print(json.dumps(row), flush=True)
     if out is not None:
         out.parent.mkdir(parents=True, exist_ok=True)
-        out.write_text(json.dumps({
-            "command": "python scripts/benchmark.py " + " ".join(sys.argv[1:]),
-            "date": time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime()), "machine": machine(),
-            "threads": nthread, "iterations": iterations, "runs": runs, "rows": rows}, indent=1))
+        out.write_text(
+            json.dumps(
+                {
+                    "command": "python scripts/benchmark.py " + " ".join(sys.argv[1:]),
+                    "date": time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime()),
+                    "machine": machine(),
+                    "threads": nthread,
+                    "iterations": iterations,
+                    "runs": runs,
+                    "rows": rows,
+                },
+                indent=1,
+            )
+        )
         typer.echo(f"results: {out}")
     if not as_json:
-        where = (f"{backend} backend on {device}" if backend == "warp"
-                 else f"{nthread} rollout threads")
+        where = (
+            f"{backend} backend on {device}" if backend == "warp" else f"{nthread} rollout threads"
+        )
         table = Table(title=f"planner speed ({where}, median of {iterations})")
-        for col in ("scenario", "samples x horizon", "planner Hz", "iteration ms",
-                    "world rollout ms", "ratio", "own rollout ms", "ratio to it",
-                    "own + sensors ms", "ratio to it"):
+        for col in (
+            "scenario",
+            "samples x horizon",
+            "planner Hz",
+            "iteration ms",
+            "world rollout ms",
+            "ratio",
+            "own rollout ms",
+            "ratio to it",
+            "own + sensors ms",
+            "ratio to it",
+        ):
             table.add_column(col, justify="right")
         for r in rows:
-            table.add_row(r["scenario"], f"{r['samples']} x {r['horizon']}", f"{r['hz']:.1f}",
-                          f"{r['iteration_ms']:.2f}", f"{r['rollout_ms']:.2f}",
-                          f"{r['ratio_to_rollout']:.2f}", f"{r['own_rollout_ms']:.2f}",
-                          f"{r['ratio_to_own_rollout']:.2f}", f"{r['sensor_rollout_ms']:.2f}",
-                          f"{r['ratio_to_sensor_rollout']:.2f}")
+            table.add_row(
+                r["scenario"],
+                f"{r['samples']} x {r['horizon']}",
+                f"{r['hz']:.1f}",
+                f"{r['iteration_ms']:.2f}",
+                f"{r['rollout_ms']:.2f}",
+                f"{r['ratio_to_rollout']:.2f}",
+                f"{r['own_rollout_ms']:.2f}",
+                f"{r['ratio_to_own_rollout']:.2f}",
+                f"{r['sensor_rollout_ms']:.2f}",
+                f"{r['ratio_to_sensor_rollout']:.2f}",
+            )
         Console().print(table)
 
 

@@ -34,7 +34,7 @@ from pytorch_mppi import MPPI as ArmMPPI
 from rich.console import Console
 from rich.table import Table
 
-from planner_client.mppi import M3P2I, MPPI, MPPIConfig, ModeSpec
+from planner_client.mppi import M3P2I, MPPI, ModeSpec, MPPIConfig
 
 F64 = torch.float64
 
@@ -85,9 +85,32 @@ def double_integrator_cost(state: torch.Tensor, u: torch.Tensor) -> torch.Tensor
 
 
 TASKS = [
-    Task("pendulum swing-up", (math.pi, 0.0), pendulum, pendulum_cost, 1, 100, 15, 10.0, 1.0, 2.0, 100),
-    Task("2-D double integrator", (0.0, 0.0, 0.0, 0.0), double_integrator, double_integrator_cost,
-         2, 200, 15, 1.5, 1.0, 3.0, 100),
+    Task(
+        "pendulum swing-up",
+        (math.pi, 0.0),
+        pendulum,
+        pendulum_cost,
+        1,
+        100,
+        15,
+        10.0,
+        1.0,
+        2.0,
+        100,
+    ),
+    Task(
+        "2-D double integrator",
+        (0.0, 0.0, 0.0, 0.0),
+        double_integrator,
+        double_integrator_cost,
+        2,
+        200,
+        15,
+        1.5,
+        1.0,
+        3.0,
+        100,
+    ),
 ]
 
 
@@ -102,13 +125,21 @@ def rollout_costs(task: Task, x: torch.Tensor, v: torch.Tensor) -> torch.Tensor:
 
 
 def config(task: Task, seed: int, **kw) -> MPPIConfig:
-    return MPPIConfig(horizon=task.horizon, nu=task.nu, noise_sigma=(task.sigma,) * task.nu,
-                      lambda_init=task.lam, u_min=(-task.u_max,) * task.nu,
-                      u_max=(task.u_max,) * task.nu, seed=seed, **kw)
+    return MPPIConfig(
+        horizon=task.horizon,
+        nu=task.nu,
+        noise_sigma=(task.sigma,) * task.nu,
+        lambda_init=task.lam,
+        u_min=(-task.u_max,) * task.nu,
+        u_max=(task.u_max,) * task.nu,
+        seed=seed,
+        **kw,
+    )
 
 
 def ours(planner_of: Callable[[Task, int], object]):
     """Controller factory for this package's planners: ``(task, seed) -> step(x) -> (u, planner_s)``."""
+
     def make(task: Task, seed: int):
         planner = planner_of(task, seed)
 
@@ -120,39 +151,61 @@ def ours(planner_of: Callable[[Task, int], object]):
             t2 = time.perf_counter()
             u0 = planner.update(c).u0
             return u0, (t1 - t0) + (time.perf_counter() - t2)
+
         return step
+
     return make
 
 
 def arm(task: Task, seed: int):
     torch.manual_seed(seed)
-    ctrl = ArmMPPI(task.dynamics, task.cost, len(task.x0),
-                   noise_sigma=task.sigma ** 2 * torch.eye(task.nu, dtype=F64),
-                   num_samples=task.samples, horizon=task.horizon, lambda_=task.lam,
-                   u_min=torch.full((task.nu,), -task.u_max, dtype=F64),
-                   u_max=torch.full((task.nu,), task.u_max, dtype=F64),
-                   U_init=torch.zeros(task.horizon, task.nu, dtype=F64))
+    ctrl = ArmMPPI(
+        task.dynamics,
+        task.cost,
+        len(task.x0),
+        noise_sigma=task.sigma**2 * torch.eye(task.nu, dtype=F64),
+        num_samples=task.samples,
+        horizon=task.horizon,
+        lambda_=task.lam,
+        u_min=torch.full((task.nu,), -task.u_max, dtype=F64),
+        u_max=torch.full((task.nu,), task.u_max, dtype=F64),
+        U_init=torch.zeros(task.horizon, task.nu, dtype=F64),
+    )
     return lambda x: (ctrl.command(x), math.nan)
 
 
 PLANNERS = {
     "pytorch_mppi": arm,
-    "MPPI (thesis Alg. 2)": ours(lambda task, seed: MPPI(
-        config(task, seed, sampling="gaussian", control_cost=1.0, null_action=False,
-               keep_best=False), task.samples)),
-    "M3P2I (1 mode)": ours(lambda task, seed: M3P2I(
-        config(task, seed, eta_bounds=(3.0, 10.0), savgol_window=9), [ModeSpec("go", task.samples)])),
+    "MPPI (thesis Alg. 2)": ours(
+        lambda task, seed: MPPI(
+            config(
+                task,
+                seed,
+                sampling="gaussian",
+                control_cost=1.0,
+                null_action=False,
+                keep_best=False,
+            ),
+            task.samples,
+        )
+    ),
+    "M3P2I (1 mode)": ours(
+        lambda task, seed: M3P2I(
+            config(task, seed, eta_bounds=(3.0, 10.0), savgol_window=9),
+            [ModeSpec("go", task.samples)],
+        )
+    ),
 }
 
 
 @dataclass(frozen=True)
 class Episode:
-    total: float        # true-system cost summed over the episode
-    last: float         # true-system cost at the last step
-    wall_s: float       # seconds per control step, rollout included
-    planner_s: float    # seconds per step in sample + update (nan for pytorch_mppi)
-    jitter: float       # Σ_t |u0_t - u0_{t-1}|²
-    x: torch.Tensor     # final state
+    total: float  # true-system cost summed over the episode
+    last: float  # true-system cost at the last step
+    wall_s: float  # seconds per control step, rollout included
+    planner_s: float  # seconds per step in sample + update (nan for pytorch_mppi)
+    jitter: float  # Σ_t |u0_t - u0_{t-1}|²
+    x: torch.Tensor  # final state
 
 
 def episode(task: Task, make, seed: int) -> Episode:
@@ -193,7 +246,11 @@ def overhead_us(planner, iters: int = 400, blocks: int = 5) -> float:
 
 
 def mean_std(xs: list[float], fmt: str) -> str:
-    return f"{statistics.mean(xs):{fmt}} ± {statistics.stdev(xs):{fmt}}" if len(xs) > 1 else f"{xs[0]:{fmt}}"
+    return (
+        f"{statistics.mean(xs):{fmt}} ± {statistics.stdev(xs):{fmt}}"
+        if len(xs) > 1
+        else f"{xs[0]:{fmt}}"
+    )
 
 
 def main() -> None:
@@ -203,37 +260,57 @@ def main() -> None:
     args = parser.parse_args()
     torch.set_num_threads(args.threads)
     console = Console(width=100)
-    console.print(f"torch {torch.__version__}, {args.threads} thread(s), float64, {args.seeds} seeds")
+    console.print(
+        f"torch {torch.__version__}, {args.threads} thread(s), float64, {args.seeds} seeds"
+    )
 
     for task in TASKS:
-        table = Table(title=f"{task.name}: K={task.samples} T={task.horizon} λ={task.lam} "
-                            f"σ={task.sigma} |u|≤{task.u_max}, {task.steps} steps")
+        table = Table(
+            title=f"{task.name}: K={task.samples} T={task.horizon} λ={task.lam} "
+            f"σ={task.sigma} |u|≤{task.u_max}, {task.steps} steps"
+        )
         for col in ("planner", "episode cost", "final cost", "ms / step", "planner ms / step"):
             table.add_column(col, justify="right" if col != "planner" else "left")
         for name, make in PLANNERS.items():
             runs = [episode(task, make, seed) for seed in range(args.seeds)]
             own = statistics.mean(r.planner_s * 1e3 for r in runs)
-            table.add_row(name, mean_std([r.total for r in runs], ".1f"),
-                          mean_std([r.last for r in runs], ".3f"),
-                          f"{statistics.mean(r.wall_s * 1e3 for r in runs):.2f}",
-                          "—" if math.isnan(own) else f"{own:.3f}")
+            table.add_row(
+                name,
+                mean_std([r.total for r in runs], ".1f"),
+                mean_std([r.last for r in runs], ".3f"),
+                f"{statistics.mean(r.wall_s * 1e3 for r in runs):.2f}",
+                "—" if math.isnan(own) else f"{own:.3f}",
+            )
         console.print(table)
 
-    table = Table(title="planner overhead per iteration (sample + update, no rollout), S=200 T=15 nu=2")
+    table = Table(
+        title="planner overhead per iteration (sample + update, no rollout), S=200 T=15 nu=2"
+    )
     table.add_column("planner", justify="left")
     table.add_column("µs / iteration", justify="right")
     base = dict(horizon=15, nu=2, noise_sigma=(1.0, 1.0), u_min=(-1.0, -1.0), u_max=(1.0, 1.0))
     adapt = dict(eta_bounds=(3.0, 10.0), savgol_window=9)
     for name, planner in [
-        ("MPPI, Gaussian, thesis Alg. 2 literal",
-         MPPI(MPPIConfig(**base, sampling="gaussian", null_action=False, keep_best=False), 200)),
+        (
+            "MPPI, Gaussian, thesis Alg. 2 literal",
+            MPPI(MPPIConfig(**base, sampling="gaussian", null_action=False, keep_best=False), 200),
+        ),
         ("M3P2I, 1 mode, defaults", M3P2I(MPPIConfig(**base), [ModeSpec("a", 200)])),
-        ("M3P2I, 1 mode, η ∈ [3, 10], SGF 9", M3P2I(MPPIConfig(**base, **adapt), [ModeSpec("a", 200)])),
-        ("M3P2I, 2 modes (one pinned), η, SGF 9",
-         M3P2I(MPPIConfig(**base, **adapt), [ModeSpec("a", 100), ModeSpec("b", 100, {1: 0.0})])),
-        ("M3P2I, 3 modes 70/70/60, η, SGF 9, control cost",
-         M3P2I(MPPIConfig(**base, **adapt, control_cost=1.0),
-               [ModeSpec("a", 70), ModeSpec("b", 70), ModeSpec("c", 60)])),
+        (
+            "M3P2I, 1 mode, η ∈ [3, 10], SGF 9",
+            M3P2I(MPPIConfig(**base, **adapt), [ModeSpec("a", 200)]),
+        ),
+        (
+            "M3P2I, 2 modes (one pinned), η, SGF 9",
+            M3P2I(MPPIConfig(**base, **adapt), [ModeSpec("a", 100), ModeSpec("b", 100, {1: 0.0})]),
+        ),
+        (
+            "M3P2I, 3 modes 70/70/60, η, SGF 9, control cost",
+            M3P2I(
+                MPPIConfig(**base, **adapt, control_cost=1.0),
+                [ModeSpec("a", 70), ModeSpec("b", 70), ModeSpec("c", 60)],
+            ),
+        ),
     ]:
         table.add_row(name, f"{overhead_us(planner):.0f}")
     console.print(table)
@@ -242,15 +319,23 @@ def main() -> None:
     table = Table(title=f"sampling on the {task.name} (M3P2I, 1 mode, η ∈ [3, 10], no smoothing)")
     for col in ("noise", "episode cost", "final position error", "Σ|Δu0|²"):
         table.add_column(col, justify="right" if col != "noise" else "left")
-    for name, kw in [("Halton, fixed set (paper)", dict(halton_rotate=False)),
-                     ("Halton, rotated each step", dict()),
-                     ("Gaussian", dict(sampling="gaussian"))]:
-        make = ours(lambda task, seed, kw=kw: M3P2I(config(task, seed, eta_bounds=(3.0, 10.0), **kw),
-                                                    [ModeSpec("go", task.samples)]))
+    for name, kw in [
+        ("Halton, fixed set (paper)", dict(halton_rotate=False)),
+        ("Halton, rotated each step", dict()),
+        ("Gaussian", dict(sampling="gaussian")),
+    ]:
+        make = ours(
+            lambda task, seed, kw=kw: M3P2I(
+                config(task, seed, eta_bounds=(3.0, 10.0), **kw), [ModeSpec("go", task.samples)]
+            )
+        )
         runs = [episode(task, make, seed) for seed in range(args.seeds)]
-        table.add_row(name, mean_std([r.total for r in runs], ".2f"),
-                      mean_std([float((r.x[:2] - GOAL).norm()) for r in runs], ".4f"),
-                      mean_std([r.jitter for r in runs], ".1f"))
+        table.add_row(
+            name,
+            mean_std([r.total for r in runs], ".2f"),
+            mean_std([float((r.x[:2] - GOAL).norm()) for r in runs], ".4f"),
+            mean_std([r.jitter for r in runs], ".1f"),
+        )
     console.print(table)
 
 

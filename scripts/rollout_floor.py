@@ -19,11 +19,13 @@ app = typer.Typer(add_completion=False)
 
 @app.command()
 def main(
-    scenario: list[str] = typer.Option(["navigation", "push_pull", "push_pull_fast"],
-                                       "--scenario", "-s", help="Scenarios to time."),
+    scenario: list[str] = typer.Option(
+        ["navigation", "push_pull", "push_pull_fast"], "--scenario", "-s", help="Scenarios to time."
+    ),
     samples: int = typer.Option(400, min=1, help="Rollouts per call (all modes together)."),
-    horizon: int = typer.Option(15, min=1, help="Steps per rollout, each of the scenario's "
-                                "planner.timestep."),
+    horizon: int = typer.Option(
+        15, min=1, help="Steps per rollout, each of the scenario's planner.timestep."
+    ),
     threads: int = typer.Option(0, min=0, help="Rollout threads (0: one per core)."),
     rounds: int = typer.Option(20, min=1, help="Timed rounds (each times every variant once)."),
 ) -> None:

@@ -12,7 +12,6 @@ from __future__ import annotations
 import json
 import time
 from pathlib import Path
-from typing import Optional
 
 import typer
 
@@ -23,28 +22,46 @@ app = typer.Typer(add_completion=False)
 
 @app.command()
 def main(
-    duration: float = typer.Option(600.0, help="Seconds of episodes and faults (the run ends "
-                                   "at most a minute later, letting the last episode finish)."),
-    seed: int = typer.Option(0, help="Seed of the fault schedule (moments, order, pauses, "
-                             "garbage) and of the worlds' and planners' seeds."),
+    duration: float = typer.Option(
+        600.0,
+        help="Seconds of episodes and faults (the run ends "
+        "at most a minute later, letting the last episode finish).",
+    ),
+    seed: int = typer.Option(
+        0,
+        help="Seed of the fault schedule (moments, order, pauses, "
+        "garbage) and of the worlds' and planners' seeds.",
+    ),
     scenario: str = typer.Option("navigation", help="Scenario name or YAML path."),
     command_timeout: float = typer.Option(0.5, help="The world's --command-timeout (s)."),
-    takeover: float = typer.Option(3.0, help="Bound (s) to the first step driven by a new "
-                                   "command: from a planner's SIGKILL (its hot spare is told to "
-                                   "go at once), a SIGCONT, a new world's start, a flood's end."),
-    rss_bound: float = typer.Option(50.0, help="Allowed resident-memory growth per process "
-                                    "(MiB), from 5 s (a planner) or 1 s (a world) after it first "
-                                    "drove the robot, or was driven, to its end."),
+    takeover: float = typer.Option(
+        3.0,
+        help="Bound (s) to the first step driven by a new "
+        "command: from a planner's SIGKILL (its hot spare is told to "
+        "go at once), a SIGCONT, a new world's start, a flood's end.",
+    ),
+    rss_bound: float = typer.Option(
+        50.0,
+        help="Allowed resident-memory growth per process "
+        "(MiB), from 5 s (a planner) or 1 s (a world) after it first "
+        "drove the robot, or was driven, to its end.",
+    ),
     gap_min: float = typer.Option(4.0, help="Least seconds between two faults."),
     gap_max: float = typer.Option(10.0, help="Most seconds between two faults."),
-    out: Optional[Path] = typer.Option(None, help="Folder for the episode logs and process "
-                                       "outputs (default runs/soak-<time>)."),
-    results: Optional[Path] = typer.Option(None, help="Results JSON (default OUT/soak.json)."),
-    report: Optional[Path] = typer.Option(None, help="Only print the table of this results "
-                                          "file (no run)."),
-    update_file: Optional[Path] = typer.Option(None, "--update", help="Regenerate the "
-                                               "'<!-- soak PATH -->' blocks of this Markdown "
-                                               "file from their results files (no run)."),
+    out: Path | None = typer.Option(
+        None, help="Folder for the episode logs and process outputs (default runs/soak-<time>)."
+    ),
+    results: Path | None = typer.Option(None, help="Results JSON (default OUT/soak.json)."),
+    report: Path | None = typer.Option(
+        None, help="Only print the table of this results file (no run)."
+    ),
+    update_file: Path | None = typer.Option(
+        None,
+        "--update",
+        help="Regenerate the "
+        "'<!-- soak PATH -->' blocks of this Markdown "
+        "file from their results files (no run).",
+    ),
 ) -> None:
     """Run real-time episodes back to back under injected faults (planner SIGKILL and
     replacement, world restart, command-socket garbage, planner SIGSTOP past the command
@@ -61,9 +78,15 @@ def main(
         if report is not None:
             print_table(json.loads(report.read_text()))
         return
-    cfg = SoakConfig(duration=duration, seed=seed, scenario=scenario,
-                     command_timeout=command_timeout, takeover=takeover, rss_bound=rss_bound,
-                     gap=(gap_min, gap_max))
+    cfg = SoakConfig(
+        duration=duration,
+        seed=seed,
+        scenario=scenario,
+        command_timeout=command_timeout,
+        takeover=takeover,
+        rss_bound=rss_bound,
+        gap=(gap_min, gap_max),
+    )
     cfg.check()
     out = out or Path("runs") / f"soak-{time.strftime('%Y%m%d-%H%M%S')}"
     res = Soak(cfg, out).run()

@@ -44,8 +44,10 @@ def _wait_for(log: Path, kind: str, proc: subprocess.Popen, timeout: float) -> d
                 if rec.get("kind") == kind:
                     return rec
         if proc.poll() is not None:
-            raise RuntimeError(f"{proc.args[2]} exited with code {proc.returncode} before a "
-                               f"{kind!r} record; see the logs next to {log}")
+            raise RuntimeError(
+                f"{proc.args[2]} exited with code {proc.returncode} before a "
+                f"{kind!r} record; see the logs next to {log}"
+            )
         time.sleep(0.01)
     raise RuntimeError(f"no {kind!r} record in {log} within {timeout:g} s")
 
@@ -59,14 +61,23 @@ def measure_once(scenario: str, folder: Path, timeout: float = 60.0) -> dict[str
     try:
         with (folder / "server.log").open("w") as out:
             start = time.time()
-            procs.append(subprocess.Popen(
-                [sys.executable, "-m", "server", *common, "--log", str(log)],
-                stdout=out, stderr=subprocess.STDOUT))
+            procs.append(
+                subprocess.Popen(
+                    [sys.executable, "-m", "server", *common, "--log", str(log)],
+                    stdout=out,
+                    stderr=subprocess.STDOUT,
+                )
+            )
             server = _wait_for(log, "header", procs[0], timeout)["wall"] - start
         with (folder / "planner.log").open("w") as out:
             start = time.time()
-            procs.append(subprocess.Popen([sys.executable, "-m", "planner_client", *common],
-                                          stdout=out, stderr=subprocess.STDOUT))
+            procs.append(
+                subprocess.Popen(
+                    [sys.executable, "-m", "planner_client", *common],
+                    stdout=out,
+                    stderr=subprocess.STDOUT,
+                )
+            )
             planner = _wait_for(log, "step", procs[1], timeout)["wall"] - start
     finally:
         stop_processes(procs)
@@ -75,8 +86,9 @@ def measure_once(scenario: str, folder: Path, timeout: float = 60.0) -> dict[str
 
 @app.command()
 def main(
-    scenario: list[str] = typer.Option(list(SCENARIOS), "--scenario", "-s",
-                                       help="Scenario name or YAML path (repeatable)."),
+    scenario: list[str] = typer.Option(
+        list(SCENARIOS), "--scenario", "-s", help="Scenario name or YAML path (repeatable)."
+    ),
     runs: int = typer.Option(5, "--runs", "-n", min=1, help="Cold starts per scenario."),
     as_json: bool = typer.Option(False, "--json", help="One JSON object per scenario."),
 ) -> None:
@@ -92,13 +104,17 @@ def main(
                     samples[side].append(seconds)
             if not as_json:
                 console.print(f"{name}: run {i + 1}/{runs}", style="dim")
-        stats = {side: {"median": statistics.median(v), "min": min(v), "max": max(v)}
-                 for side, v in samples.items()}
+        stats = {
+            side: {"median": statistics.median(v), "min": min(v), "max": max(v)}
+            for side, v in samples.items()
+        }
         if as_json:
             print(json.dumps({"scenario": name, "runs": runs, **stats}))
         else:
-            table.add_row(name, *(f"{s['median']:.2f} ({s['min']:.2f}-{s['max']:.2f})"
-                                  for s in stats.values()))
+            table.add_row(
+                name,
+                *(f"{s['median']:.2f} ({s['min']:.2f}-{s['max']:.2f})" for s in stats.values()),
+            )
     if not as_json:
         console.print(table)
 

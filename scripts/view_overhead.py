@@ -31,29 +31,38 @@ def run_once(scenario: str, view: bool, folder: Path) -> tuple[float, int, float
     started = time.monotonic()
     subprocess.run(cmd, capture_output=True, text=True, timeout=1800)
     wall = time.monotonic() - started
-    summary = next(json.loads(line) for line in reversed((run_dir / "episode.jsonl").read_text()
-                                                           .splitlines())
-                   if json.loads(line).get("kind") == "summary")
+    summary = next(
+        json.loads(line)
+        for line in reversed((run_dir / "episode.jsonl").read_text().splitlines())
+        if json.loads(line).get("kind") == "summary"
+    )
     return float(summary["planner_hz"]), int(summary["steps"]), wall
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
     ap.add_argument("-s", "--scenario", default="pick_place")
     ap.add_argument("-n", "--pairs", type=int, default=3)
     args = ap.parse_args()
     rates: dict[bool, list[float]] = {False: [], True: []}
     with tempfile.TemporaryDirectory() as tmp:
         for i in range(args.pairs):
-            for view in ((False, True) if i % 2 == 0 else (True, False)):
+            for view in (False, True) if i % 2 == 0 else (True, False):
                 hz, steps, wall = run_once(args.scenario, view, Path(tmp))
                 rates[view].append(hz)
-                print(f"{args.scenario} {'view ' if view else 'plain'} planner {hz:6.2f} Hz, "
-                      f"{steps} steps, {wall:5.1f} s wall", flush=True)
+                print(
+                    f"{args.scenario} {'view ' if view else 'plain'} planner {hz:6.2f} Hz, "
+                    f"{steps} steps, {wall:5.1f} s wall",
+                    flush=True,
+                )
     for view in (False, True):
         r = rates[view]
-        print(f"{'with view   ' if view else 'without view'}: median {statistics.median(r):.2f} Hz "
-              f"(range {min(r):.2f}-{max(r):.2f}, {len(r)} runs)")
+        print(
+            f"{'with view   ' if view else 'without view'}: median {statistics.median(r):.2f} Hz "
+            f"(range {min(r):.2f}-{max(r):.2f}, {len(r)} runs)"
+        )
 
 
 if __name__ == "__main__":

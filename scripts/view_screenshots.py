@@ -28,8 +28,8 @@ from shared.protocol import Control
 from shared.tools.launch import free_port_block
 from shared.tools.view import ControlClient
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))   # the clone's tests/ package
-from tests.browser import chromium_screenshot  # noqa: E402
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # the clone's tests/ package
+from tests.browser import chromium_screenshot
 
 
 def _last_time(log: Path) -> float:
@@ -59,7 +59,9 @@ def _url(proc: subprocess.Popen, timeout: float = 180.0) -> str:
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
     ap.add_argument("scenario")
     ap.add_argument("--at", type=float, default=2.0, help="simulated seconds into the episode")
     ap.add_argument("--out", type=Path, default=Path("docs/media"), help="folder of the PNGs")
@@ -70,9 +72,22 @@ def main() -> None:
     run_dir = Path(tempfile.mkdtemp(prefix="view-")) / "run"
     port = free_port_block()
     control = ControlClient(zmq.Context.instance(), Endpoints(port=port))
-    run = subprocess.Popen([sys.executable, "-m", "shared.tools", "run", args.scenario, "--view",
-                            "--run-dir", str(run_dir), "--port", str(port)],
-                           stdout=subprocess.PIPE, text=True)
+    run = subprocess.Popen(
+        [
+            sys.executable,
+            "-m",
+            "shared.tools",
+            "run",
+            args.scenario,
+            "--view",
+            "--run-dir",
+            str(run_dir),
+            "--port",
+            str(port),
+        ],
+        stdout=subprocess.PIPE,
+        text=True,
+    )
     try:
         url = _url(run)
         while _last_time(run_dir / "episode.jsonl") < args.at:
@@ -90,9 +105,22 @@ def main() -> None:
         if run.poll() is None:
             run.send_signal(signal.SIGINT)
             run.wait(30)
-    replay = subprocess.Popen([sys.executable, "-m", "shared.tools", "view", "--log", str(run_dir),
-                               "--view-port", str(free_port_block(count=1)), "--duration", "120"],
-                              stdout=subprocess.PIPE, text=True)
+    replay = subprocess.Popen(
+        [
+            sys.executable,
+            "-m",
+            "shared.tools",
+            "view",
+            "--log",
+            str(run_dir),
+            "--view-port",
+            str(free_port_block(count=1)),
+            "--duration",
+            "120",
+        ],
+        stdout=subprocess.PIPE,
+        text=True,
+    )
     try:
         url = _url(replay)
         out = args.out / f"view_{args.scenario}_replay.png"

@@ -26,43 +26,56 @@ from pathlib import Path
 import numpy as np
 import zmq
 
+from server.episode import Episode
+from server.episode_log import EpisodeLog
+from server.interface import Outcome, World
+from server.world import SimWorld
 from shared import protocol as P
 from shared.endpoints import Endpoints, socket
 from shared.evaluation.episode import episode_log_path
 from shared.faults import FaultConfig
 from shared.scenario import Scenario
-from shared.security import Authenticator, HandshakeMonitor, WorldKeys, curve_server, \
-    describe_handshake_failure
+from shared.security import (
+    Authenticator,
+    HandshakeMonitor,
+    WorldKeys,
+    curve_server,
+    describe_handshake_failure,
+)
 from shared.timed_plan import PlanPlayer
-from server.episode import Episode
-from server.episode_log import EpisodeLog
-from server.interface import Outcome, World
-from server.world import SimWorld
 
 log = logging.getLogger("m3p2i.server")
 
 
 @dataclass
 class ServerOptions:
-    mode: str = "lockstep"            # lockstep | realtime
-    command_timeout: float = 0.5      # realtime: seconds before a command is stale
-    republish: float = 0.2            # lockstep: re-send the pending state this often
-    linger: float = 0.5               # seconds to keep publishing the final state
-    realtime_factor: float = 1.0      # realtime: simulated seconds per wall second
-    wait_planner: float = 0.0         # seconds to wait for the first command; 0 = forever
-    plan_every: int = 1               # lockstep: world steps played per command (a slow planner)
-    keep_serving: bool = False        # after an episode, wait for a seeded reset (warm bench workers)
+    mode: str = "lockstep"  # lockstep | realtime
+    command_timeout: float = 0.5  # realtime: seconds before a command is stale
+    republish: float = 0.2  # lockstep: re-send the pending state this often
+    linger: float = 0.5  # seconds to keep publishing the final state
+    realtime_factor: float = 1.0  # realtime: simulated seconds per wall second
+    wait_planner: float = 0.0  # seconds to wait for the first command; 0 = forever
+    plan_every: int = 1  # lockstep: world steps played per command (a slow planner)
+    keep_serving: bool = False  # after an episode, wait for a seeded reset (warm bench workers)
 
 
 class WorldServer:
-    def __init__(self, scenario: Scenario, endpoints: Endpoints, log_path: Path,
-                 options: ServerOptions | None = None, viewer=None, seed: int = 0,
-                 keys: WorldKeys | None = None, world: type[World] = SimWorld,
-                 faults: FaultConfig | None = None):
+    def __init__(
+        self,
+        scenario: Scenario,
+        endpoints: Endpoints,
+        log_path: Path,
+        options: ServerOptions | None = None,
+        viewer=None,
+        seed: int = 0,
+        keys: WorldKeys | None = None,
+        world: type[World] = SimWorld,
+        faults: FaultConfig | None = None,
+    ):
         self.scenario = scenario
         # the faults the world shows (docs/faults.md): --faults's, else the scenario's
         self.faults = scenario.faults if faults is None else faults
-        self.world_class = world          # built afresh for each episode: world(scenario, seed)
+        self.world_class = world  # built afresh for each episode: world(scenario, seed)
         self.episode: Episode | None = None
         self.opt = options or ServerOptions()
         self.log_template = str(log_path)
@@ -82,8 +95,11 @@ class WorldServer:
         # failed handshakes (a peer without keys, or with another world key) never reach ZAP:
         # only the socket monitor tells, and the world must say why nobody is answering
         self.monitors = {name: HandshakeMonitor(s) for name, s in self._sockets.items()}
-        for s, addr in ((self.rep, endpoints.control), (self.pub, endpoints.state),
-                        (self.pull, endpoints.command)):
+        for s, addr in (
+            (self.rep, endpoints.control),
+            (self.pub, endpoints.state),
+            (self.pull, endpoints.command),
+        ):
             s.bind(addr)
         self.poller = zmq.Poller()
         self.poller.register(self.rep, zmq.POLLIN)
@@ -92,9 +108,9 @@ class WorldServer:
             self.poller.register(m.mon, zmq.POLLIN)
         self._refused = 0
         self._rejected = 0
-        self.version = P.PROTOCOL_VERSION    # states are written in it: the newest handshake's
+        self.version = P.PROTOCOL_VERSION  # states are written in it: the newest handshake's
         self._stop = False
-        self._next_seed: int | None = None   # a seeded reset asked for this episode next
+        self._next_seed: int | None = None  # a seeded reset asked for this episode next
         self._begin_episode(seed)
 
     def _begin_episode(self, seed: int) -> None:
@@ -103,11 +119,19 @@ class WorldServer:
         path = self._log_path(seed)
         if self.episode is not None:
             self.episode.world.close()
-        self.episode = Episode(self.scenario, seed, path, self.world_class, self.faults,
-                               self.opt.mode, self.curve, realtime_factor=self.opt.realtime_factor)
-        self._ending = False              # the safe stop, metrics and summary are being written
+        self.episode = Episode(
+            self.scenario,
+            seed,
+            path,
+            self.world_class,
+            self.faults,
+            self.opt.mode,
+            self.curve,
+            realtime_factor=self.opt.realtime_factor,
+        )
+        self._ending = False  # the safe stop, metrics and summary are being written
         self.player = PlanPlayer()
-        self._paused = False              # control op pause: the world neither steps nor waits out time
+        self._paused = False  # control op pause: the world neither steps nor waits out time
 
     def _log_path(self, seed: int) -> Path:
         """The log of ``seed``'s episode. A later episode of a kept world never overwrites a
@@ -137,9 +161,13 @@ class WorldServer:
     def run(self) -> Outcome:
         """Serve one episode (with ``keep_serving``, one after another until ``shutdown``);
         each log is always closed with its summary, even on Ctrl-C. Returns the last outcome."""
-        log.info("serving %s (%s mode) on %s%s", self.scenario.name, self.opt.mode,
-                 self.rep.getsockopt_string(zmq.LAST_ENDPOINT),
-                 ", CURVE: only allow-listed planner keys" if self.auth else "")
+        log.info(
+            "serving %s (%s mode) on %s%s",
+            self.scenario.name,
+            self.opt.mode,
+            self.rep.getsockopt_string(zmq.LAST_ENDPOINT),
+            ", CURVE: only allow-listed planner keys" if self.auth else "",
+        )
         try:
             while True:
                 outcome = self._serve_episode()
@@ -156,14 +184,14 @@ class WorldServer:
                 self._run_lockstep()
             else:
                 self._run_realtime()
-            if not self.opt.keep_serving:   # a kept world publishes its final state until the next
+            if not self.opt.keep_serving:  # a kept world publishes its final state until the next
                 self._linger()
         except KeyboardInterrupt:
             self._stop = True
             self.episode.abort()
             log.info("interrupted")
         finally:
-            self._ending = True                  # a signal from now on must not cost the summary
+            self._ending = True  # a signal from now on must not cost the summary
             outcome = self.episode.finish(self._rejected)
         return outcome
 
@@ -216,8 +244,12 @@ class WorldServer:
             if cmd is not None and wanted(cmd) and not self._paused:
                 return cmd
             if time.monotonic() - last_pub >= self.opt.republish:
-                if self.episode.seq == 0 and self.opt.wait_planner and not self._paused and \
-                        time.monotonic() - started > self.opt.wait_planner:
+                if (
+                    self.episode.seq == 0
+                    and self.opt.wait_planner
+                    and not self._paused
+                    and time.monotonic() - started > self.opt.wait_planner
+                ):
                     raise TimeoutError(f"no planner command within {self.opt.wait_planner} s")
                 self._publish()
                 last_pub = time.monotonic()
@@ -227,7 +259,7 @@ class WorldServer:
         period = self.world.dt / self.opt.realtime_factor
         latest_at = -np.inf
         stale = True
-        ended = -1                       # seq of the last plan whose end was logged
+        ended = -1  # seq of the last plan whose end was logged
         # the clock starts with the planner: its start-up (imports, model compilation) is not
         # part of the episode
         self._publish()
@@ -253,22 +285,26 @@ class WorldServer:
                 if fresh and stale:
                     self.log.event("commands_fresh", seq=self.episode.seq)
                 elif not fresh and not stale:
-                    log.warning("no command for %.2f s: holding the robot (safe control)",
-                                self.opt.command_timeout)
-                    self.log.event("commands_stale", seq=self.episode.seq,
-                                   age=now - latest_at)
+                    log.warning(
+                        "no command for %.2f s: holding the robot (safe control)",
+                        self.opt.command_timeout,
+                    )
+                    self.log.event("commands_stale", seq=self.episode.seq, age=now - latest_at)
                     self.player.clear()
                 stale = not fresh
                 ctrl, source = self._playing() if fresh else (None, -1)
                 cmd_age = now - latest_at if latest_at > -np.inf else None
                 if ctrl is None and source >= 0 and source != ended:
                     ended = source
-                    log.warning("the plan of state %d ran out at t=%.2f s: safe control until "
-                                "the next", source, self.world.time)
+                    log.warning(
+                        "the plan of state %d ran out at t=%.2f s: safe control until the next",
+                        source,
+                        self.world.time,
+                    )
                     self.log.event("plan_ended", seq=source, time=self.world.time)
                 self._apply(ctrl, source, cmd_age=cmd_age)
                 next_tick += period
-                if now - next_tick > 10 * period:   # fell far behind (debugger, load): resync
+                if now - next_tick > 10 * period:  # fell far behind (debugger, load): resync
                     next_tick = now
             cmd = self._poll(max(0.0, next_tick - time.monotonic()))
 
@@ -286,8 +322,9 @@ class WorldServer:
 
     # ------------------------------------------------------------------ steps
 
-    def _apply(self, ctrl: np.ndarray | None, source: int = -1,
-               cmd_age: float | None = None) -> None:
+    def _apply(
+        self, ctrl: np.ndarray | None, source: int = -1, cmd_age: float | None = None
+    ) -> None:
         """Real time: one logged world step (:meth:`Episode.apply`), then its state published."""
         self.episode.apply(ctrl, source, cmd_age)
         self._after_step()
@@ -329,26 +366,35 @@ class WorldServer:
         except P.ProtocolError as exc:
             return self._reject(str(exc))
         if cmd.session != self.episode.session:
-            return None   # for an earlier run of this server: silently outdated, not malformed
+            return None  # for an earlier run of this server: silently outdated, not malformed
         if cmd.ctrl.shape != (self.world.model.nu,):
-            return self._reject(f"command.ctrl has shape {list(cmd.ctrl.shape)}, "
-                                f"the model needs [{self.world.model.nu}]")
+            return self._reject(
+                f"command.ctrl has shape {list(cmd.ctrl.shape)}, "
+                f"the model needs [{self.world.model.nu}]"
+            )
         return cmd
 
     def _note_refusals(self) -> None:
         """Peers that security refused, into the episode log: a key outside the allow list
         (the ZAP thread already logged it with the peer's address), a peer without keys or one
         holding another world public key (logged here, from the socket monitors)."""
-        found = [(f"key {r.key} from {r.address} is not in the allow list", True)
-                 for r in (self.auth.refusals() if self.auth else [])]
+        found = [
+            (f"key {r.key} from {r.address} is not in the allow list", True)
+            for r in (self.auth.refusals() if self.auth else [])
+        ]
         for name, m in self.monitors.items():
             for event, value in m.failures():
-                if event != zmq.EVENT_HANDSHAKE_FAILED_AUTH:   # AUTH: the ZAP refusal above
-                    found.append((f"handshake on the {name} socket failed: "
-                                  f"{describe_handshake_failure(event, value)}", False))
+                if event != zmq.EVENT_HANDSHAKE_FAILED_AUTH:  # AUTH: the ZAP refusal above
+                    found.append(
+                        (
+                            f"handshake on the {name} socket failed: "
+                            f"{describe_handshake_failure(event, value)}",
+                            False,
+                        )
+                    )
         for reason, logged in found:
             self._refused += 1
-            sampled = self._refused <= 10 or self._refused % 100 == 0   # a peer retrying
+            sampled = self._refused <= 10 or self._refused % 100 == 0  # a peer retrying
             if sampled and not logged:
                 log.warning("refused a peer (%d so far): %s", self._refused, reason)
             if self._refused <= 100 or self._refused % 100 == 0:
@@ -364,8 +410,9 @@ class WorldServer:
     def _serve_control(self) -> None:
         frame = self.rep.recv()
         try:
-            msg, version = P.decode_versioned(frame, expect=("hello", "control"),
-                                              versions=P.VERSIONS)
+            msg, version = P.decode_versioned(
+                frame, expect=("hello", "control"), versions=P.VERSIONS
+            )
         except P.ProtocolError as exc:
             self._reject(str(exc))
             self.rep.send(P.encode(P.Error(reason=f"refused: {exc}")))
@@ -384,9 +431,11 @@ class WorldServer:
             self.rep.send(P.encode(P.Error(reason=reason, versions=speaks)))
             return
         if msg.scenario_hash != self.scenario.hash:
-            reason = (f"scenario mismatch: the server runs {self.scenario.name!r} "
-                      f"(hash {self.scenario.hash}), the planner loaded {msg.scenario!r} "
-                      f"(hash {msg.scenario_hash}); start both with the same scenario file")
+            reason = (
+                f"scenario mismatch: the server runs {self.scenario.name!r} "
+                f"(hash {self.scenario.hash}), the planner loaded {msg.scenario!r} "
+                f"(hash {msg.scenario_hash}); start both with the same scenario file"
+            )
             log.error(reason)
             self.log.event("handshake_refused", reason=reason)
             self.rep.send(P.encode(P.Error(reason=reason, versions=speaks), chosen))
@@ -394,10 +443,20 @@ class WorldServer:
         self.log.event("handshake", client=msg.client, version=chosen)
         log.info("planner connected (%s, protocol version %d)", msg.client, chosen)
         self.version = chosen
-        self.rep.send(P.encode(P.Welcome(
-            scenario=self.scenario.name, scenario_hash=self.scenario.hash, mode=self.opt.mode,
-            dt=self.world.dt, nu=int(self.world.model.nu), session=self.episode.session,
-            seed=self.episode.seed if self.opt.keep_serving else None), chosen))
+        self.rep.send(
+            P.encode(
+                P.Welcome(
+                    scenario=self.scenario.name,
+                    scenario_hash=self.scenario.hash,
+                    mode=self.opt.mode,
+                    dt=self.world.dt,
+                    nu=int(self.world.model.nu),
+                    session=self.episode.session,
+                    seed=self.episode.seed if self.opt.keep_serving else None,
+                ),
+                chosen,
+            )
+        )
         self._publish()
 
     def _control(self, msg: P.Control) -> None:
@@ -412,18 +471,25 @@ class WorldServer:
             # a new state: a lock-step world waits for the command answering the moved one
             self._publish()
         elif msg.op == "reset" and msg.seed is not None and not self.opt.keep_serving:
-            reason = ("a reset with a seed begins a new episode, and this world serves one: "
-                      "start it with --keep-serving")
+            reason = (
+                "a reset with a seed begins a new episode, and this world serves one: "
+                "start it with --keep-serving"
+            )
             self.log.event("control_refused", op=msg.op, reason=reason)
             self.rep.send(P.encode(P.Error(reason=f"reset refused: {reason}")))
             return
         else:
-            self.log.event("control", op=msg.op, **({"seed": msg.seed} if msg.seed is not None else {}))
+            self.log.event(
+                "control", op=msg.op, **({"seed": msg.seed} if msg.seed is not None else {})
+            )
         if msg.op == "shutdown":
             self._stop = True
             self.episode.abort()
-        elif msg.op == "reset" and self.opt.keep_serving and (msg.seed is not None or
-                                                              self.episode.finished):
+        elif (
+            msg.op == "reset"
+            and self.opt.keep_serving
+            and (msg.seed is not None or self.episode.finished)
+        ):
             # run() ends this episode and begins the seed's (after one: the same seed again)
             self._next_seed = self.episode.seed if msg.seed is None else msg.seed
         elif msg.op == "reset":
@@ -433,11 +499,14 @@ class WorldServer:
             self._publish()
         elif msg.op in ("pause", "resume"):
             if self._paused != (msg.op == "pause"):
-                log.info("world %s at t=%.2f s", "paused" if msg.op == "pause" else "resumed",
-                         self.world.time)
+                log.info(
+                    "world %s at t=%.2f s",
+                    "paused" if msg.op == "pause" else "resumed",
+                    self.world.time,
+                )
             self._paused = msg.op == "pause"
             if self._paused:
-                self.episode.stop_world()   # a robot must not go on with its last command
+                self.episode.stop_world()  # a robot must not go on with its last command
         self.rep.send(P.encode(msg))
 
     def close(self) -> None:

@@ -17,11 +17,11 @@ from abc import abstractmethod
 import mujoco
 import numpy as np
 
+from server.interface import Outcome, World, WorldState
+from server.judge import EpisodeJudge
 from shared.frames import FrameResolver
 from shared.scenario import Scenario
 from shared.scene import reset_data
-from server.interface import Outcome, World, WorldState
-from server.judge import EpisodeJudge
 
 
 class Bridge(World):
@@ -95,9 +95,14 @@ class Bridge(World):
 
     def state(self) -> WorldState:
         d = self.data
-        return WorldState(time=self.time, qpos=d.qpos.copy(), qvel=d.qvel.copy(),
-                          act=d.act.copy(), mocap_pos=d.mocap_pos.copy(),
-                          mocap_quat=d.mocap_quat.copy())
+        return WorldState(
+            time=self.time,
+            qpos=d.qpos.copy(),
+            qvel=d.qvel.copy(),
+            act=d.act.copy(),
+            mocap_pos=d.mocap_pos.copy(),
+            mocap_quat=d.mocap_quat.copy(),
+        )
 
     def outcome(self) -> Outcome:
         return Outcome(self.status, self.time, self.judge.measures(self.data, self.extras))

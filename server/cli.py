@@ -7,23 +7,37 @@ import math
 import os
 import signal
 from pathlib import Path
-from typing import Optional
 
 import typer
 
-from shared.cli_common import (MODES, Faults, Host, Insecure, Keys, Mode, PlanEvery, Port,
-                               RealtimeFactor, ScenarioOption, Verbose, Window, default_run_dir,
-                               print_errors, setup_logging, summary_line)
+from server.app import ServerOptions, WorldServer
+from server.interface import WorldError, WorldLoadError, load_world_class
+from server.world import SimWorld
+from server.world_check import scenario_errors
+from shared.cli_common import (
+    MODES,
+    Faults,
+    Host,
+    Insecure,
+    Keys,
+    Mode,
+    PlanEvery,
+    Port,
+    RealtimeFactor,
+    ScenarioOption,
+    Verbose,
+    Window,
+    default_run_dir,
+    print_errors,
+    setup_logging,
+    summary_line,
+)
 from shared.config import ConfigError
 from shared.endpoints import DEFAULT_HOST, DEFAULT_PORT, Endpoints
 from shared.faults import load_faults
 from shared.scenario import load_scenario
 from shared.scene import scene_framing
 from shared.security import ExposureError, keys_for_cli, load_world_keys
-from server.app import ServerOptions, WorldServer
-from server.world_check import scenario_errors
-from server.interface import WorldError, WorldLoadError, load_world_class
-from server.world import SimWorld
 
 app = typer.Typer(add_completion=False)
 
@@ -36,7 +50,8 @@ HELP = (
     "encrypted). "
     "A robot instead of the simulation: `--world package.module:Class`, a bridge class of your "
     "own (docs/bridge.md); this process then serves it, handshake, watchdog and log included. "
-    "Exit code: 0 on success, 1 on time-out or stop, 2 on a configuration error.")
+    "Exit code: 0 on success, 1 on time-out or stop, 2 on a configuration error."
+)
 
 log = logging.getLogger("m3p2i.server")
 
@@ -49,48 +64,71 @@ def main(
     keys: Keys = None,
     insecure: Insecure = False,
     port: Port = DEFAULT_PORT,
-    log_file: Optional[Path] = typer.Option(None, "--log", help="Episode log (JSON lines); "
-                                            "'{seed}' in it (e.g. seed-{seed:03d}) becomes the "
-                                            "episode's seed. Default: "
-                                            "runs/<scenario>-<time>/episode.jsonl"),
-    command_timeout: float = typer.Option(0.5, help="realtime: seconds after which a missing "
-                                          "command makes the robot hold still."),
+    log_file: Path | None = typer.Option(
+        None,
+        "--log",
+        help="Episode log (JSON lines); "
+        "'{seed}' in it (e.g. seed-{seed:03d}) becomes the "
+        "episode's seed. Default: "
+        "runs/<scenario>-<time>/episode.jsonl",
+    ),
+    command_timeout: float = typer.Option(
+        0.5, help="realtime: seconds after which a missing command makes the robot hold still."
+    ),
     realtime_factor: RealtimeFactor = 1.0,
-    republish: float = typer.Option(0.2, min=0.001, help="lockstep: re-send the state waiting "
-                                    "for its command this often (seconds), for a planner that "
-                                    "subscribed late or lost it."),
+    republish: float = typer.Option(
+        0.2,
+        min=0.001,
+        help="lockstep: re-send the state waiting "
+        "for its command this often (seconds), for a planner that "
+        "subscribed late or lost it.",
+    ),
     plan_every: PlanEvery = 1,
-    keep_serving: bool = typer.Option(False, help="After the episode, keep the sockets open and "
-                                      "wait for a control 'reset' with a seed, which begins "
-                                      "the next episode (new session, new log: --log must "
-                                      "hold '{seed}'); 'shutdown' exits. What warm bench "
-                                      "workers use; pair it with m3p2i-planner --keep-running."),
+    keep_serving: bool = typer.Option(
+        False,
+        help="After the episode, keep the sockets open and "
+        "wait for a control 'reset' with a seed, which begins "
+        "the next episode (new session, new log: --log must "
+        "hold '{seed}'); 'shutdown' exits. What warm bench "
+        "workers use; pair it with m3p2i-planner --keep-running.",
+    ),
     window: Window = False,
-    check: bool = typer.Option(False, "--check", help="Only check the scenario (every error of "
-                               "the file, model names included) and --world's class, and exit: "
-                               "0 sound, 2 faulty."),
-    seed: int = typer.Option(0, help="Seed of the scenario's randomised start (world.randomize) "
-                             "and of the simulated faults (--faults)."),
-    world: Optional[str] = typer.Option(None, "--world", help="The world to serve instead of "
-                                        "the MuJoCo simulation: package.module:Class naming a "
-                                        "subclass of server.bridge.Bridge (a robot) or "
-                                        "server.interface.World, imported from the installed "
-                                        "packages, PYTHONPATH or the current directory "
-                                        "(docs/bridge.md). A robot runs --mode realtime."),
+    check: bool = typer.Option(
+        False,
+        "--check",
+        help="Only check the scenario (every error of "
+        "the file, model names included) and --world's class, and exit: "
+        "0 sound, 2 faulty.",
+    ),
+    seed: int = typer.Option(
+        0,
+        help="Seed of the scenario's randomised start (world.randomize) "
+        "and of the simulated faults (--faults).",
+    ),
+    world: str | None = typer.Option(
+        None,
+        "--world",
+        help="The world to serve instead of "
+        "the MuJoCo simulation: package.module:Class naming a "
+        "subclass of server.bridge.Bridge (a robot) or "
+        "server.interface.World, imported from the installed "
+        "packages, PYTHONPATH or the current directory "
+        "(docs/bridge.md). A robot runs --mode realtime.",
+    ),
     faults: Faults = None,
     verbose: Verbose = False,
 ) -> None:
     setup_logging(verbose, "m3p2i.server")
     if mode not in MODES:
         raise typer.BadParameter("must be 'lockstep' or 'realtime'", param_hint="--mode")
-    if not check:   # before anything else: an exposed robot is refused at once
+    if not check:  # before anything else: an exposed robot is refused at once
         world_keys = _security({"--host": host}, keys, insecure)
-    try:                                   # --check checks it too
+    try:  # --check checks it too
         world_class, world_error = (SimWorld if world is None else load_world_class(world)), None
     except WorldLoadError as exc:
         world_class, world_error = None, exc
         typer.echo(f"error: {exc}", err=True)
-    errors = scenario_errors(scenario)     # every error of the file, before anything starts
+    errors = scenario_errors(scenario)  # every error of the file, before anything starts
     fault_config = None
     if faults is not None:
         try:
@@ -101,38 +139,59 @@ def main(
     if errors or world_error or check:
         raise typer.Exit(2 if errors or world_error else 0)
     if keep_serving and (log_file is None or "{seed" not in str(log_file)):
-        typer.echo("error: --keep-serving needs a --log holding '{seed}' (e.g. "
-                   "runs/x/seed-{seed:03d}/episode.jsonl): each episode gets its own log",
-                   err=True)
+        typer.echo(
+            "error: --keep-serving needs a --log holding '{seed}' (e.g. "
+            "runs/x/seed-{seed:03d}/episode.jsonl): each episode gets its own log",
+            err=True,
+        )
         raise typer.Exit(2)
     if keep_serving and window:
-        typer.echo("error: --keep-serving builds a new world for each episode; MuJoCo's window "
-                   "shows one: use `m3p2i view` (the browser view) instead", err=True)
+        typer.echo(
+            "error: --keep-serving builds a new world for each episode; MuJoCo's window "
+            "shows one: use `m3p2i view` (the browser view) instead",
+            err=True,
+        )
         raise typer.Exit(2)
     sc = load_scenario(scenario)
     log_file = log_file or default_run_dir(sc.name) / "episode.jsonl"
-    opts = ServerOptions(mode=mode, command_timeout=command_timeout,
-                         realtime_factor=realtime_factor, republish=republish,
-                         plan_every=plan_every, keep_serving=keep_serving)
+    opts = ServerOptions(
+        mode=mode,
+        command_timeout=command_timeout,
+        realtime_factor=realtime_factor,
+        republish=republish,
+        plan_every=plan_every,
+        keep_serving=keep_serving,
+    )
     try:
-        server = WorldServer(sc, Endpoints(host, port), log_file, opts, seed=seed,
-                             keys=world_keys, world=world_class, faults=fault_config)
-    except ConfigError as exc:   # e.g. a metrics frame the compiled model lacks
+        server = WorldServer(
+            sc,
+            Endpoints(host, port),
+            log_file,
+            opts,
+            seed=seed,
+            keys=world_keys,
+            world=world_class,
+            faults=fault_config,
+        )
+    except ConfigError as exc:  # e.g. a metrics frame the compiled model lacks
         typer.echo(f"error: {exc}", err=True)
         raise typer.Exit(2) from None
-    except WorldError as exc:    # a bridge that cannot reach its robot
+    except WorldError as exc:  # a bridge that cannot reach its robot
         typer.echo(f"error: --world {world}: {exc}", err=True)
         raise typer.Exit(2) from None
     if window:
         if server.world.data is None:
-            log.warning("the world %s keeps no MuJoCo data to show: running without the viewer",
-                        world)
+            log.warning(
+                "the world %s keeps no MuJoCo data to show: running without the viewer", world
+            )
         elif os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY"):
             import mujoco.viewer
+
             # the side panels would cover most of the window it opens with (Tab and
             # Shift+Tab show them)
-            server.viewer = mujoco.viewer.launch_passive(server.world.model, server.world.data,
-                                                         show_left_ui=False, show_right_ui=False)
+            server.viewer = mujoco.viewer.launch_passive(
+                server.world.model, server.world.data, show_left_ui=False, show_right_ui=False
+            )
             frame_viewer(server.viewer, server.world.model, server.world.data)
         else:
             log.warning("no display found: running without the viewer")
@@ -142,7 +201,7 @@ def main(
         signal.signal(sig, server.interrupt)
     try:
         outcome = server.run()
-    except WorldError as exc:    # the world failed mid-episode: stopped, the summary written
+    except WorldError as exc:  # the world failed mid-episode: stopped, the summary written
         typer.echo(f"error: --world {world}: {exc}", err=True)
         typer.echo(f"episode log: {server.log.path}")
         raise typer.Exit(1) from None
@@ -167,7 +226,7 @@ def frame_viewer(viewer, model, data) -> None:
         viewer.cam.azimuth, viewer.cam.elevation = 150.0, -30.0
 
 
-def _security(hosts: dict[str, str], keys: Optional[Path], insecure: bool):
+def _security(hosts: dict[str, str], keys: Path | None, insecure: bool):
     """The world's CURVE keys (None without --keys); exit 2 for a network address without keys
     (unless --insecure: then a warning) or for keys that cannot be used."""
     try:

@@ -35,7 +35,9 @@ class ObjectHandle:
             self.dof = int(model.jnt_dofadr[joint])
 
     def pos(self, data: mujoco.MjData) -> np.ndarray:
-        return data.mocap_pos[self.mocap] if self.mocap >= 0 else data.qpos[self.qpos:self.qpos + 3]
+        return (
+            data.mocap_pos[self.mocap] if self.mocap >= 0 else data.qpos[self.qpos : self.qpos + 3]
+        )
 
     def set(self, data: mujoco.MjData, pos=None, yaw: float | None = None, quat=None) -> None:
         """Move to ``pos`` and turn to ``yaw`` (degrees about z) or ``quat`` (w, x, y, z,
@@ -51,10 +53,10 @@ class ObjectHandle:
                 data.mocap_quat[self.mocap] = quat
             return
         if pos is not None:
-            data.qpos[self.qpos:self.qpos + 3] = pos
+            data.qpos[self.qpos : self.qpos + 3] = pos
         if quat is not None:
-            data.qpos[self.qpos + 3:self.qpos + 7] = quat
-        data.qvel[self.dof:self.dof + 6] = 0.0
+            data.qpos[self.qpos + 3 : self.qpos + 7] = quat
+        data.qvel[self.dof : self.dof + 6] = 0.0
 
 
 def path_length(cfg: PathConfig) -> float:
@@ -90,18 +92,25 @@ class Disturbances:
     path: "end"}`` at the step it reaches its last waypoint, where it then stays. A looping path
     logs its start only: one event per path and episode, not one per step."""
 
-    def __init__(self, model: mujoco.MjModel, resolve: FrameResolver,
-                 randomize: tuple[RandomizeConfig, ...],
-                 disturbances: tuple[MoveConfig | PathConfig, ...]):
+    def __init__(
+        self,
+        model: mujoco.MjModel,
+        resolve: FrameResolver,
+        randomize: tuple[RandomizeConfig, ...],
+        disturbances: tuple[MoveConfig | PathConfig, ...],
+    ):
         self.randomize = randomize
-        self.moves = [(d, d.when.bind(resolve) if d.when else None)
-                      for d in disturbances if isinstance(d, MoveConfig)]
+        self.moves = [
+            (d, d.when.bind(resolve) if d.when else None)
+            for d in disturbances
+            if isinstance(d, MoveConfig)
+        ]
         self.paths = [d for d in disturbances if isinstance(d, PathConfig)]
         names = {c.object for c in randomize} | {d.object for d in disturbances}
         self.handles = {n: ObjectHandle(model, n) for n in names}
         self._done: set[int] = set()
-        self._held_since: dict[int, float] = {}     # move index -> when its `when` first held
-        self._path_phase: dict[int, str] = {}       # path index -> "start" / "end" logged
+        self._held_since: dict[int, float] = {}  # move index -> when its `when` first held
+        self._path_phase: dict[int, str] = {}  # path index -> "start" / "end" logged
 
     def reset(self, data: mujoco.MjData, rng: np.random.Generator) -> list[dict]:
         """Draw the randomised start poses; returns what was drawn, for the episode log."""
@@ -124,14 +133,19 @@ class Disturbances:
 
     @staticmethod
     def _path_event(p: PathConfig, pos: np.ndarray, time: float, phase: str) -> dict:
-        return {"object": p.object, "pos": [float(v) for v in pos], "yaw": None,
-                "time": float(time), "path": phase}
+        return {
+            "object": p.object,
+            "pos": [float(v) for v in pos],
+            "yaw": None,
+            "time": float(time),
+            "path": phase,
+        }
 
     def apply(self, data: mujoco.MjData, extras: dict[str, float]) -> list[dict]:
         """Before a step at ``data.time``: move path objects, fire due moves; returns events."""
         events = []
         for i, p in enumerate(self.paths):
-            if data.time < p.start - 1e-9:          # as a move's `at`: float steps
+            if data.time < p.start - 1e-9:  # as a move's `at`: float steps
                 continue
             moved = max(data.time - p.start, 0.0)
             pos = path_point(p, moved)
@@ -156,5 +170,7 @@ class Disturbances:
                 continue
             self.handles[m.object].set(data, m.pos, m.yaw)
             self._done.add(i)
-            events.append({"object": m.object, "pos": m.pos, "yaw": m.yaw, "time": float(data.time)})
+            events.append(
+                {"object": m.object, "pos": m.pos, "yaw": m.yaw, "time": float(data.time)}
+            )
         return events

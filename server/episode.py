@@ -20,20 +20,20 @@ from pathlib import Path
 
 import numpy as np
 
+from server.episode_log import EpisodeLog, read_log
+from server.faults import FaultyWorld
+from server.interface import Outcome, World, world_name
+from server.world import SimWorld
 from shared import protocol as P
 from shared.evaluation.metrics import MetricsEvaluator, describe, mean_hz
 from shared.evaluation.timing import describe_timing, timing_summary
 from shared.faults import FaultConfig
 from shared.scenario import Scenario
 from shared.timed_plan import PlanPlayer, TimedPlan, held
-from server.episode_log import EpisodeLog, read_log
-from server.faults import FaultyWorld
-from server.interface import Outcome, World, world_name
-from server.world import SimWorld
 
 log = logging.getLogger("m3p2i.server")
 
-_KEEP_STATE_TIMES = 4096   # states whose times are kept, for the age of the commands answering them
+_KEEP_STATE_TIMES = 4096  # states whose times are kept, for the age of the commands answering them
 
 
 class Episode:
@@ -41,9 +41,17 @@ class Episode:
     :meth:`play` (lock-step) or :meth:`apply` (one step) the commands answering it, apply the
     control ops, and :meth:`finish` with the safe stop and the summary."""
 
-    def __init__(self, scenario: Scenario, seed: int, log_path: Path,
-                 world_class: type[World] = SimWorld, faults: FaultConfig | None = None,
-                 mode: str = "lockstep", curve: bool = False, realtime_factor: float = 1.0):
+    def __init__(
+        self,
+        scenario: Scenario,
+        seed: int,
+        log_path: Path,
+        world_class: type[World] = SimWorld,
+        faults: FaultConfig | None = None,
+        mode: str = "lockstep",
+        curve: bool = False,
+        realtime_factor: float = 1.0,
+    ):
         """A fresh world (as a new process would build it), reset, a new session and the
         log's header. ``faults``: the faults the world shows (default: the scenario's);
         ``mode`` and ``curve`` are the server's, for the header (a real-time world's faults run
@@ -53,33 +61,47 @@ class Episode:
         self.seed = seed
         self.world: World = world_class(scenario, seed)
         if self.faults.active:
-            self.world = FaultyWorld(self.world, self.faults, realtime=mode == "realtime",
-                                     realtime_factor=realtime_factor)
+            self.world = FaultyWorld(
+                self.world,
+                self.faults,
+                realtime=mode == "realtime",
+                realtime_factor=realtime_factor,
+            )
         self.world.reset()
-        self.metrics = MetricsEvaluator(scenario, self.world.model)   # bad frames fail here
+        self.metrics = MetricsEvaluator(scenario, self.world.model)  # bad frames fail here
         self.session = secrets.token_hex(4)
-        self.seq = 0                      # the newest state's number: world steps and ops
-        self.steps = 0                    # world steps taken (and logged)
-        self.resets = 0                   # plain resets (control op) within the episode
-        self.finished = False             # the summary is written
-        self.in_step = False              # a world step is between its physics and its log record
-        self.pending: int | None = None   # a signal that landed there, raised once it is logged
-        self.lag = 0.0                    # of the newest command, world seconds
+        self.seq = 0  # the newest state's number: world steps and ops
+        self.steps = 0  # world steps taken (and logged)
+        self.resets = 0  # plain resets (control op) within the episode
+        self.finished = False  # the summary is written
+        self.in_step = False  # a world step is between its physics and its log record
+        self.pending: int | None = None  # a signal that landed there, raised once it is logged
+        self.lag = 0.0  # of the newest command, world seconds
         self.action = ""
         self.action_changes: list[tuple[float, str]] = []
-        self.dropped = 0                  # states the simulated link lost
+        self.dropped = 0  # states the simulated link lost
         self._plan_times: list[float] = []
-        self._state_times: dict[int, float] = {}     # seq -> world time of recent states
-        self._plan_time_of: dict[int, float] = {}    # seq -> planning time, until first applied
-        self._published = -1              # the newest seq published (or lost: drop_state)
-        self._player = PlanPlayer()       # lock-step: the plans received, each from its t0 on
+        self._state_times: dict[int, float] = {}  # seq -> world time of recent states
+        self._plan_time_of: dict[int, float] = {}  # seq -> planning time, until first applied
+        self._published = -1  # the newest seq published (or lost: drop_state)
+        self._player = PlanPlayer()  # lock-step: the plans received, each from its t0 on
         self.log = EpisodeLog(log_path)
-        self.log.write("header", scenario=scenario.name, scenario_hash=scenario.hash,
-                       source=scenario.source, mode=mode, dt=self.world.dt,
-                       session=self.session, nq=self.world.model.nq, nu=self.world.model.nu,
-                       seed=seed, initial=self.world.initial, curve=curve,
-                       world=world_name(world_class),
-                       **(self.world.header() if isinstance(self.world, FaultyWorld) else {}))
+        self.log.write(
+            "header",
+            scenario=scenario.name,
+            scenario_hash=scenario.hash,
+            source=scenario.source,
+            mode=mode,
+            dt=self.world.dt,
+            session=self.session,
+            nq=self.world.model.nq,
+            nu=self.world.model.nu,
+            seed=seed,
+            initial=self.world.initial,
+            curve=curve,
+            world=world_name(world_class),
+            **(self.world.header() if isinstance(self.world, FaultyWorld) else {}),
+        )
 
     @property
     def dt(self) -> float:
@@ -97,9 +119,19 @@ class Episode:
         commands answering it; None when the world's link loses it (:meth:`World.drop_state`,
         asked once per ``seq``: the same state asked for again is delivered)."""
         s = self.world.state()
-        state = P.State(session=self.session, seq=self.seq, time=s.time, qpos=s.qpos,
-                        qvel=s.qvel, act=s.act, mocap_pos=s.mocap_pos, mocap_quat=s.mocap_quat,
-                        status=self.world.status, extras=dict(self.world.extras), lag=self.lag)
+        state = P.State(
+            session=self.session,
+            seq=self.seq,
+            time=s.time,
+            qpos=s.qpos,
+            qvel=s.qvel,
+            act=s.act,
+            mocap_pos=s.mocap_pos,
+            mocap_quat=s.mocap_quat,
+            status=self.world.status,
+            extras=dict(self.world.extras),
+            lag=self.lag,
+        )
         self._state_times[self.seq] = state.time
         self._state_times.pop(self.seq - _KEEP_STATE_TIMES, None)
         self._plan_time_of.pop(self.seq - _KEEP_STATE_TIMES, None)
@@ -112,8 +144,9 @@ class Episode:
 
     # ------------------------------------------------------------------ commands
 
-    def play(self, cmd: P.Command, steps: int = 1,
-             after_step: Callable[[], None] | None = None) -> None:
+    def play(
+        self, cmd: P.Command, steps: int = 1, after_step: Callable[[], None] | None = None
+    ) -> None:
         """Lock-step: ``steps`` world steps under ``cmd`` (its plan's knots by time, or its
         ctrl held; the safe control past the plan's end), fewer when the episode ends; then its
         action is noted. One step by default; more emulate, deterministically, a planner that
@@ -124,8 +157,11 @@ class Episode:
         have) waits, and the plan playing goes on until then. A planner's usual plan is dated
         at the state's time, so it starts at once."""
         self._count_plan(cmd)
-        plan = (TimedPlan(cmd.plan_t0, cmd.plan_dt, cmd.plan_ctrl, cmd.seq) if cmd.has_plan
-                else held(cmd.ctrl, self.world.time, cmd.seq))
+        plan = (
+            TimedPlan(cmd.plan_t0, cmd.plan_dt, cmd.plan_ctrl, cmd.seq)
+            if cmd.has_plan
+            else held(cmd.ctrl, self.world.time, cmd.seq)
+        )
         # the lag, as in real time: from the answered state's time (its measurement's) to now;
         # 0 unless the world publishes its states late (a state delay)
         self.lag = max(0.0, self.world.time - self._state_times.get(cmd.seq, self.world.time))
@@ -148,8 +184,11 @@ class Episode:
             self.lag = max(0.0, self.world.time - sent)
         self._count_plan(cmd)
         self.note_action(cmd.action)
-        return (TimedPlan(cmd.plan_t0, cmd.plan_dt, cmd.plan_ctrl, cmd.seq) if cmd.has_plan
-                else held(cmd.ctrl, self.world.time, cmd.seq))
+        return (
+            TimedPlan(cmd.plan_t0, cmd.plan_dt, cmd.plan_ctrl, cmd.seq)
+            if cmd.has_plan
+            else held(cmd.ctrl, self.world.time, cmd.seq)
+        )
 
     def _count_plan(self, cmd: P.Command) -> None:
         """Its planning time counts (Hz statistics) once, on the first step it drives."""
@@ -163,8 +202,9 @@ class Episode:
             self.action_changes.append((self.world.time, action))
             self.log.event("action", time=self.world.time, action=action)
 
-    def apply(self, ctrl: np.ndarray | None, source: int = -1,
-              cmd_age: float | None = None) -> None:
+    def apply(
+        self, ctrl: np.ndarray | None, source: int = -1, cmd_age: float | None = None
+    ) -> None:
         """One world step under ``ctrl`` (None: the safe control), planned from state
         ``source`` (-1: none); the step's log record has the control's age (world seconds since
         that state) and source, from which shared.evaluation.timing tells whether the planner
@@ -181,7 +221,7 @@ class Episode:
         plan_time = self._plan_time_of.pop(source, 0.0)
         if plan_time:
             self._plan_times.append(plan_time)
-        self.in_step = True               # from the physics to its log record: no signal between
+        self.in_step = True  # from the physics to its log record: no signal between
         try:
             self.world.step(self.world.safe_command() if ctrl is None else ctrl)
             for event in self.world.events:
@@ -191,11 +231,24 @@ class Episode:
             self.seq += 1
             self.steps += 1
             s = self.world.true_state()
-            self.log.write("step", seq=self.seq, time=s.time, qpos=s.qpos, qvel=s.qvel,
-                           act=s.act, mocap_pos=s.mocap_pos, mocap_quat=s.mocap_quat,
-                           ctrl=self.world.ctrl, action=self.action, safe=ctrl is None,
-                           plan_seq=source, age=age, plan_time=plan_time, cmd_age=cmd_age,
-                           extras=self.world.extras)
+            self.log.write(
+                "step",
+                seq=self.seq,
+                time=s.time,
+                qpos=s.qpos,
+                qvel=s.qvel,
+                act=s.act,
+                mocap_pos=s.mocap_pos,
+                mocap_quat=s.mocap_quat,
+                ctrl=self.world.ctrl,
+                action=self.action,
+                safe=ctrl is None,
+                plan_seq=source,
+                age=age,
+                plan_time=plan_time,
+                cmd_age=cmd_age,
+                extras=self.world.extras,
+            )
         finally:
             self.in_step = False
         if self.pending is not None:
@@ -231,8 +284,8 @@ class Episode:
         self.seq += 1
         self.resets += 1
         self.lag = 0.0
-        self.action = ""                  # the restarted planner's first action is a change
-        self._player.clear()              # plans dated before the reset are void
+        self.action = ""  # the restarted planner's first action is a change
+        self._player.clear()  # plans dated before the reset are void
         self.log.event("reset", time=cut, session=self.session, seq=self.seq)
 
     def abort(self) -> None:
@@ -243,7 +296,7 @@ class Episode:
         """The world's safe stop; its failure is logged loudly, and the summary still written."""
         try:
             self.world.stop()
-        except Exception as exc:   # noqa: BLE001 - the operator must hear of it, and the log end
+        except Exception as exc:
             log.exception("the world's safe stop failed: the robot may still be moving")
             self.log.event("stop_failed", reason=f"{type(exc).__name__}: {exc}")
 
@@ -254,18 +307,26 @@ class Episode:
         still running is ``stopped``), the metrics and the summary record (``rejected``: the
         bad messages the server refused); the log is closed. The outcome's measures gain
         ``planner_hz``."""
-        self.stop_world()                    # a robot holds still whatever ended the episode
-        if self.running:                     # ended by a seeded reset, a shutdown, a limit
+        self.stop_world()  # a robot holds still whatever ended the episode
+        if self.running:  # ended by a seeded reset, a shutdown, a limit
             self.abort()
         outcome = self.world.outcome()
         hz = mean_hz(self._plan_times)
         metrics, timing = self.evaluate(outcome.status)
-        self.log.write("summary", status=outcome.status, time=outcome.time,
-                       measures=outcome.measures, planner_hz=hz, steps=self.steps,
-                       rejected=rejected, actions=self.action_changes,
-                       **({"resets": self.resets} if self.resets else {}),
-                       **({"dropped": self.dropped} if self.faults.active else {}),
-                       metrics=metrics, timing=timing)
+        self.log.write(
+            "summary",
+            status=outcome.status,
+            time=outcome.time,
+            measures=outcome.measures,
+            planner_hz=hz,
+            steps=self.steps,
+            rejected=rejected,
+            actions=self.action_changes,
+            **({"resets": self.resets} if self.resets else {}),
+            **({"dropped": self.dropped} if self.faults.active else {}),
+            metrics=metrics,
+            timing=timing,
+        )
         self.log.close()
         self.finished = True
         outcome.measures["planner_hz"] = hz
@@ -278,7 +339,7 @@ class Episode:
             records = read_log(self.log.path)
             metrics = self.metrics.evaluate(records, status=status)
             timing = timing_summary(records)
-        except Exception:   # noqa: BLE001 - the summary must be written whatever went wrong
+        except Exception:
             log.exception("could not compute the episode metrics")
             return None, None
         log.info("metrics: %s", describe(metrics))

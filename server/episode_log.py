@@ -33,7 +33,7 @@ class EpisodeLog:
     def __init__(self, path: Path):
         self.path = Path(path)
         self.path.parent.mkdir(parents=True, exist_ok=True)
-        self._f = self.path.open("w", buffering=1)   # line-buffered: each record hits the OS
+        self._f = self.path.open("w", buffering=1)  # line-buffered: each record hits the OS
         self._closed = False
 
     def write(self, kind: str, **fields: Any) -> None:

@@ -29,9 +29,9 @@ from typing import Any
 import mujoco
 import numpy as np
 
-from shared.faults import FaultConfig, steps_of
 from server.interface import Outcome, World, WorldError, WorldState
 from server.world import SimWorld
+from shared.faults import FaultConfig, steps_of
 
 # independent generator streams per fault, so that turning one fault on leaves the others' draws
 _NOISE, _DROPS, _MISMATCH = 1, 2, 3
@@ -62,8 +62,9 @@ class DelayLine:
         return self._current
 
 
-def draw_mismatch(model: mujoco.MjModel, world: World, config: FaultConfig,
-                  seed: int) -> dict[str, dict[str, float]]:
+def draw_mismatch(
+    model: mujoco.MjModel, world: World, config: FaultConfig, seed: int
+) -> dict[str, dict[str, float]]:
     """Scale ``model`` in place by factors drawn from ``seed``, uniform in ``[1 - f, 1 + f]``:
     each scenario object's bodies' masses and inertias (``mass``), its geoms' frictions
     (``friction``), each actuator's gain and bias (``gain``: kp and kv of a servo). Returns the
@@ -75,11 +76,11 @@ def draw_mismatch(model: mujoco.MjModel, world: World, config: FaultConfig,
         body = model.body(obj.name).id
         f_mass = 1.0 + m.mass * rng.uniform(-1.0, 1.0)
         f_friction = 1.0 + m.friction * rng.uniform(-1.0, 1.0)
-        if m.mass and not obj.fixed:     # a fixed object's mass moves nothing
+        if m.mass and not obj.fixed:  # a fixed object's mass moves nothing
             model.body_mass[body] *= f_mass
             model.body_inertia[body] *= f_mass
             factors["mass"][obj.name] = float(f_mass)
-        if m.friction and not obj.visual:      # a visual geom touches nothing
+        if m.friction and not obj.visual:  # a visual geom touches nothing
             model.geom_friction[model.geom_bodyid == body] *= f_friction
             factors["friction"][obj.name] = float(f_friction)
     for a in range(model.nu):
@@ -98,8 +99,14 @@ class FaultyWorld(World):
     delays in world seconds, read as ``clock()`` (wall seconds) times ``realtime_factor`` (the
     world seconds a wall second holds); else in world steps."""
 
-    def __init__(self, inner: World, config: FaultConfig, realtime: bool = False,
-                 clock: Callable[[], float] = time.monotonic, realtime_factor: float = 1.0):
+    def __init__(
+        self,
+        inner: World,
+        config: FaultConfig,
+        realtime: bool = False,
+        clock: Callable[[], float] = time.monotonic,
+        realtime_factor: float = 1.0,
+    ):
         # World.__init__ is not called: the inner world owns the model and the episode's state
         self.inner = inner
         self.config = config
@@ -117,13 +124,18 @@ class FaultyWorld(World):
         self.mismatch: dict[str, dict[str, float]] = {}
         if config.mismatch.active:
             if not isinstance(inner, SimWorld):
-                raise WorldError(f"faults.mismatch scales a simulated model; the world "
-                                 f"{type(inner).__name__} simulates none (set the mismatch "
-                                 f"fractions to 0)")
+                raise WorldError(
+                    f"faults.mismatch scales a simulated model; the world "
+                    f"{type(inner).__name__} simulates none (set the mismatch "
+                    f"fractions to 0)"
+                )
             self.mismatch = draw_mismatch(inner.model, inner, config, inner.seed)
             mujoco.mj_setConst(inner.model, inner.data)
-        self._gripper = [inner.robot.ctrl_names.index(n) for n in inner.robot.hold_ctrl] \
-            if config.gripper == "binary" else []
+        self._gripper = (
+            [inner.robot.ctrl_names.index(n) for n in inner.robot.hold_ctrl]
+            if config.gripper == "binary"
+            else []
+        )
         self._index_joints(inner.model)
         self.reset()
 
@@ -212,28 +224,35 @@ class FaultyWorld(World):
         mocap_pos, mocap_quat = s.mocap_pos.copy(), s.mocap_quat.copy()
         if c.position_noise_m:
             for a in self._free_pos:
-                qpos[a:a + 3] += self._noise.normal(0.0, c.position_noise_m, 3)
+                qpos[a : a + 3] += self._noise.normal(0.0, c.position_noise_m, 3)
             qpos[self._slide] += self._noise.normal(0.0, c.position_noise_m, len(self._slide))
             mocap_pos += self._noise.normal(0.0, c.position_noise_m, mocap_pos.shape)
         if c.joint_noise_rad:
             qpos[self._hinge] += self._noise.normal(0.0, c.joint_noise_rad, len(self._hinge))
         if c.angle_noise_rad:
             for a in self._quats:
-                qpos[a:a + 4] = self._turn(qpos[a:a + 4])
+                qpos[a : a + 4] = self._turn(qpos[a : a + 4])
             for i in range(len(mocap_quat)):
                 mocap_quat[i] = self._turn(mocap_quat[i])
         if c.hide_velocities:
             for d in self._free_dof:
-                qvel[d:d + 6] = 0.0
-        return WorldState(time=s.time, qpos=qpos, qvel=qvel, act=s.act.copy(),
-                          mocap_pos=mocap_pos, mocap_quat=mocap_quat)
+                qvel[d : d + 6] = 0.0
+        return WorldState(
+            time=s.time,
+            qpos=qpos,
+            qvel=qvel,
+            act=s.act.copy(),
+            mocap_pos=mocap_pos,
+            mocap_quat=mocap_quat,
+        )
 
     def _turn(self, quat: np.ndarray) -> np.ndarray:
         """``quat`` (w x y z) turned by a rotation vector with σ ``angle_noise_rad`` per axis."""
         rotvec = self._noise.normal(0.0, self.config.angle_noise_rad, 3)
         turn = np.zeros(4)
-        mujoco.mju_axisAngle2Quat(turn, rotvec / max(np.linalg.norm(rotvec), 1e-300),
-                                  float(np.linalg.norm(rotvec)))
+        mujoco.mju_axisAngle2Quat(
+            turn, rotvec / max(np.linalg.norm(rotvec), 1e-300), float(np.linalg.norm(rotvec))
+        )
         out = np.zeros(4)
         mujoco.mju_mulQuat(out, np.asarray(quat, float), turn)
         return out / np.linalg.norm(out)
@@ -259,7 +278,7 @@ class FaultyWorld(World):
 
     def move_object(self, name: str, pos, quat=None) -> dict:
         event = self.inner.move_object(name, pos, quat)
-        self._record()          # measured now, published once the state delay has passed
+        self._record()  # measured now, published once the state delay has passed
         return event
 
     def close(self) -> None:
@@ -271,7 +290,13 @@ class FaultyWorld(World):
         written before the rename names them ``hardware*``:
         :func:`shared.evaluation.episode.faults` reads both)."""
         unit = "s" if self.realtime else "steps"
-        return {"faults": self.config.to_dict(), "faults_mismatch": self.mismatch,
-                "faults_delays": {"actuation": self._actuation.delay,
-                                  "state": self._states.delay, "unit": unit,
-                                  "control_period_steps": self.period_steps}}
+        return {
+            "faults": self.config.to_dict(),
+            "faults_mismatch": self.mismatch,
+            "faults_delays": {
+                "actuation": self._actuation.delay,
+                "state": self._states.delay,
+                "unit": unit,
+                "control_period_steps": self.period_steps,
+            },
+        }

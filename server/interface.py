@@ -50,6 +50,7 @@ class WorldState:
     """The world's full state in the scenario model's coordinates (docs/protocol.md ``state``):
     ``qpos [nq]``, ``qvel [nv]``, ``act [na]``, ``mocap_pos [nmocap, 3]``, ``mocap_quat
     [nmocap, 4]`` (w, x, y, z); SI units; ``time`` in world seconds since the episode began."""
+
     time: float
     qpos: np.ndarray
     qvel: np.ndarray
@@ -60,8 +61,8 @@ class WorldState:
 
 @dataclass
 class Outcome:
-    status: str               # running | success | timeout | stopped
-    time: float               # world seconds
+    status: str  # running | success | timeout | stopped
+    time: float  # world seconds
     measures: dict[str, float]
 
 
@@ -183,8 +184,9 @@ def load_world_class(spec: str) -> type[World]:
     wrong with ``spec`` and what was expected."""
     module_name, sep, attr = spec.partition(":")
     if not sep or not module_name or not attr:
-        raise WorldLoadError(f"--world {spec!r}: expected package.module:Class "
-                             f"(e.g. my_robot.bridge:MyBridge)")
+        raise WorldLoadError(
+            f"--world {spec!r}: expected package.module:Class (e.g. my_robot.bridge:MyBridge)"
+        )
     # a console script's sys.path lacks the current directory that `python -m server` has:
     # appended, so that it never shadows an installed package
     if os.getcwd() not in sys.path and "" not in sys.path:
@@ -192,23 +194,29 @@ def load_world_class(spec: str) -> type[World]:
     try:
         module = importlib.import_module(module_name)
     except ModuleNotFoundError as exc:
-        if exc.name == module_name or module_name.startswith(f"{exc.name}."):   # not its imports
-            raise WorldLoadError(f"--world {spec!r}: no module named {exc.name!r} (is it "
-                                 f"installed, on PYTHONPATH or in the current directory?)") from None
+        if exc.name == module_name or module_name.startswith(f"{exc.name}."):  # not its imports
+            raise WorldLoadError(
+                f"--world {spec!r}: no module named {exc.name!r} (is it "
+                f"installed, on PYTHONPATH or in the current directory?)"
+            ) from None
         raise WorldLoadError(f"--world {spec!r}: importing {module_name} failed: {exc}") from exc
     try:
         cls = module
         for part in attr.split("."):
             cls = getattr(cls, part)
     except AttributeError:
-        raise WorldLoadError(f"--world {spec!r}: module {module_name} ({module.__file__}) has no "
-                             f"{attr!r}") from None
+        raise WorldLoadError(
+            f"--world {spec!r}: module {module_name} ({module.__file__}) has no {attr!r}"
+        ) from None
     if not (inspect.isclass(cls) and issubclass(cls, World)):
-        raise WorldLoadError(f"--world {spec!r}: {attr} is not a subclass of "
-                             f"server.interface.World (server.bridge.Bridge for a robot), it is "
-                             f"{cls!r}")
+        raise WorldLoadError(
+            f"--world {spec!r}: {attr} is not a subclass of "
+            f"server.interface.World (server.bridge.Bridge for a robot), it is "
+            f"{cls!r}"
+        )
     if inspect.isabstract(cls):
         missing = ", ".join(sorted(cls.__abstractmethods__))
-        raise WorldLoadError(f"--world {spec!r}: {attr} leaves abstract: {missing}; implement "
-                             f"them (docs/bridge.md)")
+        raise WorldLoadError(
+            f"--world {spec!r}: {attr} leaves abstract: {missing}; implement them (docs/bridge.md)"
+        )
     return cls

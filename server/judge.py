@@ -25,8 +25,9 @@ class EpisodeJudge:
     def reset(self) -> None:
         self._success_since: float | None = None
 
-    def update(self, status: str, data: mujoco.MjData, extras: dict[str, float],
-               time: float) -> str:
+    def update(
+        self, status: str, data: mujoco.MjData, extras: dict[str, float], time: float
+    ) -> str:
         """The status after a step at world ``time`` (``data``'s kinematics up to date):
         ``success`` once the predicates held for ``hold`` seconds without a break (a stack that
         topples, or a cube moved off its goal, is no success yet), ``timeout`` at

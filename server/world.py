@@ -10,13 +10,13 @@ from __future__ import annotations
 import mujoco
 import numpy as np
 
+from server.disturbances import Disturbances, ObjectHandle
+from server.interface import Outcome, World, WorldState
+from server.judge import EpisodeJudge
 from shared.frames import FrameResolver
 from shared.geometry import select_axes
 from shared.scenario import Scenario
 from shared.scene import reset_data
-from server.disturbances import Disturbances, ObjectHandle
-from server.interface import Outcome, World, WorldState
-from server.judge import EpisodeJudge
 
 __all__ = ["Outcome", "SimWorld"]
 
@@ -33,8 +33,9 @@ class SimWorld(World):
         if self.battery:
             self._robot_frame = resolve("robot")
             self._charger = resolve(self.battery.charger)
-        self.disturbances = Disturbances(self.model, resolve, scenario.world.randomize,
-                                         scenario.world.disturbances)
+        self.disturbances = Disturbances(
+            self.model, resolve, scenario.world.randomize, scenario.world.disturbances
+        )
         self.reset()
 
     @property
@@ -50,7 +51,7 @@ class SimWorld(World):
         reset_data(self.scenario, self.model, self.data)
         self.initial = self.disturbances.reset(self.data, np.random.default_rng(self.seed))
         mujoco.mj_forward(self.model, self.data)
-        self.data.ctrl[:] = self.robot.safe_stop()      # what a safe stop holds before any command
+        self.data.ctrl[:] = self.robot.safe_stop()  # what a safe stop holds before any command
         self.status = "running"
         self.judge.reset()
         if self.battery:
@@ -62,17 +63,27 @@ class SimWorld(World):
         not: a robot body, the arena, or a name the scenario does not have."""
         objects = [o.name for o in self.scenario.world.objects]
         if name not in objects:
-            known = any(mujoco.mj_name2id(self.model, kind, name) >= 0
-                        for kind in (mujoco.mjtObj.mjOBJ_BODY, mujoco.mjtObj.mjOBJ_GEOM))
-            what = (f"{name!r} is part of the robot or the arena, not a scenario object"
-                    if known else f"unknown object {name!r}")
+            known = any(
+                mujoco.mj_name2id(self.model, kind, name) >= 0
+                for kind in (mujoco.mjtObj.mjOBJ_BODY, mujoco.mjtObj.mjOBJ_GEOM)
+            )
+            what = (
+                f"{name!r} is part of the robot or the arena, not a scenario object"
+                if known
+                else f"unknown object {name!r}"
+            )
             raise ValueError(f"{what}; objects that can be moved: {', '.join(objects) or 'none'}")
         pos = np.asarray(pos, float)
         if pos.shape != (3,) or not np.all(np.isfinite(pos)):
             raise ValueError(f"object {name!r}: pos must be 3 finite numbers, got {pos.tolist()}")
         ObjectHandle(self.model, name).set(self.data, pos, quat=quat)
         mujoco.mj_forward(self.model, self.data)
-        event = {"object": name, "pos": pos.tolist(), "time": float(self.data.time), "source": "control"}
+        event = {
+            "object": name,
+            "pos": pos.tolist(),
+            "time": float(self.data.time),
+            "source": "control",
+        }
         if quat is not None:
             event["quat"] = (np.asarray(quat, float) / np.linalg.norm(quat)).tolist()
         return event
@@ -102,10 +113,17 @@ class SimWorld(World):
 
     def state(self) -> WorldState:
         d = self.data
-        return WorldState(time=float(d.time), qpos=d.qpos.copy(), qvel=d.qvel.copy(),
-                          act=d.act.copy(), mocap_pos=d.mocap_pos.copy(),
-                          mocap_quat=d.mocap_quat.copy())
+        return WorldState(
+            time=float(d.time),
+            qpos=d.qpos.copy(),
+            qvel=d.qvel.copy(),
+            act=d.act.copy(),
+            mocap_pos=d.mocap_pos.copy(),
+            mocap_quat=d.mocap_quat.copy(),
+        )
 
     def outcome(self) -> Outcome:
         """Status and the success predicates' measures (e.g. final distance to the goal)."""
-        return Outcome(self.status, float(self.data.time), self.judge.measures(self.data, self.extras))
+        return Outcome(
+            self.status, float(self.data.time), self.judge.measures(self.data, self.extras)
+        )

@@ -11,16 +11,17 @@ import os
 
 import mujoco
 
-from shared.scenario_check import scenario_errors as _scenario_errors
 from shared.config import ConfigError, ErrorLog
 from shared.evaluation.metrics import MetricsEvaluator
 from shared.frames import FrameResolver
 from shared.predicates import check_frames
 from shared.scenario import MoveConfig, Scenario
+from shared.scenario_check import scenario_errors as _scenario_errors
 
 
-def model_checks(scenario: Scenario, model: mujoco.MjModel, resolve: FrameResolver,
-                 errors: ErrorLog) -> None:
+def model_checks(
+    scenario: Scenario, model: mujoco.MjModel, resolve: FrameResolver, errors: ErrorLog
+) -> None:
     """The names the world resolves against its compiled model: the frames of its success test
     and disturbances, the frames and bodies of its metrics. Only names: the same checks serve
     on the stand-in model of a file whose own model cannot be built."""
@@ -28,8 +29,9 @@ def model_checks(scenario: Scenario, model: mujoco.MjModel, resolve: FrameResolv
         errors.call(check_frames, pred, resolve, scenario.source, f"episode.success[{i}]")
     for i, d in enumerate(scenario.world.disturbances):
         if isinstance(d, MoveConfig) and d.when is not None:
-            errors.call(check_frames, d.when, resolve, scenario.source,
-                        f"world.disturbances[{i}].move.when")
+            errors.call(
+                check_frames, d.when, resolve, scenario.source, f"world.disturbances[{i}].move.when"
+            )
     errors.call(MetricsEvaluator, scenario, model)
 
 

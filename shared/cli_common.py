@@ -9,7 +9,7 @@ import logging
 import sys
 import time
 from pathlib import Path
-from typing import Annotated, Optional
+from typing import Annotated
 
 import typer
 from rich.logging import RichHandler
@@ -22,63 +22,132 @@ SCENARIO_HELP = "Scenario name (m3p2i list) or YAML path."
 ScenarioOption = Annotated[str, typer.Option("--scenario", "-s", help=SCENARIO_HELP)]
 ScenarioArgument = Annotated[str, typer.Argument(help=SCENARIO_HELP)]
 
-Host = Annotated[str, typer.Option(
-    "--host", help="The world's address: the one m3p2i-server binds (loopback by default), the "
-    "one the planner and the view connect to. A network address (e.g. 0.0.0.0 on the world's "
-    "side) needs --keys (or, on m3p2i-server and m3p2i-planner, --insecure).")]
-Port = Annotated[int, typer.Option(
-    "--port", help="The world's first port: control; the state is published on PORT+1, "
-    "commands arrive on PORT+2, the planner's diagnostics are on PORT+3.")]
-Keys = Annotated[Optional[Path], typer.Option(
-    "--keys", help="CURVE key folder made by `m3p2i keys DIR`: every socket authenticated and "
-    "encrypted. The world uses DIR/world/ (it accepts only the planners whose public keys are "
-    "in DIR/world/planners/), the planner and the view DIR/planner/ (the world's public key "
-    "in DIR/planner/world.key).")]
-Insecure = Annotated[bool, typer.Option(
-    "--insecure", help="Allow a network address without --keys: anyone who reaches the ports "
-    "can drive the robot. Only on an isolated, trusted network; warned at every start.")]
-Verbose = Annotated[bool, typer.Option(
-    "--verbose", "-v", help="Debug messages too; m3p2i run shows both processes' output "
-    "instead of writing it to log files.")]
+Host = Annotated[
+    str,
+    typer.Option(
+        "--host",
+        help="The world's address: the one m3p2i-server binds (loopback by default), the "
+        "one the planner and the view connect to. A network address (e.g. 0.0.0.0 on the world's "
+        "side) needs --keys (or, on m3p2i-server and m3p2i-planner, --insecure).",
+    ),
+]
+Port = Annotated[
+    int,
+    typer.Option(
+        "--port",
+        help="The world's first port: control; the state is published on PORT+1, "
+        "commands arrive on PORT+2, the planner's diagnostics are on PORT+3.",
+    ),
+]
+Keys = Annotated[
+    Path | None,
+    typer.Option(
+        "--keys",
+        help="CURVE key folder made by `m3p2i keys DIR`: every socket authenticated and "
+        "encrypted. The world uses DIR/world/ (it accepts only the planners whose public keys are "
+        "in DIR/world/planners/), the planner and the view DIR/planner/ (the world's public key "
+        "in DIR/planner/world.key).",
+    ),
+]
+Insecure = Annotated[
+    bool,
+    typer.Option(
+        "--insecure",
+        help="Allow a network address without --keys: anyone who reaches the ports "
+        "can drive the robot. Only on an isolated, trusted network; warned at every start.",
+    ),
+]
+Verbose = Annotated[
+    bool,
+    typer.Option(
+        "--verbose",
+        "-v",
+        help="Debug messages too; m3p2i run shows both processes' output "
+        "instead of writing it to log files.",
+    ),
+]
 
 MODES = ("lockstep", "realtime")
-Mode = Annotated[str, typer.Option(
-    "--mode", help="lockstep: the world steps only when the command for its latest state "
-    "arrives (deterministic). realtime: it steps on the wall clock, playing the newest "
-    "command's plan.")]
-PlanEvery = Annotated[int, typer.Option(
-    "--plan-every", min=1, help="lockstep: world steps played per command (its plan's knots by "
-    "time). K > 1 emulates, repeatably, a planner K times slower than a real-time world.")]
-RealtimeFactor = Annotated[float, typer.Option(
-    "--realtime-factor", min=0.01, help="realtime: simulated seconds per wall second; 0.5 runs "
-    "the world at half speed, so every planner rate counts double against it.")]
-Faults = Annotated[Optional[str], typer.Option(
-    "--faults", "--hardware", help="Simulated faults for the world, to rehearse a robot "
-    f"(docs/faults.md): a fault profile ({', '.join(PROFILES)}) or a YAML file of faults: keys "
-    "(delays, noise, dropped states, withheld velocities, control period, model mismatch, "
-    "binary gripper). Replaces the scenario's own faults: section. Only the world is told: the "
-    "planner keeps the nominal model (m3p2i run --compensate declares the delays to it). "
-    "lockstep: faults drawn from --seed, delays in world steps (repeatable); realtime: "
-    "wall-clock delays. (--hardware is its older name.)")]
-EstimateDelays = Annotated[bool, typer.Option(
-    "--estimate-delays", help="The planner measures the robot's delays online "
-    "(planner.delays.estimate): the state delay from the lag the world reports, the actuation "
-    "delay from how the robot answers the controls sent; declared delays stand until then "
-    "(docs/faults.md).")]
-Window = Annotated[bool, typer.Option(
-    "--window/--no-window", "--viewer", help="Open MuJoCo's own viewer window on "
-    "the world's machine (needs a display); drag objects in it to disturb the world. "
-    "(--viewer is its older name.)")]
-Seed = Annotated[int, typer.Option(
-    "--seed", help="Seed of the episode: the world's randomised start (world.randomize) and the "
-    "planner's sampling.")]
-RunDir = Annotated[Optional[Path], typer.Option(
-    "--run-dir", help="Where the episode's logs go (default runs/<scenario>-<time>).")]
-Timeout = Annotated[float, typer.Option(
-    "--timeout", help="Wall-clock seconds before the run is abandoned.")]
+Mode = Annotated[
+    str,
+    typer.Option(
+        "--mode",
+        help="lockstep: the world steps only when the command for its latest state "
+        "arrives (deterministic). realtime: it steps on the wall clock, playing the newest "
+        "command's plan.",
+    ),
+]
+PlanEvery = Annotated[
+    int,
+    typer.Option(
+        "--plan-every",
+        min=1,
+        help="lockstep: world steps played per command (its plan's knots by "
+        "time). K > 1 emulates, repeatably, a planner K times slower than a real-time world.",
+    ),
+]
+RealtimeFactor = Annotated[
+    float,
+    typer.Option(
+        "--realtime-factor",
+        min=0.01,
+        help="realtime: simulated seconds per wall second; 0.5 runs "
+        "the world at half speed, so every planner rate counts double against it.",
+    ),
+]
+Faults = Annotated[
+    str | None,
+    typer.Option(
+        "--faults",
+        "--hardware",
+        help="Simulated faults for the world, to rehearse a robot "
+        f"(docs/faults.md): a fault profile ({', '.join(PROFILES)}) or a YAML file of faults: keys "
+        "(delays, noise, dropped states, withheld velocities, control period, model mismatch, "
+        "binary gripper). Replaces the scenario's own faults: section. Only the world is told: the "
+        "planner keeps the nominal model (m3p2i run --compensate declares the delays to it). "
+        "lockstep: faults drawn from --seed, delays in world steps (repeatable); realtime: "
+        "wall-clock delays. (--hardware is its older name.)",
+    ),
+]
+EstimateDelays = Annotated[
+    bool,
+    typer.Option(
+        "--estimate-delays",
+        help="The planner measures the robot's delays online "
+        "(planner.delays.estimate): the state delay from the lag the world reports, the actuation "
+        "delay from how the robot answers the controls sent; declared delays stand until then "
+        "(docs/faults.md).",
+    ),
+]
+Window = Annotated[
+    bool,
+    typer.Option(
+        "--window/--no-window",
+        "--viewer",
+        help="Open MuJoCo's own viewer window on "
+        "the world's machine (needs a display); drag objects in it to disturb the world. "
+        "(--viewer is its older name.)",
+    ),
+]
+Seed = Annotated[
+    int,
+    typer.Option(
+        "--seed",
+        help="Seed of the episode: the world's randomised start (world.randomize) and the "
+        "planner's sampling.",
+    ),
+]
+RunDir = Annotated[
+    Path | None,
+    typer.Option("--run-dir", help="Where the episode's logs go (default runs/<scenario>-<time>)."),
+]
+Timeout = Annotated[
+    float, typer.Option("--timeout", help="Wall-clock seconds before the run is abandoned.")
+]
 
 
 # --- help text ------------------------------------------------------------------------------
+
 
 def flowing(text: str) -> str:
     """``text`` dedented, each paragraph on one line (paragraphs stay apart by a blank line).
@@ -105,8 +174,12 @@ def setup_logging(verbose: bool, name: str) -> None:
     where rich would wrap long lines at 80 columns."""
     level = logging.DEBUG if verbose else logging.INFO
     if sys.stderr.isatty():
-        logging.basicConfig(level=level, format="%(message)s", datefmt="[%X]",
-                            handlers=[RichHandler(show_path=False, markup=False)])
+        logging.basicConfig(
+            level=level,
+            format="%(message)s",
+            datefmt="[%X]",
+            handlers=[RichHandler(show_path=False, markup=False)],
+        )
     else:
         logging.basicConfig(level=level, format="%(asctime)s %(levelname)s %(name)s: %(message)s")
     logging.getLogger(name).setLevel(level)
@@ -145,7 +218,7 @@ def error_blocks(text: str) -> list[str]:
     blocks: list[str] = []
     for line in text.splitlines():
         if line.startswith(ERROR_PREFIX):
-            blocks.append(line[len(ERROR_PREFIX):])
+            blocks.append(line[len(ERROR_PREFIX) :])
         elif blocks and line:
             blocks[-1] += "\n" + line
     return blocks

@@ -25,8 +25,14 @@ _MISSING = object()
 class ConfigError(ValueError):
     """A configuration value is missing, unknown or of the wrong type or range."""
 
-    def __init__(self, source: str, path: str, message: str, value: Any = _MISSING,
-                 expected: str | None = None):
+    def __init__(
+        self,
+        source: str,
+        path: str,
+        message: str,
+        value: Any = _MISSING,
+        expected: str | None = None,
+    ):
         self.source, self.path, self.message = source, path, message
         self.value, self.expected = value, expected
         where = f"{source}: {path}" if path else source
@@ -100,8 +106,9 @@ def load_yaml(path: str | Path) -> dict:
     except yaml.YAMLError as exc:
         raise ConfigError(str(path), "", f"not valid YAML: {exc}") from None
     if not isinstance(data, dict):
-        raise ConfigError(str(path), "", "top level must be a mapping", type(data).__name__,
-                          "key: value pairs")
+        raise ConfigError(
+            str(path), "", "top level must be a mapping", type(data).__name__, "key: value pairs"
+        )
     return data
 
 
@@ -115,8 +122,9 @@ class Section:
 
     def __init__(self, data: Any, source: str, path: str = ""):
         if not isinstance(data, dict):
-            raise ConfigError(source, path or "(top level)", "must be a mapping",
-                              data, "key: value pairs")
+            raise ConfigError(
+                source, path or "(top level)", "must be a mapping", data, "key: value pairs"
+            )
         self.data, self.source, self.path = data, source, path
         self._seen: set[str] = set()
 
@@ -125,22 +133,31 @@ class Section:
             return f"{self.path}[{key}]"
         return f"{self.path}.{key}" if self.path else key
 
-    def error(self, key: str | int, message: str, value: Any = _MISSING,
-              expected: str | None = None) -> ConfigError:
+    def error(
+        self, key: str | int, message: str, value: Any = _MISSING, expected: str | None = None
+    ) -> ConfigError:
         return ConfigError(self.source, self.key_path(key), message, value, expected)
 
     def has(self, key: str) -> bool:
         return key in self.data
 
-    def req(self, key: str, kind: Callable[[Any], Any] | type = object, expected: str | None = None):
+    def req(
+        self, key: str, kind: Callable[[Any], Any] | type = object, expected: str | None = None
+    ):
         """A required value, checked by ``kind`` (a type, or a converter raising ValueError)."""
         if key not in self.data:
-            raise ConfigError(self.source, self.key_path(key), "missing required key",
-                              expected=expected)
+            raise ConfigError(
+                self.source, self.key_path(key), "missing required key", expected=expected
+            )
         return self._convert(key, self.data[key], kind, expected)
 
-    def opt(self, key: str, default: Any, kind: Callable[[Any], Any] | type = object,
-            expected: str | None = None):
+    def opt(
+        self,
+        key: str,
+        default: Any,
+        kind: Callable[[Any], Any] | type = object,
+        expected: str | None = None,
+    ):
         """An optional value; ``default`` when absent."""
         if key not in self.data:
             self._seen.add(key)
@@ -151,8 +168,12 @@ class Section:
         """A nested mapping (an empty one when optional and absent)."""
         if key not in self.data:
             if required:
-                raise ConfigError(self.source, self.key_path(key), "missing required section",
-                                  expected="a mapping")
+                raise ConfigError(
+                    self.source,
+                    self.key_path(key),
+                    "missing required section",
+                    expected="a mapping",
+                )
             self._seen.add(key)
             return Section({}, self.source, self.key_path(key))
         self._seen.add(key)
@@ -169,8 +190,12 @@ class Section:
         unknown = sorted(set(self.data) - self._seen, key=str)
         if unknown:
             allowed = ", ".join(sorted(self._seen)) or "(none)"
-            raise ConfigError(self.source, self.key_path(str(unknown[0])), "unknown key",
-                              expected=f"one of: {allowed}")
+            raise ConfigError(
+                self.source,
+                self.key_path(str(unknown[0])),
+                "unknown key",
+                expected=f"one of: {allowed}",
+            )
 
     def _convert(self, key: str, value: Any, kind, expected: str | None):
         self._seen.add(key)
@@ -190,6 +215,7 @@ class Section:
 
 # Converters for Section.req/opt: each raises ValueError with the reason.
 
+
 def number(value: Any) -> float:
     """A finite number: YAML's ``.inf`` and ``.nan`` are refused (``nan < 0`` is false, so a NaN
     would pass every range check after this one; no key of a file means "unbounded" by inf)."""
@@ -197,7 +223,7 @@ def number(value: Any) -> float:
         raise ValueError("wrong type")
     try:
         v = float(value)
-    except OverflowError:         # an int beyond float's range
+    except OverflowError:  # an int beyond float's range
         raise ValueError("must be a finite number") from None
     if not math.isfinite(v):
         raise ValueError("must be a finite number")

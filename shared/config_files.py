@@ -23,7 +23,7 @@ from pathlib import Path
 from shared.config import ConfigError
 
 ENV_VAR = "M3P2I_SCENARIOS"
-KINDS = {"scenarios": "scenario", "objectives": "objectives", "bench": "bench"}   # folder: what
+KINDS = {"scenarios": "scenario", "objectives": "objectives", "bench": "bench"}  # folder: what
 
 
 def shipped_configs() -> Path:
@@ -45,6 +45,7 @@ def shipped(*parts: str) -> Path:
 class Folder:
     """A folder searched for one kind of file, and why it is searched: ``M3P2I_SCENARIOS``,
     ``current folder`` or ``shipped``."""
+
     path: Path
     origin: str
 
@@ -57,8 +58,11 @@ class Folder:
 def user_folders(kind: str = "scenarios") -> list[Folder]:
     """The user's folders for ``kind`` (a key of :data:`KINDS`), in lookup order; they need not
     exist."""
-    env = [Folder(Path(p).expanduser().absolute(), ENV_VAR)
-           for p in os.environ.get(ENV_VAR, "").split(os.pathsep) if p]
+    env = [
+        Folder(Path(p).expanduser().absolute(), ENV_VAR)
+        for p in os.environ.get(ENV_VAR, "").split(os.pathsep)
+        if p
+    ]
     scenario_folders = [*env, Folder(Path.cwd() / "configs" / "scenarios", "current folder")]
     if kind == "scenarios":
         return scenario_folders
@@ -93,15 +97,19 @@ def find(name_or_path: str | os.PathLike, kind: str = "scenarios") -> Path:
         if candidate.is_file():
             return candidate
     known = ", ".join(sorted({e.name for e in entries(kind)}))
-    raise ConfigError(str(name_or_path), "", f"no such {KINDS[kind]} file or name",
-                      expected=f"a YAML path or one of: {known}; looked in: "
-                               f"{'; '.join(str(f) for f in folders)}")
+    raise ConfigError(
+        str(name_or_path),
+        "",
+        f"no such {KINDS[kind]} file or name",
+        expected=f"a YAML path or one of: {known}; looked in: {'; '.join(str(f) for f in folders)}",
+    )
 
 
 @dataclass(frozen=True)
 class Entry:
     """A file of some kind in one of the searched folders. ``shadowed_by``: the file of the same
     name in an earlier folder, which is the one used; None when this one is used."""
+
     name: str
     path: Path
     folder: Folder

@@ -22,15 +22,15 @@ class Endpoints:
         return f"tcp://{self.host}:{self.port + offset}"
 
     @property
-    def control(self) -> str:      # REP on the server: hello -> welcome | error; control ops
+    def control(self) -> str:  # REP on the server: hello -> welcome | error; control ops
         return self._at(0)
 
     @property
-    def state(self) -> str:        # PUB on the server: state
+    def state(self) -> str:  # PUB on the server: state
         return self._at(1)
 
     @property
-    def command(self) -> str:      # PULL on the server: command
+    def command(self) -> str:  # PULL on the server: command
         return self._at(2)
 
     @property

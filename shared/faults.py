@@ -30,6 +30,7 @@ class MismatchConfig:
     bodies' masses and inertias; ``friction``: per scenario object, its geoms' frictions;
     ``gain``: per actuator, its gain and bias (a position servo's kp and kv, a velocity servo's
     kv)."""
+
     mass: float = 0.0
     friction: float = 0.0
     gain: float = 0.0
@@ -42,15 +43,16 @@ class MismatchConfig:
 @dataclass(frozen=True)
 class FaultConfig:
     """The faults a simulated world shows (all off by default; docs/faults.md)."""
-    actuation_delay_ms: float = 0.0   # a command reaches the actuators this much later
-    state_delay_ms: float = 0.0       # a published state was measured this much earlier
-    position_noise_m: float = 0.0     # Gaussian σ on a base's slides, free bodies' and mocap positions
-    angle_noise_rad: float = 0.0      # Gaussian σ on free bodies' and mocap orientations
-    joint_noise_rad: float = 0.0      # Gaussian σ on hinge joints (a robot arm's encoders)
-    drop_rate: float = 0.0            # fraction of state messages the link loses
-    hide_velocities: bool = False     # free objects' velocities published as zero
-    control_period_ms: float = 0.0    # the actuators take a new command this often (0: every step)
-    gripper: str = "continuous"       # binary: the gripper only opens or closes
+
+    actuation_delay_ms: float = 0.0  # a command reaches the actuators this much later
+    state_delay_ms: float = 0.0  # a published state was measured this much earlier
+    position_noise_m: float = 0.0  # Gaussian σ on a base's slides, free bodies' and mocap positions
+    angle_noise_rad: float = 0.0  # Gaussian σ on free bodies' and mocap orientations
+    joint_noise_rad: float = 0.0  # Gaussian σ on hinge joints (a robot arm's encoders)
+    drop_rate: float = 0.0  # fraction of state messages the link loses
+    hide_velocities: bool = False  # free objects' velocities published as zero
+    control_period_ms: float = 0.0  # the actuators take a new command this often (0: every step)
+    gripper: str = "continuous"  # binary: the gripper only opens or closes
     mismatch: MismatchConfig = MismatchConfig()
 
     @property
@@ -78,16 +80,32 @@ PROFILES: dict[str, FaultConfig] = {
     # a well-kept lab: 50 ms round trip, a tracker with 5 mm noise over Wi-Fi losing one state
     # in ten, arm encoders good to 0.001 rad, object velocities not measured, a parallel gripper
     # that opens or closes, and a model whose masses and frictions are right within ±30 %
-    "lab": FaultConfig(actuation_delay_ms=25.0, state_delay_ms=25.0, position_noise_m=0.005,
-                       angle_noise_rad=0.005, joint_noise_rad=0.001, drop_rate=0.10, hide_velocities=True,
-                       control_period_ms=0.0, gripper="binary",
-                       mismatch=MismatchConfig(mass=0.3, friction=0.3, gain=0.1)),
+    "lab": FaultConfig(
+        actuation_delay_ms=25.0,
+        state_delay_ms=25.0,
+        position_noise_m=0.005,
+        angle_noise_rad=0.005,
+        joint_noise_rad=0.001,
+        drop_rate=0.10,
+        hide_velocities=True,
+        control_period_ms=0.0,
+        gripper="binary",
+        mismatch=MismatchConfig(mass=0.3, friction=0.3, gain=0.1),
+    ),
     # a bad day: 150 ms round trip, 15 mm noise, a third of the states lost, a 50 Hz actuator
     # loop, masses and frictions off by up to ±50 %, actuator gains by ±25 %
-    "harsh": FaultConfig(actuation_delay_ms=75.0, state_delay_ms=75.0, position_noise_m=0.015,
-                         angle_noise_rad=0.015, joint_noise_rad=0.003, drop_rate=0.30, hide_velocities=True,
-                         control_period_ms=20.0, gripper="binary",
-                         mismatch=MismatchConfig(mass=0.5, friction=0.5, gain=0.25)),
+    "harsh": FaultConfig(
+        actuation_delay_ms=75.0,
+        state_delay_ms=75.0,
+        position_noise_m=0.015,
+        angle_noise_rad=0.015,
+        joint_noise_rad=0.003,
+        drop_rate=0.30,
+        hide_velocities=True,
+        control_period_ms=20.0,
+        gripper="binary",
+        mismatch=MismatchConfig(mass=0.5, friction=0.5, gain=0.25),
+    ),
 }
 
 
@@ -112,25 +130,41 @@ def parse_faults(data: Any, source: str, path: str = "faults") -> FaultConfig:
     values = dict(
         actuation_delay_ms=s.opt("actuation_delay_ms", base.actuation_delay_ms, non_negative, ms),
         state_delay_ms=s.opt("state_delay_ms", base.state_delay_ms, non_negative, ms),
-        position_noise_m=s.opt("position_noise_m", base.position_noise_m, non_negative,
-                               "metres >= 0 (a standard deviation)"),
-        angle_noise_rad=s.opt("angle_noise_rad", base.angle_noise_rad, non_negative,
-                              "radians >= 0 (a standard deviation)"),
-        joint_noise_rad=s.opt("joint_noise_rad", base.joint_noise_rad, non_negative,
-                              "radians >= 0 (a standard deviation)"),
+        position_noise_m=s.opt(
+            "position_noise_m",
+            base.position_noise_m,
+            non_negative,
+            "metres >= 0 (a standard deviation)",
+        ),
+        angle_noise_rad=s.opt(
+            "angle_noise_rad",
+            base.angle_noise_rad,
+            non_negative,
+            "radians >= 0 (a standard deviation)",
+        ),
+        joint_noise_rad=s.opt(
+            "joint_noise_rad",
+            base.joint_noise_rad,
+            non_negative,
+            "radians >= 0 (a standard deviation)",
+        ),
         drop_rate=s.opt("drop_rate", base.drop_rate, _fraction, "a fraction in [0, 1)"),
         hide_velocities=s.opt("hide_velocities", base.hide_velocities, flag, "true or false"),
-        control_period_ms=s.opt("control_period_ms", base.control_period_ms, non_negative,
-                                "milliseconds >= 0 (0: every world step)"),
-        gripper=s.opt("gripper", base.gripper, one_of(GRIPPER_MODES),
-                      " or ".join(GRIPPER_MODES)),
+        control_period_ms=s.opt(
+            "control_period_ms",
+            base.control_period_ms,
+            non_negative,
+            "milliseconds >= 0 (0: every world step)",
+        ),
+        gripper=s.opt("gripper", base.gripper, one_of(GRIPPER_MODES), " or ".join(GRIPPER_MODES)),
     )
     m = s.section("mismatch", required=False)
     frac = "a fraction in [0, 1) (0.3: factors within ±30 %)"
     values["mismatch"] = MismatchConfig(
         mass=m.opt("mass", base.mismatch.mass, _fraction, frac),
         friction=m.opt("friction", base.mismatch.friction, _fraction, frac),
-        gain=m.opt("gain", base.mismatch.gain, _fraction, frac))
+        gain=m.opt("gain", base.mismatch.gain, _fraction, frac),
+    )
     m.done()
     s.done()
     return FaultConfig(**values)
@@ -138,8 +172,13 @@ def parse_faults(data: Any, source: str, path: str = "faults") -> FaultConfig:
 
 def _profile(name: str, source: str, path: str) -> FaultConfig:
     if name not in PROFILES:
-        raise ConfigError(source, path, "unknown fault profile", name,
-                          f"one of: {', '.join(PROFILES)} (or a mapping of keys)")
+        raise ConfigError(
+            source,
+            path,
+            "unknown fault profile",
+            name,
+            f"one of: {', '.join(PROFILES)} (or a mapping of keys)",
+        )
     return PROFILES[name]
 
 
@@ -151,8 +190,13 @@ def load_faults(spec: str) -> FaultConfig:
         return PROFILES[spec]
     path = Path(spec)
     if not path.is_file():
-        raise ConfigError("--faults", "", "neither a profile nor a file", spec,
-                          f"one of: {', '.join(PROFILES)}, or a YAML file")
+        raise ConfigError(
+            "--faults",
+            "",
+            "neither a profile nor a file",
+            spec,
+            f"one of: {', '.join(PROFILES)}, or a YAML file",
+        )
     raw = read_old_name(load_yaml(path), str(path))
     if isinstance(raw, dict) and set(raw) == {"faults"}:
         return parse_faults(raw["faults"], str(path))
@@ -166,9 +210,13 @@ def read_old_name(raw: Any, source: str, path: str = "") -> Any:
     if not isinstance(raw, dict) or OLD_NAME not in raw:
         return raw
     if "faults" in raw:
-        raise ConfigError(source, f"{path}.{OLD_NAME}" if path else OLD_NAME,
-                          "both faults: and hardware: (its old name) given", raw[OLD_NAME],
-                          "one of them: faults:")
+        raise ConfigError(
+            source,
+            f"{path}.{OLD_NAME}" if path else OLD_NAME,
+            "both faults: and hardware: (its old name) given",
+            raw[OLD_NAME],
+            "one of them: faults:",
+        )
     return {("faults" if k == OLD_NAME else k): v for k, v in raw.items()}
 
 

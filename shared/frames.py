@@ -23,11 +23,15 @@ class Frame:
 
     def pos(self, data: mujoco.MjData) -> np.ndarray:
         """World position [3]."""
-        return data.xpos[self.id] if self.kind == mujoco.mjtObj.mjOBJ_BODY else data.site_xpos[self.id]
+        return (
+            data.xpos[self.id] if self.kind == mujoco.mjtObj.mjOBJ_BODY else data.site_xpos[self.id]
+        )
 
     def rot(self, data: mujoco.MjData) -> np.ndarray:
         """World rotation matrix [3, 3] (columns are the frame's axes)."""
-        flat = data.xmat[self.id] if self.kind == mujoco.mjtObj.mjOBJ_BODY else data.site_xmat[self.id]
+        flat = (
+            data.xmat[self.id] if self.kind == mujoco.mjtObj.mjOBJ_BODY else data.site_xmat[self.id]
+        )
         return flat.reshape(3, 3)
 
 
@@ -60,14 +64,21 @@ class FrameResolver:
         try:
             return self(name)
         except KeyError as exc:
-            raise ConfigError(source, key, str(exc.args[0]), name,
-                              f"one of: {', '.join(self.names())}") from None
+            raise ConfigError(
+                source, key, str(exc.args[0]), name, f"one of: {', '.join(self.names())}"
+            ) from None
 
     def names(self) -> list[str]:
         """Every name a YAML file may use, once each, for error messages (a robot whose frame
         body is itself called ``robot`` is listed once)."""
-        bodies = [mujoco.mj_id2name(self.model, mujoco.mjtObj.mjOBJ_BODY, i)
-                  for i in range(1, self.model.nbody)]
-        sites = [f"site:{mujoco.mj_id2name(self.model, mujoco.mjtObj.mjOBJ_SITE, i)}"
-                 for i in range(self.model.nsite)]
-        return list(dict.fromkeys(["robot"] + [n for n in bodies + sites if n and n != "site:None"]))
+        bodies = [
+            mujoco.mj_id2name(self.model, mujoco.mjtObj.mjOBJ_BODY, i)
+            for i in range(1, self.model.nbody)
+        ]
+        sites = [
+            f"site:{mujoco.mj_id2name(self.model, mujoco.mjtObj.mjOBJ_SITE, i)}"
+            for i in range(self.model.nsite)
+        ]
+        return list(
+            dict.fromkeys(["robot"] + [n for n in bodies + sites if n and n != "site:None"])
+        )

@@ -23,12 +23,26 @@ ArrayLike = "torch.Tensor | np.ndarray"
 # World axes a distance may be measured along: ``xy`` ignores height; ``xz`` and ``yz`` ignore
 # one horizontal axis (e.g. a side grasp lining up level with a cube before it moves in along y).
 # The one definition costs, predicates, metrics and the scenario loader use.
-AXES: dict[str, tuple[int, ...]] = {"xy": (0, 1), "xz": (0, 2), "yz": (1, 2), "xyz": (0, 1, 2),
-                                    "x": (0,), "y": (1,), "z": (2,)}
+AXES: dict[str, tuple[int, ...]] = {
+    "xy": (0, 1),
+    "xz": (0, 2),
+    "yz": (1, 2),
+    "xyz": (0, 1, 2),
+    "x": (0,),
+    "y": (1,),
+    "z": (2,),
+}
 # the same as basic slices: views, where a list index would copy (38 µs per call on a
 # [400, 15, 3] tensor, twice per objective term and iteration)
-_SLICES = {"xy": slice(0, 2), "xz": slice(0, 3, 2), "yz": slice(1, 3), "xyz": slice(0, 3),
-           "x": slice(0, 1), "y": slice(1, 2), "z": slice(2, 3)}
+_SLICES = {
+    "xy": slice(0, 2),
+    "xz": slice(0, 3, 2),
+    "yz": slice(1, 3),
+    "xyz": slice(0, 3),
+    "x": slice(0, 1),
+    "y": slice(1, 2),
+    "z": slice(2, 3),
+}
 
 
 def select_axes(x: ArrayLike, axes: str) -> ArrayLike:
@@ -109,5 +123,5 @@ def symmetric_orientation_error_relative(axes: torch.Tensor) -> torch.Tensor:
     import torch
 
     a = axes.abs()
-    best = torch.maximum(torch.maximum(a[..., 0:2], a[..., 3:5]), a[..., 6:8])   # [..., 2]
+    best = torch.maximum(torch.maximum(a[..., 0:2], a[..., 3:5]), a[..., 6:8])  # [..., 2]
     return (2.0 - best[..., 0] - best[..., 1]).clamp_min(0.0)

@@ -23,16 +23,24 @@ from shared.robots import get_robot
 from shared.scenario import Scenario
 from shared.scene import WALL_NAMES, compile_model
 
-_FREE, _BALL, _SLIDE, _HINGE = (mujoco.mjtJoint.mjJNT_FREE, mujoco.mjtJoint.mjJNT_BALL,
-                                mujoco.mjtJoint.mjJNT_SLIDE, mujoco.mjtJoint.mjJNT_HINGE)
+_FREE, _BALL, _SLIDE, _HINGE = (
+    mujoco.mjtJoint.mjJNT_FREE,
+    mujoco.mjtJoint.mjJNT_BALL,
+    mujoco.mjtJoint.mjJNT_SLIDE,
+    mujoco.mjtJoint.mjJNT_HINGE,
+)
 _JOINT_TYPE = {int(_FREE): "free", int(_BALL): "ball", int(_SLIDE): "slide", int(_HINGE): "hinge"}
-_TARGET = {int(trn): target for trn, target in (
-    (mujoco.mjtTrn.mjTRN_JOINT, ("joint", mujoco.mjtObj.mjOBJ_JOINT)),
-    (mujoco.mjtTrn.mjTRN_JOINTINPARENT, ("joint", mujoco.mjtObj.mjOBJ_JOINT)),
-    (mujoco.mjtTrn.mjTRN_TENDON, ("tendon", mujoco.mjtObj.mjOBJ_TENDON)),
-    (mujoco.mjtTrn.mjTRN_SITE, ("site", mujoco.mjtObj.mjOBJ_SITE)),
-    (mujoco.mjtTrn.mjTRN_BODY, ("body", mujoco.mjtObj.mjOBJ_BODY)),
-    (mujoco.mjtTrn.mjTRN_SLIDERCRANK, ("slider-crank", mujoco.mjtObj.mjOBJ_SITE)))}
+_TARGET = {
+    int(trn): target
+    for trn, target in (
+        (mujoco.mjtTrn.mjTRN_JOINT, ("joint", mujoco.mjtObj.mjOBJ_JOINT)),
+        (mujoco.mjtTrn.mjTRN_JOINTINPARENT, ("joint", mujoco.mjtObj.mjOBJ_JOINT)),
+        (mujoco.mjtTrn.mjTRN_TENDON, ("tendon", mujoco.mjtObj.mjOBJ_TENDON)),
+        (mujoco.mjtTrn.mjTRN_SITE, ("site", mujoco.mjtObj.mjOBJ_SITE)),
+        (mujoco.mjtTrn.mjTRN_BODY, ("body", mujoco.mjtObj.mjOBJ_BODY)),
+        (mujoco.mjtTrn.mjTRN_SLIDERCRANK, ("slider-crank", mujoco.mjtObj.mjOBJ_SITE)),
+    )
+}
 
 
 @dataclass(frozen=True)
@@ -48,13 +56,14 @@ class Coordinate:
     the body's rest orientation in its parent) or ``axis`` (a slide or hinge: along or about
     ``axis``, given in the body's frame, from the joint's zero). ``range`` is the joint's limit
     (``qpos`` of a limited slide or hinge only)."""
+
     index: int
     joint: str
-    joint_type: str          # free | ball | slide | hinge
-    body: str                # the body the joint moves (a scenario object's, for its free joint)
+    joint_type: str  # free | ball | slide | hinge
+    body: str  # the body the joint moves (a scenario object's, for its free joint)
     component: str
-    unit: str                # m, rad, quaternion (qpos); m/s, rad/s (qvel)
-    frame: str               # world | body | parent | axis
+    unit: str  # m, rad, quaternion (qpos); m/s, rad/s (qvel)
+    frame: str  # world | body | parent | axis
     axis: tuple[float, float, float] | None = None
     range: tuple[float, float] | None = None
 
@@ -63,6 +72,7 @@ class Coordinate:
 class Activation:
     """One entry of ``act``: the internal state of an actuator with dynamics (a filter, an
     integrator)."""
+
     index: int
     actuator: str
 
@@ -71,9 +81,10 @@ class Activation:
 class MocapSlot:
     """Row ``index`` of ``mocap_pos [nmocap, 3]`` (m, world frame) and ``mocap_quat [nmocap, 4]``
     (w, x, y, z, world frame): a body the world moves (a fixed scenario object)."""
+
     index: int
     body: str
-    scenario_object: bool    # a name under world.objects (else a mocap body of the robot's MJCF)
+    scenario_object: bool  # a name under world.objects (else a mocap body of the robot's MJCF)
 
 
 @dataclass(frozen=True)
@@ -84,6 +95,7 @@ class Control:
     ``site base``, ``body robot``); ``range`` the control range (None: unlimited), outside which
     the world clips; ``safe`` the value of a safe stop, which ``holds_last`` actuators replace by
     their last command once one was applied (a gripper keeps its grip)."""
+
     index: int
     actuator: str
     target: str
@@ -96,6 +108,7 @@ class Control:
 @dataclass(frozen=True)
 class Extra:
     """A named scalar of ``state.extras`` that the scenario's world reports."""
+
     name: str
     unit: str
     range: tuple[float, float]
@@ -105,6 +118,7 @@ class Extra:
 @dataclass(frozen=True)
 class StateSizes:
     """The array sizes of a ``state`` that fits a model."""
+
     nq: int
     nv: int
     na: int
@@ -118,26 +132,32 @@ class StateSizes:
         """One message per array of ``values`` (``qpos``, ``qvel``, ``act``, ``mocap_pos``,
         ``mocap_quat``) whose size differs from these sizes, naming both; empty when all fit."""
         out = []
-        for name, size, what in (("qpos", self.nq, "nq"), ("qvel", self.nv, "nv"),
-                                 ("act", self.na, "na")):
+        for name, size, what in (
+            ("qpos", self.nq, "nq"),
+            ("qvel", self.nv, "nv"),
+            ("act", self.na, "na"),
+        ):
             got = np.asarray(values[name]).size
             if got != size:
                 out.append(f"{name} has {got} values, the scenario's model has {what} = {size}")
         for name, width in (("mocap_pos", 3), ("mocap_quat", 4)):
             shape = list(np.shape(values[name]))
             if int(np.prod(shape)) != self.nmocap * width:
-                out.append(f"{name} has shape {shape}, the scenario's model has nmocap = "
-                           f"{self.nmocap} (shape [{self.nmocap}, {width}])")
+                out.append(
+                    f"{name} has shape {shape}, the scenario's model has nmocap = "
+                    f"{self.nmocap} (shape [{self.nmocap}, {width}])"
+                )
         return out
 
 
 @dataclass(frozen=True)
 class BridgeLayout:
     """Every index of what a world sends (``state``) and accepts (``command``), by name."""
+
     scenario: str
     scenario_hash: str
     robot: str
-    dt: float                # the scenario's world timestep (s)
+    dt: float  # the scenario's world timestep (s)
     sizes: StateSizes
     nu: int
     qpos: tuple[Coordinate, ...]
@@ -162,29 +182,62 @@ def bridge_layout(scenario: Scenario, model: mujoco.MjModel | None = None) -> Br
     for j in range(model.njnt):
         qpos += _qpos_rows(model, j)
         qvel += _qvel_rows(model, j)
-    act = tuple(Activation(int(model.actuator_actadr[a]) + k, model.actuator(a).name)
-                for a in range(model.nu) for k in range(int(model.actuator_actnum[a])))
-    mocap = sorted((MocapSlot(int(model.body_mocapid[b]), model.body(b).name,
-                              model.body(b).name in objects)
-                    for b in range(model.nbody) if model.body_mocapid[b] >= 0),
-                   key=lambda slot: slot.index)
+    act = tuple(
+        Activation(int(model.actuator_actadr[a]) + k, model.actuator(a).name)
+        for a in range(model.nu)
+        for k in range(int(model.actuator_actnum[a]))
+    )
+    mocap = sorted(
+        (
+            MocapSlot(int(model.body_mocapid[b]), model.body(b).name, model.body(b).name in objects)
+            for b in range(model.nbody)
+            if model.body_mocapid[b] >= 0
+        ),
+        key=lambda slot: slot.index,
+    )
     safe = robot.safe_stop()
-    ctrl = tuple(Control(index=a, actuator=model.actuator(a).name, target=_target(model, a),
-                         unit=robot.ctrl_units[a],
-                         range=(tuple(float(v) for v in model.actuator_ctrlrange[a])
-                                if model.actuator_ctrllimited[a] else None),
-                         safe=float(safe[a]), holds_last=model.actuator(a).name in robot.hold_ctrl)
-                 for a in range(model.nu))
+    ctrl = tuple(
+        Control(
+            index=a,
+            actuator=model.actuator(a).name,
+            target=_target(model, a),
+            unit=robot.ctrl_units[a],
+            range=(
+                tuple(float(v) for v in model.actuator_ctrlrange[a])
+                if model.actuator_ctrllimited[a]
+                else None
+            ),
+            safe=float(safe[a]),
+            holds_last=model.actuator(a).name in robot.hold_ctrl,
+        )
+        for a in range(model.nu)
+    )
     extras = ()
     if scenario.world.battery:
         b = scenario.world.battery
-        extras = (Extra("battery", "%", (0.0, 100.0),
-                        f"charge level: rises by {b.rate:g} %/s within {b.radius:g} m (xy) of "
-                        f"{b.charger!r}, else falls by as much; starts at {b.initial:g}"),)
-    return BridgeLayout(scenario=scenario.name, scenario_hash=scenario.hash, robot=robot.name,
-                        dt=float(model.opt.timestep), sizes=StateSizes.of(model), nu=model.nu,
-                        qpos=tuple(qpos), qvel=tuple(qvel), act=act, mocap=tuple(mocap),
-                        ctrl=ctrl, extras=extras)
+        extras = (
+            Extra(
+                "battery",
+                "%",
+                (0.0, 100.0),
+                f"charge level: rises by {b.rate:g} %/s within {b.radius:g} m (xy) of "
+                f"{b.charger!r}, else falls by as much; starts at {b.initial:g}",
+            ),
+        )
+    return BridgeLayout(
+        scenario=scenario.name,
+        scenario_hash=scenario.hash,
+        robot=robot.name,
+        dt=float(model.opt.timestep),
+        sizes=StateSizes.of(model),
+        nu=model.nu,
+        qpos=tuple(qpos),
+        qvel=tuple(qvel),
+        act=act,
+        mocap=tuple(mocap),
+        ctrl=ctrl,
+        extras=extras,
+    )
 
 
 @dataclass(frozen=True)
@@ -193,9 +246,10 @@ class FrameName:
     ``site:NAME``, or ``robot``, the robot's own frame (``same_as`` the body or site it is).
     ``part``: ``robot`` (the robot's kinematic tree), ``object`` (a scenario object), ``arena``
     (a wall) or ``scene`` (a fixed body of the robot's model file, e.g. a table)."""
+
     name: str
-    kind: str                # body | site
-    part: str                # robot | object | arena | scene
+    kind: str  # body | site
+    part: str  # robot | object | arena | scene
     same_as: str | None = None
 
 
@@ -219,12 +273,24 @@ def frame_names(scenario: Scenario, model: mujoco.MjModel | None = None) -> tupl
             return "arena"
         return "robot" if int(model.body_rootid[body]) == robot_root else "scene"
 
-    out = [FrameName("robot", "site" if robot.frame.startswith("site:") else "body", "robot",
-                     same_as=robot.frame if robot.frame != "robot" else None)]
-    out += [FrameName(model.body(b).name, "body", part(b)) for b in range(1, model.nbody)
-            if model.body(b).name and model.body(b).name != "robot"]
-    out += [FrameName(f"site:{model.site(i).name}", "site", part(int(model.site_bodyid[i])))
-            for i in range(model.nsite) if model.site(i).name]
+    out = [
+        FrameName(
+            "robot",
+            "site" if robot.frame.startswith("site:") else "body",
+            "robot",
+            same_as=robot.frame if robot.frame != "robot" else None,
+        )
+    ]
+    out += [
+        FrameName(model.body(b).name, "body", part(b))
+        for b in range(1, model.nbody)
+        if model.body(b).name and model.body(b).name != "robot"
+    ]
+    out += [
+        FrameName(f"site:{model.site(i).name}", "site", part(int(model.site_bodyid[i])))
+        for i in range(model.nsite)
+        if model.site(i).name
+    ]
     return tuple(out)
 
 
@@ -239,11 +305,13 @@ def _qpos_rows(model: mujoco.MjModel, j: int) -> list[Coordinate]:
     quat = [("qw", "quaternion"), ("qx", "quaternion"), ("qy", "quaternion"), ("qz", "quaternion")]
     if kind == "free":
         parts = [("x", "m"), ("y", "m"), ("z", "m")] + quat
-        return [Coordinate(start + i, name, kind, body, c, u, "world")
-                for i, (c, u) in enumerate(parts)]
+        return [
+            Coordinate(start + i, name, kind, body, c, u, "world") for i, (c, u) in enumerate(parts)
+        ]
     if kind == "ball":
-        return [Coordinate(start + i, name, kind, body, c, u, "parent")
-                for i, (c, u) in enumerate(quat)]
+        return [
+            Coordinate(start + i, name, kind, body, c, u, "parent") for i, (c, u) in enumerate(quat)
+        ]
     axis = tuple(float(v) for v in model.jnt_axis[j])
     limit = tuple(float(v) for v in model.jnt_range[j]) if model.jnt_limited[j] else None
     component, unit = ("position", "m") if kind == "slide" else ("angle", "rad")
@@ -258,11 +326,15 @@ def _qvel_rows(model: mujoco.MjModel, j: int) -> list[Coordinate]:
     angular = [("wx", "rad/s"), ("wy", "rad/s"), ("wz", "rad/s")]
     if kind == "free":
         parts = [("vx", "m/s"), ("vy", "m/s"), ("vz", "m/s")] + angular
-        return [Coordinate(start + i, name, kind, body, c, u, "world" if i < 3 else "body")
-                for i, (c, u) in enumerate(parts)]
+        return [
+            Coordinate(start + i, name, kind, body, c, u, "world" if i < 3 else "body")
+            for i, (c, u) in enumerate(parts)
+        ]
     if kind == "ball":
-        return [Coordinate(start + i, name, kind, body, c, u, "body")
-                for i, (c, u) in enumerate(angular)]
+        return [
+            Coordinate(start + i, name, kind, body, c, u, "body")
+            for i, (c, u) in enumerate(angular)
+        ]
     axis = tuple(float(v) for v in model.jnt_axis[j])
     component, unit = ("velocity", "m/s") if kind == "slide" else ("rate", "rad/s")
     return [Coordinate(start, name, kind, body, component, unit, "axis", axis=axis)]

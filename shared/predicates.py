@@ -31,18 +31,21 @@ def register(name: str) -> Callable[[type], type]:
         cls.kind = name
         PREDICATES[name] = cls
         return cls
+
     return wrap
 
 
 @dataclass(frozen=True)
 class WorldView:
     """What a predicate may look at: MuJoCo data (kinematics up to date) and named extras."""
+
     data: mujoco.MjData
     extras: dict[str, float]
 
 
 class Predicate(ABC):
     """Base: a boolean function of the world. Subclasses are frozen dataclasses."""
+
     kind: ClassVar[str]
     frame_keys: ClassVar[tuple[str, ...]] = ()
 
@@ -88,6 +91,7 @@ def _distance(a: np.ndarray, b: np.ndarray, axes: str) -> float:
 class _PairDistance:
     """What ``near`` and ``far`` share: the distance between frames ``a`` and ``b`` along
     ``axes``, reported as ``distance a-b``."""
+
     a: str
     b: str
     axes: str
@@ -103,6 +107,7 @@ class _PairDistance:
 @dataclass(frozen=True)
 class Near(_PairDistance, Predicate):
     """|x_a - x_b| <= within (paper Eq. 13, paper Eq. 23); ``axes: xy`` ignores height."""
+
     a: str
     b: str
     within: float
@@ -111,8 +116,12 @@ class Near(_PairDistance, Predicate):
 
     @classmethod
     def from_section(cls, s: Section) -> Near:
-        return cls(a=s.req("a", str), b=s.req("b", str), within=s.req("within", non_negative),
-                   axes=s.opt("axes", "xyz", _axes))
+        return cls(
+            a=s.req("a", str),
+            b=s.req("b", str),
+            within=s.req("within", non_negative),
+            axes=s.opt("axes", "xyz", _axes),
+        )
 
     def holds(self, view, frames):
         return self.distance(view, frames) <= self.within
@@ -122,6 +131,7 @@ class Near(_PairDistance, Predicate):
 @dataclass(frozen=True)
 class Far(_PairDistance, Predicate):
     """|x_a - x_b| > beyond: the negation of ``near`` for templates that need it by name."""
+
     a: str
     b: str
     beyond: float
@@ -130,8 +140,12 @@ class Far(_PairDistance, Predicate):
 
     @classmethod
     def from_section(cls, s: Section) -> Far:
-        return cls(a=s.req("a", str), b=s.req("b", str), beyond=s.req("beyond", non_negative),
-                   axes=s.opt("axes", "xyz", _axes))
+        return cls(
+            a=s.req("a", str),
+            b=s.req("b", str),
+            beyond=s.req("beyond", non_negative),
+            axes=s.opt("axes", "xyz", _axes),
+        )
 
     def holds(self, view, frames):
         return self.distance(view, frames) > self.beyond
@@ -141,6 +155,7 @@ class Far(_PairDistance, Predicate):
 @dataclass(frozen=True)
 class ExtraAtLeast(Predicate):
     """A named world extra (e.g. ``battery``) is >= ``value`` (thesis Eq. 4.3)."""
+
     name: str
     value: float
 
@@ -163,6 +178,7 @@ class AtPose(Predicate):
     is given, φ(Σ_a, Σ_b) < ``orientation`` with φ the symmetric-object metric of paper Eq. 33 (any of
     a cube's 24 symmetries counts as aligned). The offset places a goal relative to a movable
     object, e.g. "on top of cube B" is ``offset: [0, 0, 0.05]`` for 5 cm cubes."""
+
     a: str
     b: str
     within: float
@@ -172,9 +188,13 @@ class AtPose(Predicate):
 
     @classmethod
     def from_section(cls, s: Section) -> AtPose:
-        return cls(a=s.req("a", str), b=s.req("b", str), within=s.req("within", non_negative),
-                   orientation=s.opt("orientation", None, non_negative, "phi tolerance >= 0"),
-                   offset=s.opt("offset", (0.0, 0.0, 0.0), vector(3), "[x, y, z] in metres"))
+        return cls(
+            a=s.req("a", str),
+            b=s.req("b", str),
+            within=s.req("within", non_negative),
+            orientation=s.opt("orientation", None, non_negative, "phi tolerance >= 0"),
+            offset=s.opt("offset", (0.0, 0.0, 0.0), vector(3), "[x, y, z] in metres"),
+        )
 
     def errors(self, view, frames) -> tuple[float, float]:
         """(position error in metres, orientation error φ)."""
@@ -189,8 +209,10 @@ class AtPose(Predicate):
 
     def measure(self, view, frames):
         position, phi = self.errors(view, frames)
-        return {f"position error {self.a}-{self.b}": position,
-                f"orientation error {self.a}-{self.b}": phi}
+        return {
+            f"position error {self.a}-{self.b}": position,
+            f"orientation error {self.a}-{self.b}": phi,
+        }
 
 
 @register("gripper_width_between")
@@ -198,6 +220,7 @@ class AtPose(Predicate):
 class GripperWidthBetween(Predicate):
     """low < |x_left - x_right| < high: the gripper holds an object of about that width
     (paper Eq. 24, l_gripper between the two fingertip frames)."""
+
     left: str
     right: str
     low: float
@@ -227,6 +250,7 @@ class All(Predicate):
     """Every listed predicate holds, e.g. a cube on its goal *and* the gripper open:
     ``all: [{at_pose: {...}}, {gripper_width_between: {...}}]``. For observers and disturbance
     triggers that need more than one condition (``episode.success`` is already such a list)."""
+
     parts: tuple[Predicate, ...]
 
     @classmethod
@@ -239,13 +263,16 @@ class All(Predicate):
 
     def bind(self, resolve: FrameResolver) -> BoundPredicate:
         # each part's frames, keyed "i.key", so one BoundPredicate carries the whole tree
-        frames = {f"{i}.{k}": f for i, p in enumerate(self.parts)
-                  for k, f in p.bind(resolve).frames.items()}
+        frames = {
+            f"{i}.{k}": f
+            for i, p in enumerate(self.parts)
+            for k, f in p.bind(resolve).frames.items()
+        }
         return BoundPredicate(self, frames)
 
     def _part_frames(self, i: int, frames: dict[str, Frame]) -> dict[str, Frame]:
         prefix = f"{i}."
-        return {k[len(prefix):]: f for k, f in frames.items() if k.startswith(prefix)}
+        return {k[len(prefix) :]: f for k, f in frames.items() if k.startswith(prefix)}
 
     def holds(self, view, frames):
         return all(p.holds(view, self._part_frames(i, frames)) for i, p in enumerate(self.parts))
@@ -260,8 +287,13 @@ class All(Predicate):
 def parse_predicate(s: Section) -> Predicate:
     """``{near: {a: robot, b: goal, within: 0.1}}`` -> a Predicate (one key: the predicate name)."""
     if len(s.data) != 1:
-        raise ConfigError(s.source, s.path, "a predicate is a mapping with exactly one key",
-                          sorted(s.data), f"one of: {', '.join(sorted(PREDICATES))}")
+        raise ConfigError(
+            s.source,
+            s.path,
+            "a predicate is a mapping with exactly one key",
+            sorted(s.data),
+            f"one of: {', '.join(sorted(PREDICATES))}",
+        )
     (name,) = s.data
     if name not in PREDICATES:
         raise s.error(name, "unknown predicate", name, f"one of: {', '.join(sorted(PREDICATES))}")
@@ -283,8 +315,9 @@ def check_frames(pred: Predicate, resolve: FrameResolver, source: str, path: str
     errors.raise_if_any()
 
 
-def _check_frames(pred: Predicate, resolve: FrameResolver, source: str, path: str,
-                  errors: ErrorLog) -> None:
+def _check_frames(
+    pred: Predicate, resolve: FrameResolver, source: str, path: str, errors: ErrorLog
+) -> None:
     if isinstance(pred, All):
         for i, part in enumerate(pred.parts):
             _check_frames(part, resolve, source, f"{path}.all[{i}]", errors)
@@ -298,6 +331,7 @@ def _check_frames(pred: Predicate, resolve: FrameResolver, source: str, path: st
 class BatteryEnough(Predicate):
     """Enough battery to reach ``goal`` (thesis Eq. 4.3):
     |x_a - x_goal| · α_dist · α_batt / (s_batt - reserve) < 1 and s_batt > reserve."""
+
     a: str
     goal: str
     alpha_dist: float
@@ -308,10 +342,14 @@ class BatteryEnough(Predicate):
 
     @classmethod
     def from_section(cls, s: Section) -> BatteryEnough:
-        return cls(a=s.req("a", str), goal=s.req("goal", str),
-                   alpha_dist=s.req("alpha_dist", non_negative),
-                   alpha_batt=s.req("alpha_batt", non_negative),
-                   reserve=s.opt("reserve", 60.0, number), extra=s.opt("extra", "battery", str))
+        return cls(
+            a=s.req("a", str),
+            goal=s.req("goal", str),
+            alpha_dist=s.req("alpha_dist", non_negative),
+            alpha_batt=s.req("alpha_batt", non_negative),
+            reserve=s.opt("reserve", 60.0, number),
+            extra=s.opt("extra", "battery", str),
+        )
 
     def holds(self, view, frames):
         level = view.extras.get(self.extra, 0.0)

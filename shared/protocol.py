@@ -45,6 +45,7 @@ class ProtocolError(ValueError):
 
 # ---------------------------------------------------------------- arrays
 
+
 def encode_array(a: np.ndarray) -> dict:
     """Array -> plain msgpack map (little-endian, C order)."""
     a = np.ascontiguousarray(a)
@@ -64,20 +65,28 @@ def decode_array(obj: Any, what: str) -> np.ndarray:
         raise ProtocolError(f"{what}: expected an array map {{nd, dtype, shape, data}}")
     dtype, shape, data = obj.get("dtype"), obj.get("shape"), obj.get("data")
     if not isinstance(dtype, str) or dtype not in _DTYPES:
-        raise ProtocolError(f"{what}: unsupported dtype {dtype!r} (expected one of {sorted(_DTYPES)})")
-    if (not isinstance(shape, list) or len(shape) > _MAX_ARRAY_DIMS
-            or not all(isinstance(n, int) and not isinstance(n, bool) and n >= 0 for n in shape)):
+        raise ProtocolError(
+            f"{what}: unsupported dtype {dtype!r} (expected one of {sorted(_DTYPES)})"
+        )
+    if (
+        not isinstance(shape, list)
+        or len(shape) > _MAX_ARRAY_DIMS
+        or not all(isinstance(n, int) and not isinstance(n, bool) and n >= 0 for n in shape)
+    ):
         raise ProtocolError(f"{what}: bad shape {shape!r}")
     if any(n > _MAX_ARRAY_ELEMENTS for n in shape):
-        raise ProtocolError(f"{what}: shape {shape} has a dimension over the limit "
-                            f"{_MAX_ARRAY_ELEMENTS}")
-    count = math.prod(shape)      # exact (np.prod wraps around in int64: 2**63 · 2 is 0)
+        raise ProtocolError(
+            f"{what}: shape {shape} has a dimension over the limit {_MAX_ARRAY_ELEMENTS}"
+        )
+    count = math.prod(shape)  # exact (np.prod wraps around in int64: 2**63 · 2 is 0)
     if count > _MAX_ARRAY_ELEMENTS:
         raise ProtocolError(f"{what}: {count} elements is over the limit {_MAX_ARRAY_ELEMENTS}")
     if not isinstance(data, bytes) or len(data) != count * np.dtype(dtype).itemsize:
         size = len(data) if isinstance(data, bytes) else type(data).__name__
-        raise ProtocolError(f"{what}: data has {size} bytes, shape {shape} of {dtype} needs "
-                            f"{count * np.dtype(dtype).itemsize}")
+        raise ProtocolError(
+            f"{what}: data has {size} bytes, shape {shape} of {dtype} needs "
+            f"{count * np.dtype(dtype).itemsize}"
+        )
     arr = np.frombuffer(data, dtype=dtype).reshape(shape)
     if arr.dtype.kind == "f" and not np.all(np.isfinite(arr)):
         raise ProtocolError(f"{what}: contains NaN or inf")
@@ -86,26 +95,29 @@ def decode_array(obj: Any, what: str) -> np.ndarray:
 
 # ---------------------------------------------------------------- messages
 
+
 @dataclass
 class Hello:
     """Planner -> server (control socket, request): who I am and what I loaded."""
+
     scenario: str
     scenario_hash: str
     client: str = "m3p2i-planner"
-    versions: list[int] | None = None   # the versions the planner speaks (None: only the hello's v)
+    versions: list[int] | None = None  # the versions the planner speaks (None: only the hello's v)
     type = "hello"
 
 
 @dataclass
 class Welcome:
     """Server -> planner (control reply): handshake accepted, and how the world runs."""
+
     scenario: str
     scenario_hash: str
-    mode: str                 # "lockstep" | "realtime"
-    dt: float                 # seconds of simulated time per world step
-    nu: int                   # length of Command.ctrl
-    session: str              # changes when the server restarts; commands echo it
-    seed: int | None = None   # a kept world's episode seed: the planner reseeds its sampling with it
+    mode: str  # "lockstep" | "realtime"
+    dt: float  # seconds of simulated time per world step
+    nu: int  # length of Command.ctrl
+    session: str  # changes when the server restarts; commands echo it
+    seed: int | None = None  # a kept world's episode seed: the planner reseeds its sampling with it
     type = "welcome"
 
 
@@ -118,6 +130,7 @@ class State:
     simulates beside the physics (e.g. ``battery`` in percent). ``status`` is "running" until the
     episode ends ("success", "timeout", "stopped").
     """
+
     session: str
     seq: int
     time: float
@@ -128,7 +141,7 @@ class State:
     mocap_quat: np.ndarray
     status: str = "running"
     extras: dict[str, float] = field(default_factory=dict)
-    lag: float = 0.0          # world s from publishing the state a command answered to its arrival
+    lag: float = 0.0  # world s from publishing the state a command answered to its arrival
     type = "state"
 
 
@@ -140,11 +153,12 @@ class Command:
     is the whole planned sequence ``plan_ctrl [H, nu]`` for world times ``plan_t0 + i·plan_dt``,
     played with zero-order hold by a world that does not wait (:mod:`shared.timed_plan`).
     """
+
     session: str
     seq: int
     ctrl: np.ndarray
-    plan_time: float = 0.0    # seconds the planner spent on this command (for Hz statistics)
-    action: str = ""          # the task-level action being executed, for the episode log
+    plan_time: float = 0.0  # seconds the planner spent on this command (for Hz statistics)
+    action: str = ""  # the task-level action being executed, for the episode log
     plan_ctrl: np.ndarray | None = None
     plan_t0: float | None = None
     plan_dt: float | None = None
@@ -162,6 +176,7 @@ class Diagnostics:
     ``top`` are the positions ([M, T, 3]) of the best sampled trajectories' robot frame;
     ``top_modes`` ([M], optional) the index in ``mode_names`` of each one's mode.
     """
+
     seq: int
     action: str
     alternatives: list[str]
@@ -169,8 +184,8 @@ class Diagnostics:
     mode_weights: np.ndarray
     top: np.ndarray
     plan_time: float
-    lead: float = 0.0         # world s the plan was predicted ahead of the state (its expected lag)
-    steps: int = 0            # world steps since the state the previous plan answered
+    lead: float = 0.0  # world s the plan was predicted ahead of the state (its expected lag)
+    steps: int = 0  # world steps since the state the previous plan answered
     top_modes: np.ndarray | None = None
     type = "diagnostics"
 
@@ -180,6 +195,7 @@ class Error:
     """Either side: a refusal (e.g. handshake mismatch) with a human-readable reason.
     ``versions``: the versions the world speaks, in its answer to a ``hello`` that offered some
     (it tells a planner that the world negotiated, so that it does not retry in another form)."""
+
     reason: str
     versions: list[int] | None = None
     type = "error"
@@ -193,6 +209,7 @@ class Control:
     ``m3p2i view``. ``reset`` with ``seed`` ends the episode and begins a new one from that
     seed's start (a world started with ``--keep-serving`` only: warm bench workers). The world
     echoes an accepted op and answers ``error`` with the reason else."""
+
     op: str
     object: str | None = None
     pos: np.ndarray | None = None
@@ -205,35 +222,81 @@ MESSAGES = {cls.type: cls for cls in (Hello, Welcome, State, Command, Diagnostic
 
 # field name -> (kind, required); kinds: str, int, float, array, strlist, intlist, floatmap
 _SCHEMA: dict[str, dict[str, tuple[str, bool]]] = {
-    "hello": {"scenario": ("str", True), "scenario_hash": ("str", True), "client": ("str", False),
-              "versions": ("intlist", False)},
-    "welcome": {"scenario": ("str", True), "scenario_hash": ("str", True), "mode": ("str", True),
-                "dt": ("float", True), "nu": ("int", True), "session": ("str", True),
-                "seed": ("int", False)},
-    "state": {"session": ("str", True), "seq": ("int", True), "time": ("float", True),
-              "qpos": ("array", True), "qvel": ("array", True), "act": ("array", True),
-              "mocap_pos": ("array", True), "mocap_quat": ("array", True),
-              "status": ("str", False), "extras": ("floatmap", False), "lag": ("float", False)},
-    "command": {"session": ("str", True), "seq": ("int", True), "ctrl": ("array", True),
-                "plan_time": ("float", False), "action": ("str", False),
-                "plan_ctrl": ("array", False), "plan_t0": ("float", False), "plan_dt": ("float", False)},
-    "diagnostics": {"seq": ("int", True), "action": ("str", True), "alternatives": ("strlist", True),
-                    "mode_names": ("strlist", True), "mode_weights": ("array", True),
-                    "top": ("array", True), "plan_time": ("float", True),
-                    "lead": ("float", False), "steps": ("int", False),
-                    "top_modes": ("array", False)},
+    "hello": {
+        "scenario": ("str", True),
+        "scenario_hash": ("str", True),
+        "client": ("str", False),
+        "versions": ("intlist", False),
+    },
+    "welcome": {
+        "scenario": ("str", True),
+        "scenario_hash": ("str", True),
+        "mode": ("str", True),
+        "dt": ("float", True),
+        "nu": ("int", True),
+        "session": ("str", True),
+        "seed": ("int", False),
+    },
+    "state": {
+        "session": ("str", True),
+        "seq": ("int", True),
+        "time": ("float", True),
+        "qpos": ("array", True),
+        "qvel": ("array", True),
+        "act": ("array", True),
+        "mocap_pos": ("array", True),
+        "mocap_quat": ("array", True),
+        "status": ("str", False),
+        "extras": ("floatmap", False),
+        "lag": ("float", False),
+    },
+    "command": {
+        "session": ("str", True),
+        "seq": ("int", True),
+        "ctrl": ("array", True),
+        "plan_time": ("float", False),
+        "action": ("str", False),
+        "plan_ctrl": ("array", False),
+        "plan_t0": ("float", False),
+        "plan_dt": ("float", False),
+    },
+    "diagnostics": {
+        "seq": ("int", True),
+        "action": ("str", True),
+        "alternatives": ("strlist", True),
+        "mode_names": ("strlist", True),
+        "mode_weights": ("array", True),
+        "top": ("array", True),
+        "plan_time": ("float", True),
+        "lead": ("float", False),
+        "steps": ("int", False),
+        "top_modes": ("array", False),
+    },
     "error": {"reason": ("str", True), "versions": ("intlist", False)},
-    "control": {"op": ("str", True), "object": ("str", False), "pos": ("array", False),
-                "quat": ("array", False), "seed": ("int", False)},
+    "control": {
+        "op": ("str", True),
+        "object": ("str", False),
+        "pos": ("array", False),
+        "quat": ("array", False),
+        "seed": ("int", False),
+    },
 }
 # version 1 is version 2 without these fields (docs/protocol.md); hello.versions and
 # error.versions, the negotiation, are read in both
-_NOT_IN_V1 = {"welcome": {"seed"}, "state": {"lag"}, "command": {"plan_ctrl", "plan_t0", "plan_dt"},
-              "diagnostics": {"lead", "steps", "top_modes"},
-              "control": {"object", "pos", "quat", "seed"}}
-_SCHEMAS = {2: _SCHEMA, 1: {kind: {name: spec for name, spec in fields.items()
-                                   if name not in _NOT_IN_V1.get(kind, ())}
-                            for kind, fields in _SCHEMA.items()}}
+_NOT_IN_V1 = {
+    "welcome": {"seed"},
+    "state": {"lag"},
+    "command": {"plan_ctrl", "plan_t0", "plan_dt"},
+    "diagnostics": {"lead", "steps", "top_modes"},
+    "control": {"object", "pos", "quat", "seed"},
+}
+_SCHEMAS = {
+    2: _SCHEMA,
+    1: {
+        kind: {name: spec for name, spec in fields.items() if name not in _NOT_IN_V1.get(kind, ())}
+        for kind, fields in _SCHEMA.items()
+    },
+}
 _STATUSES = {"running", "success", "timeout", "stopped"}
 _MODES = {"lockstep", "realtime"}
 _OPS = {"reset", "shutdown", "pause", "resume", "move"}
@@ -243,8 +306,9 @@ def encode(msg: Any, version: int = PROTOCOL_VERSION) -> bytes:
     """Message dataclass -> one msgpack frame in protocol ``version`` (one of :data:`VERSIONS`):
     fields that version does not have are left out (a version-1 command carries no plan)."""
     if version not in _SCHEMAS:
-        raise ProtocolError(f"cannot encode protocol version {version} (this side speaks "
-                            f"{_names(VERSIONS)})")
+        raise ProtocolError(
+            f"cannot encode protocol version {version} (this side speaks {_names(VERSIONS)})"
+        )
     out: dict[str, Any] = {"type": msg.type, "v": version}
     for name, (kind, required) in _SCHEMAS[version][msg.type].items():
         value = getattr(msg, name)
@@ -261,13 +325,17 @@ def encode(msg: Any, version: int = PROTOCOL_VERSION) -> bytes:
         out[name] = value
     frame = msgpack.packb(out, use_bin_type=True)
     if len(frame) > MAX_MESSAGE_BYTES:
-        raise ProtocolError(f"{msg.type} message of {len(frame)} bytes is over the limit "
-                            f"{MAX_MESSAGE_BYTES}")
+        raise ProtocolError(
+            f"{msg.type} message of {len(frame)} bytes is over the limit {MAX_MESSAGE_BYTES}"
+        )
     return frame
 
 
-def decode(frame: bytes, expect: str | tuple[str, ...] | None = None,
-           versions: tuple[int, ...] = (PROTOCOL_VERSION,)) -> Any:
+def decode(
+    frame: bytes,
+    expect: str | tuple[str, ...] | None = None,
+    versions: tuple[int, ...] = (PROTOCOL_VERSION,),
+) -> Any:
     """One frame -> message dataclass; raises :class:`ProtocolError` for anything malformed.
 
     Args:
@@ -278,8 +346,11 @@ def decode(frame: bytes, expect: str | tuple[str, ...] | None = None,
     return decode_versioned(frame, expect, versions)[0]
 
 
-def decode_versioned(frame: bytes, expect: str | tuple[str, ...] | None = None,
-                     versions: tuple[int, ...] = (PROTOCOL_VERSION,)) -> tuple[Any, int]:
+def decode_versioned(
+    frame: bytes,
+    expect: str | tuple[str, ...] | None = None,
+    versions: tuple[int, ...] = (PROTOCOL_VERSION,),
+) -> tuple[Any, int]:
     """:func:`decode`, and the version the frame was written in. An ``error`` is read at any
     version (its ``reason``, and ``versions`` when valid): a refused peer must learn why."""
     if not isinstance(frame, (bytes, bytearray, memoryview)):
@@ -299,20 +370,28 @@ def decode_versioned(frame: bytes, expect: str | tuple[str, ...] | None = None,
         raise ProtocolError(f"unexpected message type {kind!r} here (expected {expect})")
     version = obj.get("v")
     # an error's reason is read at any version: a refused peer must learn why, not just "v3?"
-    readable_error = (kind == "error" and isinstance(version, int) and not isinstance(version, bool)
-                      and isinstance(obj.get("reason"), str))
+    readable_error = (
+        kind == "error"
+        and isinstance(version, int)
+        and not isinstance(version, bool)
+        and isinstance(obj.get("reason"), str)
+    )
     known = version in versions and version in _SCHEMAS
     if not known and not readable_error:
         offered = obj.get("versions") if kind == "hello" else None
         if _is_intlist(offered):
-            raise ProtocolError(f"no common protocol version: the peer speaks "
-                                f"{_names(offered)}, this side speaks {_names(versions)}")
-        raise ProtocolError(f"protocol version {version!r} not supported "
-                            f"(this side speaks {_names(versions)})")
+            raise ProtocolError(
+                f"no common protocol version: the peer speaks "
+                f"{_names(offered)}, this side speaks {_names(versions)}"
+            )
+        raise ProtocolError(
+            f"protocol version {version!r} not supported (this side speaks {_names(versions)})"
+        )
     if not known:
         theirs = obj.get("versions")
-        return Error(reason=obj["reason"][:4096],
-                     versions=list(theirs)[:64] if _is_intlist(theirs) else None), version
+        return Error(
+            reason=obj["reason"][:4096], versions=list(theirs)[:64] if _is_intlist(theirs) else None
+        ), version
     schema = _SCHEMAS[version][kind]
     unknown = set(obj) - set(schema) - {"type", "v"}
     if unknown:
@@ -330,15 +409,17 @@ def decode_versioned(frame: bytes, expect: str | tuple[str, ...] | None = None,
 
 
 def _is_intlist(value: Any) -> bool:
-    return isinstance(value, list) and 0 < len(value) <= 64 and all(
-        isinstance(v, int) and not isinstance(v, bool) for v in value)
+    return (
+        isinstance(value, list)
+        and 0 < len(value) <= 64
+        and all(isinstance(v, int) and not isinstance(v, bool) for v in value)
+    )
 
 
 def _names(versions) -> str:
     """``version 2`` or ``versions 1, 2``: for messages naming a side's versions."""
     versions = list(versions)
-    return (f"version{'s' if len(versions) != 1 else ''} "
-            f"{', '.join(str(v) for v in versions)}")
+    return f"version{'s' if len(versions) != 1 else ''} {', '.join(str(v) for v in versions)}"
 
 
 def choose_version(hello: Hello, version: int, speaks: tuple[int, ...] = VERSIONS) -> int:
@@ -348,8 +429,10 @@ def choose_version(hello: Hello, version: int, speaks: tuple[int, ...] = VERSION
     offered = hello.versions if hello.versions is not None else [version]
     common = set(offered) & set(speaks)
     if not common:
-        raise ProtocolError(f"no common protocol version: the planner speaks {_names(offered)}, "
-                            f"this world speaks {_names(speaks)}")
+        raise ProtocolError(
+            f"no common protocol version: the planner speaks {_names(offered)}, "
+            f"this world speaks {_names(speaks)}"
+        )
     return max(common)
 
 
@@ -379,8 +462,12 @@ def _check_field(kind: str, name: str, ftype: str, value: Any) -> Any:
         return list(value)
     if ftype == "floatmap":
         if not isinstance(value, dict) or not all(
-                isinstance(k, str) and isinstance(v, (int, float)) and not isinstance(v, bool)
-                and math.isfinite(v) for k, v in value.items()):
+            isinstance(k, str)
+            and isinstance(v, (int, float))
+            and not isinstance(v, bool)
+            and math.isfinite(v)
+            for k, v in value.items()
+        ):
             raise ProtocolError(f"{what}: expected a map of names to finite numbers")
         return {k: float(v) for k, v in value.items()}
     raise AssertionError(ftype)
@@ -399,21 +486,29 @@ def _check_values(msg: Any) -> None:
         if msg.ctrl.ndim != 1:
             raise ProtocolError(f"command.ctrl: expected shape [nu], got {list(msg.ctrl.shape)}")
         _check_plan(msg)
-    if isinstance(msg, Diagnostics) and msg.top_modes is not None and \
-            msg.top_modes.shape != msg.top.shape[:1]:
-        raise ProtocolError(f"diagnostics.top_modes: expected shape [{msg.top.shape[0]}] (one "
-                            f"per trajectory of top), got {list(msg.top_modes.shape)}")
+    if (
+        isinstance(msg, Diagnostics)
+        and msg.top_modes is not None
+        and msg.top_modes.shape != msg.top.shape[:1]
+    ):
+        raise ProtocolError(
+            f"diagnostics.top_modes: expected shape [{msg.top.shape[0]}] (one "
+            f"per trajectory of top), got {list(msg.top_modes.shape)}"
+        )
     if isinstance(msg, State) and msg.lag < 0:
         raise ProtocolError("state.lag must be >= 0")
     if isinstance(msg, State):
         _check_state_shapes(msg)
     if isinstance(msg, Diagnostics):
         if msg.mode_weights.ndim != 1:
-            raise ProtocolError(f"diagnostics.mode_weights: expected shape [N] (one per mode), "
-                                f"got {list(msg.mode_weights.shape)}")
+            raise ProtocolError(
+                f"diagnostics.mode_weights: expected shape [N] (one per mode), "
+                f"got {list(msg.mode_weights.shape)}"
+            )
         if msg.top.ndim != 3 or msg.top.shape[2] != 3:
-            raise ProtocolError(f"diagnostics.top: expected shape [M, T, 3], got "
-                                f"{list(msg.top.shape)}")
+            raise ProtocolError(
+                f"diagnostics.top: expected shape [M, T, 3], got {list(msg.top.shape)}"
+            )
 
 
 def _check_state_shapes(msg: State) -> None:
@@ -421,16 +516,19 @@ def _check_state_shapes(msg: State) -> None:
     (both empty, of any shape, for a model without mocap bodies)."""
     for name in ("qpos", "qvel", "act"):
         if getattr(msg, name).ndim != 1:
-            raise ProtocolError(f"state.{name}: expected shape [n], got "
-                                f"{list(getattr(msg, name).shape)}")
+            raise ProtocolError(
+                f"state.{name}: expected shape [n], got {list(getattr(msg, name).shape)}"
+            )
     pos, quat = msg.mocap_pos, msg.mocap_quat
     if pos.size == 0 and quat.size == 0:
         return
     if pos.ndim != 2 or pos.shape[1] != 3:
         raise ProtocolError(f"state.mocap_pos: expected shape [nmocap, 3], got {list(pos.shape)}")
     if quat.shape != (pos.shape[0], 4):
-        raise ProtocolError(f"state.mocap_quat: expected shape [{pos.shape[0]}, 4] (as "
-                            f"mocap_pos), got {list(quat.shape)}")
+        raise ProtocolError(
+            f"state.mocap_quat: expected shape [{pos.shape[0]}, 4] (as "
+            f"mocap_pos), got {list(quat.shape)}"
+        )
 
 
 def _check_welcome(msg: Welcome) -> None:
@@ -451,20 +549,32 @@ def _check_plan(cmd: Command) -> None:
     if not given:
         return
     if len(given) != 3:
-        raise ProtocolError(f"command: a plan needs plan_ctrl, plan_t0 and plan_dt together, got {given}")
-    if cmd.plan_ctrl.ndim != 2 or cmd.plan_ctrl.shape[0] < 1 or cmd.plan_ctrl.shape[1] != cmd.ctrl.shape[0]:
-        raise ProtocolError(f"command.plan_ctrl: expected shape [H >= 1, {cmd.ctrl.shape[0]}] "
-                            f"(nu of ctrl), got {list(cmd.plan_ctrl.shape)}")
+        raise ProtocolError(
+            f"command: a plan needs plan_ctrl, plan_t0 and plan_dt together, got {given}"
+        )
+    if (
+        cmd.plan_ctrl.ndim != 2
+        or cmd.plan_ctrl.shape[0] < 1
+        or cmd.plan_ctrl.shape[1] != cmd.ctrl.shape[0]
+    ):
+        raise ProtocolError(
+            f"command.plan_ctrl: expected shape [H >= 1, {cmd.ctrl.shape[0]}] "
+            f"(nu of ctrl), got {list(cmd.plan_ctrl.shape)}"
+        )
     if cmd.plan_dt <= 0:
         raise ProtocolError(f"command.plan_dt must be > 0, got {cmd.plan_dt}")
     if cmd.plan_dt < MIN_PLAN_DT:
-        raise ProtocolError(f"command.plan_dt must be >= {MIN_PLAN_DT} s, got {cmd.plan_dt}: no "
-                            f"world plays controls that short, and a world's tick would index "
-                            f"its plan past any integer")
+        raise ProtocolError(
+            f"command.plan_dt must be >= {MIN_PLAN_DT} s, got {cmd.plan_dt}: no "
+            f"world plays controls that short, and a world's tick would index "
+            f"its plan past any integer"
+        )
     if not np.isfinite(cmd.plan_t0 + cmd.plan_ctrl.shape[0] * cmd.plan_dt):
-        raise ProtocolError(f"command: the plan must end at a finite world time, got plan_t0 "
-                            f"{cmd.plan_t0} + {cmd.plan_ctrl.shape[0]} knots x plan_dt "
-                            f"{cmd.plan_dt}")
+        raise ProtocolError(
+            f"command: the plan must end at a finite world time, got plan_t0 "
+            f"{cmd.plan_t0} + {cmd.plan_ctrl.shape[0]} knots x plan_dt "
+            f"{cmd.plan_dt}"
+        )
 
 
 def _check_control(msg: Control) -> None:
@@ -480,12 +590,20 @@ def _check_control(msg: Control) -> None:
     if msg.op != "move":
         extra = [n for n in ("object", "pos", "quat") if getattr(msg, n) is not None]
         if extra:
-            raise ProtocolError(f"control.op {msg.op!r} takes no {', '.join(extra)} (only 'move' does)")
+            raise ProtocolError(
+                f"control.op {msg.op!r} takes no {', '.join(extra)} (only 'move' does)"
+            )
         return
     if not msg.object or msg.pos is None:
-        raise ProtocolError("control.op 'move' needs 'object' (a scenario object's name) and 'pos' [3]")
+        raise ProtocolError(
+            "control.op 'move' needs 'object' (a scenario object's name) and 'pos' [3]"
+        )
     if msg.pos.shape != (3,):
-        raise ProtocolError(f"control.pos: expected shape [3] (x, y, z in m), got {list(msg.pos.shape)}")
+        raise ProtocolError(
+            f"control.pos: expected shape [3] (x, y, z in m), got {list(msg.pos.shape)}"
+        )
     if msg.quat is not None and (msg.quat.shape != (4,) or not np.linalg.norm(msg.quat) > 1e-9):
-        raise ProtocolError(f"control.quat: expected a non-zero quaternion [4] (w, x, y, z), got "
-                            f"{np.asarray(msg.quat).tolist()}")
+        raise ProtocolError(
+            f"control.quat: expected a non-zero quaternion [4] (w, x, y, z), got "
+            f"{np.asarray(msg.quat).tolist()}"
+        )

@@ -17,16 +17,28 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from shared.config import (ConfigError, ErrorLog, Section, flag, load_yaml, non_negative, number,
-                           one_of, positive, positive_int, string_list, vector)
+from shared.config import (
+    ConfigError,
+    ErrorLog,
+    Section,
+    flag,
+    load_yaml,
+    non_negative,
+    number,
+    one_of,
+    positive,
+    positive_int,
+    string_list,
+    vector,
+)
 from shared.config_files import find, shipped
-from shared.geometry import AXES
 from shared.faults import NOMINAL, OLD_NAME, FaultConfig, parse_faults, read_old_name
+from shared.geometry import AXES
 from shared.predicates import Predicate, parse_predicate
 from shared.robots import ROBOTS, get_robot
 from shared.task_template import FactorTemplate, TaskTemplate, parse_task
 
-SCENARIO_DIR = shipped("scenarios")      # the scenarios shipped with m3p2i
+SCENARIO_DIR = shipped("scenarios")  # the scenarios shipped with m3p2i
 
 SHAPES = ("box", "cylinder", "sphere")
 _SIZE_LEN = {"box": 3, "cylinder": 2, "sphere": 1}
@@ -35,29 +47,31 @@ _SIZE_LEN = {"box": 3, "cylinder": 2, "sphere": 1}
 @dataclass(frozen=True)
 class RobotConfig:
     model: str
-    qpos: tuple[float, ...] | None = None   # initial joint positions; None = the model's default
+    qpos: tuple[float, ...] | None = None  # initial joint positions; None = the model's default
 
 
 @dataclass(frozen=True)
 class ObjectConfig:
     """A body added to the world. ``size`` uses MuJoCo's half-size convention per shape."""
+
     name: str
     shape: str
     size: tuple[float, ...]
     pos: tuple[float, float, float]
-    yaw: float = 0.0                       # degrees about z
-    fixed: bool = True                     # False: a free body that can be pushed
+    yaw: float = 0.0  # degrees about z
+    fixed: bool = True  # False: a free body that can be pushed
     mass: float = 1.0
     friction: float = 0.5
     rgba: tuple[float, float, float, float] = (0.6, 0.6, 0.6, 1.0)
-    visual: bool = False                   # a marker: drawn, never collides
-    obstacle: bool = True                  # counted by collision cost terms (non-visual only)
+    visual: bool = False  # a marker: drawn, never collides
+    obstacle: bool = True  # counted by collision cost terms (non-visual only)
 
 
 @dataclass(frozen=True)
 class ArenaConfig:
     """Walls of a square arena at ±half_size around the origin (thesis code: 4 m); drawn
     ``wall_height`` high."""
+
     half_size: float = 4.0
     wall_height: float = 0.3
 
@@ -66,6 +80,7 @@ class ArenaConfig:
 class BatteryConfig:
     """Simulated battery (thesis Eq. 4.1): +rate %/s within ``radius`` of ``charger``, else
     -rate %/s, bounded to [0, 100]; published as the state extra ``battery``."""
+
     charger: str
     rate: float
     radius: float = 0.5
@@ -77,10 +92,11 @@ class RandomizeConfig:
     """An object's start pose, drawn per episode from the server's --seed: uniform ranges for
     ``x``, ``y`` and ``yaw``, or ``choose``: one of a few start positions [x, y, z], each equally
     likely (discrete cases of one scenario, e.g. a cube on the table or on a shelf)."""
+
     object: str
     x: tuple[float, float] | None = None
     y: tuple[float, float] | None = None
-    yaw: tuple[float, float] | None = None     # degrees
+    yaw: tuple[float, float] | None = None  # degrees
     choose: tuple[tuple[float, float, float], ...] | None = None
 
 
@@ -89,6 +105,7 @@ class MoveConfig:
     """Teleport ``object`` to ``pos``/``yaw`` (None keeps that part) once: at time ``at``, or at
     the first step from ``at`` on where ``when`` holds (e.g. stealing a cube from the hand), or
     ``delay`` seconds after that step (a person who takes an obstacle away a moment later)."""
+
     object: str
     at: float = 0.0
     when: Predicate | None = None
@@ -101,6 +118,7 @@ class MoveConfig:
 class PathConfig:
     """Move a fixed (mocap) ``object`` through ``waypoints`` at ``speed`` m/s from time ``start``;
     ``loop`` returns to the first waypoint and repeats (a dynamic obstacle)."""
+
     object: str
     waypoints: tuple[tuple[float, float, float], ...]
     speed: float
@@ -122,6 +140,7 @@ class WorldConfig:
 class ObserverConfig:
     """Symbolic observer of one task factor: the first rule whose predicate holds gives the
     observed state; ``default`` when none holds."""
+
     rules: tuple[tuple[str, Predicate], ...]
     default: str
 
@@ -130,13 +149,14 @@ class ObserverConfig:
 class EpisodeConfig:
     max_time: float
     success: tuple[Predicate, ...]
-    hold: float = 0.0      # seconds the success predicates must hold without a break
+    hold: float = 0.0  # seconds the success predicates must hold without a break
 
 
 @dataclass(frozen=True)
 class FramePairConfig:
     """Two frames an evaluation metric compares; for positions, ``b`` shifted by ``offset``
     (world frame, m; e.g. on top of a cube) and only the ``axes`` components."""
+
     a: str
     b: str
     axes: str = "xyz"
@@ -147,6 +167,7 @@ class FramePairConfig:
 class CollisionMetricConfig:
     """Count contact onsets between the bodies of ``a`` and the bodies ``with_`` (``robot``: the
     whole robot; any other name: that body and the bodies it carries)."""
+
     a: tuple[str, ...]
     with_: tuple[str, ...]
 
@@ -155,6 +176,7 @@ class CollisionMetricConfig:
 class MetricsConfig:
     """What ``shared.evaluation.metrics`` measures per episode (``metrics:``; docs/evaluation.md). A metric
     left as None is not measured."""
+
     position: FramePairConfig | None = None
     orientation: FramePairConfig | None = None
     collisions: CollisionMetricConfig | None = None
@@ -163,17 +185,18 @@ class MetricsConfig:
 @dataclass(frozen=True)
 class TermConfig:
     """One cost term of an objective as written in YAML; the planner validates ``params``."""
+
     term: str
     weight: float
     params: dict[str, Any]
-    path: str                              # key path, for the planner's error messages
-    source: str = ""                       # the file it is written in, when not the scenario's
+    path: str  # key path, for the planner's error messages
+    source: str = ""  # the file it is written in, when not the scenario's
 
 
 @dataclass(frozen=True)
 class ObjectiveConfig:
     terms: tuple[TermConfig, ...]
-    fixed: dict[str, float] = field(default_factory=dict)   # actuator name -> pinned control
+    fixed: dict[str, float] = field(default_factory=dict)  # actuator name -> pinned control
 
 
 # Rollout backends (planner.backend): "mujoco" is mujoco.rollout's thread pool on the CPU, the
@@ -193,27 +216,33 @@ class PlanningModel:
     """``planner.model``: options of the planner's own copy of the model (its rollouts), never
     the world's; None keeps the world model's value. A planner may roll out a cheaper model
     than the world simulates, as long as its plans still work on the world."""
-    solver: str | None = None              # Newton | CG | PGS
-    iterations: int | None = None          # constraint solver iterations
-    ls_iterations: int | None = None       # line-search iterations (Newton, CG)
-    tolerance: float | None = None         # solver tolerance; 0 disables early termination
-    cone: str | None = None                # pyramidal | elliptic friction cones
-    noslip_iterations: int | None = None   # 0 disables the no-slip solver
-    integrator: str | None = None          # Euler | implicitfast | implicit | RK4
-    condim: int | None = None              # every geom's contact dimensionality (1, 3, 4, 6)
-    exclude: tuple[tuple[str, str], ...] = ()   # body pairs whose contacts the rollouts skip
-    attach: tuple[Attach, ...] = ()        # objects welded to the robot while a task state holds
-    objects: dict[str, ObjectModel] = field(default_factory=dict)   # per free object, by name
-    geoms: dict[str, GeomModel] = field(default_factory=dict)       # collision shapes, by geom name
+
+    solver: str | None = None  # Newton | CG | PGS
+    iterations: int | None = None  # constraint solver iterations
+    ls_iterations: int | None = None  # line-search iterations (Newton, CG)
+    tolerance: float | None = None  # solver tolerance; 0 disables early termination
+    cone: str | None = None  # pyramidal | elliptic friction cones
+    noslip_iterations: int | None = None  # 0 disables the no-slip solver
+    integrator: str | None = None  # Euler | implicitfast | implicit | RK4
+    condim: int | None = None  # every geom's contact dimensionality (1, 3, 4, 6)
+    exclude: tuple[tuple[str, str], ...] = ()  # body pairs whose contacts the rollouts skip
+    attach: tuple[Attach, ...] = ()  # objects welded to the robot while a task state holds
+    objects: dict[str, ObjectModel] = field(default_factory=dict)  # per free object, by name
+    geoms: dict[str, GeomModel] = field(default_factory=dict)  # collision shapes, by geom name
 
     def as_dict(self) -> dict[str, Any]:
         """The keys set, as written in YAML (for logs and benchmark rows)."""
-        out = {k: v for k, v in self.__dict__.items()
-               if v is not None and k not in ("exclude", "attach", "objects", "geoms")}
+        out = {
+            k: v
+            for k, v in self.__dict__.items()
+            if v is not None and k not in ("exclude", "attach", "objects", "geoms")
+        }
         if self.exclude:
             out["exclude"] = [list(pair) for pair in self.exclude]
         if self.attach:
-            out["attach"] = [{"object": a.object, "to": a.to, "while": a.state} for a in self.attach]
+            out["attach"] = [
+                {"object": a.object, "to": a.to, "while": a.state} for a in self.attach
+            ]
         if self.objects:
             out["objects"] = {name: o.as_dict() for name, o in self.objects.items()}
         if self.geoms:
@@ -230,13 +259,17 @@ class GeomModel:
     an object) in the planner's model: a sphere or a box collides with a box analytically, a
     cylinder through the general convex solver at several times the cost. Unset keys keep the
     geom's own; ``pos`` is in its body's frame."""
+
     type: str | None = None
     size: tuple[float, ...] | None = None
     pos: tuple[float, float, float] | None = None
 
     def as_dict(self) -> dict[str, Any]:
-        return {k: (list(v) if isinstance(v, tuple) else v)
-                for k, v in self.__dict__.items() if v is not None}
+        return {
+            k: (list(v) if isinstance(v, tuple) else v)
+            for k, v in self.__dict__.items()
+            if v is not None
+        }
 
 
 # The six degrees of freedom of a free object's joint, in MuJoCo's order: translations along the
@@ -252,17 +285,21 @@ class ObjectModel:
     compensated (``gravcomp: 1``) and the floor's friction replaced by resistance on its joint
     (``frictionloss``: dry, ``damping``: viscous): a few passive terms instead of a contact each
     step. Per-DOF values are six numbers in :data:`FREE_DOFS` order, or one for all six."""
-    gravcomp: float | None = None                       # 1: the object's weight is cancelled
-    damping: tuple[float, ...] | None = None            # N·s/m, N·m·s/rad per DOF
-    frictionloss: tuple[float, ...] | None = None       # N, N·m per DOF (dry friction)
-    armature: tuple[float, ...] | None = None           # kg, kg·m² added per DOF
+
+    gravcomp: float | None = None  # 1: the object's weight is cancelled
+    damping: tuple[float, ...] | None = None  # N·s/m, N·m·s/rad per DOF
+    frictionloss: tuple[float, ...] | None = None  # N, N·m per DOF (dry friction)
+    armature: tuple[float, ...] | None = None  # kg, kg·m² added per DOF
     # lying flat: each received state is put into the rollouts at the object's start height,
     # turned about z only, with no z, roll or pitch velocity (planner_client.mirror)
     planar: bool = False
 
     def as_dict(self) -> dict[str, Any]:
-        return {k: (list(v) if isinstance(v, tuple) else v)
-                for k, v in self.__dict__.items() if v is not None}
+        return {
+            k: (list(v) if isinstance(v, tuple) else v)
+            for k, v in self.__dict__.items()
+            if v is not None
+        }
 
 
 @dataclass(frozen=True)
@@ -271,9 +308,10 @@ class Attach:
     planner's model welds ``object`` to robot body ``to`` at their pose of the moment and drops
     the object's contacts with the robot (planner_client.attach). A grasp's pad contacts are
     most of a carrying rollout's cost; the world keeps them."""
-    object: str            # a free object of the scenario
-    to: str                # a body of the robot (e.g. its hand)
-    state: str             # a state of a task factor (YAML key ``while``)
+
+    object: str  # a free object of the scenario
+    to: str  # a body of the robot (e.g. its hand)
+    state: str  # a state of a task factor (YAML key ``while``)
 
 
 @dataclass(frozen=True)
@@ -281,12 +319,13 @@ class EstimateConfig:
     """``planner.estimate``: how the planner's mirror turns received states of the free bodies
     (the scenario's objects) into the rollouts' start, for worlds whose object poses come from
     perception (noisy) and whose object velocities are not measured."""
-    object_velocities: str = "received"    # received | from_poses (finite differences)
-    pose_filter: float = 1.0               # weight of a new pose in an exponential filter; 1: none
-    velocity_filter: float = 1.0           # weight of a new finite-difference velocity; 1: none
-    max_speed: float = 5.0                 # m/s: a faster jump is a teleport (filters restart)
-    held_filter: float = 1.0               # weight of a new relative pose of an attached object
-    still_speed: float = 0.0               # m/s: a slower filtered velocity is noise, taken as 0
+
+    object_velocities: str = "received"  # received | from_poses (finite differences)
+    pose_filter: float = 1.0  # weight of a new pose in an exponential filter; 1: none
+    velocity_filter: float = 1.0  # weight of a new finite-difference velocity; 1: none
+    max_speed: float = 5.0  # m/s: a faster jump is a teleport (filters restart)
+    held_filter: float = 1.0  # weight of a new relative pose of an attached object
+    still_speed: float = 0.0  # m/s: a slower filtered velocity is noise, taken as 0
 
 
 @dataclass(frozen=True)
@@ -298,10 +337,11 @@ class DelayConfig:
     its measurement's). ``estimate``: measure them online instead, the state delay from
     ``state.lag``, the actuation delay (up to ``max_ms``) from the robot's response; a declared
     value stands until the estimate has one."""
+
     actuation_ms: float = 0.0
     state_ms: float = 0.0
-    estimate: bool = False          # measure both online (planner_client/delay_estimate.py)
-    max_ms: float = 300.0           # the longest actuation delay the estimate considers
+    estimate: bool = False  # measure both online (planner_client/delay_estimate.py)
+    max_ms: float = 300.0  # the longest actuation delay the estimate considers
 
     @property
     def active(self) -> bool:
@@ -316,22 +356,23 @@ INTEGRATORS = ("Euler", "implicitfast", "implicit", "RK4")
 @dataclass(frozen=True)
 class PlannerConfig:
     """Motion-planner parameters; ``mppi`` keys are checked by the planner against MPPIConfig."""
+
     samples: int = 200
     horizon: int = 15
     mppi: dict[str, Any] = field(default_factory=dict)
-    threads: int = 0                       # rollout threads; 0 = one per core
-    aip_period: float = 0.2                # simulated seconds between active-inference ticks
+    threads: int = 0  # rollout threads; 0 = one per core
+    aip_period: float = 0.2  # simulated seconds between active-inference ticks
     # seconds an observed change of a task factor must persist before the task layer acts on
     # it, per factor ("*": the others); 0 acts on every observation (planner_client.task)
     confirm: dict[str, float | dict[str, float]] = field(default_factory=dict)
-    timestep: float | None = None          # planning step (s), a multiple of the world's; None = its
-    backend: str = "mujoco"                # rollouts: "mujoco" (mujoco.rollout pool) or "warp" (MJWarp)
-    device: str = "cuda:0"                 # the warp backend's device: "cpu" or "cuda[:N]"
-    nconmax: int | None = None             # warp: contacts per world; None = estimated at start
-    njmax: int | None = None               # warp: constraint rows per world; None = estimated
+    timestep: float | None = None  # planning step (s), a multiple of the world's; None = its
+    backend: str = "mujoco"  # rollouts: "mujoco" (mujoco.rollout pool) or "warp" (MJWarp)
+    device: str = "cuda:0"  # the warp backend's device: "cpu" or "cuda[:N]"
+    nconmax: int | None = None  # warp: contacts per world; None = estimated at start
+    njmax: int | None = None  # warp: constraint rows per world; None = estimated
     model: PlanningModel = PlanningModel()  # the rollout model's own options
-    estimate: EstimateConfig = EstimateConfig()   # the mirror's filters for the free bodies
-    delays: DelayConfig = DelayConfig()   # the robot's unseen delays, compensated by prediction
+    estimate: EstimateConfig = EstimateConfig()  # the mirror's filters for the free bodies
+    delays: DelayConfig = DelayConfig()  # the robot's unseen delays, compensated by prediction
 
     def step(self, world: WorldConfig) -> float:
         """Seconds per planned control step: ``timestep``, or the world's."""
@@ -349,7 +390,7 @@ class Scenario:
     episode: EpisodeConfig
     planner: PlannerConfig
     objectives: dict[str, ObjectiveConfig]
-    modes: tuple[str, ...]                 # fixed modes (when there is no task template)
+    modes: tuple[str, ...]  # fixed modes (when there is no task template)
     task: TaskTemplate | None = None
     observers: dict[str, ObserverConfig] = field(default_factory=dict)
     # the plan interface, YAML key ``plan``: task action -> the objective that executes it
@@ -385,6 +426,7 @@ class ScenarioReading:
     the arena's walls): enough to check the names the file uses, against them and the robot's
     bodies and sites (:mod:`shared.scenario_check`).
     """
+
     scenario: Scenario | None
     errors: list[ConfigError]
     model_ok: bool
@@ -418,25 +460,39 @@ def with_base(raw: Any, source: str, _seen: tuple[Path, ...] = ()) -> Any:
         return raw
     spec = raw["base"]
     if not isinstance(spec, str) or not spec:
-        raise ConfigError(source, "base", "not a scenario name or path", spec,
-                          "e.g. base: pick_place")
+        raise ConfigError(
+            source, "base", "not a scenario name or path", spec, "e.g. base: pick_place"
+        )
     me = Path(source).resolve()
     near = [Path(source).parent / spec, Path(source).parent / f"{spec}.yaml"]
     try:
         path = next((p for p in near if p.is_file()), None) or find_scenario(spec)
         path = path.resolve()
     except ConfigError:
-        raise ConfigError(source, "base", "no such scenario", spec,
-                          "a scenario name (m3p2i list) or a YAML path") from None
+        raise ConfigError(
+            source, "base", "no such scenario", spec, "a scenario name (m3p2i list) or a YAML path"
+        ) from None
     if path == me and (shipped("scenarios") / f"{spec}.yaml").is_file():
-        path = (shipped("scenarios") / f"{spec}.yaml").resolve()   # a user's file over the shipped one
+        path = (
+            shipped("scenarios") / f"{spec}.yaml"
+        ).resolve()  # a user's file over the shipped one
     if path in _seen or path == me:
-        raise ConfigError(source, "base", "a scenario cannot be its own base", spec,
-                          "a chain of bases without a loop")
+        raise ConfigError(
+            source,
+            "base",
+            "a scenario cannot be its own base",
+            spec,
+            "a chain of bases without a loop",
+        )
     base = with_base(load_yaml(path), str(path), _seen + (me,))
     if not isinstance(base, dict):
-        raise ConfigError(str(path), "", "a scenario must be a mapping", type(base).__name__,
-                          "keys such as name, robot, world")
+        raise ConfigError(
+            str(path),
+            "",
+            "a scenario must be a mapping",
+            type(base).__name__,
+            "keys such as name, robot, world",
+        )
     merged = _merge(base, {k: v for k, v in raw.items() if k != "base"})
     if "name" not in raw:
         merged.pop("name", None)
@@ -497,92 +553,164 @@ def _read(raw: dict, source: str, errors: ErrorLog) -> ScenarioReading:
     episode = errors.call(lambda: _episode(top.section("episode"), errors))
     metrics = MetricsConfig()
     if episode is not None:
-        metrics = errors.call(lambda: _metrics(top.section("metrics", required=False), episode),
-                              default=metrics)
+        metrics = errors.call(
+            lambda: _metrics(top.section("metrics", required=False), episode), default=metrics
+        )
     else:
         top.section("metrics", required=False)
-    planner = errors.call(lambda: _planner(top.section("planner", required=False)),
-                          default=PlannerConfig())
+    planner = errors.call(
+        lambda: _planner(top.section("planner", required=False)), default=PlannerConfig()
+    )
     if world is not None and planner.timestep is not None:
         ratio = planner.timestep / world.timestep
         if abs(ratio - round(ratio)) > 1e-6 or round(ratio) < 1:
-            errors.add(ConfigError(source, "planner.timestep", "not a whole multiple of "
-                                   "world.timestep", planner.timestep,
-                                   f"{world.timestep} × 1, 2, 3, ... seconds"))
+            errors.add(
+                ConfigError(
+                    source,
+                    "planner.timestep",
+                    "not a whole multiple of world.timestep",
+                    planner.timestep,
+                    f"{world.timestep} × 1, 2, 3, ... seconds",
+                )
+            )
     faults = NOMINAL
-    if top.has("faults"):     # a profile's name or a mapping
+    if top.has("faults"):  # a profile's name or a mapping
         faults = errors.call(parse_faults, top.opt("faults", None), source, default=NOMINAL)
     library, included = _includes(top, errors)
-    objectives = errors.call(lambda: _objectives(top.section("objectives"), errors, library),
-                             default={})
+    objectives = errors.call(
+        lambda: _objectives(top.section("objectives"), errors, library), default={}
+    )
     task = errors.call(lambda: parse_task(top.section("task"))) if top.has("task") else None
     observers, action_objectives, modes = {}, {}, ()
     if task is None and not top.has("task"):
-        modes = errors.call(top.req, "modes", string_list,
-                            "a list of objective names (or a task: template)", default=())
+        modes = errors.call(
+            top.req,
+            "modes",
+            string_list,
+            "a list of objective names (or a task: template)",
+            default=(),
+        )
     else:
-        modes = errors.call(top.opt, "modes", (), string_list, "a list of objective names",
-                            default=())
+        modes = errors.call(
+            top.opt, "modes", (), string_list, "a list of objective names", default=()
+        )
         if task is not None:
-            observers = errors.call(lambda: _observers(top.section("observers"), task, errors),
-                                    default={})
+            observers = errors.call(
+                lambda: _observers(top.section("observers"), task, errors), default={}
+            )
             action_objectives = errors.call(
-                lambda: _action_objectives(top.section("plan"), task, objectives), default={})
-        else:   # the task's own errors are reported; its dependants would only repeat them
+                lambda: _action_objectives(top.section("plan"), task, objectives), default={}
+            )
+        else:  # the task's own errors are reported; its dependants would only repeat them
             top.section("observers", required=False)
             top.section("plan", required=False)
     if planner is not None and planner.confirm and task is None and not top.has("task"):
-        errors.add(ConfigError(source, "planner.confirm", "only a task's observers are "
-                               "confirmed", raw["planner"]["confirm"],
-                               "a scenario with a task: template"))
+        errors.add(
+            ConfigError(
+                source,
+                "planner.confirm",
+                "only a task's observers are confirmed",
+                raw["planner"]["confirm"],
+                "a scenario with a task: template",
+            )
+        )
     elif planner is not None and task is not None:
         factors = [f.name for f in task.factors]
         for key, hold in planner.confirm.items():
             if key != "*" and key not in factors:
-                errors.add(ConfigError(source, f"planner.confirm.{key}", "not a factor of the "
-                                       "task", key, "'*' or one of: " + ", ".join(factors)))
+                errors.add(
+                    ConfigError(
+                        source,
+                        f"planner.confirm.{key}",
+                        "not a factor of the task",
+                        key,
+                        "'*' or one of: " + ", ".join(factors),
+                    )
+                )
             elif isinstance(hold, dict):
                 states = next(f.states for f in task.factors if f.name == key)
                 for state in hold:
                     if state not in states:
-                        errors.add(ConfigError(source, f"planner.confirm.{key}.{state}",
-                                               "not a state of the factor", state,
-                                               "one of: " + ", ".join(states)))
+                        errors.add(
+                            ConfigError(
+                                source,
+                                f"planner.confirm.{key}.{state}",
+                                "not a state of the factor",
+                                state,
+                                "one of: " + ", ".join(states),
+                            )
+                        )
     if planner is not None and planner.model.objects and world is not None:
         free = [o.name for o in world.objects if not o.fixed]
         for obj in planner.model.objects:
             if obj not in free:
-                errors.add(ConfigError(source, f"planner.model.objects.{obj}", "not a free "
-                                       "object of the world", obj,
-                                       "one of: " + (", ".join(free) or "(none)")))
+                errors.add(
+                    ConfigError(
+                        source,
+                        f"planner.model.objects.{obj}",
+                        "not a free object of the world",
+                        obj,
+                        "one of: " + (", ".join(free) or "(none)"),
+                    )
+                )
     if planner is not None and planner.model.attach:
         _check_attach(planner, task, world, source, errors)
     elif planner is not None and planner.estimate.held_filter < 1.0:
-        errors.add(ConfigError(source, "planner.estimate.held_filter", "filters the pose of an "
-                               "attached object, and nothing is attached",
-                               planner.estimate.held_filter, "planner.model.attach, or no held_filter"))
+        errors.add(
+            ConfigError(
+                source,
+                "planner.estimate.held_filter",
+                "filters the pose of an attached object, and nothing is attached",
+                planner.estimate.held_filter,
+                "planner.model.attach, or no held_filter",
+            )
+        )
     if top.has("objectives") and isinstance(top.data["objectives"], dict):
         known = list(top.data["objectives"])
         for i, m in enumerate(modes):
             if m not in known:
-                errors.add(ConfigError(source, f"modes[{i}]", "not an objective of this scenario",
-                                       m, f"one of: {', '.join(known)}"))
+                errors.add(
+                    ConfigError(
+                        source,
+                        f"modes[{i}]",
+                        "not an objective of this scenario",
+                        m,
+                        f"one of: {', '.join(known)}",
+                    )
+                )
     errors.call(top.done)
     if robot is None:
         return ScenarioReading(None, errors.errors, False)
-    if world is None:       # what the faulty world declares stands in, for name checks only
+    if world is None:  # what the faulty world declares stands in, for name checks only
         world = _declared_world(raw.get("world"), source)
-    scenario = Scenario(name=name, description=description, source=source,
-                        hash=scenario_hash(raw, included), robot=robot, world=world,
-                        episode=episode or EpisodeConfig(max_time=0.0, success=()),
-                        planner=planner, objectives=objectives, modes=modes, task=task,
-                        observers=observers, action_objectives=action_objectives, metrics=metrics,
-                        faults=faults, raw=raw)
+    scenario = Scenario(
+        name=name,
+        description=description,
+        source=source,
+        hash=scenario_hash(raw, included),
+        robot=robot,
+        world=world,
+        episode=episode or EpisodeConfig(max_time=0.0, success=()),
+        planner=planner,
+        objectives=objectives,
+        modes=modes,
+        task=task,
+        observers=observers,
+        action_objectives=action_objectives,
+        metrics=metrics,
+        faults=faults,
+        raw=raw,
+    )
     return ScenarioReading(scenario, errors.errors, model_ok)
 
 
-def _check_attach(planner: PlannerConfig, task: TaskTemplate | None, world: WorldConfig | None,
-                  source: str, errors: ErrorLog) -> None:
+def _check_attach(
+    planner: PlannerConfig,
+    task: TaskTemplate | None,
+    world: WorldConfig | None,
+    source: str,
+    errors: ErrorLog,
+) -> None:
     """An attachment needs a task state to follow, a free object, and the CPU rollouts (the
     warp backend's model is not changed between iterations)."""
     states = [st for f in task.factors for st in f.states] if task is not None else []
@@ -590,16 +718,37 @@ def _check_attach(planner: PlannerConfig, task: TaskTemplate | None, world: Worl
     for i, a in enumerate(planner.model.attach):
         path = f"planner.model.attach[{i}]"
         if a.state not in states:
-            errors.add(ConfigError(source, f"{path}.while", "not a state of the task's factors",
-                                   a.state, "one of: " + ", ".join(states) if states
-                                   else "a scenario with a task: template"))
+            errors.add(
+                ConfigError(
+                    source,
+                    f"{path}.while",
+                    "not a state of the task's factors",
+                    a.state,
+                    "one of: " + ", ".join(states)
+                    if states
+                    else "a scenario with a task: template",
+                )
+            )
         if free is not None and a.object not in free:
-            errors.add(ConfigError(source, f"{path}.object", "not a free object of the world",
-                                   a.object, "one of: " + (", ".join(free) or "(none)")))
+            errors.add(
+                ConfigError(
+                    source,
+                    f"{path}.object",
+                    "not a free object of the world",
+                    a.object,
+                    "one of: " + (", ".join(free) or "(none)"),
+                )
+            )
     if planner.backend != "mujoco":
-        errors.add(ConfigError(source, "planner.model.attach", "only the mujoco backend "
-                               "changes its model between iterations", planner.backend,
-                               "planner.backend: mujoco, or no attach"))
+        errors.add(
+            ConfigError(
+                source,
+                "planner.model.attach",
+                "only the mujoco backend changes its model between iterations",
+                planner.backend,
+                "planner.backend: mujoco, or no attach",
+            )
+        )
 
 
 def _observers(s: Section, task: TaskTemplate, errors: ErrorLog) -> dict[str, ObserverConfig]:
@@ -618,14 +767,21 @@ def _observers(s: Section, task: TaskTemplate, errors: ErrorLog) -> dict[str, Ob
 def _observer(s: Section, factor: FactorTemplate) -> ObserverConfig:
     """One task factor's observer (see :func:`_observers`)."""
     if not s.has(factor.name):
-        raise s.error(factor.name, "missing observer for task factor", expected="a predicate "
-                      "or a list of {state, when} rules ending with {default: state}")
+        raise s.error(
+            factor.name,
+            "missing observer for task factor",
+            expected="a predicate or a list of {state, when} rules ending with {default: state}",
+        )
     value = s.data[factor.name]
     states = factor.states
     if isinstance(value, dict):
         if len(states) != 2:
-            raise s.error(factor.name, "the one-predicate form needs a two-state factor",
-                          list(states), "a list of {state, when} rules")
+            raise s.error(
+                factor.name,
+                "the one-predicate form needs a two-state factor",
+                list(states),
+                "a list of {state, when} rules",
+            )
         return ObserverConfig(((states[0], parse_predicate(s.section(factor.name))),), states[1])
     rules, default = [], None
     for i, rule in enumerate(s.items(factor.name, required=True)):
@@ -647,8 +803,9 @@ def _action_objectives(s: Section, task: TaskTemplate, objectives: dict) -> dict
     """The plan interface (paper II.D): every task action -> the objective that executes it."""
     out = {}
     for action in task.actions():
-        out[action.name] = s.req(action.name, one_of(objectives),
-                                 f"an objective: {', '.join(objectives)}")
+        out[action.name] = s.req(
+            action.name, one_of(objectives), f"an objective: {', '.join(objectives)}"
+        )
     s.done()
     return out
 
@@ -678,38 +835,59 @@ def _world(s: Section, errors: ErrorLog) -> WorldConfig | None:
         if obj is None:
             continue
         if obj.name in names or obj.name == "robot":
-            errors.add(o.error("name", "duplicate or reserved object name", obj.name,
-                               "a unique name"))
+            errors.add(
+                o.error("name", "duplicate or reserved object name", obj.name, "a unique name")
+            )
             continue
         names.add(obj.name)
         objects.append(obj)
     if battery and battery.charger not in names:
-        errors.add(ConfigError(s.source, f"{s.path}.battery.charger", "not an object of this "
-                               "world", battery.charger, f"one of: {', '.join(sorted(names))}"))
+        errors.add(
+            ConfigError(
+                s.source,
+                f"{s.path}.battery.charger",
+                "not an object of this world",
+                battery.charger,
+                f"one of: {', '.join(sorted(names))}",
+            )
+        )
     by_name = {o.name: o for o in objects}
-    randomize = tuple(errors.call(_randomize, r, by_name)
-                      for r in errors.call(s.items, "randomize", default=[]))
-    disturbances = tuple(errors.call(_disturbance, d, by_name)
-                         for d in errors.call(s.items, "disturbances", default=[]))
+    randomize = tuple(
+        errors.call(_randomize, r, by_name) for r in errors.call(s.items, "randomize", default=[])
+    )
+    disturbances = tuple(
+        errors.call(_disturbance, d, by_name)
+        for d in errors.call(s.items, "disturbances", default=[])
+    )
     errors.call(s.done)
     if len(errors.errors) > n_before:
         return None
-    return WorldConfig(timestep=timestep, objects=tuple(objects), arena=arena, battery=battery,
-                       randomize=randomize, disturbances=disturbances)
+    return WorldConfig(
+        timestep=timestep,
+        objects=tuple(objects),
+        arena=arena,
+        battery=battery,
+        randomize=randomize,
+        disturbances=disturbances,
+    )
 
 
 def _arena(a: Section) -> ArenaConfig:
-    arena = ArenaConfig(half_size=a.opt("half_size", 4.0, positive),
-                        wall_height=a.opt("wall_height", 0.3, positive))
-    a.opt("wall_thickness", None, positive)   # accepted from older files: walls are planes
+    arena = ArenaConfig(
+        half_size=a.opt("half_size", 4.0, positive), wall_height=a.opt("wall_height", 0.3, positive)
+    )
+    a.opt("wall_thickness", None, positive)  # accepted from older files: walls are planes
     a.done()
     return arena
 
 
 def _battery(b: Section) -> BatteryConfig:
-    battery = BatteryConfig(charger=b.req("charger", str), rate=b.req("rate", positive, "%/s"),
-                            radius=b.opt("radius", 0.5, positive),
-                            initial=b.opt("initial", 100.0, non_negative))
+    battery = BatteryConfig(
+        charger=b.req("charger", str),
+        rate=b.req("rate", positive, "%/s"),
+        radius=b.opt("radius", 0.5, positive),
+        initial=b.opt("initial", 100.0, non_negative),
+    )
     b.done()
     return battery
 
@@ -726,35 +904,59 @@ def _declared_world(data: Any, source: str) -> WorldConfig:
     for o in scratch.call(s.items, "objects", default=[]):
         obj = scratch.call(_object, o)
         name = obj.name if obj is not None else o.data.get("name")
-        if not isinstance(name, str) or not name or name == "robot" or name in {
-                b.name for b in objects}:
+        if (
+            not isinstance(name, str)
+            or not name
+            or name == "robot"
+            or name in {b.name for b in objects}
+        ):
             continue
         fixed = o.data.get("fixed", True)
-        objects.append(obj or ObjectConfig(name=name, shape="sphere", size=(0.05,),
-                                           pos=(0.0, 0.0, 0.05),
-                                           fixed=fixed if isinstance(fixed, bool) else True))
+        objects.append(
+            obj
+            or ObjectConfig(
+                name=name,
+                shape="sphere",
+                size=(0.05,),
+                pos=(0.0, 0.0, 0.05),
+                fixed=fixed if isinstance(fixed, bool) else True,
+            )
+        )
     by_name = {o.name: o for o in objects}
     arena = None
     if s.has("arena"):
         arena = scratch.call(lambda: _arena(s.section("arena")), default=ArenaConfig())
     parts = {}
     for key, read in (("randomize", _randomize), ("disturbances", _disturbance)):
-        parts[key] = tuple(p for p in (scratch.call(read, i, by_name)
-                                       for i in scratch.call(s.items, key, default=[]))
-                           if p is not None)
+        parts[key] = tuple(
+            p
+            for p in (
+                scratch.call(read, i, by_name) for i in scratch.call(s.items, key, default=[])
+            )
+            if p is not None
+        )
     timestep = scratch.call(s.req, "timestep", positive, default=None)
-    return WorldConfig(timestep=timestep or 0.01, objects=tuple(objects), arena=arena,
-                       randomize=parts["randomize"], disturbances=parts["disturbances"])
+    return WorldConfig(
+        timestep=timestep or 0.01,
+        objects=tuple(objects),
+        arena=arena,
+        randomize=parts["randomize"],
+        disturbances=parts["disturbances"],
+    )
 
 
 def _object_ref(s: Section, by_name: dict[str, ObjectConfig], fixed: bool | None = None) -> str:
     name = s.req("object", str)
     if name not in by_name:
-        raise s.error("object", "not an object of this world", name,
-                      f"one of: {', '.join(sorted(by_name))}")
+        raise s.error(
+            "object", "not an object of this world", name, f"one of: {', '.join(sorted(by_name))}"
+        )
     if fixed is not None and by_name[name].fixed != fixed:
-        raise s.error("object", "must be a fixed object (moved kinematically)" if fixed
-                      else "must be a free object", name)
+        raise s.error(
+            "object",
+            "must be a fixed object (moved kinematically)" if fixed else "must be a free object",
+            name,
+        )
     return name
 
 
@@ -769,8 +971,9 @@ def _waypoint(s: Section, i: int, value, key: str = "waypoints") -> tuple[float,
     try:
         return vector(3)(value)
     except ValueError as exc:
-        raise ConfigError(s.source, f"{s.key_path(key)}[{i}]", str(exc), value,
-                          "[x, y, z]") from None
+        raise ConfigError(
+            s.source, f"{s.key_path(key)}[{i}]", str(exc), value, "[x, y, z]"
+        ) from None
 
 
 def _randomize(s: Section, by_name) -> RandomizeConfig:
@@ -783,9 +986,13 @@ def _randomize(s: Section, by_name) -> RandomizeConfig:
             if s.has(axis):
                 raise s.error(axis, "give either choose or x/y ranges, not both", s.data[axis])
         choose = tuple(_waypoint(s, i, p, "choose") for i, p in enumerate(points))
-    cfg = RandomizeConfig(object=_object_ref(s, by_name), x=s.opt("x", None, _range, "[low, high]"),
-                          y=s.opt("y", None, _range, "[low, high]"),
-                          yaw=s.opt("yaw", None, _range, "[low, high] degrees"), choose=choose)
+    cfg = RandomizeConfig(
+        object=_object_ref(s, by_name),
+        x=s.opt("x", None, _range, "[low, high]"),
+        y=s.opt("y", None, _range, "[low, high]"),
+        yaw=s.opt("yaw", None, _range, "[low, high] degrees"),
+        choose=choose,
+    )
     s.done()
     return cfg
 
@@ -793,27 +1000,40 @@ def _randomize(s: Section, by_name) -> RandomizeConfig:
 def _disturbance(s: Section, by_name) -> MoveConfig | PathConfig:
     kinds = [k for k in ("move", "path") if s.has(k)]
     if len(kinds) != 1:
-        raise ConfigError(s.source, s.path, "a disturbance needs exactly one of: move, path",
-                          sorted(s.data))
+        raise ConfigError(
+            s.source, s.path, "a disturbance needs exactly one of: move, path", sorted(s.data)
+        )
     if kinds[0] == "move":
         m = s.section("move")
         when = parse_predicate(m.section("when")) if m.has("when") else None
         delay = m.opt("delay", 0.0, non_negative, "seconds >= 0")
         if delay and when is None:
-            raise m.error("delay", "a delay counts from when the `when` condition first holds; "
-                          "give `when`, or use `at` alone", delay)
-        cfg = MoveConfig(object=_object_ref(m, by_name), at=m.opt("at", 0.0, non_negative),
-                         when=when, pos=m.opt("pos", None, vector(3), "[x, y, z]"),
-                         yaw=m.opt("yaw", None, number, "degrees"), delay=delay)
+            raise m.error(
+                "delay",
+                "a delay counts from when the `when` condition first holds; "
+                "give `when`, or use `at` alone",
+                delay,
+            )
+        cfg = MoveConfig(
+            object=_object_ref(m, by_name),
+            at=m.opt("at", 0.0, non_negative),
+            when=when,
+            pos=m.opt("pos", None, vector(3), "[x, y, z]"),
+            yaw=m.opt("yaw", None, number, "degrees"),
+            delay=delay,
+        )
     else:
         m = s.section("path")
         points = m.req("waypoints", list, "a list of [x, y, z]")
         if len(points) < 2:
             raise m.error("waypoints", "needs at least two waypoints", points)
-        cfg = PathConfig(object=_object_ref(m, by_name, fixed=True),
-                         waypoints=tuple(_waypoint(m, i, p) for i, p in enumerate(points)),
-                         speed=m.req("speed", positive, "m/s"), start=m.opt("start", 0.0, non_negative),
-                         loop=m.opt("loop", True, bool))
+        cfg = PathConfig(
+            object=_object_ref(m, by_name, fixed=True),
+            waypoints=tuple(_waypoint(m, i, p) for i, p in enumerate(points)),
+            speed=m.req("speed", positive, "m/s"),
+            start=m.opt("start", 0.0, non_negative),
+            loop=m.opt("loop", True, bool),
+        )
     m.done()
     s.done()
     return cfg
@@ -827,11 +1047,18 @@ def _object(s: Section) -> ObjectConfig:
         raise s.error("size", "sizes must be > 0", list(size))
     visual = s.opt("visual", False, bool)
     obj = ObjectConfig(
-        name=name, shape=shape, size=size, pos=s.req("pos", vector(3), "[x, y, z] in metres"),
-        yaw=s.opt("yaw", 0.0, number), fixed=s.opt("fixed", True, bool),
-        mass=s.opt("mass", 1.0, positive), friction=s.opt("friction", 0.5, non_negative),
+        name=name,
+        shape=shape,
+        size=size,
+        pos=s.req("pos", vector(3), "[x, y, z] in metres"),
+        yaw=s.opt("yaw", 0.0, number),
+        fixed=s.opt("fixed", True, bool),
+        mass=s.opt("mass", 1.0, positive),
+        friction=s.opt("friction", 0.5, non_negative),
         rgba=s.opt("rgba", (0.6, 0.6, 0.6, 1.0), vector(4), "[r, g, b, a] in 0..1"),
-        visual=visual, obstacle=s.opt("obstacle", not visual, bool))
+        visual=visual,
+        obstacle=s.opt("obstacle", not visual, bool),
+    )
     s.done()
     return obj
 
@@ -875,7 +1102,8 @@ def _metrics(s: Section, episode: EpisodeConfig) -> MetricsConfig:
         c = s.section("collisions")
         collisions = CollisionMetricConfig(
             a=c.req("a", string_list, "a frame name or a list of them (robot, an object)"),
-            with_=c.req("with", string_list, "a list of body names (e.g. a dynamic obstacle)"))
+            with_=c.req("with", string_list, "a list of body names (e.g. a dynamic obstacle)"),
+        )
         c.done()
     s.done()
     return MetricsConfig(position=position, orientation=orientation, collisions=collisions)
@@ -886,38 +1114,49 @@ def _frame_pair(s: Section, position: bool) -> FramePairConfig:
     if not position:
         s.done()
         return FramePairConfig(a, b)
-    pair = FramePairConfig(a, b, axes=s.opt("axes", "xyz", one_of(AXES)),
-                           offset=s.opt("offset", (0.0, 0.0, 0.0), vector(3), "[x, y, z] in metres"))
+    pair = FramePairConfig(
+        a,
+        b,
+        axes=s.opt("axes", "xyz", one_of(AXES)),
+        offset=s.opt("offset", (0.0, 0.0, 0.0), vector(3), "[x, y, z] in metres"),
+    )
     s.done()
     return pair
 
 
 def _planner(s: Section) -> PlannerConfig:
-    cfg = PlannerConfig(samples=s.opt("samples", 200, positive_int),
-                        horizon=s.opt("horizon", 15, positive_int),
-                        mppi=dict(s.section("mppi", required=False).data),
-                        threads=s.opt("threads", 0, int),
-                        aip_period=s.opt("aip_period", 0.2, positive, "simulated seconds"),
-                        confirm=s.opt("confirm", {}, _confirm_times, "seconds >= 0, or a map "
-                                      "{factor: seconds or {state: seconds}, '*': seconds}"),
-                        timestep=s.opt("timestep", None, _timestep, f"{_TIMESTEP}, a multiple "
-                                       "of world.timestep"),
-                        backend=s.opt("backend", "mujoco", one_of(ROLLOUT_BACKENDS)),
-                        device=s.opt("device", "cuda:0", rollout_device, "cpu, cuda or cuda:N"),
-                        nconmax=s.opt("nconmax", None, positive_int, "contacts per world"),
-                        njmax=s.opt("njmax", None, positive_int, "constraint rows per world"),
-                        model=_planning_model(s.section("model", required=False)),
-                        estimate=_estimate(s.section("estimate", required=False)),
-                        delays=_delays(s.section("delays", required=False)))
+    cfg = PlannerConfig(
+        samples=s.opt("samples", 200, positive_int),
+        horizon=s.opt("horizon", 15, positive_int),
+        mppi=dict(s.section("mppi", required=False).data),
+        threads=s.opt("threads", 0, int),
+        aip_period=s.opt("aip_period", 0.2, positive, "simulated seconds"),
+        confirm=s.opt(
+            "confirm",
+            {},
+            _confirm_times,
+            "seconds >= 0, or a map {factor: seconds or {state: seconds}, '*': seconds}",
+        ),
+        timestep=s.opt("timestep", None, _timestep, f"{_TIMESTEP}, a multiple of world.timestep"),
+        backend=s.opt("backend", "mujoco", one_of(ROLLOUT_BACKENDS)),
+        device=s.opt("device", "cuda:0", rollout_device, "cpu, cuda or cuda:N"),
+        nconmax=s.opt("nconmax", None, positive_int, "contacts per world"),
+        njmax=s.opt("njmax", None, positive_int, "constraint rows per world"),
+        model=_planning_model(s.section("model", required=False)),
+        estimate=_estimate(s.section("estimate", required=False)),
+        delays=_delays(s.section("delays", required=False)),
+    )
     s.done()
     return cfg
 
 
 def _delays(s: Section) -> DelayConfig:
-    cfg = DelayConfig(actuation_ms=s.opt("actuation_ms", 0.0, non_negative, "milliseconds >= 0"),
-                      state_ms=s.opt("state_ms", 0.0, non_negative, "milliseconds >= 0"),
-                      estimate=s.opt("estimate", False, flag, "true or false"),
-                      max_ms=s.opt("max_ms", 300.0, positive, "milliseconds > 0"))
+    cfg = DelayConfig(
+        actuation_ms=s.opt("actuation_ms", 0.0, non_negative, "milliseconds >= 0"),
+        state_ms=s.opt("state_ms", 0.0, non_negative, "milliseconds >= 0"),
+        estimate=s.opt("estimate", False, flag, "true or false"),
+        max_ms=s.opt("max_ms", 300.0, positive, "milliseconds > 0"),
+    )
     s.done()
     return cfg
 
@@ -935,7 +1174,8 @@ def _planning_model(s: Section) -> PlanningModel:
         exclude=tuple(s.opt("exclude", (), _body_pairs, "a list of [body, body] pairs")),
         attach=tuple(_attach(a) for a in s.items("attach")),
         objects=_object_models(s.section("objects", required=False)),
-        geoms=_geom_models(s.section("geoms", required=False)))
+        geoms=_geom_models(s.section("geoms", required=False)),
+    )
     s.done()
     return cfg
 
@@ -961,7 +1201,8 @@ def _geom_models(s: Section) -> dict[str, GeomModel]:
         out[name] = GeomModel(
             type=g.opt("type", None, one_of(GEOM_TYPES)),
             size=g.opt("size", None, _sizes, "1 to 3 numbers > 0, as MuJoCo's geom size"),
-            pos=g.opt("pos", None, vector(3), "[x, y, z] in metres, in the body's frame"))
+            pos=g.opt("pos", None, vector(3), "[x, y, z] in metres, in the body's frame"),
+        )
         g.done()
     s.done()
     return out
@@ -986,28 +1227,34 @@ def _object_models(s: Section) -> dict[str, ObjectModel]:
             damping=o.opt("damping", None, _per_dof, _PER_DOF),
             frictionloss=o.opt("frictionloss", None, _per_dof, _PER_DOF),
             armature=o.opt("armature", None, _per_dof, _PER_DOF),
-            planar=o.opt("planar", False, flag, "true or false"))
+            planar=o.opt("planar", False, flag, "true or false"),
+        )
         o.done()
     s.done()
     return out
 
 
 def _attach(s: Section) -> Attach:
-    cfg = Attach(object=s.req("object", str, "a free object's name"),
-                 to=s.req("to", str, "a body of the robot"),
-                 state=s.req("while", str, "a state of a task factor, e.g. holding"))
+    cfg = Attach(
+        object=s.req("object", str, "a free object's name"),
+        to=s.req("to", str, "a body of the robot"),
+        state=s.req("while", str, "a state of a task factor, e.g. holding"),
+    )
     s.done()
     return cfg
 
 
 def _estimate(s: Section) -> EstimateConfig:
     cfg = EstimateConfig(
-        object_velocities=s.opt("object_velocities", "received", one_of(("received", "from_poses"))),
+        object_velocities=s.opt(
+            "object_velocities", "received", one_of(("received", "from_poses"))
+        ),
         pose_filter=s.opt("pose_filter", 1.0, _weight, "a weight in (0, 1]"),
         velocity_filter=s.opt("velocity_filter", 1.0, _weight, "a weight in (0, 1]"),
         max_speed=s.opt("max_speed", 5.0, positive, "m/s > 0"),
         held_filter=s.opt("held_filter", 1.0, _weight, "a weight in (0, 1]"),
-        still_speed=s.opt("still_speed", 0.0, non_negative, "m/s >= 0"))
+        still_speed=s.opt("still_speed", 0.0, non_negative, "m/s >= 0"),
+    )
     s.done()
     return cfg
 
@@ -1061,13 +1308,14 @@ def _one_of_ints(choices: tuple[int, ...]):
         if isinstance(value, bool) or value not in choices:
             raise ValueError(f"must be one of: {', '.join(map(str, choices))}")
         return value
+
     return convert
 
 
 def _body_pairs(value: Any) -> list[tuple[str, str]]:
     if not isinstance(value, list) or not all(
-            isinstance(p, list) and len(p) == 2 and all(isinstance(b, str) for b in p)
-            for p in value):
+        isinstance(p, list) and len(p) == 2 and all(isinstance(b, str) for b in p) for p in value
+    ):
         raise ValueError("wrong type")
     return [(a, b) for a, b in value]
 
@@ -1075,9 +1323,14 @@ def _body_pairs(value: Any) -> list[tuple[str, str]]:
 def _includes(top: Section, errors: ErrorLog) -> tuple[dict[str, ObjectiveConfig], list[dict]]:
     """``include: [NAME or path, ...]``: files of named objectives (``objectives/NAME.yaml``)
     that this scenario's objectives may ``extends``; their contents, for the hash."""
-    names = errors.call(top.opt, "include", (), string_list,
-                        "a list of objective files: names (objectives/NAME.yaml) or paths",
-                        default=())
+    names = errors.call(
+        top.opt,
+        "include",
+        (),
+        string_list,
+        "a list of objective files: names (objectives/NAME.yaml) or paths",
+        default=(),
+    )
     library: dict[str, ObjectiveConfig] = {}
     contents = []
     for i, name in enumerate(names):
@@ -1085,25 +1338,41 @@ def _includes(top: Section, errors: ErrorLog) -> tuple[dict[str, ObjectiveConfig
             path = find_objectives(name)
             raw = load_yaml(path)
         except ConfigError as exc:
-            errors.add(ConfigError(top.source, f"include[{i}]", exc.message, name,
-                                   exc.expected or "an objectives file"))
+            errors.add(
+                ConfigError(
+                    top.source,
+                    f"include[{i}]",
+                    exc.message,
+                    name,
+                    exc.expected or "an objectives file",
+                )
+            )
             continue
         contents.append(raw)
         s = Section(raw, str(path))
         errors.call(s.opt, "description", "", str)
-        defined = errors.call(lambda: _objectives(s.section("objectives"), errors, library),
-                              default={})
+        defined = errors.call(
+            lambda: _objectives(s.section("objectives"), errors, library), default={}
+        )
         errors.call(s.done)
         for key in defined:
             if key in library:
-                errors.add(ConfigError(str(path), f"objectives.{key}",
-                                       "defined in two included files", key, "a unique name"))
+                errors.add(
+                    ConfigError(
+                        str(path),
+                        f"objectives.{key}",
+                        "defined in two included files",
+                        key,
+                        "a unique name",
+                    )
+                )
         library.update(defined)
     return library, contents
 
 
-def _objectives(s: Section, errors: ErrorLog,
-                library: dict[str, ObjectiveConfig]) -> dict[str, ObjectiveConfig]:
+def _objectives(
+    s: Section, errors: ErrorLog, library: dict[str, ObjectiveConfig]
+) -> dict[str, ObjectiveConfig]:
     """Every objective of the mapping at ``s``; a faulty term or ``fixed`` value is recorded in
     ``errors`` and left out, so the planner's checks of the other terms still run.
 
@@ -1118,10 +1387,11 @@ def _objectives(s: Section, errors: ErrorLog,
         known = {**library, **out}
         base = ObjectiveConfig(terms=())
         if o.has("extends"):
-            base_name = errors.call(o.req, "extends", one_of(known),
-                                    "an objective of an included file or defined above")
+            base_name = errors.call(
+                o.req, "extends", one_of(known), "an objective of an included file or defined above"
+            )
             if base_name is None:
-                o.opt("terms", None)     # the extends error is the one to report
+                o.opt("terms", None)  # the extends error is the one to report
                 o.opt("fixed", None)
                 continue
             base = known[base_name]
@@ -1135,8 +1405,9 @@ def _objectives(s: Section, errors: ErrorLog,
             try:
                 numbers[k] = number(v)
             except ValueError:
-                errors.add(ConfigError(s.source, f"{o.path}.fixed.{k}", "must be a finite number",
-                                       v))
+                errors.add(
+                    ConfigError(s.source, f"{o.path}.fixed.{k}", "must be a finite number", v)
+                )
         errors.call(o.done)
         out[name] = ObjectiveConfig(terms=base.terms + terms, fixed={**base.fixed, **numbers})
     if not s.data:

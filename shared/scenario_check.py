@@ -26,8 +26,9 @@ from shared.scene import build_spec, compile_model
 ModelChecks = Callable[[Scenario, mujoco.MjModel, FrameResolver, ErrorLog], None]
 
 
-def scenario_errors(name_or_path: str | os.PathLike, model_checks: ModelChecks,
-                    name_checks: ModelChecks) -> list[ConfigError]:
+def scenario_errors(
+    name_or_path: str | os.PathLike, model_checks: ModelChecks, name_checks: ModelChecks
+) -> list[ConfigError]:
     """Every error of a scenario file: loading, then ``model_checks`` on its compiled model;
     when the file's model cannot be built (a faulty robot or world), ``name_checks`` (the
     part of ``model_checks`` that only looks names up) on the model of the robot and the
@@ -41,17 +42,18 @@ def scenario_errors(name_or_path: str | os.PathLike, model_checks: ModelChecks,
     if not reading.model_ok:
         # the stand-in world (shared.scenario._declared_world) has placeholder objects: the
         # robot's start (robot.qpos) is not this model's to check
-        scenario = dataclasses.replace(scenario, robot=dataclasses.replace(scenario.robot,
-                                                                           qpos=None))
+        scenario = dataclasses.replace(
+            scenario, robot=dataclasses.replace(scenario.robot, qpos=None)
+        )
         try:
             model = build_spec(scenario).compile()
-        except ValueError:       # e.g. a declared name that clashes with the robot's
+        except ValueError:  # e.g. a declared name that clashes with the robot's
             return errors.errors
         name_checks(scenario, model, _resolver(scenario, model), errors)
         return errors.errors
     try:
         model = compile_model(scenario)
-    except ValueError as exc:      # e.g. robot.qpos longer than the model's
+    except ValueError as exc:  # e.g. robot.qpos longer than the model's
         return errors.errors + [ConfigError(scenario.source, "robot.qpos", str(exc))]
     model_checks(scenario, model, _resolver(scenario, model), errors)
     return errors.errors

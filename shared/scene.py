@@ -17,8 +17,11 @@ import numpy as np
 from shared.robots import get_robot
 from shared.scenario import ObjectConfig, Scenario
 
-_GEOM = {"box": mujoco.mjtGeom.mjGEOM_BOX, "cylinder": mujoco.mjtGeom.mjGEOM_CYLINDER,
-         "sphere": mujoco.mjtGeom.mjGEOM_SPHERE}
+_GEOM = {
+    "box": mujoco.mjtGeom.mjGEOM_BOX,
+    "cylinder": mujoco.mjtGeom.mjGEOM_CYLINDER,
+    "sphere": mujoco.mjtGeom.mjGEOM_SPHERE,
+}
 WALL_NAMES = ("wall_north", "wall_south", "wall_east", "wall_west")
 
 
@@ -30,9 +33,15 @@ def build_spec(scenario: Scenario) -> mujoco.MjSpec:
     spec.option.timestep = scenario.world.timestep
     world = spec.worldbody
     extent = scenario.world.arena.half_size + 1.0 if scenario.world.arena else 5.0
-    world.add_geom(name="floor", type=mujoco.mjtGeom.mjGEOM_PLANE, size=[extent, extent, 0.1],
-                   rgba=[0.85, 0.85, 0.8, 1.0])
-    world.add_light(name="sun", pos=[0, 0, 6], dir=[0, 0, -1], type=mujoco.mjtLightType.mjLIGHT_DIRECTIONAL)
+    world.add_geom(
+        name="floor",
+        type=mujoco.mjtGeom.mjGEOM_PLANE,
+        size=[extent, extent, 0.1],
+        rgba=[0.85, 0.85, 0.8, 1.0],
+    )
+    world.add_light(
+        name="sun", pos=[0, 0, 6], dir=[0, 0, -1], type=mujoco.mjtLightType.mjLIGHT_DIRECTIONAL
+    )
     if scenario.world.arena:
         _add_arena(world, scenario.world.arena)
     for obj in scenario.world.objects:
@@ -45,8 +54,10 @@ def compile_model(scenario: Scenario, spec: mujoco.MjSpec | None = None) -> mujo
     spec = spec or build_spec(scenario)
     model = spec.compile()
     if scenario.robot.qpos is not None and len(scenario.robot.qpos) > model.nq:
-        raise ValueError(f"{scenario.source}: robot.qpos has {len(scenario.robot.qpos)} values; "
-                         f"the {scenario.robot.model} model has nq={model.nq}")
+        raise ValueError(
+            f"{scenario.source}: robot.qpos has {len(scenario.robot.qpos)} values; "
+            f"the {scenario.robot.model} model has nq={model.nq}"
+        )
     return model
 
 
@@ -59,7 +70,7 @@ def reset_data(scenario: Scenario, model: mujoco.MjModel, data: mujoco.MjData) -
     """
     mujoco.mj_resetData(model, data)
     if scenario.robot.qpos is not None:
-        data.qpos[:len(scenario.robot.qpos)] = scenario.robot.qpos
+        data.qpos[: len(scenario.robot.qpos)] = scenario.robot.qpos
     mujoco.mj_forward(model, data)
 
 
@@ -104,13 +115,19 @@ def _add_arena(world, arena) -> None:
     # quaternions turn each plane's normal (+z) to point into the arena; the drawn size is
     # (along the wall, up) in the plane's own x, y: the east and west walls' turn about y takes
     # the plane's x upwards, so their sizes swap (else they are drawn 8 m tall, 0.6 m wide)
-    for name, pos, quat, size in (("wall_north", [0, h, z], [r, r, 0, 0], [h, z]),
-                                  ("wall_south", [0, -h, z], [r, -r, 0, 0], [h, z]),
-                                  ("wall_east", [h, 0, z], [r, 0, -r, 0], [z, h]),
-                                  ("wall_west", [-h, 0, z], [r, 0, r, 0], [z, h])):
+    for name, pos, quat, size in (
+        ("wall_north", [0, h, z], [r, r, 0, 0], [h, z]),
+        ("wall_south", [0, -h, z], [r, -r, 0, 0], [h, z]),
+        ("wall_east", [h, 0, z], [r, 0, -r, 0], [z, h]),
+        ("wall_west", [-h, 0, z], [r, 0, r, 0], [z, h]),
+    ):
         body = world.add_body(name=name, pos=pos, quat=quat)
-        body.add_geom(name=name, type=mujoco.mjtGeom.mjGEOM_PLANE, size=[*size, 0.1],
-                      rgba=[0.45, 0.45, 0.5, 1.0])
+        body.add_geom(
+            name=name,
+            type=mujoco.mjtGeom.mjGEOM_PLANE,
+            size=[*size, 0.1],
+            rgba=[0.45, 0.45, 0.5, 1.0],
+        )
 
 
 def _add_object(world, obj: ObjectConfig) -> None:
@@ -122,8 +139,13 @@ def _add_object(world, obj: ObjectConfig) -> None:
     if not obj.fixed:
         body.add_freejoint(name=f"{obj.name}_free")
     size = list(obj.size) + [0.0] * (3 - len(obj.size))
-    geom = body.add_geom(name=obj.name, type=_GEOM[obj.shape], size=size, rgba=list(obj.rgba),
-                         friction=[obj.friction, 0.005, 0.0001])
+    geom = body.add_geom(
+        name=obj.name,
+        type=_GEOM[obj.shape],
+        size=size,
+        rgba=list(obj.rgba),
+        friction=[obj.friction, 0.005, 0.0001],
+    )
     if obj.visual:
         geom.contype, geom.conaffinity = 0, 0
         geom.group = 2
@@ -147,8 +169,13 @@ def set_state(model: mujoco.MjModel, data: mujoco.MjData, values: Mapping[str, A
     """Copy a world state (each of :data:`STATE_FIELDS`, any array shape) into ``data``; sizes
     are checked, a ValueError naming the field. Kinematics are not recomputed: the caller runs
     ``mj_forward`` once it has set what else it needs (time, mocap velocities)."""
-    sizes = {"qpos": model.nq, "qvel": model.nv, "act": model.na,
-             "mocap_pos": model.nmocap * 3, "mocap_quat": model.nmocap * 4}
+    sizes = {
+        "qpos": model.nq,
+        "qvel": model.nv,
+        "act": model.na,
+        "mocap_pos": model.nmocap * 3,
+        "mocap_quat": model.nmocap * 4,
+    }
     for name in STATE_FIELDS:
         value = np.asarray(values[name], dtype=float).reshape(-1)
         if value.size != sizes[name]:
@@ -159,15 +186,20 @@ def set_state(model: mujoco.MjModel, data: mujoco.MjData, values: Mapping[str, A
 def free_joint(model: mujoco.MjModel, body: str) -> int:
     """The id of body ``body``'s free joint (StopIteration if it has none)."""
     b = model.body(body).id
-    return next(j for j in range(model.njnt) if model.jnt_bodyid[j] == b
-                and model.jnt_type[j] == mujoco.mjtJoint.mjJNT_FREE)
+    return next(
+        j
+        for j in range(model.njnt)
+        if model.jnt_bodyid[j] == b and model.jnt_type[j] == mujoco.mjtJoint.mjJNT_FREE
+    )
 
 
 def state_size(model: mujoco.MjModel) -> int:
     return mujoco.mj_stateSize(model, mujoco.mjtState.mjSTATE_FULLPHYSICS)
 
 
-def get_full_state(model: mujoco.MjModel, data: mujoco.MjData, out: np.ndarray | None = None) -> np.ndarray:
+def get_full_state(
+    model: mujoco.MjModel, data: mujoco.MjData, out: np.ndarray | None = None
+) -> np.ndarray:
     """The full physics state vector [nstate] (mjSTATE_FULLPHYSICS), as mujoco.rollout expects."""
     out = np.empty(state_size(model)) if out is None else out
     mujoco.mj_getState(model, data, out, mujoco.mjtState.mjSTATE_FULLPHYSICS)

@@ -45,17 +45,19 @@ from shared.config import ConfigError
 log = logging.getLogger("m3p2i.security")
 
 WORLD, PLANNER = "world", "planner"
-ALLOW_WORLD = "planners"     # under DIR/world: the planners the world accepts
-ALLOW_PLANNER = "viewers"    # under DIR/planner: other subscribers of the diagnostics
+ALLOW_WORLD = "planners"  # under DIR/world: the planners the world accepts
+ALLOW_PLANNER = "viewers"  # under DIR/planner: other subscribers of the diagnostics
 
 HOW_TO_MAKE_KEYS = (
     "make keys with `m3p2i keys DIR`, copy DIR/planner to the planner's machine (DIR/world "
-    "stays on the world's), and start both sides with `--keys DIR`")
+    "stays on the world's), and start both sides with `--keys DIR`"
+)
 
 
 @dataclass(frozen=True)
 class KeyPair:
     """A CURVE key pair, both keys Z85-encoded (40 bytes each); ``source`` names its file."""
+
     public: bytes
     secret: bytes
     source: str
@@ -64,6 +66,7 @@ class KeyPair:
 @dataclass(frozen=True)
 class WorldKeys:
     """What the world needs: its own pair and the planners' public keys it accepts."""
+
     own: KeyPair
     allowed: frozenset[bytes]
     allow_dir: Path
@@ -73,12 +76,14 @@ class WorldKeys:
 class PlannerKeys:
     """What the planner (and a tool beside it) needs: its own pair, the world's public key to
     check, and the subscribers its diagnostics socket accepts (its own key and the viewers')."""
+
     own: KeyPair
     world: bytes
     viewers: frozenset[bytes]
 
 
 # ------------------------------------------------------------------------------ key files
+
 
 def make_keys(folder: Path) -> list[Path]:
     """Write a world and a planner key pair into ``folder`` in the layout above (secret keys
@@ -90,11 +95,15 @@ def make_keys(folder: Path) -> list[Path]:
     world, planner = folder / WORLD, folder / PLANNER
     for existing in (world / "world.key_secret", planner / "planner.key_secret"):
         if existing.exists():
-            raise ConfigError(str(existing), "", "keys already exist here; choose another "
-                              "folder, or delete this one first to replace them (every side "
-                              "that holds the old keys must then get the new ones)")
+            raise ConfigError(
+                str(existing),
+                "",
+                "keys already exist here; choose another "
+                "folder, or delete this one first to replace them (every side "
+                "that holds the old keys must then get the new ones)",
+            )
     written = []
-    old_umask = os.umask(0o077)   # the secret files never exist with looser modes, not even briefly
+    old_umask = os.umask(0o077)  # the secret files never exist with looser modes, not even briefly
     try:
         for side in (world, planner):
             side.mkdir(parents=True, exist_ok=True)
@@ -104,13 +113,15 @@ def make_keys(folder: Path) -> list[Path]:
             allow.mkdir(exist_ok=True)
     finally:
         os.umask(old_umask)
-    for public, copy in ((planner / "planner.key", world / ALLOW_WORLD / "planner.key"),
-                         (world / "world.key", planner / "world.key")):
+    for public, copy in (
+        (planner / "planner.key", world / ALLOW_WORLD / "planner.key"),
+        (world / "world.key", planner / "world.key"),
+    ):
         shutil.copyfile(public, copy)
     for side in (world, planner):
         for path in sorted(side.rglob("*")):
             if path.is_dir():
-                os.chmod(path, 0o755)   # public-key folders: readable, like the public keys
+                os.chmod(path, 0o755)  # public-key folders: readable, like the public keys
             elif path.name.endswith(".key_secret"):
                 os.chmod(path, 0o600)
             else:
@@ -129,9 +140,13 @@ def load_world_keys(folder: Path) -> WorldKeys:
     allow_dir = side / ALLOW_WORLD
     allowed = _load_publics(allow_dir)
     if not allowed:
-        raise ConfigError(str(allow_dir), "", "no planner public key to accept (the world "
-                          "would refuse every planner)", expected="at least one *.key file, "
-                          "e.g. a copy of the planner's DIR/planner/planner.key")
+        raise ConfigError(
+            str(allow_dir),
+            "",
+            "no planner public key to accept (the world would refuse every planner)",
+            expected="at least one *.key file, "
+            "e.g. a copy of the planner's DIR/planner/planner.key",
+        )
     return WorldKeys(own, frozenset(allowed), allow_dir)
 
 
@@ -151,26 +166,41 @@ def _side(folder: Path, name: str) -> Path:
         return folder / name
     if folder.name == name and folder.is_dir():
         return folder
-    raise ConfigError(str(folder), "", f"no {name}/ key folder here",
-                      expected=f"the folder `m3p2i keys DIR` made (with {name}/ in it)")
+    raise ConfigError(
+        str(folder),
+        "",
+        f"no {name}/ key folder here",
+        expected=f"the folder `m3p2i keys DIR` made (with {name}/ in it)",
+    )
 
 
 def _require_curve() -> None:
     if not zmq.has("curve"):
-        raise ConfigError("libzmq", "", f"this libzmq ({zmq.zmq_version()}) was built without "
-                          "CURVE security", expected="a pyzmq wheel from PyPI (it bundles a "
-                          "libzmq with CURVE)")
+        raise ConfigError(
+            "libzmq",
+            "",
+            f"this libzmq ({zmq.zmq_version()}) was built without CURVE security",
+            expected="a pyzmq wheel from PyPI (it bundles a libzmq with CURVE)",
+        )
 
 
 def _load_pair(secret_file: Path) -> KeyPair:
     if not secret_file.is_file():
-        raise ConfigError(str(secret_file), "", "secret key file missing",
-                          expected=f"the file `m3p2i keys DIR` writes; {HOW_TO_MAKE_KEYS}")
+        raise ConfigError(
+            str(secret_file),
+            "",
+            "secret key file missing",
+            expected=f"the file `m3p2i keys DIR` writes; {HOW_TO_MAKE_KEYS}",
+        )
     mode = stat.S_IMODE(secret_file.stat().st_mode)
     if mode & 0o077:
-        raise ConfigError(str(secret_file), "", f"secret key readable by others (mode "
-                          f"{mode:04o}); refusing to use it: anyone who read it can impersonate "
-                          f"this side. Fix: chmod 600 {secret_file}")
+        raise ConfigError(
+            str(secret_file),
+            "",
+            f"secret key readable by others (mode "
+            f"{mode:04o}); refusing to use it: anyone who read it can impersonate "
+            f"this side. Fix: chmod 600 {secret_file}",
+        )
     try:
         public, secret = zmq.auth.load_certificate(str(secret_file))
     except (ValueError, OSError) as exc:
@@ -184,8 +214,12 @@ def _load_pair(secret_file: Path) -> KeyPair:
 
 def _load_public(path: Path) -> bytes:
     if not path.is_file():
-        raise ConfigError(str(path), "", "public key file missing",
-                          expected=f"the file `m3p2i keys DIR` writes; {HOW_TO_MAKE_KEYS}")
+        raise ConfigError(
+            str(path),
+            "",
+            "public key file missing",
+            expected=f"the file `m3p2i keys DIR` writes; {HOW_TO_MAKE_KEYS}",
+        )
     try:
         public, _ = zmq.auth.load_certificate(str(path))
     except (ValueError, OSError) as exc:
@@ -207,11 +241,17 @@ def _check_z85(key: bytes, path: Path) -> None:
     except (ValueError, KeyError):
         ok = False
     if not ok:
-        raise ConfigError(str(path), "", "malformed key", value=key.decode("ascii", "replace"),
-                          expected="40 characters of Z85 (a 32-byte Curve25519 key)")
+        raise ConfigError(
+            str(path),
+            "",
+            "malformed key",
+            value=key.decode("ascii", "replace"),
+            expected="40 characters of Z85 (a 32-byte Curve25519 key)",
+        )
 
 
 # ------------------------------------------------------------------------------ exposure
+
 
 def is_loopback(host: str) -> bool:
     """Whether ``host`` (a bind or connect address) is loopback only. Anything else (an IP of
@@ -231,10 +271,12 @@ def exposure_error(hosts: dict[str, str], keys: Path | None, insecure: bool) -> 
         return "--keys and --insecure contradict each other: give one"
     exposed = [f"{opt} {host}" for opt, host in hosts.items() if not is_loopback(host)]
     if exposed and keys is None and not insecure:
-        return (f"{', '.join(exposed)} is a network address, and without keys the protocol is "
-                f"neither authenticated nor encrypted: anyone who reaches the ports could drive "
-                f"the robot or read its state. To secure it, {HOW_TO_MAKE_KEYS}. To run "
-                f"unprotected anyway (an isolated, trusted network only), add --insecure")
+        return (
+            f"{', '.join(exposed)} is a network address, and without keys the protocol is "
+            f"neither authenticated nor encrypted: anyone who reaches the ports could drive "
+            f"the robot or read its state. To secure it, {HOW_TO_MAKE_KEYS}. To run "
+            f"unprotected anyway (an isolated, trusted network only), add --insecure"
+        )
     return None
 
 
@@ -243,8 +285,10 @@ def insecure_warning(hosts: dict[str, str]) -> str | None:
     exposed = [f"{opt} {host}" for opt, host in hosts.items() if not is_loopback(host)]
     if not exposed:
         return None
-    return (f"INSECURE: {', '.join(exposed)} without CURVE keys (--insecure): the traffic is "
-            f"neither authenticated nor encrypted; anyone on the network can drive the robot")
+    return (
+        f"INSECURE: {', '.join(exposed)} without CURVE keys (--insecure): the traffic is "
+        f"neither authenticated nor encrypted; anyone on the network can drive the robot"
+    )
 
 
 class ExposureError(ValueError):
@@ -266,6 +310,7 @@ def keys_for_cli(hosts: dict[str, str], keys: Path | None, insecure: bool, load,
 
 # ------------------------------------------------------------------------------ sockets
 
+
 def curve_server(sock: zmq.Socket, own: KeyPair) -> None:
     """Make ``sock`` (before bind/connect) the CURVE server with ``own`` keys."""
     sock.curve_server = True
@@ -283,6 +328,7 @@ def curve_client(sock: zmq.Socket, own: KeyPair, server_public: bytes) -> None:
 @dataclass(frozen=True)
 class Refusal:
     """A peer the authenticator refused: its address and Z85 public key."""
+
     address: str
     key: str
 
@@ -299,22 +345,27 @@ class Authenticator:
     def __init__(self, ctx: zmq.Context, allowed: frozenset[bytes], what: str):
         self.allowed = allowed
         self.what = what
-        self._refused: deque[Refusal] = deque(maxlen=self.MAX_QUEUED)   # appends: thread-safe
+        self._refused: deque[Refusal] = deque(maxlen=self.MAX_QUEUED)  # appends: thread-safe
         self._count = 0
         self.dropped = 0
         self._auth = _AddressAuthenticator(ctx, log=logging.getLogger("m3p2i.security.zap"))
         self._auth.start()
         self._auth.configure_curve_callback("*", credentials_provider=self)
 
-    def callback(self, domain: str, key: bytes) -> bool:   # called by the ZAP thread
+    def callback(self, domain: str, key: bytes) -> bool:  # called by the ZAP thread
         if key in self.allowed:
             return True
         self._count += 1
         refusal = Refusal(self._auth.peer, key.decode("ascii", "replace"))
         if self._count <= 10 or self._count % 100 == 0:
-            log.warning("%s refused a peer at %s: public key %s is not in the allow list "
-                        "(%d refusals so far)", self.what, refusal.address, refusal.key,
-                        self._count)
+            log.warning(
+                "%s refused a peer at %s: public key %s is not in the allow list "
+                "(%d refusals so far)",
+                self.what,
+                refusal.address,
+                refusal.key,
+                self._count,
+            )
         if len(self._refused) == self.MAX_QUEUED:
             self.dropped += 1
         self._refused.append(refusal)
@@ -336,6 +387,7 @@ class Authenticator:
 class _AddressAuthenticator(ThreadAuthenticator):
     """Keeps the address of the request being handled, which the key callback does not get
     (ZAP requests are handled one at a time, in the authenticator's thread)."""
+
     peer = "?"
 
     async def handle_zap_message(self, msg: list[bytes]) -> None:
@@ -345,8 +397,7 @@ class _AddressAuthenticator(ThreadAuthenticator):
 
 
 _PROTOCOL_ERRORS = {
-    0x11000001: "a CURVE message failed to decrypt (the peer has another public key for "
-                "this side)",
+    0x11000001: "a CURVE message failed to decrypt (the peer has another public key for this side)",
     0x11000002: "security mechanism mismatch (one side uses CURVE keys, the other none)",
 }
 
@@ -358,14 +409,21 @@ def describe_handshake_failure(event: int, value: int) -> str:
     if event == zmq.EVENT_HANDSHAKE_FAILED_PROTOCOL:
         return _PROTOCOL_ERRORS.get(value, f"protocol error 0x{value:x} in the handshake")
     if event == zmq.EVENT_DISCONNECTED:
-        return ("the peer closed the connection before the handshake succeeded (keys that do "
-                "not match, or one side without keys)")
-    return ("the handshake failed without detail (keys that do not match: another public key "
-            "for the server, or none)")
+        return (
+            "the peer closed the connection before the handshake succeeded (keys that do "
+            "not match, or one side without keys)"
+        )
+    return (
+        "the handshake failed without detail (keys that do not match: another public key "
+        "for the server, or none)"
+    )
 
 
-HANDSHAKE_FAILURES = (zmq.EVENT_HANDSHAKE_FAILED_AUTH | zmq.EVENT_HANDSHAKE_FAILED_PROTOCOL
-                      | zmq.EVENT_HANDSHAKE_FAILED_NO_DETAIL)
+HANDSHAKE_FAILURES = (
+    zmq.EVENT_HANDSHAKE_FAILED_AUTH
+    | zmq.EVENT_HANDSHAKE_FAILED_PROTOCOL
+    | zmq.EVENT_HANDSHAKE_FAILED_NO_DETAIL
+)
 
 
 class HandshakeMonitor:
@@ -381,10 +439,13 @@ class HandshakeMonitor:
     def __init__(self, sock: zmq.Socket, hangups: bool = False):
         self.sock = sock
         self.hangups = hangups
-        extra = (zmq.EVENT_CONNECTED | zmq.EVENT_HANDSHAKE_SUCCEEDED | zmq.EVENT_DISCONNECTED
-                 if hangups else 0)
+        extra = (
+            zmq.EVENT_CONNECTED | zmq.EVENT_HANDSHAKE_SUCCEEDED | zmq.EVENT_DISCONNECTED
+            if hangups
+            else 0
+        )
         self.mon = sock.get_monitor_socket(HANDSHAKE_FAILURES | extra)
-        self._connected = False        # a connection whose handshake has not succeeded yet
+        self._connected = False  # a connection whose handshake has not succeeded yet
 
     def failures(self) -> list[tuple[int, int]]:
         """``(event, value)`` of the failures since the last call."""
@@ -401,7 +462,7 @@ class HandshakeMonitor:
                     out.append((event, value))
                 self._connected = False
             else:
-                self._connected = False        # reported as a failure of its own
+                self._connected = False  # reported as a failure of its own
                 out.append((event, value))
         return out
 
@@ -409,5 +470,5 @@ class HandshakeMonitor:
         try:
             self.sock.disable_monitor()
         except zmq.ZMQError:
-            pass   # the socket is already closed
+            pass  # the socket is already closed
         self.mon.close(0)

@@ -116,13 +116,21 @@ def parse_task(section: Section) -> TaskTemplate:
     habit_default = defaults.opt("habit", DEFAULT_HABIT, positive, "a number > 0")
     defaults.done()
     if not habit_default < idle_habit:
-        raise defaults.error("habit", f"must be below idle_habit ({idle_habit})", habit_default,
-                             "a habit below idle_habit, so idle wins ties")
+        raise defaults.error(
+            "habit",
+            f"must be below idle_habit ({idle_habit})",
+            habit_default,
+            "a habit below idle_habit, so idle wins ties",
+        )
 
     factors_sec = section.section("factors")
     if not factors_sec.data:
-        raise ConfigError(section.source, factors_sec.path, "needs at least one factor",
-                          expected="factor_name: {states: [...], actions: {...}}")
+        raise ConfigError(
+            section.source,
+            factors_sec.path,
+            "needs at least one factor",
+            expected="factor_name: {states: [...], actions: {...}}",
+        )
     # Preconditions may name states of any factor, so every factor's states are read first.
     factor_secs: dict[str, Section] = {}
     states: dict[str, tuple[str, ...]] = {}
@@ -142,14 +150,28 @@ def parse_task(section: Section) -> TaskTemplate:
         for action in actions_sec.data:
             _check_name(actions_sec, action, action, "action")
             if action == IDLE:
-                raise actions_sec.error(action, "'idle' is implicit in every factor", action,
-                                        "another action name")
+                raise actions_sec.error(
+                    action, "'idle' is implicit in every factor", action, "another action name"
+                )
             if action in seen_actions:
-                raise actions_sec.error(action, f"duplicate action, already in factor "
-                                        f"{seen_actions[action]!r}", action, "unique action names")
+                raise actions_sec.error(
+                    action,
+                    f"duplicate action, already in factor {seen_actions[action]!r}",
+                    action,
+                    "unique action names",
+                )
             seen_actions[action] = name
-            actions.append(_parse_action(actions_sec.section(action), action, name, states[name],
-                                         resolver, habit_default, idle_habit))
+            actions.append(
+                _parse_action(
+                    actions_sec.section(action),
+                    action,
+                    name,
+                    states[name],
+                    resolver,
+                    habit_default,
+                    idle_habit,
+                )
+            )
         actions_sec.done()
         fsec.done()
         factors.append(FactorTemplate(name, states[name], tuple(actions), kappa_d))
@@ -161,8 +183,12 @@ def parse_task(section: Section) -> TaskTemplate:
 
 def _check_name(sec: Section, key: Any, value: Any, what: str) -> None:
     if not isinstance(value, str) or not value or "." in value:
-        raise sec.error(str(key), f"bad {what} name", value,
-                        "a non-empty string without '.' (quote yes/no/on/off/numbers)")
+        raise sec.error(
+            str(key),
+            f"bad {what} name",
+            value,
+            "a non-empty string without '.' (quote yes/no/on/off/numbers)",
+        )
 
 
 def _parse_states(fsec: Section) -> tuple[str, ...]:
@@ -170,8 +196,9 @@ def _parse_states(fsec: Section) -> tuple[str, ...]:
     for i, s in enumerate(names):
         _check_name(fsec, f"states[{i}]", s, "state")
     if len(names) < 2:
-        raise fsec.error("states", "needs at least two states", list(names),
-                         "a list of at least two state names")
+        raise fsec.error(
+            "states", "needs at least two states", list(names), "a list of at least two state names"
+        )
     if len(set(names)) != len(names):
         dup = next(s for i, s in enumerate(names) if s in names[:i])
         raise fsec.error("states", f"duplicate state {dup!r}", list(names), "unique state names")
@@ -192,11 +219,17 @@ class _StateResolver:
         if "." in text:
             factor, _, state = text.partition(".")
             if factor not in self.states:
-                raise ConfigError(source, path, "unknown factor", text,
-                                  f"one of: {', '.join(self.states)}")
+                raise ConfigError(
+                    source, path, "unknown factor", text, f"one of: {', '.join(self.states)}"
+                )
             if state not in self.states[factor]:
-                raise ConfigError(source, path, f"unknown state of factor {factor!r}", text,
-                                  f"one of: {', '.join(self.states[factor])}")
+                raise ConfigError(
+                    source,
+                    path,
+                    f"unknown state of factor {factor!r}",
+                    text,
+                    f"one of: {', '.join(self.states[factor])}",
+                )
             return StateRef(factor, state)
         owners = self.owners.get(text, [])
         if not owners:
@@ -208,30 +241,49 @@ class _StateResolver:
         return StateRef(owners[0], text)
 
 
-def _parse_action(asec: Section, name: str, factor: str, states: tuple[str, ...],
-                  resolver: _StateResolver, habit_default: float,
-                  idle_habit: float) -> ActionTemplate:
+def _parse_action(
+    asec: Section,
+    name: str,
+    factor: str,
+    states: tuple[str, ...],
+    resolver: _StateResolver,
+    habit_default: float,
+    idle_habit: float,
+) -> ActionTemplate:
     effect = _parse_effect(asec, factor, states)
     raw = asec.opt("preconditions", [], list, "a list of state names")
     preconditions: list[StateRef] = []
     for i, text in enumerate(raw):
         path = f"{asec.key_path('preconditions')}[{i}]"
         if not isinstance(text, str):
-            raise ConfigError(asec.source, path, "bad state name", text,
-                              "a state name as a string (quote yes/no/on/off/numbers)")
+            raise ConfigError(
+                asec.source,
+                path,
+                "bad state name",
+                text,
+                "a state name as a string (quote yes/no/on/off/numbers)",
+            )
         ref = resolver.resolve(text, asec.source, path)
         clash = next((p for p in preconditions if p.factor == ref.factor), None)
         if clash == ref:
-            raise ConfigError(asec.source, path, "duplicate precondition", text,
-                              "each state once")
+            raise ConfigError(asec.source, path, "duplicate precondition", text, "each state once")
         if clash is not None:
-            raise ConfigError(asec.source, path, f"contradicts precondition {clash}: a factor "
-                              "is in one state at a time", text, "one state per factor")
+            raise ConfigError(
+                asec.source,
+                path,
+                f"contradicts precondition {clash}: a factor is in one state at a time",
+                text,
+                "one state per factor",
+            )
         preconditions.append(ref)
     habit = asec.opt("habit", habit_default, positive, "a number > 0")
     if not habit < idle_habit:
-        raise asec.error("habit", f"must be below idle_habit ({idle_habit})", habit,
-                         "a habit below idle_habit, so idle wins ties")
+        raise asec.error(
+            "habit",
+            f"must be below idle_habit ({idle_habit})",
+            habit,
+            "a habit below idle_habit, so idle wins ties",
+        )
     asec.done()
     return ActionTemplate(name, factor, effect, tuple(preconditions), habit)
 
@@ -240,8 +292,9 @@ def _parse_effect(asec: Section, factor: str, states: tuple[str, ...]) -> Effect
     expected = "{set: state}, or {map: {from_state: to_state}}"
     raw = asec.req("effect", object, expected)
     if raw == "identity":
-        raise asec.error("effect", "an identity effect never changes the state (idle is "
-                         "implicit)", raw, expected)
+        raise asec.error(
+            "effect", "an identity effect never changes the state (idle is implicit)", raw, expected
+        )
     if not isinstance(raw, dict) or len(raw) != 1 or next(iter(raw)) not in ("set", "map"):
         raise asec.error("effect", "must have exactly one of 'set' or 'map'", raw, expected)
     esec = Section(raw, asec.source, asec.key_path("effect"))
@@ -262,24 +315,32 @@ def _parse_effect(asec: Section, factor: str, states: tuple[str, ...]) -> Effect
         if dst != src:
             moves.append((src, dst))
     if not moves:
-        raise asec.error("effect", "a map that moves no state never changes anything", raw,
-                         "at least one from_state: to_state with different states")
+        raise asec.error(
+            "effect",
+            "a map that moves no state never changes anything",
+            raw,
+            "at least one from_state: to_state with different states",
+        )
     return Effect("map", tuple(moves))
 
 
 def _parse_goals(gsec: Section, states: dict[str, tuple[str, ...]]) -> tuple[StateRef, ...]:
     if not gsec.data:
-        raise ConfigError(gsec.source, gsec.path, "needs at least one goal",
-                          expected="factor: state")
+        raise ConfigError(
+            gsec.source, gsec.path, "needs at least one goal", expected="factor: state"
+        )
     goals = []
     for factor in gsec.data:
         if factor not in states:
-            raise gsec.error(str(factor), "unknown factor", factor,
-                             f"one of: {', '.join(states)}")
+            raise gsec.error(str(factor), "unknown factor", factor, f"one of: {', '.join(states)}")
         state = gsec.req(factor, str, f"a state of factor {factor!r}")
         if state not in states[factor]:
-            raise gsec.error(factor, f"unknown state of factor {factor!r}", state,
-                             f"one of: {', '.join(states[factor])}")
+            raise gsec.error(
+                factor,
+                f"unknown state of factor {factor!r}",
+                state,
+                f"one of: {', '.join(states[factor])}",
+            )
         goals.append(StateRef(factor, state))
     gsec.done()
     return tuple(goals)

@@ -17,7 +17,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-_EPS = 1e-9    # world times are sums of float timesteps: a knot boundary must not fall off by one
+_EPS = 1e-9  # world times are sums of float timesteps: a knot boundary must not fall off by one
 
 
 @dataclass(frozen=True)
@@ -27,6 +27,7 @@ class TimedPlan:
     ``seq`` is the state the plan answers (the world uses it for the plan's age). A command
     without a plan is the one-knot plan of its ``ctrl`` with ``dt = inf``: held from ``t0`` on.
     """
+
     t0: float
     dt: float
     ctrl: np.ndarray
@@ -99,7 +100,7 @@ class PlanPlayer:
         started = [p for p in self.pending if t + _EPS >= p.t0]
         if started:
             self.active = started[-1]
-            self.pending = self.pending[len(started):]
+            self.pending = self.pending[len(started) :]
         if self.active is None:
             return None, None
         return self.active.at(t), self.active

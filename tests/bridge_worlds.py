@@ -20,16 +20,18 @@ class KinematicBase(Bridge):
     def __init__(self, scenario, seed=0):
         super().__init__(scenario, seed)
         if self.model.nu != 2 or self.model.nq < 2:
-            raise WorldError(f"KinematicBase drives a point robot (nu=2), the scenario "
-                             f"{scenario.name!r} has nu={self.model.nu}")
+            raise WorldError(
+                f"KinematicBase drives a point robot (nu=2), the scenario "
+                f"{scenario.name!r} has nu={self.model.nu}"
+            )
         self.velocity = np.zeros(2)
 
     def reset(self) -> None:
-        self.velocity = np.zeros(2)           # a new episode starts at rest
+        self.velocity = np.zeros(2)  # a new episode starts at rest
         super().reset()
 
     def actuate(self, ctrl: np.ndarray) -> None:
-        self.velocity = ctrl[:2].copy()       # a real base: sdk.send_velocity(...)
+        self.velocity = ctrl[:2].copy()  # a real base: sdk.send_velocity(...)
 
     def sense(self) -> None:
         # a real base: the newest motion-capture pose; here, where the velocity took it

@@ -17,13 +17,14 @@ import yaml
 
 from shared.evaluation import episode
 from shared.evaluation.metrics import MetricsEvaluator
-from shared.tools import bench as B
 from shared.scenario import find_scenario, load_scenario
+from shared.tools import bench as B
 
 
 @dataclass
 class Episode:
     """One finished episode: its bench row, its log and the planner's output."""
+
     row: dict
     records: list[dict]
     planner_log: str
@@ -58,16 +59,18 @@ def with_max_time(scenario: str, max_time: float, folder: Path) -> Path:
     return path
 
 
-def run_episodes(specs: list[tuple[str, str | Path, int]], out: Path, workers: int = 2,
-                 timeout: float = 600.0) -> dict[tuple[str, int], Episode]:
+def run_episodes(
+    specs: list[tuple[str, str | Path, int]], out: Path, workers: int = 2, timeout: float = 600.0
+) -> dict[tuple[str, int], Episode]:
     """Run ``(label, scenario, seed)`` episodes, ``workers`` at a time, in the order given;
     keyed by (label, seed). A trial the harness had to kill (time-out, crash) fails the test
     with its reason."""
     trials = []
     for label, scenario, seed in specs:
         sc = load_scenario(scenario)
-        trials.append(B.Trial(B.BenchCase(label, "", str(scenario), 1), sc, MetricsEvaluator(sc),
-                              seed))
+        trials.append(
+            B.Trial(B.BenchCase(label, "", str(scenario), 1), sc, MetricsEvaluator(sc), seed)
+        )
     opts = B.BenchOptions(out_dir=out, workers=workers, timeout=timeout)
     results = B.ResultsFile(out / "results.csv")
     assert B.run_trials(trials, opts, results), "interrupted"
@@ -77,7 +80,8 @@ def run_episodes(specs: list[tuple[str, str | Path, int]], out: Path, workers: i
         row = {**row, "success": row["success"] == "1"}
         log = out / row["log"]
         done[(row["case"], int(row["seed"]))] = Episode(
-            row, episode.read_log(log), (log.parent / "planner.log").read_text())
+            row, episode.read_log(log), (log.parent / "planner.log").read_text()
+        )
     missing = [(label, seed) for label, _, seed in specs if (label, seed) not in done]
     assert not missing, f"no result for {missing}"
     return done

@@ -12,9 +12,9 @@ from pathlib import Path
 import zmq
 
 from shared import protocol as P
-from shared.tools.cli import free_port_block
 from shared.endpoints import Endpoints
 from shared.security import PlannerKeys, curve_client
+from shared.tools.cli import free_port_block
 from shared.tools.launch import stop_processes
 
 ENV = {**os.environ, "PYTHONUNBUFFERED": "1"}
@@ -27,21 +27,50 @@ def _sigint_as_in_a_terminal() -> None:
 
 
 def start_server(scenario: str, port: int, log: Path, *extra: str) -> subprocess.Popen:
-    return subprocess.Popen([sys.executable, "-m", "server", "--scenario", scenario, "--port",
-                             str(port), "--log", str(log), *extra],
-                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, env=ENV,
-                            preexec_fn=_sigint_as_in_a_terminal)
+    return subprocess.Popen(
+        [
+            sys.executable,
+            "-m",
+            "server",
+            "--scenario",
+            scenario,
+            "--port",
+            str(port),
+            "--log",
+            str(log),
+            *extra,
+        ],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        text=True,
+        env=ENV,
+        preexec_fn=_sigint_as_in_a_terminal,
+    )
 
 
 def start_planner(scenario: str, port: int, *extra: str) -> subprocess.Popen:
-    return subprocess.Popen([sys.executable, "-m", "planner_client", "--scenario", scenario,
-                             "--port", str(port), *extra],
-                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, env=ENV,
-                            preexec_fn=_sigint_as_in_a_terminal)
+    return subprocess.Popen(
+        [
+            sys.executable,
+            "-m",
+            "planner_client",
+            "--scenario",
+            scenario,
+            "--port",
+            str(port),
+            *extra,
+        ],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        text=True,
+        env=ENV,
+        preexec_fn=_sigint_as_in_a_terminal,
+    )
 
 
-def wait_episode(server: subprocess.Popen, planner: subprocess.Popen,
-                 timeout: float = 300.0, grace: float = 10.0) -> str:
+def wait_episode(
+    server: subprocess.Popen, planner: subprocess.Popen, timeout: float = 300.0, grace: float = 10.0
+) -> str:
     """The server's output once its episode is over. In lock-step a world whose planner died
     waits for it for ever: a planner gone for ``grace`` seconds while the server still runs
     raises at once, with the planner's output, instead of after ``timeout``."""
@@ -55,8 +84,10 @@ def wait_episode(server: subprocess.Popen, planner: subprocess.Popen,
             if planner.poll() is not None:
                 gone = gone or now
                 if now - gone > grace:
-                    raise AssertionError(f"the planner exited (code {planner.returncode}) while "
-                                         f"the episode ran:\n{planner.communicate()[0]}") from None
+                    raise AssertionError(
+                        f"the planner exited (code {planner.returncode}) while "
+                        f"the episode ran:\n{planner.communicate()[0]}"
+                    ) from None
             if now > deadline:
                 raise
 
@@ -110,5 +141,12 @@ def wait_until(predicate, timeout: float, period: float = 0.05) -> bool:
     return False
 
 
-__all__ = ["StateWatcher", "free_port_block", "start_planner", "start_server", "stop", "wait_episode",
-           "wait_until"]
+__all__ = [
+    "StateWatcher",
+    "free_port_block",
+    "start_planner",
+    "start_server",
+    "stop",
+    "wait_episode",
+    "wait_until",
+]

@@ -118,8 +118,14 @@ task:
   goals: {isAt: at_goal, door: open}
 """
 
-TEMPLATES = {"battery": BATTERY, "pick_place": PICK_PLACE, "panda": PANDA,
-             "push_pull": PUSH_PULL, "no_recharge": NO_RECHARGE, "two_goals": TWO_GOALS}
+TEMPLATES = {
+    "battery": BATTERY,
+    "pick_place": PICK_PLACE,
+    "panda": PANDA,
+    "push_pull": PUSH_PULL,
+    "no_recharge": NO_RECHARGE,
+    "two_goals": TWO_GOALS,
+}
 
 
 def template(text: str, source: str = "battery.yaml"):
@@ -137,6 +143,7 @@ def decide(text: str, obs: tuple[int, ...]):
 
 # --- the reference's known-good scenarios --------------------------------------------------------
 
+
 @pytest.mark.parametrize("obs, action", [((1, 0), "move_to"), ((1, 1), "go_recharge")])
 def test_battery_acts(obs, action):
     d = decide(BATTERY, obs)
@@ -149,11 +156,14 @@ def test_battery_success_at_goal(battery):
     assert (d.status, d.action, d.alternatives) == ("success", None, ())
 
 
-@pytest.mark.parametrize("obs, status, action", [
-    ("cube_at_table", "running", "pick"),
-    ("cube_at_hand", "running", "place"),
-    ("cube_at_goal", "success", None),
-])
+@pytest.mark.parametrize(
+    "obs, status, action",
+    [
+        ("cube_at_table", "running", "pick"),
+        ("cube_at_hand", "running", "place"),
+        ("cube_at_goal", "success", None),
+    ],
+)
 def test_pick_place(obs, status, action):
     d = planner(PICK_PLACE).step({"isCubeAt": obs})
     assert (d.status, d.action) == (status, action)
@@ -175,12 +185,15 @@ def test_panda_four_factors(obs):
     assert d.status == ("success" if expected is None else "running")
 
 
-@pytest.mark.parametrize("obs, action, alternatives", [
-    ((1, 0, 0), "push_to_goal", ("push_to_goal", "pull_to_goal")),
-    ((1, 1, 0), "push_to_non_goal", ("push_to_non_goal", "pull_to_non_goal")),
-    ((1, 0, 1), "approach_obj", ("approach_obj",)),
-    ((1, 1, 1), "approach_obj", ("approach_obj",)),
-])
+@pytest.mark.parametrize(
+    "obs, action, alternatives",
+    [
+        ((1, 0, 0), "push_to_goal", ("push_to_goal", "pull_to_goal")),
+        ((1, 1, 0), "push_to_non_goal", ("push_to_non_goal", "pull_to_non_goal")),
+        ((1, 0, 1), "approach_obj", ("approach_obj",)),
+        ((1, 1, 1), "approach_obj", ("approach_obj",)),
+    ],
+)
 def test_push_pull_alternatives(obs, action, alternatives):
     d = decide(PUSH_PULL, obs)
     assert (d.status, d.action, d.alternatives) == ("running", action, alternatives)
@@ -192,9 +205,10 @@ def test_push_pull_success_has_no_plans(obs):
     assert (d.status, d.action, d.alternatives) == ("success", None, ())
 
 
-@pytest.mark.parametrize("obs, action", [((1, 0, 0), "push_to_goal"),
-                                         ((1, 1, 0), "push_to_non_goal"),
-                                         ((1, 1, 1), "approach_obj")])
+@pytest.mark.parametrize(
+    "obs, action",
+    [((1, 0, 0), "push_to_goal"), ((1, 1, 0), "push_to_non_goal"), ((1, 1, 1), "approach_obj")],
+)
 def test_push_pull_adaptive_returns_first_admissible_only(obs, action):
     p = planner(PUSH_PULL, alternatives=False)
     d = p.step(dict(zip(["BlockAt", "LocFree", "CloseTo"], obs)))
@@ -209,12 +223,15 @@ def test_habit_orders_tied_alternatives():
 
 def test_running_reason_names_the_chain():
     d = decide(PANDA, (1, 1, 1, 1))
-    assert d.reason == ("move_to_reach -> Reachable.reachable for pick -> Holding.holding for "
-                        "move_to_place_loc -> AtPlaceLoc.at_place_loc for place -> "
-                        "goal PlacedOn.placed_on")
+    assert d.reason == (
+        "move_to_reach -> Reachable.reachable for pick -> Holding.holding for "
+        "move_to_place_loc -> AtPlaceLoc.at_place_loc for place -> "
+        "goal PlacedOn.placed_on"
+    )
 
 
 # --- the worked numeric check (factor isAt, observing not_at_goal, goal at_goal) -----------------
+
 
 def test_worked_free_energies():
     factor = template(BATTERY).factor("isAt")
@@ -223,20 +240,22 @@ def test_worked_free_energies():
     policies = agent.evaluate(seen, maths.log_eps(np.array([1.0, 0.0])), agent.model.log_E)
     np.testing.assert_allclose(seen.F, [0.693, 36.84], atol=5e-3)
     np.testing.assert_allclose(policies.G, [36.84, 0.0], atol=5e-3)
-    np.testing.assert_allclose(agent.model.log_E - seen.F - policies.G, [-38.22, -37.54],
-                               atol=5e-3)
+    np.testing.assert_allclose(agent.model.log_E - seen.F - policies.G, [-38.22, -37.54], atol=5e-3)
     assert np.argmax(policies.q) == 1  # move_to, by about ln 2
 
 
 # --- the reference's faults, each fixed ----------------------------------------------------------
 
+
 @pytest.mark.timeout(10)
 def test_unreachable_precondition_is_failure_with_reason():
     d = decide(NO_RECHARGE, (1, 1))
     assert (d.status, d.action, d.alternatives) == ("failure", None, ())
-    assert d.reason == ("no admissible action towards isAt.at_goal; blocked: move_to needs "
-                        "battery.battery_ok; no action takes battery from battery_not_enough "
-                        "to battery_ok")
+    assert d.reason == (
+        "no admissible action towards isAt.at_goal; blocked: move_to needs "
+        "battery.battery_ok; no action takes battery from battery_not_enough "
+        "to battery_ok"
+    )
 
 
 def test_goal_without_any_achieving_action_is_failure():
@@ -263,8 +282,11 @@ def test_decisions_depend_only_on_the_current_observation():
         obs = tuple(int(v) for v in rng.integers(0, 2, size=4))
         d = p.step(dict(zip(["AtPlaceLoc", "Holding", "Reachable", "PlacedOn"], obs)))
         fresh = decide(PANDA, obs)
-        assert (d.status, d.action, d.alternatives) == (fresh.status, fresh.action,
-                                                         fresh.alternatives)
+        assert (d.status, d.action, d.alternatives) == (
+            fresh.status,
+            fresh.action,
+            fresh.alternatives,
+        )
 
 
 def test_success_only_when_all_goals_hold():
@@ -294,28 +316,43 @@ task:
   goals: {X: x_good, Y: y_good}
 """
     d = decide(text, (0, 1))
-    assert (d.status, d.reason) == ("failure", "no admissible action towards Y.y_good; "
-                                    "blocked: fix_y needs X.x_bad")
+    assert (d.status, d.reason) == (
+        "failure",
+        "no admissible action towards Y.y_good; blocked: fix_y needs X.x_bad",
+    )
 
 
 def test_alternatives_follow_template_order():
-    reordered = (PUSH_PULL.replace("push_to_goal:", "TMP:")
-                 .replace("pull_to_goal:", "push_to_goal:").replace("TMP:", "pull_to_goal:"))
+    reordered = (
+        PUSH_PULL.replace("push_to_goal:", "TMP:")
+        .replace("pull_to_goal:", "push_to_goal:")
+        .replace("TMP:", "pull_to_goal:")
+    )
     assert decide(reordered, (1, 0, 0)).alternatives == ("pull_to_goal", "push_to_goal")
 
 
 def test_alternatives_independent_of_hash_seed():
-    script = ("import yaml; from shared.config import Section; from shared.task_template import "
-              "parse_task; from planner_client.aip import ActiveInferencePlanner; "
-              f"t = parse_task(Section(yaml.safe_load({PUSH_PULL!r})['task'], 'x', 'task')); "
-              "p = ActiveInferencePlanner(t); "
-              "print([p.step(dict(BlockAt=1, LocFree=l, CloseTo=0)).alternatives for l in (0, 1)])")
-    outputs = {subprocess.run([sys.executable, "-c", script], capture_output=True, text=True,
-                              check=True, cwd=REPO,
-                              env={**os.environ, "PYTHONHASHSEED": seed}).stdout
-               for seed in ("1", "2", "3")}
-    assert outputs == {"[('push_to_goal', 'pull_to_goal'), "
-                       "('push_to_non_goal', 'pull_to_non_goal')]\n"}
+    script = (
+        "import yaml; from shared.config import Section; from shared.task_template import "
+        "parse_task; from planner_client.aip import ActiveInferencePlanner; "
+        f"t = parse_task(Section(yaml.safe_load({PUSH_PULL!r})['task'], 'x', 'task')); "
+        "p = ActiveInferencePlanner(t); "
+        "print([p.step(dict(BlockAt=1, LocFree=l, CloseTo=0)).alternatives for l in (0, 1)])"
+    )
+    outputs = {
+        subprocess.run(
+            [sys.executable, "-c", script],
+            capture_output=True,
+            text=True,
+            check=True,
+            cwd=REPO,
+            env={**os.environ, "PYTHONHASHSEED": seed},
+        ).stdout
+        for seed in ("1", "2", "3")
+    }
+    assert outputs == {
+        "[('push_to_goal', 'pull_to_goal'), ('push_to_non_goal', 'pull_to_non_goal')]\n"
+    }
 
 
 @pytest.mark.parametrize("name", TEMPLATES)
@@ -357,8 +394,10 @@ def test_reset_forgets_beliefs():
     for _ in range(5):
         p.step({"isAt": 1, "battery": 1})
     p.reset()
-    assert p.beliefs() == {"isAt": {"at_goal": 0.5, "not_at_goal": 0.5},
-                           "battery": {"battery_ok": 0.5, "battery_not_enough": 0.5}}
+    assert p.beliefs() == {
+        "isAt": {"at_goal": 0.5, "not_at_goal": 0.5},
+        "battery": {"battery_ok": 0.5, "battery_not_enough": 0.5},
+    }
 
 
 def test_ambiguity_is_a_non_negative_penalty():
@@ -384,6 +423,7 @@ def test_state_posterior_uses_likelihood_of_the_observation():
 
 # --- numerical safety ----------------------------------------------------------------------------
 
+
 def test_softmax_does_not_mutate_and_is_stable():
     x = np.array([1000.0, 1001.0, -np.inf])
     before = x.copy()
@@ -402,8 +442,14 @@ def test_normalise_columns_handles_integers_and_zero_columns():
 
 def test_posteriors_are_distributions_despite_zero_probabilities():
     A = np.eye(3)
-    B = np.stack([np.eye(3), np.array([[0, 0, 0], [1, 1, 1], [0, 0, 0]]),
-                  np.array([[1, 0, 0], [0, 0, 0], [0, 1, 1]])], axis=2).astype(float)
+    B = np.stack(
+        [
+            np.eye(3),
+            np.array([[0, 0, 0], [1, 1, 1], [0, 0, 0]]),
+            np.array([[1, 0, 0], [0, 0, 0], [0, 1, 1]]),
+        ],
+        axis=2,
+    ).astype(float)
     D = np.array([0.0, 0.0, 1.0])  # the prior rules out the observed state
     post = maths.state_posterior(A, B, D, obs=0)
     F = maths.free_energy(D, post)
@@ -417,25 +463,32 @@ def test_posteriors_are_distributions_despite_zero_probabilities():
 
 # --- observations --------------------------------------------------------------------------------
 
+
 def test_observation_by_name_or_index():
     p = planner(BATTERY)
     assert p.step({"isAt": "not_at_goal", "battery": np.int64(1)}).action == "go_recharge"
 
 
-@pytest.mark.parametrize("obs, message", [
-    ({"isAt": 1}, "no observation for factor 'battery'"),
-    ({"isAt": 1, "battery": 0, "door": 0}, "observation for unknown factor 'door'"),
-    ({"isAt": 2, "battery": 0},
-     "bad observation for factor 'isAt': 2 (expected a state index 0..1"),
-    ({"isAt": True, "battery": 0}, "bad observation for factor 'isAt': True"),
-    ({"isAt": "nowhere", "battery": 0}, "one of: at_goal, not_at_goal"),
-])
+@pytest.mark.parametrize(
+    "obs, message",
+    [
+        ({"isAt": 1}, "no observation for factor 'battery'"),
+        ({"isAt": 1, "battery": 0, "door": 0}, "observation for unknown factor 'door'"),
+        (
+            {"isAt": 2, "battery": 0},
+            "bad observation for factor 'isAt': 2 (expected a state index 0..1",
+        ),
+        ({"isAt": True, "battery": 0}, "bad observation for factor 'isAt': True"),
+        ({"isAt": "nowhere", "battery": 0}, "one of: at_goal, not_at_goal"),
+    ],
+)
 def test_bad_observations_are_rejected(obs, message):
     with pytest.raises(ValueError, match=re.escape(message)):
         planner(BATTERY).step(obs)
 
 
 # --- template schema -----------------------------------------------------------------------------
+
 
 def test_battery_template_is_parsed_in_yaml_order():
     t = template(BATTERY)
@@ -465,65 +518,103 @@ def test_docs_battery_example_parses():
 
 P = "battery.yaml: task.factors.isAt"
 BAD_TEMPLATES = [
-    (("battery_ok]", "battery_okk]"),
-     f"{P}.actions.move_to.preconditions[0]: unknown state (got 'battery_okk'; expected one of: "
-     "at_goal, battery_not_enough, battery_ok, not_at_goal)"),
-    (("[battery_ok]}", "[battery.at_goal]}"),
-     f"{P}.actions.move_to.preconditions[0]: unknown state of factor 'battery' "
-     "(got 'battery.at_goal'; expected one of: battery_ok, battery_not_enough)"),
-    (("[battery_ok]}", "[batt.battery_ok]}"),
-     f"{P}.actions.move_to.preconditions[0]: unknown factor (got 'batt.battery_ok'"),
-    (("[at_goal, not_at_goal]", "[at_goal, battery_ok]"),
-     f"{P}.actions.move_to.preconditions[0]: ambiguous state name (got 'battery_ok'; "
-     "expected one of: isAt.battery_ok, battery.battery_ok)"),
-    (("[battery_ok]}", "[battery_ok, battery_not_enough]}"),
-     f"{P}.actions.move_to.preconditions[1]: contradicts precondition battery.battery_ok"),
-    (("[battery_ok]}", "[battery_ok, battery_ok]}"),
-     f"{P}.actions.move_to.preconditions[1]: duplicate precondition (got 'battery_ok'"),
-    (("{set: at_goal}, preconditions: [battery_ok]", "{set: at_gaol}"),
-     f"{P}.actions.move_to.effect.set: unknown state of factor 'isAt' (got 'at_gaol'; "
-     "expected a state of factor 'isAt': at_goal, not_at_goal)"),
-    (("{effect: {set: at_goal}, ", "{"),
-     f"{P}.actions.move_to.effect: missing required key (expected {{set: state}}"),
-    (("{set: at_goal}, preconditions", "identity, preconditions"),
-     f"{P}.actions.move_to.effect: an identity effect never changes the state"),
-    (("{set: at_goal}, preconditions", "{map: {at_goal: at_goal}}, preconditions"),
-     f"{P}.actions.move_to.effect: a map that moves no state never changes anything"),
-    (("{set: at_goal}, preconditions", "{map: {there: at_goal}}, preconditions"),
-     f"{P}.actions.move_to.effect.map.there: unknown state of factor 'isAt' (got 'there'"),
-    (("{set: at_goal}, preconditions", "{set: at_goal, map: {}}, preconditions"),
-     f"{P}.actions.move_to.effect: must have exactly one of 'set' or 'map'"),
-    (("go_recharge:", "move_to:"),
-     "battery.yaml: task.factors.battery.actions.move_to: duplicate action, already in factor "
-     "'isAt' (got 'move_to'; expected unique action names)"),
+    (
+        ("battery_ok]", "battery_okk]"),
+        f"{P}.actions.move_to.preconditions[0]: unknown state (got 'battery_okk'; expected one of: "
+        "at_goal, battery_not_enough, battery_ok, not_at_goal)",
+    ),
+    (
+        ("[battery_ok]}", "[battery.at_goal]}"),
+        f"{P}.actions.move_to.preconditions[0]: unknown state of factor 'battery' "
+        "(got 'battery.at_goal'; expected one of: battery_ok, battery_not_enough)",
+    ),
+    (
+        ("[battery_ok]}", "[batt.battery_ok]}"),
+        f"{P}.actions.move_to.preconditions[0]: unknown factor (got 'batt.battery_ok'",
+    ),
+    (
+        ("[at_goal, not_at_goal]", "[at_goal, battery_ok]"),
+        f"{P}.actions.move_to.preconditions[0]: ambiguous state name (got 'battery_ok'; "
+        "expected one of: isAt.battery_ok, battery.battery_ok)",
+    ),
+    (
+        ("[battery_ok]}", "[battery_ok, battery_not_enough]}"),
+        f"{P}.actions.move_to.preconditions[1]: contradicts precondition battery.battery_ok",
+    ),
+    (
+        ("[battery_ok]}", "[battery_ok, battery_ok]}"),
+        f"{P}.actions.move_to.preconditions[1]: duplicate precondition (got 'battery_ok'",
+    ),
+    (
+        ("{set: at_goal}, preconditions: [battery_ok]", "{set: at_gaol}"),
+        f"{P}.actions.move_to.effect.set: unknown state of factor 'isAt' (got 'at_gaol'; "
+        "expected a state of factor 'isAt': at_goal, not_at_goal)",
+    ),
+    (
+        ("{effect: {set: at_goal}, ", "{"),
+        f"{P}.actions.move_to.effect: missing required key (expected {{set: state}}",
+    ),
+    (
+        ("{set: at_goal}, preconditions", "identity, preconditions"),
+        f"{P}.actions.move_to.effect: an identity effect never changes the state",
+    ),
+    (
+        ("{set: at_goal}, preconditions", "{map: {at_goal: at_goal}}, preconditions"),
+        f"{P}.actions.move_to.effect: a map that moves no state never changes anything",
+    ),
+    (
+        ("{set: at_goal}, preconditions", "{map: {there: at_goal}}, preconditions"),
+        f"{P}.actions.move_to.effect.map.there: unknown state of factor 'isAt' (got 'there'",
+    ),
+    (
+        ("{set: at_goal}, preconditions", "{set: at_goal, map: {}}, preconditions"),
+        f"{P}.actions.move_to.effect: must have exactly one of 'set' or 'map'",
+    ),
+    (
+        ("go_recharge:", "move_to:"),
+        "battery.yaml: task.factors.battery.actions.move_to: duplicate action, already in factor "
+        "'isAt' (got 'move_to'; expected unique action names)",
+    ),
     (("move_to:", "idle:"), f"{P}.actions.idle: 'idle' is implicit in every factor"),
-    (("preconditions: [battery_ok]", "precondition: [battery_ok]"),
-     f"{P}.actions.move_to.precondition: unknown key (expected one of: effect, habit, "
-     "preconditions)"),
-    (("[at_goal, not_at_goal]", "[]"),
-     f"{P}.states: needs at least two states (got []"),
-    (("[at_goal, not_at_goal]", "[at_goal, at_goal]"),
-     f"{P}.states: duplicate state 'at_goal'"),
+    (
+        ("preconditions: [battery_ok]", "precondition: [battery_ok]"),
+        f"{P}.actions.move_to.precondition: unknown key (expected one of: effect, habit, "
+        "preconditions)",
+    ),
+    (("[at_goal, not_at_goal]", "[]"), f"{P}.states: needs at least two states (got []"),
+    (("[at_goal, not_at_goal]", "[at_goal, at_goal]"), f"{P}.states: duplicate state 'at_goal'"),
     (("[at_goal, not_at_goal]", "[at_goal, on]"), f"{P}.states[1]: bad state name (got True"),
-    (("goals: {isAt: at_goal}", "goals: {isAtt: at_goal}"),
-     "battery.yaml: task.goals.isAtt: unknown factor (got 'isAtt'; expected one of: isAt, "
-     "battery)"),
-    (("goals: {isAt: at_goal}", "goals: {isAt: there}"),
-     "battery.yaml: task.goals.isAt: unknown state of factor 'isAt' (got 'there'"),
+    (
+        ("goals: {isAt: at_goal}", "goals: {isAtt: at_goal}"),
+        "battery.yaml: task.goals.isAtt: unknown factor (got 'isAtt'; expected one of: isAt, "
+        "battery)",
+    ),
+    (
+        ("goals: {isAt: at_goal}", "goals: {isAt: there}"),
+        "battery.yaml: task.goals.isAt: unknown state of factor 'isAt' (got 'there'",
+    ),
     (("goals: {isAt: at_goal}", "goals: {}"), "battery.yaml: task.goals: needs at least one goal"),
     (("  goals: {isAt: at_goal}\n", ""), "battery.yaml: task.goals: missing required section"),
-    (("  factors:", "  defaults: {habit: 1.2}\n  factors:"),
-     "battery.yaml: task.defaults.habit: must be below idle_habit (1.01) (got 1.2"),
-    (("  factors:", "  defaults: {kappa: 1.0}\n  factors:"),
-     "battery.yaml: task.defaults.kappa: unknown key"),
-    (("  factors:", "  defaults: {kappa_d: -1}\n  factors:"),
-     "battery.yaml: task.defaults.kappa_d: must be >= 0 (got -1"),
+    (
+        ("  factors:", "  defaults: {habit: 1.2}\n  factors:"),
+        "battery.yaml: task.defaults.habit: must be below idle_habit (1.01) (got 1.2",
+    ),
+    (
+        ("  factors:", "  defaults: {kappa: 1.0}\n  factors:"),
+        "battery.yaml: task.defaults.kappa: unknown key",
+    ),
+    (
+        ("  factors:", "  defaults: {kappa_d: -1}\n  factors:"),
+        "battery.yaml: task.defaults.kappa_d: must be >= 0 (got -1",
+    ),
 ]
 
 
-@pytest.mark.parametrize("edit, message", BAD_TEMPLATES, ids=[m.split(": ", 2)[1] + " " + str(i)
-                                                             for i, (_, m) in
-                                                             enumerate(BAD_TEMPLATES)])
+@pytest.mark.parametrize(
+    "edit, message",
+    BAD_TEMPLATES,
+    ids=[m.split(": ", 2)[1] + " " + str(i) for i, (_, m) in enumerate(BAD_TEMPLATES)],
+)
 def test_template_errors(edit, message):
     old, new = edit
     assert old in BATTERY
@@ -533,6 +624,7 @@ def test_template_errors(edit, message):
 
 
 def test_empty_factors_is_an_error():
-    with pytest.raises(ConfigError, match=re.escape("battery.yaml: task.factors: needs at least "
-                                                    "one factor")):
+    with pytest.raises(
+        ConfigError, match=re.escape("battery.yaml: task.factors: needs at least one factor")
+    ):
         parse_task(Section({"factors": {}, "goals": {"a": "b"}}, "battery.yaml", "task"))

@@ -17,21 +17,35 @@ V = P.PROTOCOL_VERSION
 
 def _plan_command(t0: float, dt: float, knots: int = 3) -> bytes:
     arr = lambda a: P.encode_array(np.asarray(a, dtype=float))  # noqa: E731
-    return msgpack.packb({"type": "command", "v": V, "session": "s", "seq": 1,
-                          "ctrl": arr([0.0, 0.0]), "plan_ctrl": arr(np.zeros((knots, 2))),
-                          "plan_t0": t0, "plan_dt": dt}, use_bin_type=True)
+    return msgpack.packb(
+        {
+            "type": "command",
+            "v": V,
+            "session": "s",
+            "seq": 1,
+            "ctrl": arr([0.0, 0.0]),
+            "plan_ctrl": arr(np.zeros((knots, 2))),
+            "plan_t0": t0,
+            "plan_dt": dt,
+        },
+        use_bin_type=True,
+    )
 
 
 # ---------------------------------------------------------------- 1: a plan's indexing is total
 
-@pytest.mark.parametrize("t0, dt, t", [
-    (0.0, 5e-324, 0.02),          # the reported one: (t - t0) / dt overflows to inf
-    (0.0, 5e-324, 1e308),
-    (-1e308, 1e-3, 1e308),        # t - t0 is inf
-    (0.0, 1e308, 1e308),
-    (0.0, math.inf, math.inf),    # a held command at t = inf: inf / inf is NaN
-    (0.0, 0.01, math.nan),
-])
+
+@pytest.mark.parametrize(
+    "t0, dt, t",
+    [
+        (0.0, 5e-324, 0.02),  # the reported one: (t - t0) / dt overflows to inf
+        (0.0, 5e-324, 1e308),
+        (-1e308, 1e-3, 1e308),  # t - t0 is inf
+        (0.0, 1e308, 1e308),
+        (0.0, math.inf, math.inf),  # a held command at t = inf: inf / inf is NaN
+        (0.0, 0.01, math.nan),
+    ],
+)
 def test_a_plan_answers_every_time_without_raising(t0, dt, t):
     plan = TimedPlan(t0, dt, np.zeros((3, 2)))
     got = plan.at(t)
@@ -48,11 +62,14 @@ def test_an_index_beyond_the_plan_is_past_its_end():
     assert plan.index(0.02) is None
 
 
-@pytest.mark.parametrize("t0, dt, reason", [
-    (0.0, 5e-324, "plan_dt"),
-    (0.0, 1e-9, "plan_dt"),
-    (1e308, 1e308, "finite"),
-])
+@pytest.mark.parametrize(
+    "t0, dt, reason",
+    [
+        (0.0, 5e-324, "plan_dt"),
+        (0.0, 1e-9, "plan_dt"),
+        (1e308, 1e308, "finite"),
+    ],
+)
 def test_a_command_with_an_absurd_plan_is_refused_with_the_reason(t0, dt, reason):
     with pytest.raises(P.ProtocolError) as info:
         P.decode(_plan_command(t0, dt), expect="command")
@@ -85,7 +102,9 @@ def _based_on_navigation(tmp_path, extra: str):
 @pytest.mark.parametrize("extra, key", NON_FINITE, ids=[k for _, k in NON_FINITE])
 def test_m3p2i_check_refuses_non_finite_numbers_naming_file_and_key(tmp_path, extra, key):
     from typer.testing import CliRunner
+
     from shared.tools.cli import app
+
     path = _based_on_navigation(tmp_path, extra)
     result = CliRunner().invoke(app, ["check", str(path)])
     assert result.exit_code == 2, result.output
@@ -95,6 +114,7 @@ def test_m3p2i_check_refuses_non_finite_numbers_naming_file_and_key(tmp_path, ex
 def test_the_loader_refuses_non_finite_numbers(tmp_path):
     from shared.config import ConfigError
     from shared.scenario import load_scenario
+
     for extra, key in NON_FINITE:
         with pytest.raises(ConfigError) as info:
             load_scenario(_based_on_navigation(tmp_path, extra))
@@ -103,7 +123,9 @@ def test_the_loader_refuses_non_finite_numbers(tmp_path):
 
 def test_m3p2i_run_refuses_an_infinite_delay_before_starting_anything(tmp_path):
     from typer.testing import CliRunner
+
     from shared.tools.cli import app
+
     run_dir = tmp_path / "run"
     path = _based_on_navigation(tmp_path, "planner: {delays: {actuation_ms: .inf}}\n")
     result = CliRunner().invoke(app, ["run", str(path), "--run-dir", str(run_dir)])
@@ -114,6 +136,7 @@ def test_m3p2i_run_refuses_an_infinite_delay_before_starting_anything(tmp_path):
 
 # ---------------------------------------------------------------- 3: only the view's own page
 
+
 def _ws_open(port: int, origin: str | None, host: str | None = None) -> str:
     """A websocket handshake with viser's subprotocol, as a browser page at ``origin`` (asking
     for ``host``) would send it: 'accepted' (and the scene's first message arrived) or the
@@ -121,11 +144,19 @@ def _ws_open(port: int, origin: str | None, host: str | None = None) -> str:
     import base64
     import os
     import socket
+
     import viser
+
     key = base64.b64encode(os.urandom(16)).decode()
-    lines = ["GET / HTTP/1.1", f"Host: {host or f'127.0.0.1:{port}'}", "Upgrade: websocket",
-             "Connection: Upgrade", f"Sec-WebSocket-Key: {key}",
-             "Sec-WebSocket-Version: 13", f"Sec-WebSocket-Protocol: viser-v{viser.__version__}"]
+    lines = [
+        "GET / HTTP/1.1",
+        f"Host: {host or f'127.0.0.1:{port}'}",
+        "Upgrade: websocket",
+        "Connection: Upgrade",
+        f"Sec-WebSocket-Key: {key}",
+        "Sec-WebSocket-Version: 13",
+        f"Sec-WebSocket-Protocol: viser-v{viser.__version__}",
+    ]
     if origin is not None:
         lines.append(f"Origin: {origin}")
     with socket.create_connection(("127.0.0.1", port), timeout=10) as sock:
@@ -140,7 +171,7 @@ def _ws_open(port: int, origin: str | None, host: str | None = None) -> str:
             return f"refused {status}"
         head, _, rest = reply.partition(b"\r\n\r\n")
         if not rest:
-            rest = sock.recv(65536)      # the scene's first websocket frame
+            rest = sock.recv(65536)  # the scene's first websocket frame
         return "accepted" if rest else "accepted, nothing sent"
 
 
@@ -151,13 +182,20 @@ def live_view():
     from shared.scenario import load_scenario
     from shared.tools.launch import free_port_block
     from shared.tools.view import LiveView
+
     views = []
 
     def make(bind: str = "127.0.0.1", **kw) -> LiveView:
-        view = LiveView(load_scenario("navigation"), Endpoints(port=free_port_block()), bind,
-                        free_port_block(count=1), **kw)
+        view = LiveView(
+            load_scenario("navigation"),
+            Endpoints(port=free_port_block()),
+            bind,
+            free_port_block(count=1),
+            **kw,
+        )
         views.append(view)
         return view
+
     yield make
     for view in views:
         view.close()
@@ -166,20 +204,22 @@ def live_view():
 def test_a_page_of_another_origin_cannot_open_the_views_websocket(live_view):
     port = live_view().server.get_port()
     assert _ws_open(port, "http://evil.example") == "refused 403"
-    assert _ws_open(port, f"http://evil.example:{port}", host=f"evil.example:{port}") == \
-        "refused 403"                                                # DNS rebinding
-    assert _ws_open(port, "null") == "refused 403"                   # a sandboxed page
+    assert (
+        _ws_open(port, f"http://evil.example:{port}", host=f"evil.example:{port}") == "refused 403"
+    )  # DNS rebinding
+    assert _ws_open(port, "null") == "refused 403"  # a sandboxed page
     assert _ws_open(port, f"http://127.0.0.1:{port}") == "accepted"
     assert _ws_open(port, f"http://localhost:{port}", host=f"localhost:{port}") == "accepted"
-    assert _ws_open(port, None) == "accepted"                        # not a browser
+    assert _ws_open(port, None) == "accepted"  # not a browser
 
 
 def test_a_public_view_accepts_its_machines_names_and_addresses_only():
     from shared.tools.view import OriginPolicy
+
     public = OriginPolicy(public=True, names=frozenset({"lab-pc"}))
     for host in ("lab-pc:8080", "192.168.1.20:8080", "[fe80::1]:8080", "localhost:8080"):
         assert public.refusal(f"http://{host}", host) is None, host
-    assert public.refusal("http://evil.example:8080", "evil.example:8080")   # DNS rebinding
+    assert public.refusal("http://evil.example:8080", "evil.example:8080")  # DNS rebinding
     assert public.refusal("http://evil.example", "lab-pc:8080")
     local = OriginPolicy()
     assert local.refusal("http://192.168.1.20:8080", "192.168.1.20:8080")
@@ -188,8 +228,10 @@ def test_a_public_view_accepts_its_machines_names_and_addresses_only():
 
 # ---------------------------------------------------------------- 4, 5: m3p2i view's options
 
+
 class _FakeView:
     """Stands in for LiveView in the command line's tests: what it was given."""
+
     made: list[dict] = []
 
     def __init__(self, *args, **kwargs):
@@ -205,8 +247,10 @@ class _FakeView:
 
 def _view_cli(monkeypatch, *argv: str):
     from typer.testing import CliRunner
+
     from shared.tools import view as V
     from shared.tools.cli import app
+
     monkeypatch.setattr(V, "LiveView", _FakeView)
     _FakeView.made.clear()
     result = CliRunner().invoke(app, ["view", "navigation", *argv])
@@ -217,9 +261,11 @@ def _view_cli(monkeypatch, *argv: str):
 
 def test_m3p2i_view_keys_needs_only_the_planners_pair(monkeypatch, tmp_path):
     import shutil
+
     from shared.security import make_keys
+
     make_keys(tmp_path / "keys")
-    shutil.rmtree(tmp_path / "keys" / "world")      # a planner machine holds only DIR/planner
+    shutil.rmtree(tmp_path / "keys" / "world")  # a planner machine holds only DIR/planner
     made = _view_cli(monkeypatch, "--keys", str(tmp_path / "keys"))
     own = (tmp_path / "keys" / "planner" / "planner.key").read_bytes()
     assert made["keys"].own.public.decode() in own.decode()
@@ -233,6 +279,7 @@ def test_a_public_view_has_no_controls_unless_asked(monkeypatch):
 
 def test_a_view_without_controls_shows_no_buttons_and_sends_nothing(live_view):
     from shared.tools.view import LiveView
+
     view: LiveView = live_view(controls=False)
     assert view.buttons == {} and view.gizmos == {}
     assert set(live_view().buttons) == {"Pause", "Resume", "Reset"}
@@ -243,19 +290,25 @@ def test_a_view_without_controls_shows_no_buttons_and_sends_nothing(live_view):
 
 # ---------------------------------------------------------------- 10: found by the fuzzer
 
-@pytest.mark.parametrize("extra, key", [
-    ("world: {timestep: 5.0e-324}\n", "world.timestep"),
-    ("planner: {timestep: 5.0e-324}\n", "planner.timestep"),
-    ("planner: {timestep: 1.0e+300}\n", "planner.timestep"),
-])
+
+@pytest.mark.parametrize(
+    "extra, key",
+    [
+        ("world: {timestep: 5.0e-324}\n", "world.timestep"),
+        ("planner: {timestep: 5.0e-324}\n", "planner.timestep"),
+        ("planner: {timestep: 1.0e+300}\n", "planner.timestep"),
+    ],
+)
 def test_an_absurd_timestep_is_refused_naming_the_key(tmp_path, extra, key):
     # found by tests/test_fuzz.py: world.timestep 5e-324 made planner.timestep / world.timestep
     # inf, and round(inf) raised OverflowError out of the loader
     import yaml
+
     from shared.config import ConfigError
     from shared.scenario import SCENARIO_DIR, load_scenario
+
     raw = _based_on_navigation(tmp_path, extra)
-    if extra.startswith("world"):         # world: a whole section, not merged with the base's
+    if extra.startswith("world"):  # world: a whole section, not merged with the base's
         data = yaml.safe_load((SCENARIO_DIR / "navigation.yaml").read_text())
         data["world"]["timestep"] = 5e-324
         data.setdefault("planner", {})["timestep"] = 0.05

@@ -26,15 +26,31 @@ from shared.tools import bench_ray as BR  # noqa: E402  (needs ray)
 pytestmark = pytest.mark.slow
 
 # what a lock-step trial repeats exactly for its seed on one machine (not the wall-clock columns)
-DETERMINISTIC = ("case", "variant", "scenario", "scenario_hash", "seed", "success", "status",
-                 "reason", "position_error", "orientation_error", "collisions", "time", "steps",
-                 "initial", "log", "mode", "overrides")
+DETERMINISTIC = (
+    "case",
+    "variant",
+    "scenario",
+    "scenario_hash",
+    "seed",
+    "success",
+    "status",
+    "reason",
+    "position_error",
+    "orientation_error",
+    "collisions",
+    "time",
+    "steps",
+    "initial",
+    "log",
+    "mode",
+    "overrides",
+)
 
 
 @pytest.fixture(scope="module")
 def local_ray():
     os.environ.setdefault("RAY_USAGE_STATS_ENABLED", "0")
-    os.environ.setdefault("RAY_process_group_cleanup_enabled", "1")   # as bench_ray.connect
+    os.environ.setdefault("RAY_process_group_cleanup_enabled", "1")  # as bench_ray.connect
     ray.init(num_cpus=2, include_dashboard=False, log_to_driver=False)
     yield BR.connect(None, 2)
     ray.shutdown()
@@ -48,7 +64,9 @@ def scenario(tmp_path, name: str, max_time: float, reachable: bool = True) -> st
     raw["planner"].update(samples=50, horizon=10)
     raw["episode"]["max_time"] = max_time
     if not reachable:
-        raw["episode"]["success"] = [{"near": {"a": "robot", "b": "goal", "within": 0.0, "axes": "xy"}}]
+        raw["episode"]["success"] = [
+            {"near": {"a": "robot", "b": "goal", "within": 0.0, "axes": "xy"}}
+        ]
     (tmp_path / f"{name}.yaml").write_text(yaml.safe_dump(raw))
     return f"{name}.yaml"
 
@@ -60,13 +78,16 @@ def write_bench(tmp_path, cases) -> Path:
 
 
 def rows(out: Path) -> list[dict[str, str]]:
-    return sorted(csv.DictReader((out / "results.csv").open()),
-                  key=lambda r: (r["overrides"], int(r["seed"])))
+    return sorted(
+        csv.DictReader((out / "results.csv").open()), key=lambda r: (r["overrides"], int(r["seed"]))
+    )
 
 
 def test_ray_bench_writes_the_local_pools_rows(tmp_path, local_ray):
     nav = scenario(tmp_path, "nav", 4.0)
-    bench = write_bench(tmp_path, [{"case": "nav", "variant": "m3p2i", "scenario": nav, "trials": 4}])
+    bench = write_bench(
+        tmp_path, [{"case": "nav", "variant": "m3p2i", "scenario": nav, "trials": 4}]
+    )
     runner = CliRunner()
     common = ["bench", str(bench), "--workers", "2"]
     local = runner.invoke(app, [*common, "--out", str(tmp_path / "local")])
@@ -77,13 +98,15 @@ def test_ray_bench_writes_the_local_pools_rows(tmp_path, local_ray):
     a, b = rows(tmp_path / "local"), rows(tmp_path / "ray")
     assert [r["seed"] for r in a] == ["0", "1", "2", "3"] and any(r["success"] == "1" for r in a)
     assert [[r[k] for k in DETERMINISTIC] for r in b] == [[r[k] for k in DETERMINISTIC] for r in a]
-    for r in b:                      # the logs came back to the driver, where the pool puts them
+    for r in b:  # the logs came back to the driver, where the pool puts them
         log, there = tmp_path / "ray" / r["log"], tmp_path / "local" / r["log"]
         assert len(log.read_text().splitlines()) == len(there.read_text().splitlines())
         assert (log.parent / "planner.log").is_file() and (log.parent / "server.log").is_file()
     # resuming on Ray skips what the file has, as the pool does
     again = runner.invoke(app, [*common, "--out", str(tmp_path / "ray"), "--ray"])
-    assert again.exit_code == 0 and "4 already in" in again.output and len(rows(tmp_path / "ray")) == 4
+    assert (
+        again.exit_code == 0 and "4 already in" in again.output and len(rows(tmp_path / "ray")) == 4
+    )
 
 
 def _server_of(scenario_name: str) -> list[tuple[int, int]]:
@@ -131,22 +154,30 @@ def _plan(tmp_path, cases, timeout: float):
 
 
 def test_a_killed_task_is_a_failure_row_and_the_bench_finishes(tmp_path, local_ray):
-    endless = scenario(tmp_path, "endless_kill", 600.0, reachable=False)   # minutes of episode
+    endless = scenario(tmp_path, "endless_kill", 600.0, reachable=False)  # minutes of episode
     nav = scenario(tmp_path, "nav", 4.0)
-    todo, opts, results = _plan(tmp_path, [{"case": "endless", "scenario": endless, "trials": 1},
-                                           {"case": "nav", "scenario": nav, "trials": 1}], 300.0)
+    todo, opts, results = _plan(
+        tmp_path,
+        [
+            {"case": "endless", "scenario": endless, "trials": 1},
+            {"case": "nav", "scenario": nav, "trials": 1},
+        ],
+        300.0,
+    )
     outcome = {}
-    bench = threading.Thread(target=lambda: outcome.update(
-        ok=BR.run_trials(todo, opts, results, local_ray, 1)), daemon=True)
+    bench = threading.Thread(
+        target=lambda: outcome.update(ok=BR.run_trials(todo, opts, results, local_ray, 1)),
+        daemon=True,
+    )
     bench.start()
     killed, orphans = None, []
     try:
         deadline = time.monotonic() + 90
         while killed is None and time.monotonic() < deadline:
             servers = _server_of("endless_kill.yaml")
-            if servers:                           # the Ray worker running the trial: kill it
+            if servers:  # the Ray worker running the trial: kill it
                 killed = servers[0][1]
-                time.sleep(1.0)                   # mid-trial: the episode is under way
+                time.sleep(1.0)  # mid-trial: the episode is under way
                 orphans = [servers[0][0], *_planner_of("endless_kill.yaml")]
                 os.kill(killed, signal.SIGKILL)
             time.sleep(0.2)
@@ -155,12 +186,14 @@ def test_a_killed_task_is_a_failure_row_and_the_bench_finishes(tmp_path, local_r
         assert not bench.is_alive() and outcome["ok"]
         # Ray takes the dead worker's process group, the trial's two processes, with it
         deadline = time.monotonic() + 30
-        while any(Path(f"/proc/{pid}").exists() and _alive(pid) for pid in orphans) \
-                and time.monotonic() < deadline:
+        while (
+            any(Path(f"/proc/{pid}").exists() and _alive(pid) for pid in orphans)
+            and time.monotonic() < deadline
+        ):
             time.sleep(0.2)
         assert not [pid for pid in orphans if _alive(pid)], "the trial's processes outlived it"
     finally:
-        for pid in orphans:                        # its server and planner outlive the worker
+        for pid in orphans:  # its server and planner outlive the worker
             try:
                 os.kill(pid, signal.SIGKILL)
             except ProcessLookupError:
@@ -177,7 +210,9 @@ def test_a_task_past_its_time_out_is_cancelled_and_recorded(tmp_path, local_ray,
     # the driver gives up 3 s into the trial, long before the trial's own 60 s time-out
     monkeypatch.setattr(BR, "GRACE", -57.0)
     monkeypatch.setattr(BR, "FORCE_AFTER", 5.0)
-    todo, opts, results = _plan(tmp_path, [{"case": "endless", "scenario": endless, "trials": 1}], 60.0)
+    todo, opts, results = _plan(
+        tmp_path, [{"case": "endless", "scenario": endless, "trials": 1}], 60.0
+    )
     started = time.monotonic()
     assert BR.run_trials(todo, opts, results, local_ray, 1)
     assert time.monotonic() - started < 45
@@ -186,7 +221,8 @@ def test_a_task_past_its_time_out_is_cancelled_and_recorded(tmp_path, local_ray,
     assert row["success"] == "0"
     # the polite cancel let the trial stop its processes
     deadline = time.monotonic() + 20
-    while (_server_of("endless_cancel.yaml") or _planner_of("endless_cancel.yaml")) \
-            and time.monotonic() < deadline:
+    while (
+        _server_of("endless_cancel.yaml") or _planner_of("endless_cancel.yaml")
+    ) and time.monotonic() < deadline:
         time.sleep(0.2)
     assert not _server_of("endless_cancel.yaml") and not _planner_of("endless_cancel.yaml")

@@ -13,15 +13,30 @@ from shared.tools import speed_report
 
 
 def _row(run: int, hz: float, ratio: float) -> dict:
-    return {"scenario": "navigation", "samples": 200, "horizon": 5, "planning_step": 0.15,
-            "hz": hz, "iteration_ms": 1000 / hz, "ratio_to_rollout": ratio / 3,
-            "ratio_to_own_rollout": ratio, "ratio_to_sensor_rollout": ratio - 0.1, "run": run}
+    return {
+        "scenario": "navigation",
+        "samples": 200,
+        "horizon": 5,
+        "planning_step": 0.15,
+        "hz": hz,
+        "iteration_ms": 1000 / hz,
+        "ratio_to_rollout": ratio / 3,
+        "ratio_to_own_rollout": ratio,
+        "ratio_to_sensor_rollout": ratio - 0.1,
+        "run": run,
+    }
 
 
 def test_the_speed_table_gives_median_and_range_over_the_runs(tmp_path):
-    results = {"command": "python scripts/benchmark.py --runs 3 --out x.json", "date": "2026-11-30",
-               "machine": "a CPU, 2 cores", "threads": 2, "iterations": 200, "runs": 3,
-               "rows": [_row(0, 300.0, 1.5), _row(1, 200.0, 1.3), _row(2, 250.0, 1.4)]}
+    results = {
+        "command": "python scripts/benchmark.py --runs 3 --out x.json",
+        "date": "2026-11-30",
+        "machine": "a CPU, 2 cores",
+        "threads": 2,
+        "iterations": 200,
+        "runs": 3,
+        "rows": [_row(0, 300.0, 1.5), _row(1, 200.0, 1.3), _row(2, 250.0, 1.4)],
+    }
     (tmp_path / "speed.json").write_text(json.dumps(results))
     doc = "intro\n<!-- benchmark speed.json -->\nstale\n<!-- end of benchmark -->\nafter\n"
     new = speed_report.update(doc, tmp_path)

@@ -13,6 +13,7 @@ import pytest
 import zmq
 from typer.testing import CliRunner
 
+from server.world import SimWorld
 from shared import protocol as P
 from shared.endpoints import Endpoints, socket
 from shared.frames import FrameResolver
@@ -20,8 +21,8 @@ from shared.layout import StateSizes, bridge_layout, frame_names
 from shared.robots import ROBOTS, get_robot
 from shared.scenario import load_scenario
 from shared.scene import STATE_FIELDS, compile_model
-from shared.tools.cli import app as m3p2i, free_port_block
-from server.world import SimWorld
+from shared.tools.cli import app as m3p2i
+from shared.tools.cli import free_port_block
 
 
 @pytest.fixture(scope="module")
@@ -56,8 +57,10 @@ def test_navigation_layout_names_the_slides_the_velocity_actuators_and_the_fixed
     _covers(layout.qpos, model.nq)
     _covers(layout.qvel, model.nv)
     for rows, unit, component in ((layout.qpos, "m", "position"), (layout.qvel, "m/s", "velocity")):
-        assert [(r.joint, r.joint_type, r.body, r.component, r.unit) for r in rows] == \
-               [("x", "slide", "robot", component, unit), ("y", "slide", "robot", component, unit)]
+        assert [(r.joint, r.joint_type, r.body, r.component, r.unit) for r in rows] == [
+            ("x", "slide", "robot", component, unit),
+            ("y", "slide", "robot", component, unit),
+        ]
     assert [r.axis for r in layout.qpos] == [tuple(model.jnt_axis[j]) for j in range(2)]
     assert layout.act == ()
     fixed = [o.name for o in sc.world.objects if o.fixed]
@@ -65,8 +68,10 @@ def test_navigation_layout_names_the_slides_the_velocity_actuators_and_the_fixed
     for slot in layout.mocap:
         assert slot.index == model.body_mocapid[model.body(slot.body).id] and slot.scenario_object
     _ctrl_matches_model(layout, sc, model)
-    assert [(c.target, c.unit, c.holds_last) for c in layout.ctrl] == \
-           [("joint x", "m/s", False), ("joint y", "m/s", False)]
+    assert [(c.target, c.unit, c.holds_last) for c in layout.ctrl] == [
+        ("joint x", "m/s", False),
+        ("joint y", "m/s", False),
+    ]
     assert layout.extras == ()
     assert layout.dt == sc.world.timestep and layout.scenario_hash == sc.hash
 
@@ -76,10 +81,13 @@ def test_pick_place_layout_names_the_panda_hinges_the_cubes_free_joints_and_the_
     layout = bridge_layout(sc, model)
     _covers(layout.qpos, model.nq)
     _covers(layout.qvel, model.nv)
-    for r in layout.qpos:         # each row is where MuJoCo keeps that joint's coordinates
+    for r in layout.qpos:  # each row is where MuJoCo keeps that joint's coordinates
         j = model.joint(r.joint).id
-        assert model.jnt_qposadr[j] <= r.index < model.jnt_qposadr[j] + {"free": 7, "slide": 1,
-                                                                           "hinge": 1}[r.joint_type]
+        assert (
+            model.jnt_qposadr[j]
+            <= r.index
+            < model.jnt_qposadr[j] + {"free": 7, "slide": 1, "hinge": 1}[r.joint_type]
+        )
     hinges = layout.qpos[:7]
     assert [r.joint for r in hinges] == [f"panda_joint{i}" for i in range(1, 8)]
     assert {(r.joint_type, r.unit, r.component) for r in hinges} == {("hinge", "rad", "angle")}
@@ -90,20 +98,25 @@ def test_pick_place_layout_names_the_panda_hinges_the_cubes_free_joints_and_the_
         j = model.joint(f"{cube}_free").id
         pos = [r for r in layout.qpos if r.joint == f"{cube}_free"]
         assert [r.index for r in pos] == list(range(model.jnt_qposadr[j], model.jnt_qposadr[j] + 7))
-        assert [(r.component, r.unit, r.frame) for r in pos] == \
-               [(c, "m", "world") for c in "xyz"] + \
-               [(c, "quaternion", "world") for c in ("qw", "qx", "qy", "qz")]
+        assert [(r.component, r.unit, r.frame) for r in pos] == [
+            (c, "m", "world") for c in "xyz"
+        ] + [(c, "quaternion", "world") for c in ("qw", "qx", "qy", "qz")]
         assert {r.body for r in pos} == {cube}
         vel = [r for r in layout.qvel if r.joint == f"{cube}_free"]
         assert [r.index for r in vel] == list(range(model.jnt_dofadr[j], model.jnt_dofadr[j] + 6))
-        assert [(r.component, r.unit, r.frame) for r in vel] == \
-               [(c, "m/s", "world") for c in ("vx", "vy", "vz")] + \
-               [(c, "rad/s", "body") for c in ("wx", "wy", "wz")]
+        assert [(r.component, r.unit, r.frame) for r in vel] == [
+            (c, "m/s", "world") for c in ("vx", "vy", "vz")
+        ] + [(c, "rad/s", "body") for c in ("wx", "wy", "wz")]
     assert [m.body for m in layout.mocap] == ["table"]
     _ctrl_matches_model(layout, sc, model)
     gripper = layout.ctrl[-1]
-    assert (gripper.actuator, gripper.target, gripper.unit, gripper.range, gripper.holds_last) == \
-           ("gripper", "tendon gripper_width", "m", (0.0, 0.08), True)
+    assert (gripper.actuator, gripper.target, gripper.unit, gripper.range, gripper.holds_last) == (
+        "gripper",
+        "tendon gripper_width",
+        "m",
+        (0.0, 0.08),
+        True,
+    )
     assert not any(c.holds_last for c in layout.ctrl[:-1])
     assert {c.unit for c in layout.ctrl[:-1]} == {"rad/s"}
 
@@ -115,14 +128,15 @@ def test_free_joint_velocity_frames_are_what_the_layout_says(panda):
     data = mujoco.MjData(model)
     j = model.joint("cube_a_free").id
     q, v = model.jnt_qposadr[j], model.jnt_dofadr[j]
-    data.qpos[q + 3:q + 7] = [np.sqrt(0.5), 0, 0, np.sqrt(0.5)]
-    data.qvel[v:v + 6] = [1.0, 0, 0, 1.0, 0, 0]          # vx = 1, wx = 1
+    data.qpos[q + 3 : q + 7] = [np.sqrt(0.5), 0, 0, np.sqrt(0.5)]
+    data.qvel[v : v + 6] = [1.0, 0, 0, 1.0, 0, 0]  # vx = 1, wx = 1
     mujoco.mj_forward(model, data)
-    world = np.zeros(6)                                    # [angular, linear], world frame
-    mujoco.mj_objectVelocity(model, data, mujoco.mjtObj.mjOBJ_BODY, model.body("cube_a").id,
-                             world, 0)
-    np.testing.assert_allclose(world[:3], [0, 1, 0], atol=1e-12)   # body x is world y
-    np.testing.assert_allclose(world[3:], [1, 0, 0], atol=1e-12)   # world x as sent
+    world = np.zeros(6)  # [angular, linear], world frame
+    mujoco.mj_objectVelocity(
+        model, data, mujoco.mjtObj.mjOBJ_BODY, model.body("cube_a").id, world, 0
+    )
+    np.testing.assert_allclose(world[:3], [0, 1, 0], atol=1e-12)  # body x is world y
+    np.testing.assert_allclose(world[3:], [1, 0, 0], atol=1e-12)  # world x as sent
 
 
 @pytest.mark.parametrize("name", sorted(ROBOTS))
@@ -133,11 +147,16 @@ def test_declared_control_units_agree_with_velocity_servos_on_joints(name):
     checked = 0
     for a in range(model.nu):
         gain, bias = model.actuator_gainprm[a][0], model.actuator_biasprm[a][:3]
-        if model.actuator_trntype[a] == mujoco.mjtTrn.mjTRN_JOINT and gain > 0 and \
-                bias[1] == 0 and bias[2] == -gain:        # a velocity servo on a joint
+        if (
+            model.actuator_trntype[a] == mujoco.mjtTrn.mjTRN_JOINT
+            and gain > 0
+            and bias[1] == 0
+            and bias[2] == -gain
+        ):  # a velocity servo on a joint
             kind = model.jnt_type[model.actuator_trnid[a][0]]
-            assert robot.ctrl_units[a] == ("m/s" if kind == mujoco.mjtJoint.mjJNT_SLIDE
-                                           else "rad/s"), model.actuator(a).name
+            assert robot.ctrl_units[a] == (
+                "m/s" if kind == mujoco.mjtJoint.mjJNT_SLIDE else "rad/s"
+            ), model.actuator(a).name
             checked += 1
     assert checked
 
@@ -157,23 +176,37 @@ def test_the_simulated_world_sends_exactly_the_layout(name):
 
 def test_state_sizes_name_each_array_that_differs():
     sizes = StateSizes(nq=2, nv=2, na=0, nmocap=4)
-    good = {"qpos": np.zeros(2), "qvel": np.zeros(2), "act": np.zeros(0),
-            "mocap_pos": np.zeros((4, 3)), "mocap_quat": np.zeros((4, 4))}
+    good = {
+        "qpos": np.zeros(2),
+        "qvel": np.zeros(2),
+        "act": np.zeros(0),
+        "mocap_pos": np.zeros((4, 3)),
+        "mocap_quat": np.zeros((4, 4)),
+    }
     assert sizes.mismatches(good) == []
     bad = dict(good, qpos=np.zeros(3), mocap_pos=np.zeros((3, 3)))
     assert sizes.mismatches(bad) == [
         "qpos has 3 values, the scenario's model has nq = 2",
-        "mocap_pos has shape [3, 3], the scenario's model has nmocap = 4 (shape [4, 3])"]
+        "mocap_pos has shape [3, 3], the scenario's model has nmocap = 4 (shape [4, 3])",
+    ]
 
 
 # ---------------------------------------------------------------- m3p2i layout
+
 
 def test_layout_command_prints_tables_and_json():
     runner = CliRunner()
     shown = runner.invoke(m3p2i, ["layout", "pick_place"])
     assert shown.exit_code == 0, shown.output
-    for text in ("state.qpos [23]", "cube_a_free", "quaternion", "command.ctrl [8]",
-                 "tendon gripper_width", "keeps its last command", "table"):
+    for text in (
+        "state.qpos [23]",
+        "cube_a_free",
+        "quaternion",
+        "command.ctrl [8]",
+        "tendon gripper_width",
+        "keeps its last command",
+        "table",
+    ):
         assert text in shown.output
     raw = runner.invoke(m3p2i, ["layout", "battery_recharge", "--json"])
     assert raw.exit_code == 0, raw.output
@@ -181,9 +214,17 @@ def test_layout_command_prints_tables_and_json():
     assert data["sizes"] == {"nq": 2, "nv": 2, "na": 0, "nmocap": 5}
     assert [c["actuator"] for c in data["ctrl"]] == ["vel_x", "vel_y"]
     assert data["ctrl"][0]["range"] == [-1.5, 1.5] and data["extras"][0]["name"] == "battery"
-    assert data["qvel"][1] == {"index": 1, "joint": "y", "joint_type": "slide", "body": "robot",
-                               "component": "velocity", "unit": "m/s", "frame": "axis",
-                               "axis": [0.0, 1.0, 0.0], "range": None}
+    assert data["qvel"][1] == {
+        "index": 1,
+        "joint": "y",
+        "joint_type": "slide",
+        "body": "robot",
+        "component": "velocity",
+        "unit": "m/s",
+        "frame": "axis",
+        "axis": [0.0, 1.0, 0.0],
+        "range": None,
+    }
 
 
 def test_layout_command_lists_the_frames_a_scenario_may_name():
@@ -191,16 +232,24 @@ def test_layout_command_lists_the_frames_a_scenario_may_name():
     runner = CliRunner()
     shown = runner.invoke(m3p2i, ["layout", "pick_place"], env={"COLUMNS": "200"})
     assert shown.exit_code == 0, shown.output
-    frames_part = shown.output[shown.output.index("frames:"):]
+    frames_part = shown.output[shown.output.index("frames:") :]
     for text in ("site:grasp", "site:finger_left", "panda_hand", "cube_a", "table"):
         assert text in frames_part, frames_part
     data = json.loads(runner.invoke(m3p2i, ["layout", "pick_place", "--json"]).output)
     by_name = {f["name"]: f for f in data["frames"]}
-    assert by_name["robot"] == {"name": "robot", "kind": "site", "part": "robot",
-                                "same_as": "site:grasp"}
+    assert by_name["robot"] == {
+        "name": "robot",
+        "kind": "site",
+        "part": "robot",
+        "same_as": "site:grasp",
+    }
     assert by_name["site:finger_left"]["part"] == "robot"
-    assert by_name["panda_hand"] == {"name": "panda_hand", "kind": "body", "part": "robot",
-                                     "same_as": None}
+    assert by_name["panda_hand"] == {
+        "name": "panda_hand",
+        "kind": "body",
+        "part": "robot",
+        "same_as": None,
+    }
     assert by_name["cube_a"]["part"] == "object"
 
 
@@ -224,6 +273,7 @@ def test_layout_command_refuses_an_unknown_scenario_like_the_others():
 
 
 # ---------------------------------------------------------------- the planner's check
+
 
 class FakeWorld:
     """A world on loopback: answers ``hello`` with ``welcome`` and then publishes ``state`` every
@@ -250,10 +300,18 @@ class FakeWorld:
             while not self._stop.is_set() and time.monotonic() < self._deadline:
                 if rep.poll(20):
                     rep.recv()
-                    rep.send(P.encode(P.Welcome(
-                        scenario=self.scenario.name, scenario_hash=self.scenario.hash,
-                        mode="lockstep", dt=self.scenario.world.timestep, nu=self.nu,
-                        session="fake")))
+                    rep.send(
+                        P.encode(
+                            P.Welcome(
+                                scenario=self.scenario.name,
+                                scenario_hash=self.scenario.hash,
+                                mode="lockstep",
+                                dt=self.scenario.world.timestep,
+                                nu=self.nu,
+                                session="fake",
+                            )
+                        )
+                    )
                     welcomed = True
                 if welcomed:
                     pub.send(P.encode(self.state))
@@ -285,13 +343,21 @@ def _bounded(call, world: FakeWorld, until=lambda: True, timeout: float = 60.0):
 
 
 def _state(model, nq: int, nmocap: int) -> P.State:
-    return P.State(session="fake", seq=0, time=0.0, qpos=np.zeros(nq), qvel=np.zeros(model.nv),
-                   act=np.zeros(0), mocap_pos=np.zeros((nmocap, 3)),
-                   mocap_quat=np.tile([1.0, 0, 0, 0], (nmocap, 1)))
+    return P.State(
+        session="fake",
+        seq=0,
+        time=0.0,
+        qpos=np.zeros(nq),
+        qvel=np.zeros(model.nv),
+        act=np.zeros(0),
+        mocap_pos=np.zeros((nmocap, 3)),
+        mocap_quat=np.tile([1.0, 0, 0, 0], (nmocap, 1)),
+    )
 
 
 def test_planner_stops_with_exit_code_3_naming_each_size_a_bridge_got_wrong(nav):
     from planner_client.cli import app as planner
+
     sc, model = nav
     port = free_port_block()
     world = FakeWorld(port, sc, model.nu, _state(model, model.nq + 1, model.nmocap - 1))
@@ -299,17 +365,20 @@ def test_planner_stops_with_exit_code_3_naming_each_size_a_bridge_got_wrong(nav)
     result = _bounded(lambda: CliRunner().invoke(planner, args), world)
     output = result.output
     assert result.exit_code == 3, output
-    assert ("error: the world's state does not fit the planner's model of navigation: qpos has "
-            "3 values, the scenario's model has nq = 2; mocap_pos has shape [3, 3], the "
-            "scenario's model has nmocap = 4 (shape [4, 3]); mocap_quat has shape [3, 4], the "
-            "scenario's model has nmocap = 4 (shape [4, 4]). `m3p2i layout navigation` prints "
-            "the layout a world must send") in output
-    assert "qvel" not in output.split("error:")[-1]      # only what differs is named
+    assert (
+        "error: the world's state does not fit the planner's model of navigation: qpos has "
+        "3 values, the scenario's model has nq = 2; mocap_pos has shape [3, 3], the "
+        "scenario's model has nmocap = 4 (shape [4, 3]); mocap_quat has shape [3, 4], the "
+        "scenario's model has nmocap = 4 (shape [4, 4]). `m3p2i layout navigation` prints "
+        "the layout a world must send"
+    ) in output
+    assert "qvel" not in output.split("error:")[-1]  # only what differs is named
     assert world.commands == []
 
 
 def test_planner_plans_for_a_bridge_of_the_right_layout(nav):
     from planner_client.build import build_client
+
     sc, model = nav
     port = free_port_block()
     world = FakeWorld(port, sc, model.nu, _state(model, model.nq, model.nmocap))

@@ -20,24 +20,24 @@ import msgpack
 import numpy as np
 import pytest
 import zmq
+from typer.testing import CliRunner
 
+from server.cli import app as server_app
 from server.interface import WorldLoadError, load_world_class
 from shared.evaluation.episode import read_log, steps
 from shared.scenario import load_scenario
 from shared.scene import compile_model, initial_data
 from shared.tools.launch import free_port_block
 from tests.bridge_worlds import KinematicBase
-from typer.testing import CliRunner
-
-from server.cli import app as server_app
 from tests.helpers import ENV, start_planner, stop
 
 ROOT = Path(__file__).resolve().parent.parent
-GOAL = np.array([-3.0, 3.0])        # configs/scenarios/navigation.yaml: episode.success
+GOAL = np.array([-3.0, 3.0])  # configs/scenarios/navigation.yaml: episode.success
 WITHIN = 0.1
 
 
 # ------------------------------------------------------------------ a bridge from the spec only
+
 
 def _array(a: np.ndarray) -> dict:
     a = np.ascontiguousarray(a, dtype="<f8")
@@ -48,8 +48,15 @@ def _read_array(m: dict) -> np.ndarray:
     return np.frombuffer(m["data"], dtype=m["dtype"]).reshape(m["shape"])
 
 
-def raw_bridge(port: int, scenario_hash: str, dt: float, mocap_pos: list, mocap_quat: list,
-               result: dict, deadline_s: float = 60.0) -> None:
+def raw_bridge(
+    port: int,
+    scenario_hash: str,
+    dt: float,
+    mocap_pos: list,
+    mocap_quat: list,
+    result: dict,
+    deadline_s: float = 60.0,
+) -> None:
     """A lock-step world for the navigation scenario written with zmq and msgpack only, from
     docs/protocol.md: a kinematic point robot (qpos = x, y; ctrl = world velocity, m/s,
     clipped to +-1.5) and the scenario's fixed obstacles as perception would report them."""
@@ -66,10 +73,23 @@ def raw_bridge(port: int, scenario_hash: str, dt: float, mocap_pos: list, mocap_
     mpos, mquat = np.array(mocap_pos, float), np.array(mocap_quat, float)
 
     def publish() -> None:
-        pub.send(msgpack.packb({
-            "type": "state", "v": 2, "session": session, "seq": seq, "time": t,
-            "qpos": _array(qpos), "qvel": _array(qvel), "act": _array(np.zeros(0)),
-            "mocap_pos": _array(mpos), "mocap_quat": _array(mquat), "status": status}))
+        pub.send(
+            msgpack.packb(
+                {
+                    "type": "state",
+                    "v": 2,
+                    "session": session,
+                    "seq": seq,
+                    "time": t,
+                    "qpos": _array(qpos),
+                    "qvel": _array(qvel),
+                    "act": _array(np.zeros(0)),
+                    "mocap_pos": _array(mpos),
+                    "mocap_quat": _array(mquat),
+                    "status": status,
+                }
+            )
+        )
 
     end = time.monotonic() + deadline_s
     ended_at = None
@@ -77,15 +97,29 @@ def raw_bridge(port: int, scenario_hash: str, dt: float, mocap_pos: list, mocap_
     try:
         while time.monotonic() < end:
             if ended_at is not None and time.monotonic() - ended_at > 0.5:
-                break                      # the final state was published long enough
+                break  # the final state was published long enough
             events = dict(poller.poll(50))
             if rep in events:
                 msg = msgpack.unpackb(rep.recv())
-                if msg.get("type") == "hello" and msg.get("v") == 2 \
-                        and msg.get("scenario_hash") == scenario_hash:
-                    rep.send(msgpack.packb({"type": "welcome", "v": 2, "scenario": msg["scenario"],
-                                            "scenario_hash": scenario_hash, "mode": "lockstep",
-                                            "dt": dt, "nu": 2, "session": session}))
+                if (
+                    msg.get("type") == "hello"
+                    and msg.get("v") == 2
+                    and msg.get("scenario_hash") == scenario_hash
+                ):
+                    rep.send(
+                        msgpack.packb(
+                            {
+                                "type": "welcome",
+                                "v": 2,
+                                "scenario": msg["scenario"],
+                                "scenario_hash": scenario_hash,
+                                "mode": "lockstep",
+                                "dt": dt,
+                                "nu": 2,
+                                "session": session,
+                            }
+                        )
+                    )
                     result["handshakes"] = result.get("handshakes", 0) + 1
                 else:
                     rep.send(msgpack.packb({"type": "error", "v": 2, "reason": "wrong hello"}))
@@ -96,9 +130,13 @@ def raw_bridge(port: int, scenario_hash: str, dt: float, mocap_pos: list, mocap_
                         cmd = msgpack.unpackb(pull.recv(zmq.NOBLOCK))
                     except zmq.Again:
                         break
-                    if cmd.get("type") != "command" or cmd.get("session") != session \
-                            or cmd.get("seq") != seq or status != "running":
-                        continue           # outdated, or a repeat of an answered state
+                    if (
+                        cmd.get("type") != "command"
+                        or cmd.get("session") != session
+                        or cmd.get("seq") != seq
+                        or status != "running"
+                    ):
+                        continue  # outdated, or a repeat of an answered state
                     ctrl = np.clip(_read_array(cmd["ctrl"]), -1.5, 1.5)
                     qvel = ctrl.copy()
                     qpos = qpos + ctrl * dt
@@ -111,7 +149,7 @@ def raw_bridge(port: int, scenario_hash: str, dt: float, mocap_pos: list, mocap_
                         ended_at = time.monotonic()
                     publish()
                     last_pub = time.monotonic()
-            if time.monotonic() - last_pub >= 0.2:   # the pending state, for late subscribers
+            if time.monotonic() - last_pub >= 0.2:  # the pending state, for late subscribers
                 publish()
                 last_pub = time.monotonic()
     finally:
@@ -134,7 +172,9 @@ def planner():
 
 def _alive(proc: subprocess.Popen) -> None:
     if proc.poll() is not None:
-        raise AssertionError(f"the planner exited (code {proc.returncode}):\n{proc.communicate()[0]}")
+        raise AssertionError(
+            f"the planner exited (code {proc.returncode}):\n{proc.communicate()[0]}"
+        )
 
 
 def test_a_bridge_written_from_the_protocol_spec_drives_the_planner_to_the_goal(planner):
@@ -142,11 +182,20 @@ def test_a_bridge_written_from_the_protocol_spec_drives_the_planner_to_the_goal(
     sc = load_scenario("navigation")
     model = compile_model(sc)
     start = initial_data(sc, model)
-    assert model.nq == 2 and model.nu == 2   # the bridge's kinematic robot is this model's
+    assert model.nq == 2 and model.nu == 2  # the bridge's kinematic robot is this model's
     result: dict = {}
-    bridge = threading.Thread(target=raw_bridge, daemon=True, args=(
-        port, sc.hash, float(model.opt.timestep), start.mocap_pos.tolist(),
-        start.mocap_quat.tolist(), result))
+    bridge = threading.Thread(
+        target=raw_bridge,
+        daemon=True,
+        args=(
+            port,
+            sc.hash,
+            float(model.opt.timestep),
+            start.mocap_pos.tolist(),
+            start.mocap_quat.tolist(),
+            result,
+        ),
+    )
     bridge.start()
     bridge.join(90)
     _alive(proc)
@@ -158,13 +207,30 @@ def test_a_bridge_written_from_the_protocol_spec_drives_the_planner_to_the_goal(
 
 # ------------------------------------------------------------------ --world: a user's class
 
+
 def test_a_user_world_class_is_served_with_world(planner, tmp_path):
     port, proc = planner
     log = tmp_path / "episode.jsonl"
     server = subprocess.Popen(
-        [sys.executable, "-m", "server", "--scenario", "navigation", "--port", str(port),
-         "--log", str(log), "--world", "tests.bridge_worlds:KinematicBase"],
-        cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, env=ENV)
+        [
+            sys.executable,
+            "-m",
+            "server",
+            "--scenario",
+            "navigation",
+            "--port",
+            str(port),
+            "--log",
+            str(log),
+            "--world",
+            "tests.bridge_worlds:KinematicBase",
+        ],
+        cwd=ROOT,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        text=True,
+        env=ENV,
+    )
     try:
         out = server.communicate(timeout=90)[0]
         _alive(proc)
@@ -182,11 +248,12 @@ def test_a_user_world_class_is_served_with_world(planner, tmp_path):
     ctrl = np.array([s["ctrl"] for s in steps(records)])
     dt = records[0]["dt"]
     np.testing.assert_allclose(np.diff(qpos, axis=0), ctrl[1:] * dt, atol=1e-12)
-    np.testing.assert_allclose(qpos[0], ctrl[0] * dt, atol=1e-12)      # from the origin
+    np.testing.assert_allclose(qpos[0], ctrl[0] * dt, atol=1e-12)  # from the origin
     assert np.abs(ctrl).max() <= 1.5
 
 
 # ------------------------------------------------------------------ real time: the safe stops
+
 
 def test_a_realtime_bridge_is_stopped_on_stale_commands_on_pause_and_at_the_end(tmp_path):
     from server.app import ServerOptions, WorldServer
@@ -195,9 +262,13 @@ def test_a_realtime_bridge_is_stopped_on_stale_commands_on_pause_and_at_the_end(
     from tests.bridge_worlds import RecordingBase
 
     port = free_port_block()
-    server = WorldServer(load_scenario("navigation"), Endpoints(port=port), tmp_path / "e.jsonl",
-                         ServerOptions(mode="realtime", command_timeout=0.2, republish=0.05),
-                         world=RecordingBase)
+    server = WorldServer(
+        load_scenario("navigation"),
+        Endpoints(port=port),
+        tmp_path / "e.jsonl",
+        ServerOptions(mode="realtime", command_timeout=0.2, republish=0.05),
+        world=RecordingBase,
+    )
     world = server.world
     runner = threading.Thread(target=server.run, daemon=True)
     runner.start()
@@ -226,14 +297,14 @@ def test_a_realtime_bridge_is_stopped_on_stale_commands_on_pause_and_at_the_end(
         drive(0.3)
         assert any(np.array_equal(c, go) for c in world.sent)
         assert isinstance(ask(P.Control(op="pause")), P.Control)
-        np.testing.assert_array_equal(world.sent[-1], [0.0, 0.0])     # stopped before the echo
+        np.testing.assert_array_equal(world.sent[-1], [0.0, 0.0])  # stopped before the echo
         assert isinstance(ask(P.Control(op="resume")), P.Control)
         drive(0.3)
-        time.sleep(0.6)                   # commands stale after 0.2 s: the watchdog's safe control
+        time.sleep(0.6)  # commands stale after 0.2 s: the watchdog's safe control
         stale_x = world.data.qpos[0]
         np.testing.assert_array_equal(world.sent[-1], [0.0, 0.0])
         time.sleep(0.2)
-        assert world.data.qpos[0] == stale_x > 0.0                     # it moved, then held still
+        assert world.data.qpos[0] == stale_x > 0.0  # it moved, then held still
         ask(P.Control(op="shutdown"))
         runner.join(10)
         assert not runner.is_alive()
@@ -244,10 +315,12 @@ def test_a_realtime_bridge_is_stopped_on_stale_commands_on_pause_and_at_the_end(
         if runner.is_alive():
             server._stop = True
             runner.join(10)
-    np.testing.assert_array_equal(world.sent[-1], [0.0, 0.0])         # the episode's end
+    np.testing.assert_array_equal(world.sent[-1], [0.0, 0.0])  # the episode's end
     records = read_log(tmp_path / "e.jsonl")
-    assert [r["what"] for r in records if r.get("what", "").startswith("commands_")] == \
-        ["commands_fresh", "commands_stale"]
+    assert [r["what"] for r in records if r.get("what", "").startswith("commands_")] == [
+        "commands_fresh",
+        "commands_stale",
+    ]
     stale_at = next(i for i, r in enumerate(records) if r.get("what") == "commands_stale")
     after = [r for r in records[stale_at:] if r["kind"] == "step"]
     assert after and all(r["safe"] and r["ctrl"] == [0.0, 0.0] for r in after)
@@ -262,8 +335,13 @@ def test_a_bridge_that_fails_mid_episode_is_stopped_and_its_log_summarised(tmp_p
     from tests.bridge_worlds import LosingTrack
 
     port = free_port_block()
-    server = WorldServer(load_scenario("navigation"), Endpoints(port=port), tmp_path / "e.jsonl",
-                         ServerOptions(mode="realtime"), world=LosingTrack)
+    server = WorldServer(
+        load_scenario("navigation"),
+        Endpoints(port=port),
+        tmp_path / "e.jsonl",
+        ServerOptions(mode="realtime"),
+        world=LosingTrack,
+    )
     world, failure = server.world, []
 
     def run() -> None:
@@ -281,8 +359,11 @@ def test_a_bridge_that_fails_mid_episode_is_stopped_and_its_log_summarised(tmp_p
     try:
         end = time.monotonic() + 5
         while runner.is_alive() and time.monotonic() < end:
-            push.send(P.encode(P.Command(session=server.episode.session, seq=0,
-                                         ctrl=np.array([1.0, 0.0]))))
+            push.send(
+                P.encode(
+                    P.Command(session=server.episode.session, seq=0, ctrl=np.array([1.0, 0.0]))
+                )
+            )
             time.sleep(0.02)
         runner.join(5)
         assert not runner.is_alive()
@@ -292,20 +373,24 @@ def test_a_bridge_that_fails_mid_episode_is_stopped_and_its_log_summarised(tmp_p
         if runner.is_alive():
             server._stop = True
     assert [str(e) for e in failure] == ["motion capture lost the base"]
-    np.testing.assert_array_equal(world.sent[-1], [0.0, 0.0])         # the safe stop
+    np.testing.assert_array_equal(world.sent[-1], [0.0, 0.0])  # the safe stop
     summary = read_log(tmp_path / "e.jsonl")[-1]
     assert summary["kind"] == "summary" and summary["status"] == "stopped"
 
 
 # ------------------------------------------------------------------ --world: bad values
 
-@pytest.mark.parametrize("value, expected", [
-    ("tests.bridge_worlds", "expected package.module:Class"),
-    ("tests.no_such_module:X", "no module named 'tests.no_such_module'"),
-    ("tests.bridge_worlds:Missing", "has no 'Missing'"),
-    ("tests.bridge_worlds:NotAWorld", "is not a subclass of server.interface.World"),
-    ("tests.bridge_worlds:Unfinished", "leaves abstract: sense"),
-])
+
+@pytest.mark.parametrize(
+    "value, expected",
+    [
+        ("tests.bridge_worlds", "expected package.module:Class"),
+        ("tests.no_such_module:X", "no module named 'tests.no_such_module'"),
+        ("tests.bridge_worlds:Missing", "has no 'Missing'"),
+        ("tests.bridge_worlds:NotAWorld", "is not a subclass of server.interface.World"),
+        ("tests.bridge_worlds:Unfinished", "leaves abstract: sense"),
+    ],
+)
 def test_a_bad_world_value_is_named_with_what_was_expected(value, expected):
     with pytest.raises(WorldLoadError) as err:
         load_world_class(value)
@@ -317,24 +402,41 @@ def test_world_loads_the_class_it_names():
 
 
 def test_the_server_refuses_a_bad_world_before_it_starts(tmp_path):
-    result = CliRunner().invoke(server_app, ["--scenario", "navigation", "--log",
-                                             str(tmp_path / "e.jsonl"), "--world",
-                                             "tests.bridge_worlds:NotAWorld"])
+    result = CliRunner().invoke(
+        server_app,
+        [
+            "--scenario",
+            "navigation",
+            "--log",
+            str(tmp_path / "e.jsonl"),
+            "--world",
+            "tests.bridge_worlds:NotAWorld",
+        ],
+    )
     assert result.exit_code == 2
     assert "tests.bridge_worlds:NotAWorld" in result.output and "not a subclass" in result.output
     assert not (tmp_path / "e.jsonl").exists()
-    checked = CliRunner().invoke(server_app, ["--scenario", "navigation", "--check", "--world",
-                                              "tests.bridge_worlds:Missing"])
+    checked = CliRunner().invoke(
+        server_app,
+        ["--scenario", "navigation", "--check", "--world", "tests.bridge_worlds:Missing"],
+    )
     assert checked.exit_code == 2 and "has no 'Missing'" in checked.output
-    assert CliRunner().invoke(server_app, ["--scenario", "navigation", "--check", "--world",
-                                           "tests.bridge_worlds:KinematicBase"]).exit_code == 0
+    assert (
+        CliRunner()
+        .invoke(
+            server_app,
+            ["--scenario", "navigation", "--check", "--world", "tests.bridge_worlds:KinematicBase"],
+        )
+        .exit_code
+        == 0
+    )
 
 
 def test_the_kinematic_base_follows_the_bridge_contract():
     world = KinematicBase(load_scenario("navigation"))
     world.reset()
     assert world.time == 0.0 and world.status == "running"
-    world.step(np.array([3.0, -1.0]))             # clipped to the actuators' +-1.5
+    world.step(np.array([3.0, -1.0]))  # clipped to the actuators' +-1.5
     s = world.state()
     np.testing.assert_allclose(s.qpos, [1.5 * world.dt, -world.dt])
     assert s.time == pytest.approx(world.dt)
@@ -346,6 +448,7 @@ def test_the_kinematic_base_follows_the_bridge_contract():
 
 
 # ------------------------------------------------------------------ docs/bridge.md
+
 
 def test_the_bridge_guide_code_is_python():
     text = (ROOT / "docs" / "bridge.md").read_text()

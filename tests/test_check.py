@@ -44,9 +44,11 @@ def _three_faults() -> dict:
     return raw
 
 
-FAULTS = ("episode.success[1].near.b: no body named 'gaol'",
-          "objectives.navigate.terms[1].term: unknown cost term",
-          "objectives.navigate.terms[0].weight: wrong type")
+FAULTS = (
+    "episode.success[1].near.b: no body named 'gaol'",
+    "objectives.navigate.terms[1].term: unknown cost term",
+    "objectives.navigate.terms[0].weight: wrong type",
+)
 
 
 def test_m3p2i_check_reports_every_fault_of_a_file_at_once(tmp_path):
@@ -59,12 +61,13 @@ def test_m3p2i_check_reports_every_fault_of_a_file_at_once(tmp_path):
 
 def test_m3p2i_run_reports_every_fault_before_starting_anything(tmp_path):
     run_dir = tmp_path / "run"
-    result = CliRunner().invoke(app, ["run", str(_write(tmp_path, _three_faults())),
-                                      "--run-dir", str(run_dir)])
+    result = CliRunner().invoke(
+        app, ["run", str(_write(tmp_path, _three_faults())), "--run-dir", str(run_dir)]
+    )
     assert result.exit_code == 2, result.output
     for fault in FAULTS:
         assert fault in result.output
-    assert not run_dir.exists()          # neither process was started
+    assert not run_dir.exists()  # neither process was started
     assert "planner exited" not in result.output
 
 
@@ -84,9 +87,9 @@ def test_each_side_checks_what_it_uses(tmp_path):
     path = _write(tmp_path, _three_faults())
     world = "\n".join(str(e) for e in server_check.scenario_errors(path))
     planner = "\n".join(str(e) for e in planner_check.scenario_errors(path))
-    assert FAULTS[0] in world and FAULTS[1] not in world     # the world has no cost terms
+    assert FAULTS[0] in world and FAULTS[1] not in world  # the world has no cost terms
     assert FAULTS[1] in planner and FAULTS[0] not in planner
-    assert FAULTS[2] in world and FAULTS[2] in planner       # a load error: both see it
+    assert FAULTS[2] in world and FAULTS[2] in planner  # a load error: both see it
 
 
 def test_loading_collects_every_load_time_error():
@@ -98,8 +101,12 @@ def test_loading_collects_every_load_time_error():
     with pytest.raises(ConfigErrors) as info:
         parse_scenario(raw, "test.yaml")
     paths = [e.path for e in info.value.errors]
-    assert paths == ["episode.max_time", "planner.samples",
-                     "objectives.navigate.terms[2].weight", "surprise"]
+    assert paths == [
+        "episode.max_time",
+        "planner.samples",
+        "objectives.navigate.terms[2].weight",
+        "surprise",
+    ]
     assert str(info.value).count("test.yaml: ") == 4
 
 
@@ -116,7 +123,7 @@ def test_a_faulty_object_still_declares_its_name(tmp_path):
     # the file's model cannot be built, but the success test's 'goal' is the faulty object's
     # name: a frame check against a model without it would only mislead
     raw = _nav()
-    raw["world"]["objects"][3]["shape"] = "cone"            # the goal marker
+    raw["world"]["objects"][3]["shape"] = "cone"  # the goal marker
     reading = read_scenario(_write(tmp_path, raw))
     assert not reading.model_ok
     errors = server_check.scenario_errors(_write(tmp_path, raw))
@@ -144,13 +151,15 @@ def test_names_of_a_faulty_world_are_checked_against_what_it_declares(tmp_path):
     # the world's other faults are all reported, not only the first
     raw = _nav()
     raw["world"]["arena"]["half_size"] = -1
-    raw["world"]["objects"][0]["shape"] = "cone"                  # block_a
+    raw["world"]["objects"][0]["shape"] = "cone"  # block_a
     raw["episode"]["success"].append({"near": {"a": "robot", "b": "block_a", "within": 0.1}})
-    raw["episode"]["success"].append({"near": {"a": "wall_north", "b": "pilar",
-                                               "within": 0.1}})
+    raw["episode"]["success"].append({"near": {"a": "wall_north", "b": "pilar", "within": 0.1}})
     errors = server_check.scenario_errors(_write(tmp_path, raw))
-    assert [e.path for e in errors] == ["world.arena.half_size", "world.objects[0].shape",
-                                        "episode.success[2].near.b"], errors
+    assert [e.path for e in errors] == [
+        "world.arena.half_size",
+        "world.objects[0].shape",
+        "episode.success[2].near.b",
+    ], errors
 
 
 def test_observer_frames_and_pinned_actuators_are_checked_together(tmp_path):

@@ -60,13 +60,15 @@ def test_help_texts_are_paragraphs_without_line_breaks(prog, app, args, cmd):
             shown = _plain(paragraph)
             assert shown == paragraph.replace("\\[", "["), (
                 f"{prog} {' '.join(args)} {name}: rich markup changed {paragraph!r} "
-                f"into {shown!r} (escape '[' as '\\\\[')")
+                f"into {shown!r} (escape '[' as '\\\\[')"
+            )
 
 
 @pytest.mark.parametrize("prog, app, args, cmd", COMMANDS, ids=IDS)
 def test_help_renders_each_paragraph_on_one_line_of_a_wide_terminal(prog, app, args, cmd):
-    result = CliRunner().invoke(app, [*args, "--help"], prog_name=prog,
-                                env={"COLUMNS": "3000", "TERMINAL_WIDTH": "3000"})
+    result = CliRunner().invoke(
+        app, [*args, "--help"], prog_name=prog, env={"COLUMNS": "3000", "TERMINAL_WIDTH": "3000"}
+    )
     assert result.exit_code == 0, result.output
     lines = [" ".join(line.split()) for line in result.output.splitlines()]
     for paragraph in _paragraphs(cmd.help or ""):
@@ -85,13 +87,18 @@ def test_shared_options_are_declared_once():
     # the same flags, help and type wherever the three programs share an option
     server, planner = _params(server_app), _params(planner_app)
     run, view = _params(m3p2i_app, "run"), _params(m3p2i_app, "view")
-    for name, where in (("host", (server, planner, view)), ("keys", (server, planner, run, view)),
-                        ("insecure", (server, planner)), ("verbose", (server, planner, run)),
-                        ("mode", (server, run)), ("faults", (server, run)),
-                        ("plan_every", (server, run)), ("window", (server, run)),
-                        ("estimate_delays", (planner, run))):
-        shown = {(tuple(p[name].opts), tuple(p[name].secondary_opts), p[name].help)
-                 for p in where}
+    for name, where in (
+        ("host", (server, planner, view)),
+        ("keys", (server, planner, run, view)),
+        ("insecure", (server, planner)),
+        ("verbose", (server, planner, run)),
+        ("mode", (server, run)),
+        ("faults", (server, run)),
+        ("plan_every", (server, run)),
+        ("window", (server, run)),
+        ("estimate_delays", (planner, run)),
+    ):
+        shown = {(tuple(p[name].opts), tuple(p[name].secondary_opts), p[name].help) for p in where}
         assert len(shown) == 1, (name, shown)
     assert server["scenario"].opts == planner["scenario"].opts == ["--scenario", "-s"]
 

@@ -15,13 +15,13 @@ import pytest
 import torch
 from mujoco import rollout as mj_rollout
 
-from shared.config import ConfigError, Section
-from shared.frames import FrameResolver
-from shared.scenario import ObjectiveConfig, TermConfig
 from planner_client.costs import TERMS, JointInfo, RolloutBatch, TermContext, build_objective
 from planner_client.costs.helpers import norm, sparse_norm
 from planner_client.costs.norms import fusable
 from planner_client.sensors import SensorColumns, SensorRequest, add_sensors
+from shared.config import ConfigError, Section
+from shared.frames import FrameResolver
+from shared.scenario import ObjectiveConfig, TermConfig
 
 F64 = torch.float64
 SRC = "test.yaml"
@@ -70,10 +70,17 @@ def model() -> mujoco.MjModel:
 @pytest.fixture(scope="module")
 def ctx(model) -> TermContext:
     # the base's slide joints as the robot's: x unlimited, y given a range of ±0.5 m
-    joints = {"x": JointInfo(range=None, hinge=False, start=0.0),
-              "y": JointInfo(range=(-0.5, 0.5), hinge=False, start=0.1)}
-    return TermContext(SRC, FrameResolver(model, "base"), obstacles=["wall", "pillar"],
-                       actuators=["ux", "uy"], joints=joints)
+    joints = {
+        "x": JointInfo(range=None, hinge=False, start=0.0),
+        "y": JointInfo(range=(-0.5, 0.5), hinge=False, start=0.1),
+    }
+    return TermContext(
+        SRC,
+        FrameResolver(model, "base"),
+        obstacles=["wall", "pillar"],
+        actuators=["ux", "uy"],
+        joints=joints,
+    )
 
 
 def make(ctx: TermContext, name: str, **params):
@@ -94,15 +101,16 @@ def batch_of(values: dict[SensorRequest, list], controls=None, dt: float = 0.1) 
     sensordata = torch.cat(blocks, dim=-1)
     if controls is None:
         controls = torch.zeros(*sensordata.shape[:2], 2, dtype=F64)
-    return RolloutBatch(sensordata, torch.as_tensor(controls, dtype=F64), SensorColumns(columns),
-                        dt)
+    return RolloutBatch(
+        sensordata, torch.as_tensor(controls, dtype=F64), SensorColumns(columns), dt
+    )
 
 
 def test_a_terms_sensors_are_read_in_request_order_wherever_they_lie():
     a, b, c = pos("a"), SensorRequest("jointpos", "j"), SensorRequest("framezaxis", "c")
     columns = SensorColumns({a: slice(0, 3), b: slice(3, 4), c: slice(4, 7)})
     sd = torch.arange(2 * 7, dtype=F64).reshape(2, 1, 7)
-    for _ in range(2):                                 # worked out once, then looked up
+    for _ in range(2):  # worked out once, then looked up
         apart = columns.take_all(sd, [c, a])
         torch.testing.assert_close(apart, torch.cat([sd[..., 4:7], sd[..., 0:3]], dim=-1))
         adjacent = columns.take_all(sd, [a, b])
@@ -124,8 +132,10 @@ def close(actual: torch.Tensor, expected) -> None:
 
 def set_qpos(start: int, values):
     """A state setup for :func:`sensed`: ``qpos[start:]`` = values (box: qpos[2:9], free joint)."""
+
     def setup(d):
-        d.qpos[start:start + len(values)] = values
+        d.qpos[start : start + len(values)] = values
+
     return setup
 
 
@@ -146,17 +156,20 @@ def sensed(model: mujoco.MjModel, ctx: TermContext, term, setup, steps: int = 0)
 
 # --- distance, velocity (paper Eq. 14) -----------------------------------------------------------------
 
+
 def test_distance_in_3d_and_in_the_plane(ctx):
-    b = batch_of({pos("robot"): one_step((0, 0, 0), (1, 1, 1)),
-                  pos("goal"): one_step((3, 4, 12), (1, 1, 1))})
+    b = batch_of(
+        {pos("robot"): one_step((0, 0, 0), (1, 1, 1)), pos("goal"): one_step((3, 4, 12), (1, 1, 1))}
+    )
     close(make(ctx, "distance", a="robot", b="goal")(b), [[13.0], [0.0]])
     close(make(ctx, "distance", a="robot", b="goal", axes="xy")(b), [[5.0], [0.0]])
 
 
 def test_distance_along_two_axes_ignores_the_third(ctx):
     # a side grasp lines up level with the cube (xz) before it moves in along y
-    b = batch_of({pos("robot"): one_step((0, 0, 0), (1, 1, 1)),
-                  pos("goal"): one_step((3, 12, 4), (1, 7, 1))})
+    b = batch_of(
+        {pos("robot"): one_step((0, 0, 0), (1, 1, 1)), pos("goal"): one_step((3, 12, 4), (1, 7, 1))}
+    )
     close(make(ctx, "distance", a="robot", b="goal", axes="xz")(b), [[5.0], [0.0]])
     close(make(ctx, "distance", a="robot", b="goal", axes="yz")(b), [[math.hypot(12, 4)], [6.0]])
     # one axis: a box held at its resting height, whatever it does in the plane (push_lab)
@@ -166,16 +179,22 @@ def test_distance_along_two_axes_ignores_the_third(ctx):
 
 def test_distance_to_an_offset_target(ctx):
     # the paper's pre-place location: a point above a movable object
-    b = batch_of({pos("robot"): one_step((1, 2, 3.05), (1, 2, 3)),
-                  pos("goal"): one_step((1, 2, 3), (1, 2, 3))})
+    b = batch_of(
+        {
+            pos("robot"): one_step((1, 2, 3.05), (1, 2, 3)),
+            pos("goal"): one_step((1, 2, 3), (1, 2, 3)),
+        }
+    )
     close(make(ctx, "distance", a="robot", b="goal", offset=[0, 0, 0.05])(b), [[0.0], [0.05]])
-    close(make(ctx, "distance", a="robot", b="goal", offset=[3, 4, 0], axes="xy")(b), [[5.0], [5.0]])
+    close(
+        make(ctx, "distance", a="robot", b="goal", offset=[3, 4, 0], axes="xy")(b), [[5.0], [5.0]]
+    )
 
 
 def test_distance_reads_the_real_frame_positions(model, ctx):
     term = make(ctx, "distance", a="robot", b="goal")
     b = sensed(model, ctx, term, set_qpos(0, [2.0, -1.0]))
-    close(term(b), [[math.sqrt(0 ** 2 + 3 ** 2 + 0.1 ** 2)]])
+    close(term(b), [[math.sqrt(0**2 + 3**2 + 0.1**2)]])
 
 
 def test_velocity_is_the_speed_of_the_frame(ctx):
@@ -185,6 +204,7 @@ def test_velocity_is_the_speed_of_the_frame(ctx):
 
 
 # --- collision, contact_force (thesis Eq. 4.7) ----------------------------------------------------------
+
 
 def test_collision_is_zero_outside_the_margin_one_at_touching_and_sums_obstacles(ctx):
     term = make(ctx, "collision", a="robot", margin=0.1)
@@ -206,7 +226,7 @@ def test_contact_force_is_the_net_force_against_each_fixed_obstacle(model, ctx):
     assert term.obstacles == ("wall", "pillar")
 
     def press_on_wall(d):
-        d.qpos[:2] = [0.69, 0.0]            # only the bumper, a child body, reaches the wall
+        d.qpos[:2] = [0.69, 0.0]  # only the bumper, a child body, reaches the wall
         d.ctrl[:] = [5.0, 0.0]
 
     b = sensed(model, ctx, term, press_on_wall, steps=300)
@@ -218,7 +238,7 @@ def test_contact_force_is_the_net_force_against_each_fixed_obstacle(model, ctx):
 
 def test_contact_force_ignores_movable_objects_and_free_space(model, ctx):
     def push_box(d):
-        d.qpos[:2] = [0.0, -0.3]            # touching the free box, far from wall and pillar
+        d.qpos[:2] = [0.0, -0.3]  # touching the free box, far from wall and pillar
         d.ctrl[:] = [0.0, -5.0]
 
     fixed_only = make(ctx, "contact_force", a="robot")
@@ -234,10 +254,10 @@ def test_sparse_norm_is_the_norm_with_zero_vectors_at_a_vanishing_floor():
     forces[1, 0, 0] = torch.tensor([1e-120, 0.0, 0.0])
     got, want = sparse_norm(forces), norm(forces)
     touching = want > 0
-    assert torch.equal(got[touching], want[touching])           # bit for bit where not zero
+    assert torch.equal(got[touching], want[touching])  # bit for bit where not zero
     assert (got[~touching] == 1e-150).all()
     # a contact cost of untouched obstacles leaves any real cost it is added to unchanged
-    untouched = 0.05 * sparse_norm(torch.zeros(7, 3, dtype=F64)).sum()     # 7 obstacles
+    untouched = 0.05 * sparse_norm(torch.zeros(7, 3, dtype=F64)).sum()  # 7 obstacles
     costs = torch.rand(50, 4, dtype=F64) + 1e-3
     assert torch.equal(costs + untouched, costs)
 
@@ -257,6 +277,7 @@ def test_contact_force_rejects_sites(ctx):
 
 # --- control_effort ------------------------------------------------------------------------------
 
+
 def test_control_effort_over_all_or_named_channels(ctx):
     b = batch_of({pos("robot"): [[[0, 0, 0]] * 2]}, controls=[[[3.0, 4.0], [0.0, -1.0]]])
     close(make(ctx, "control_effort")(b), [[25.0, 1.0]])
@@ -267,6 +288,7 @@ def test_control_effort_over_all_or_named_channels(ctx):
 
 # --- orientation (paper Eqs. 15, 33) -------------------------------------------------------------------
 
+
 def _yaw(deg: float) -> tuple[float, float, float, float]:
     h = math.radians(deg) / 2
     return (math.cos(h), 0.0, 0.0, math.sin(h))
@@ -275,14 +297,15 @@ def _yaw(deg: float) -> tuple[float, float, float, float]:
 def test_orientation_ignores_the_symmetries_of_a_cube(ctx):
     term = make(ctx, "orientation", a="box", b="goal")
     assert [(r.kind, r.obj, r.ref) for r in term.sensors()] == [
-        (k, "goal", "box") for k in ("framexaxis", "frameyaxis", "framezaxis")]
+        (k, "goal", "box") for k in ("framexaxis", "frameyaxis", "framezaxis")
+    ]
     h = math.sqrt(0.5)
     rotations = [_yaw(0), _yaw(90), _yaw(-180), (0.0, 1.0, 0.0, 0.0), (h, h, 0.0, 0.0), _yaw(45)]
     # the goal (world-aligned) in the box's frame: the columns of R_boxᵀ, the rows of R_box
     mats = np.zeros((len(rotations), 9))
     for mat, q in zip(mats, rotations):
         mujoco.mju_quat2Mat(mat, np.array(q, dtype=float))
-    b = batch_of({r: one_step(*mats[:, 3 * i:3 * i + 3]) for i, r in enumerate(term.sensors())})
+    b = batch_of({r: one_step(*mats[:, 3 * i : 3 * i + 3]) for i, r in enumerate(term.sensors())})
     close(term(b), [[0.0]] * 5 + [[2.0 - math.sqrt(2.0)]])
 
 
@@ -301,8 +324,13 @@ ROBOTS = [(-1, 0, 0), (1, 0, 0), (0, 1, 0), (1, 1, 0), (-1, 1, 0), (0, 0, 0)]
 
 def _align_batch(robots=ROBOTS) -> RolloutBatch:
     n = len(robots)
-    return batch_of({pos("robot"): one_step(*robots), pos("box"): one_step(*[(0, 0, 0)] * n),
-                     pos("goal"): one_step(*[(2, 0, 0)] * n)})
+    return batch_of(
+        {
+            pos("robot"): one_step(*robots),
+            pos("box"): one_step(*[(0, 0, 0)] * n),
+            pos("goal"): one_step(*[(2, 0, 0)] * n),
+        }
+    )
 
 
 def test_push_align_is_zero_behind_the_object_and_one_between_object_and_goal(ctx):
@@ -318,18 +346,26 @@ def test_pull_align_is_the_mirror_of_push_align(ctx):
 def test_align_uses_the_planar_angle_unless_asked_for_3d(ctx):
     b = _align_batch([(1, 0, 5)])
     close(make(ctx, "push_align", a="robot", obj="box", goal="goal")(b), [[1.0]])
-    close(make(ctx, "push_align", a="robot", obj="box", goal="goal", axes="xyz")(b),
-          [[1 / math.sqrt(26)]])
+    close(
+        make(ctx, "push_align", a="robot", obj="box", goal="goal", axes="xyz")(b),
+        [[1 / math.sqrt(26)]],
+    )
 
 
 def test_align_with_the_object_on_the_goal_costs_nothing(ctx):
-    b = batch_of({pos("robot"): one_step((1, 0, 0)), pos("box"): one_step((2, 0, 0)),
-                  pos("goal"): one_step((2, 0, 0))})
+    b = batch_of(
+        {
+            pos("robot"): one_step((1, 0, 0)),
+            pos("box"): one_step((2, 0, 0)),
+            pos("goal"): one_step((2, 0, 0)),
+        }
+    )
     for name in ("push_align", "pull_align"):
         close(make(ctx, name, a="robot", obj="box", goal="goal")(b), [[0.0]])
 
 
 # --- pull_direction (paper Eq. 21) ---------------------------------------------------------------------
+
 
 def test_pull_direction_penalises_controls_towards_the_object(ctx):
     # object 1 m along +x; actuators listed as (x, y) velocity although the channels are swapped
@@ -337,8 +373,9 @@ def test_pull_direction_penalises_controls_towards_the_object(ctx):
     assert term.channels == (1, 0)
     u_xy = [(1, 0), (-1, 0), (0, 1), (1, 1), (1, -1), (0, 0), (1e-9, 0)]
     controls = [[[uy, ux] for ux, uy in u_xy]]
-    b = batch_of({pos("robot"): [[[0, 0, 0.3]] * 7], pos("box"): [[[1, 0, 0.1]] * 7]},
-                 controls=controls)
+    b = batch_of(
+        {pos("robot"): [[[0, 0, 0.3]] * 7], pos("box"): [[[1, 0, 0.1]] * 7]}, controls=controls
+    )
     h = math.sqrt(0.5)
     close(term(b), [[1.0, 0.0, 0.0, h, h, 0.0, 1.0]])
 
@@ -346,8 +383,13 @@ def test_pull_direction_penalises_controls_towards_the_object(ctx):
 def test_pull_direction_within_counts_only_near_the_object(ctx):
     # driving straight at the object from 1.0, 0.5 and 0.4 m away; counted within 0.5 m only
     term = make(ctx, "pull_direction", a="robot", obj="box", actuators=["ux", "uy"], within=0.5)
-    b = batch_of({pos("robot"): [[[0, 0, 0.3], [0.5, 0, 0.3], [0.6, 0, 0.3]]],
-                  pos("box"): [[[1, 0, 0.1]] * 3]}, controls=[[[1, 0]] * 3])
+    b = batch_of(
+        {
+            pos("robot"): [[[0, 0, 0.3], [0.5, 0, 0.3], [0.6, 0, 0.3]]],
+            pos("box"): [[[1, 0, 0.1]] * 3],
+        },
+        controls=[[[1, 0]] * 3],
+    )
     close(term(b), [[0.0, 1.0, 1.0]])
     with pytest.raises(ConfigError, match=r"terms\[0\]\.within"):
         make(ctx, "pull_direction", a="robot", obj="box", actuators=["ux", "uy"], within=0)
@@ -364,12 +406,13 @@ def test_pull_direction_needs_one_actuator_per_axis(ctx):
 
 # --- dynamic_obstacle (paper Eq. 22) -------------------------------------------------------------------
 
+
 def test_dynamic_obstacle_uses_the_rollouts_obstacle_position_at_each_step(ctx):
     term = make(ctx, "dynamic_obstacle", a="robot", obstacle="mover")
     r, p = term.sensors()
     T = 4
-    moving = [[[1 + t, 0, 0] for t in range(T)]] * 2              # the rollout's predicted path
-    riding = [[1 + t, 0, 0] for t in range(T)]                   # exactly on it
+    moving = [[[1 + t, 0, 0] for t in range(T)]] * 2  # the rollout's predicted path
+    riding = [[1 + t, 0, 0] for t in range(T)]  # exactly on it
     waiting = [[0, 0, 0]] * T
     b = batch_of({r: [riding, waiting], p: moving})
     close(term(b), [[1.0] * T, [math.exp(-(1 + t)) for t in range(T)]])
@@ -389,26 +432,39 @@ def test_dynamic_obstacle_prediction_matches_a_real_rollout(model, ctx):
     mujoco.mj_getState(m, d, x0, mujoco.mjtState.mjSTATE_FULLPHYSICS)
     T = 5
     _, sd = mj_rollout.rollout(m, d, x0[None], np.zeros((1, T, m.nu)), nstep=T)
-    b = RolloutBatch(torch.as_tensor(sd), torch.zeros(1, T, m.nu, dtype=F64),
-                     SensorColumns.of_model(m, term.sensors()), m.opt.timestep)
+    b = RolloutBatch(
+        torch.as_tensor(sd),
+        torch.zeros(1, T, m.nu, dtype=F64),
+        SensorColumns.of_model(m, term.sensors()),
+        m.opt.timestep,
+    )
     gap = [math.hypot(-2 + 3 * t * m.opt.timestep, 2) for t in range(T)]
     torch.testing.assert_close(term(b), torch.tensor([[math.exp(-g) for g in gap]], dtype=F64))
 
 
 # --- reach (paper Eq. 27) ------------------------------------------------------------------------------
 
+
 def _reach_batch(term, z_ee: list) -> RolloutBatch:
     n = len(z_ee)
     ee, obj, zee, zobj = term.sensors()
-    return batch_of({ee: one_step(*[(0, 0, 0.3)] * n), obj: one_step(*[(0, 0, 0)] * n),
-                     zee: one_step(*z_ee), zobj: one_step(*[(0, 0, 1)] * n)})
+    return batch_of(
+        {
+            ee: one_step(*[(0, 0, 0.3)] * n),
+            obj: one_step(*[(0, 0, 0)] * n),
+            zee: one_step(*z_ee),
+            zobj: one_step(*[(0, 0, 1)] * n),
+        }
+    )
 
 
 def test_reach_is_distance_plus_tilt_residual(ctx):
     term = make(ctx, "reach", ee="site:left", obj="box", theta=-1.0)
     # gripper pointing down on the box (also unnormalised), horizontal, pointing up
-    close(term(_reach_batch(term, [(0, 0, -1), (0, 0, -2), (1, 0, 0), (0, 0, 1)])),
-          [[0.3], [0.3], [1.3], [2.3]])
+    close(
+        term(_reach_batch(term, [(0, 0, -1), (0, 0, -2), (1, 0, 0), (0, 0, 1)])),
+        [[0.3], [0.3], [1.3], [2.3]],
+    )
     weighted = make(ctx, "reach", ee="site:left", obj="box", theta=0, tilt_weight=2.0)
     close(weighted(_reach_batch(weighted, [(0, 0, -1), (1, 0, 0)])), [[2.3], [0.3]])
 
@@ -442,19 +498,24 @@ def test_reach_with_obj_axis_up_takes_a_tipped_box_by_its_new_top_face(model, ct
     for quat, tilt_up, tilt_eq27 in ([1, 0, 0, 0], 2.0, 2.0), ([h, h, 0, 0], 2.0, 1.0):
         state = set_qpos(2, [0, -0.5, 0.1, *quat])
         b_up, b_27 = sensed(model, ctx, term, state), sensed(model, ctx, eq27, state)
-        torch.testing.assert_close(term(b_up), torch.tensor([[math.hypot(0.5, 0.3) + tilt_up]], dtype=F64))
-        torch.testing.assert_close(eq27(b_27), torch.tensor([[math.hypot(0.5, 0.3) + tilt_eq27]], dtype=F64))
+        torch.testing.assert_close(
+            term(b_up), torch.tensor([[math.hypot(0.5, 0.3) + tilt_up]], dtype=F64)
+        )
+        torch.testing.assert_close(
+            eq27(b_27), torch.tensor([[math.hypot(0.5, 0.3) + tilt_eq27]], dtype=F64)
+        )
     with pytest.raises(ConfigError, match=r"terms\[0\]\.obj_axis.*one of: up, z"):
         make(ctx, "reach", ee="hand", obj="box", theta=-1.0, obj_axis="x")
 
 
 def test_top_axis_is_the_signed_axis_nearest_up():
     from planner_client.costs.geometry import top_axis
-    rot = torch.eye(3, dtype=F64)                       # rows: x, y, z axes in the world
+
+    rot = torch.eye(3, dtype=F64)  # rows: x, y, z axes in the world
     torch.testing.assert_close(top_axis(rot), torch.tensor([0.0, 0.0, 1.0], dtype=F64))
-    flipped = torch.tensor([[1.0, 0, 0], [0, 0, -1.0], [0, 1.0, 0]], dtype=F64)   # y points down
+    flipped = torch.tensor([[1.0, 0, 0], [0, 0, -1.0], [0, 1.0, 0]], dtype=F64)  # y points down
     torch.testing.assert_close(top_axis(flipped), torch.tensor([0.0, 0.0, 1.0], dtype=F64))
-    batch = torch.stack([rot, flipped])[:, None]        # [2, 1, 3, 3]
+    batch = torch.stack([rot, flipped])[:, None]  # [2, 1, 3, 3]
     assert top_axis(batch).shape == (2, 1, 3)
 
 
@@ -462,8 +523,12 @@ def test_tilt_is_the_residual_of_eq_27_alone(ctx):
     term = make(ctx, "tilt", ee="site:left", obj="box", theta=-1.0)
     zee, zobj = term.sensors()
     # pointing down (also unnormalised), horizontal, up; the box's z axis up
-    b = batch_of({zee: one_step((0, 0, -1), (0, 0, -3), (1, 0, 0), (0, 0, 1)),
-                  zobj: one_step(*[(0, 0, 1)] * 4)})
+    b = batch_of(
+        {
+            zee: one_step((0, 0, -1), (0, 0, -3), (1, 0, 0), (0, 0, 1)),
+            zobj: one_step(*[(0, 0, 1)] * 4),
+        }
+    )
     close(term(b), [[0.0], [0.0], [1.0], [2.0]])
     level = make(ctx, "tilt", ee="site:left", obj="box", theta=0.0)
     close(level(b), [[1.0], [1.0], [0.0], [1.0]])
@@ -473,8 +538,12 @@ def test_approach_cone_keeps_the_hand_above_the_object_until_over_it(ctx):
     term = make(ctx, "approach_cone", ee="site:left", obj="box", slope=1.0, height=0.05)
     pee, pobj = term.sensors()
     # far and level with the box; far, 5 cm above; 2 cm off, 1 cm above; right over, at its centre
-    b = batch_of({pee: one_step((0.3, 0, 1.0), (0.3, 0, 1.05), (0.02, 0, 1.01), (0, 0, 1.0)),
-                  pobj: one_step(*[(0, 0, 1.0)] * 4)})
+    b = batch_of(
+        {
+            pee: one_step((0.3, 0, 1.0), (0.3, 0, 1.05), (0.02, 0, 1.01), (0, 0, 1.0)),
+            pobj: one_step(*[(0, 0, 1.0)] * 4),
+        }
+    )
     close(term(b), [[0.05], [0.0], [0.01], [0.0]])
     steep = make(ctx, "approach_cone", ee="site:left", obj="box", slope=2.0, height=0.05)
     close(steep(b), [[0.05], [0.0], [0.03], [0.0]])
@@ -499,9 +568,14 @@ def test_reach_theta_must_be_a_cosine(ctx):
 
 # --- gripper_width (paper Eqs. 28, 30) -----------------------------------------------------------------
 
+
 def test_gripper_width_closed_open_and_value(ctx):
-    b = batch_of({pos("site:left"): one_step((0, 0.03, 1), (0, 0, 1)),
-                  pos("site:right"): one_step((0, -0.03, 1), (0, 0, 1))})
+    b = batch_of(
+        {
+            pos("site:left"): one_step((0, 0.03, 1), (0, 0, 1)),
+            pos("site:right"): one_step((0, -0.03, 1), (0, 0, 1)),
+        }
+    )
     pair = dict(left="site:left", right="site:right")
     close(make(ctx, "gripper_width", target="closed", **pair)(b), [[0.06], [0.0]])
     close(make(ctx, "gripper_width", target="open", **pair)(b), [[0.94], [1.0]])
@@ -510,8 +584,9 @@ def test_gripper_width_closed_open_and_value(ctx):
 
 def test_gripper_width_reads_real_sites(model, ctx):
     term = make(ctx, "gripper_width", left="site:left", right="site:right", target="closed")
-    torch.testing.assert_close(term(sensed(model, ctx, term, lambda d: None)),
-                               torch.tensor([[0.06]], dtype=F64))
+    torch.testing.assert_close(
+        term(sensed(model, ctx, term, lambda d: None)), torch.tensor([[0.06]], dtype=F64)
+    )
 
 
 def test_gripper_width_needs_exactly_one_target(ctx):
@@ -524,6 +599,7 @@ def test_gripper_width_needs_exactly_one_target(ctx):
 
 
 # --- joint_limits, posture -----------------------------------------------------------------------
+
 
 def joint(name: str) -> SensorRequest:
     return SensorRequest("jointpos", name)
@@ -542,13 +618,16 @@ def test_joint_limits_reads_the_real_joint(model, ctx):
 
 
 def test_joint_limits_refuses_unknown_unlimited_or_no_joints(ctx):
-    with pytest.raises(ConfigError, match=r"terms\[0\]\.joints: not a joint of the robot "
-                                          r"\(got 'z'; expected one of: x, y\)"):
+    with pytest.raises(
+        ConfigError,
+        match=r"terms\[0\]\.joints: not a joint of the robot "
+        r"\(got 'z'; expected one of: x, y\)",
+    ):
         make(ctx, "joint_limits", joints=["z"])
     with pytest.raises(ConfigError, match=r"joint has no range in the model \(got 'x'"):
         make(ctx, "joint_limits", joints=["x"])
     with pytest.raises(ConfigError, match=r"no joints to cost: the robot has no limited hinge"):
-        make(ctx, "joint_limits")                    # the base has slides only
+        make(ctx, "joint_limits")  # the base has slides only
 
 
 def test_posture_is_the_squared_distance_to_the_start_pose_or_a_target(ctx):
@@ -594,8 +673,9 @@ def test_all_terms_together_compile_and_give_finite_costs_at_rest(model, ctx):
     d = mujoco.MjData(m)
     mujoco.mj_forward(m, d)
     sd = torch.as_tensor(np.tile(d.sensordata, (3, 4, 1)))
-    b = RolloutBatch(sd, torch.zeros(3, 4, m.nu, dtype=F64), SensorColumns.of_model(m, requests),
-                     0.01)
+    b = RolloutBatch(
+        sd, torch.zeros(3, 4, m.nu, dtype=F64), SensorColumns.of_model(m, requests), 0.01
+    )
     for term in terms:
         cost = term(b)
         assert cost.shape == (3, 4) and torch.isfinite(cost).all(), term.name
@@ -603,21 +683,37 @@ def test_all_terms_together_compile_and_give_finite_costs_at_rest(model, ctx):
 
 # --- objectives: weights, when, YAML errors ------------------------------------------------------
 
+
 def _objective(ctx, *terms: dict):
     cfgs = []
     for i, t in enumerate(terms):
         params = {k: v for k, v in t.items() if k not in ("term", "weight")}
-        cfgs.append(TermConfig(term=t["term"], weight=t.get("weight", 1.0), params=params,
-                               path=f"objectives.push.terms[{i}]"))
+        cfgs.append(
+            TermConfig(
+                term=t["term"],
+                weight=t.get("weight", 1.0),
+                params=params,
+                path=f"objectives.push.terms[{i}]",
+            )
+        )
     return build_objective("push", ObjectiveConfig(terms=tuple(cfgs)), ctx)
 
 
 def test_objective_weights_and_running_terminal_masks(ctx):
     dist = {"term": "distance", "a": "robot", "b": "goal"}
-    obj = _objective(ctx, {**dist, "weight": 2.0}, {**dist, "weight": 10.0, "when": "terminal"},
-                     {"term": "velocity", "a": "robot", "when": "running"})
-    b = batch_of({pos("robot"): [[[0, 0, 0]] * 3], pos("goal"): [[[3, 4, 0]] * 3],
-                  SensorRequest("framelinvel", "robot"): [[[1, 0, 0]] * 3]})
+    obj = _objective(
+        ctx,
+        {**dist, "weight": 2.0},
+        {**dist, "weight": 10.0, "when": "terminal"},
+        {"term": "velocity", "a": "robot", "when": "running"},
+    )
+    b = batch_of(
+        {
+            pos("robot"): [[[0, 0, 0]] * 3],
+            pos("goal"): [[[3, 4, 0]] * 3],
+            SensorRequest("framelinvel", "robot"): [[[1, 0, 0]] * 3],
+        }
+    )
     close(obj(b), [[11.0, 11.0, 60.0]])
 
 
@@ -641,11 +737,18 @@ def test_an_objective_of_norms_costs_what_its_terms_sum_to(ctx):
     obj = _objective(
         ctx,
         {"term": "distance", "a": "robot", "b": "goal", "axes": "xy", "weight": 1.5},
-        {"term": "distance", "a": "robot", "b": "goal", "axes": "xy", "weight": 4.0,
-         "when": "terminal"},
+        {
+            "term": "distance",
+            "a": "robot",
+            "b": "goal",
+            "axes": "xy",
+            "weight": 4.0,
+            "when": "terminal",
+        },
         {"term": "distance", "a": "hand", "b": "box", "offset": [0.1, -0.2, 0.3], "weight": 2.0},
         {"term": "velocity", "a": "robot", "axes": "z", "when": "running", "weight": 0.3},
-        {"term": "contact_force", "a": "robot", "weight": 0.05})
+        {"term": "contact_force", "a": "robot", "weight": 0.05},
+    )
     assert fusable([wt.term for wt in obj.terms])
     for seed in range(3):
         batch = _random_batch(obj, seed=seed)
@@ -657,10 +760,13 @@ def test_an_objective_of_norms_costs_what_its_terms_sum_to(ctx):
 
 
 def test_an_objectives_norm_terms_are_fused_beside_its_other_terms(ctx):
-    obj = _objective(ctx, {"term": "distance", "a": "robot", "b": "goal", "weight": 2.0},
-                     {"term": "collision", "a": "robot", "weight": 3.0},
-                     {"term": "contact_force", "a": "robot", "weight": 0.1, "when": "running"},
-                     {"term": "orientation", "a": "base", "b": "box"})
+    obj = _objective(
+        ctx,
+        {"term": "distance", "a": "robot", "b": "goal", "weight": 2.0},
+        {"term": "collision", "a": "robot", "weight": 3.0},
+        {"term": "contact_force", "a": "robot", "weight": 0.1, "when": "running"},
+        {"term": "orientation", "a": "base", "b": "box"},
+    )
     assert not fusable([wt.term for wt in obj.terms])
     fused, rest = obj._split(_random_batch(obj))
     assert fused is not None and [term.name for term, _ in rest] == ["collision", "orientation"]
@@ -671,31 +777,47 @@ def test_an_objectives_norm_terms_are_fused_beside_its_other_terms(ctx):
 
 def test_one_norm_term_beside_others_is_evaluated_on_its_own(ctx):
     """Fusing a single norm would take as many operations as the term itself."""
-    obj = _objective(ctx, {"term": "distance", "a": "robot", "b": "goal"},
-                     {"term": "collision", "a": "robot"})
+    obj = _objective(
+        ctx, {"term": "distance", "a": "robot", "b": "goal"}, {"term": "collision", "a": "robot"}
+    )
     batch = _random_batch(obj)
     fused, rest = obj._split(batch)
     assert fused is None and [term.name for term, _ in rest] == ["distance", "collision"]
     torch.testing.assert_close(obj(batch), obj(batch, {}), rtol=0.0, atol=0.0)
 
 
-@pytest.mark.parametrize("term, message", [
-    ({"term": "push_allign", "a": "robot"},
-     r"test\.yaml: objectives\.push\.terms\[1\]\.term: unknown cost term \(got 'push_allign'; "
-     r"expected one of: .*push_align"),
-    ({"term": "push_align", "a": "robot", "obj": "box", "goal": "goal", "gaol": "goal"},
-     r"test\.yaml: objectives\.push\.terms\[1\]\.gaol: unknown key \(expected one of: .*goal"),
-    ({"term": "push_align", "a": "robot", "obj": "crate", "goal": "goal"},
-     r"test\.yaml: objectives\.push\.terms\[1\]\.obj: no body named 'crate'.*expected one of: "
-     r"robot, base, bumper, hand, wall, .*site:left"),
-    ({"term": "orientation", "a": "box", "b": "site:tip"},
-     r"test\.yaml: objectives\.push\.terms\[1\]\.b: no site named 'tip'"),
-    ({"term": "distance", "a": "robot", "b": "goal", "when": "final"},
-     r"test\.yaml: objectives\.push\.terms\[1\]\.when: must be one of: all, running, terminal "
-     r"\(got 'final'\)"),
-    ({"term": "gripper_width", "left": "site:left", "right": "site:right", "value": -0.1},
-     r"test\.yaml: objectives\.push\.terms\[1\]\.value: must be >= 0"),
-])
+@pytest.mark.parametrize(
+    "term, message",
+    [
+        (
+            {"term": "push_allign", "a": "robot"},
+            r"test\.yaml: objectives\.push\.terms\[1\]\.term: unknown cost term \(got 'push_allign'; "
+            r"expected one of: .*push_align",
+        ),
+        (
+            {"term": "push_align", "a": "robot", "obj": "box", "goal": "goal", "gaol": "goal"},
+            r"test\.yaml: objectives\.push\.terms\[1\]\.gaol: unknown key \(expected one of: .*goal",
+        ),
+        (
+            {"term": "push_align", "a": "robot", "obj": "crate", "goal": "goal"},
+            r"test\.yaml: objectives\.push\.terms\[1\]\.obj: no body named 'crate'.*expected one of: "
+            r"robot, base, bumper, hand, wall, .*site:left",
+        ),
+        (
+            {"term": "orientation", "a": "box", "b": "site:tip"},
+            r"test\.yaml: objectives\.push\.terms\[1\]\.b: no site named 'tip'",
+        ),
+        (
+            {"term": "distance", "a": "robot", "b": "goal", "when": "final"},
+            r"test\.yaml: objectives\.push\.terms\[1\]\.when: must be one of: all, running, terminal "
+            r"\(got 'final'\)",
+        ),
+        (
+            {"term": "gripper_width", "left": "site:left", "right": "site:right", "value": -0.1},
+            r"test\.yaml: objectives\.push\.terms\[1\]\.value: must be >= 0",
+        ),
+    ],
+)
 def test_yaml_errors_name_the_key_path(ctx, term, message):
     with pytest.raises(ConfigError, match=message):
         _objective(ctx, {"term": "distance", "a": "robot", "b": "goal"}, term)

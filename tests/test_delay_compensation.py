@@ -10,17 +10,17 @@ import numpy as np
 import pytest
 import yaml
 
+from planner_client.timing import predict
+from server.faults import FaultyWorld
+from server.world import SimWorld
 from shared.config import ConfigError
 from shared.faults import FaultConfig
 from shared.scenario import DelayConfig, load_scenario
 from shared.scene import compile_model
 from shared.timed_plan import PlanPlayer, TimedPlan
-from server.faults import FaultyWorld
-from server.world import SimWorld
-from planner_client.timing import predict
 
-ACTUATION_MS, STATE_MS = 60.0, 30.0        # 6 and 3 steps of the Panda's 0.01 s
-TOLERANCE = 1e-6                            # rad or m: the same model stepped the same way
+ACTUATION_MS, STATE_MS = 60.0, 30.0  # 6 and 3 steps of the Panda's 0.01 s
+TOLERANCE = 1e-6  # rad or m: the same model stepped the same way
 
 
 def _plans(nu: int) -> list[TimedPlan]:
@@ -58,8 +58,9 @@ def test_the_compensated_prediction_is_the_worlds_state_when_the_plan_acts():
     sent, each acting 60 ms after the world plays it, is the true state at 0.36 s; planning
     from the received state as if it were now is off by centimetres."""
     sc = load_scenario("pick_place")
-    world = FaultyWorld(SimWorld(sc, 0), FaultConfig(actuation_delay_ms=ACTUATION_MS,
-                                                        state_delay_ms=STATE_MS))
+    world = FaultyWorld(
+        SimWorld(sc, 0), FaultConfig(actuation_delay_ms=ACTUATION_MS, state_delay_ms=STATE_MS)
+    )
     model = compile_model(sc)
     dt = model.opt.timestep
     plans = _plans(model.nu)
@@ -87,6 +88,7 @@ def test_the_compensated_prediction_is_the_worlds_state_when_the_plan_acts():
 
 def test_delays_are_read_and_checked_with_file_key_and_expectation(tmp_path):
     from shared.config_files import shipped
+
     raw = yaml.safe_load((shipped("scenarios") / "navigation.yaml").read_text())
     raw["planner"]["delays"] = {"actuation_ms": 40, "state_ms": 25.5}
     good = tmp_path / "good.yaml"
@@ -94,8 +96,10 @@ def test_delays_are_read_and_checked_with_file_key_and_expectation(tmp_path):
     assert load_scenario(str(good)).planner.delays == DelayConfig(40.0, 25.5)
     assert load_scenario("navigation").planner.delays == DelayConfig()
     assert not DelayConfig().active and DelayConfig(state_ms=1).active
-    for delays, key in [({"actuation_ms": -5}, "planner.delays.actuation_ms"),
-                        ({"actuation": 5}, "planner.delays.actuation")]:
+    for delays, key in [
+        ({"actuation_ms": -5}, "planner.delays.actuation_ms"),
+        ({"actuation": 5}, "planner.delays.actuation"),
+    ]:
         raw["planner"]["delays"] = delays
         bad = tmp_path / "bad.yaml"
         bad.write_text(yaml.safe_dump(raw))
@@ -106,10 +110,13 @@ def test_delays_are_read_and_checked_with_file_key_and_expectation(tmp_path):
 
 def test_compensate_declares_the_faults_delays_to_the_planner_only(tmp_path):
     from typer.testing import CliRunner
+
     from shared.tools.cli import app
     from shared.tools.launch import EpisodeLaunch
-    launch = EpisodeLaunch(scenario="navigation.yaml", run_dir=tmp_path, faults="lab",
-                           delays=(25.0, 25.0))
+
+    launch = EpisodeLaunch(
+        scenario="navigation.yaml", run_dir=tmp_path, faults="lab", delays=(25.0, 25.0)
+    )
     cmds = launch.commands(5000)
     assert cmds["planner"][-4:] == ["--actuation-delay-ms", "25.0", "--state-delay-ms", "25.0"]
     assert "--actuation-delay-ms" not in cmds["server"]
@@ -119,6 +126,7 @@ def test_compensate_declares_the_faults_delays_to_the_planner_only(tmp_path):
 
 def test_the_planner_command_line_overrides_the_scenarios_delays():
     from planner_client.cli import with_delays
+
     sc = with_delays(load_scenario("navigation"), 80.0, None)
     assert sc.planner.delays == DelayConfig(actuation_ms=80.0, state_ms=0.0)
     assert with_delays(sc, None, 10.0).planner.delays == DelayConfig(80.0, 10.0)
@@ -132,37 +140,59 @@ def test_compensation_makes_up_most_of_what_a_300_ms_round_trip_costs(tmp_path):
     against 7.95 s, and 2.98 s without delays)."""
     from shared.config_files import shipped
     from shared.tools.launch import EpisodeLaunch, run_episode
+
     faults = tmp_path / "delays.yaml"
     faults.write_text("actuation_delay_ms: 200\nstate_delay_ms: 100\n")
     times = {}
     for delays in (None, (200.0, 100.0)):
-        run = run_episode(EpisodeLaunch(scenario=str(shipped("scenarios") / "navigation.yaml"),
-                                        run_dir=tmp_path / str(delays), faults=str(faults),
-                                        delays=delays, timeout=300))
+        run = run_episode(
+            EpisodeLaunch(
+                scenario=str(shipped("scenarios") / "navigation.yaml"),
+                run_dir=tmp_path / str(delays),
+                faults=str(faults),
+                delays=delays,
+                timeout=300,
+            )
+        )
         assert run.summary is not None and run.summary["status"] == "success", run.reason
         times[delays] = run.summary["time"]
     assert times[(200.0, 100.0)] < 0.7 * times[None]
 
 
-@pytest.mark.parametrize("mode, dated, acts", [
-    ("lockstep", 2, 2 + 3),       # state delay (2 steps) to the plan's date, actuation (3) beyond
-    ("realtime", 4, 4 + 3)])      # the lead (a 0.2 s lag) already holds the state delay
-def test_the_plan_is_dated_when_it_reaches_the_world_and_planned_for_when_it_acts(mode, dated, acts):
-    from shared import protocol as P
+@pytest.mark.parametrize(
+    "mode, dated, acts",
+    [
+        ("lockstep", 2, 2 + 3),  # state delay (2 steps) to the plan's date, actuation (3) beyond
+        ("realtime", 4, 4 + 3),
+    ],
+)  # the lead (a 0.2 s lag) already holds the state delay
+def test_the_plan_is_dated_when_it_reaches_the_world_and_planned_for_when_it_acts(
+    mode, dated, acts
+):
     from planner_client.build import build_motion_planner
     from planner_client.controller import Controller
     from planner_client.task import FixedModes
-    nav = load_scenario("navigation")                       # world steps of 0.05 s
+    from shared import protocol as P
+
+    nav = load_scenario("navigation")  # world steps of 0.05 s
     planner = build_motion_planner(nav, threads=1)
-    controller = Controller(planner, FixedModes(("navigate",)),
-                            delays=DelayConfig(actuation_ms=150.0, state_ms=100.0))
+    controller = Controller(
+        planner, FixedModes(("navigate",)), delays=DelayConfig(actuation_ms=150.0, state_ms=100.0)
+    )
     try:
         model = planner.problem.model
-        controller.begin(mode, 0.05)      # real time: a lead estimate, from the lag observed
-        state = P.State(session="s", seq=7, time=1.0, qpos=np.zeros(model.nq),
-                        qvel=np.zeros(model.nv), act=np.zeros(model.na),
-                        mocap_pos=np.zeros((model.nmocap, 3)),
-                        mocap_quat=np.tile([1.0, 0, 0, 0], (model.nmocap, 1)), lag=0.2)
+        controller.begin(mode, 0.05)  # real time: a lead estimate, from the lag observed
+        state = P.State(
+            session="s",
+            seq=7,
+            time=1.0,
+            qpos=np.zeros(model.nq),
+            qvel=np.zeros(model.nv),
+            act=np.zeros(model.na),
+            mocap_pos=np.zeros((model.nmocap, 3)),
+            mocap_quat=np.tile([1.0, 0, 0, 0], (model.nmocap, 1)),
+            lag=0.2,
+        )
         x0 = controller.mirror.apply(state)
         start, _, _ = controller._plan_start(state, x0)
         assert start == pytest.approx(1.0 + 0.05 * dated)

@@ -7,13 +7,13 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from planner_client.delay_estimate import ActuationDelayEstimate
+from server.faults import FaultyWorld
+from server.world import SimWorld
 from shared.faults import FaultConfig
 from shared.scenario import load_scenario
 from shared.scene import compile_model
 from shared.timed_plan import PlanPlayer, TimedPlan
-from server.faults import FaultyWorld
-from server.world import SimWorld
-from planner_client.delay_estimate import ActuationDelayEstimate
 
 
 def _drive(scenario: str, actuation_ms: float, speed: float, states: int = 60):
@@ -40,16 +40,20 @@ def _drive(scenario: str, actuation_ms: float, speed: float, states: int = 60):
 
 def _mirror(model, state):
     import mujoco
+
     data = mujoco.MjData(model)
     data.qpos[:], data.qvel[:], data.time = state.qpos, state.qvel, state.time
     return data
 
 
-@pytest.mark.parametrize("scenario, actuation_ms, steps", [
-    ("navigation", 150.0, 3),        # world steps of 50 ms
-    ("navigation", 0.0, 0),
-    ("pick_place", 25.0, 3),         # 10 ms: the lab profile's 25 ms, rounded up as the world does
-])
+@pytest.mark.parametrize(
+    "scenario, actuation_ms, steps",
+    [
+        ("navigation", 150.0, 3),  # world steps of 50 ms
+        ("navigation", 0.0, 0),
+        ("pick_place", 25.0, 3),  # 10 ms: the lab profile's 25 ms, rounded up as the world does
+    ],
+)
 def test_the_actuation_delay_is_found_from_the_robots_response(scenario, actuation_ms, steps):
     estimate = _drive(scenario, actuation_ms, speed=1.0)
     assert estimate.steps() == steps, estimate.errors
@@ -67,10 +71,12 @@ def test_no_answer_before_enough_states():
 
 def test_delays_estimate_is_read_checked_and_switched_on_by_the_command_line(tmp_path):
     import yaml
+
+    from planner_client.cli import with_delays
     from shared.config import ConfigError
     from shared.config_files import shipped
     from shared.tools.launch import EpisodeLaunch
-    from planner_client.cli import with_delays
+
     raw = yaml.safe_load((shipped("scenarios") / "navigation.yaml").read_text())
     raw["planner"]["delays"] = {"estimate": "yes"}
     bad = tmp_path / "bad.yaml"
@@ -90,23 +96,32 @@ def test_estimated_delays_do_what_declared_ones_do(tmp_path):
     3.25 s; 7.95 s unaware), and says what it found."""
     from shared.config_files import shipped
     from shared.tools.launch import EpisodeLaunch, run_episode
+
     faults = tmp_path / "delays.yaml"
     faults.write_text("actuation_delay_ms: 200\nstate_delay_ms: 100\n")
-    run = run_episode(EpisodeLaunch(scenario=str(shipped("scenarios") / "navigation.yaml"),
-                                    run_dir=tmp_path / "estimated", faults=str(faults),
-                                    estimate_delays=True, timeout=300))
+    run = run_episode(
+        EpisodeLaunch(
+            scenario=str(shipped("scenarios") / "navigation.yaml"),
+            run_dir=tmp_path / "estimated",
+            faults=str(faults),
+            estimate_delays=True,
+            timeout=300,
+        )
+    )
     assert run.summary is not None and run.summary["status"] == "success", run.reason
     assert run.summary["time"] < 0.7 * 7.95
     log = (tmp_path / "estimated" / "planner.log").read_text()
     assert "actuation delay estimated at 4 world steps (200 ms)" in log
-    assert "state delay measured at 2 world steps (100 ms)" in log      # state.lag, lock-step
+    assert "state delay measured at 2 world steps (100 ms)" in log  # state.lag, lock-step
 
 
 def test_the_scored_prediction_starts_from_the_whole_state_welds_and_mocap_included():
     # the weld of a carried cube (eq_active) and the fixed objects' poses (mocap) are state too:
     # without them the candidates were scored on a world with the cube unwelded, the table home
     import mujoco
+
     from planner_client.problem import build_problem
+
     sc = load_scenario("pick_place")
     model = build_problem(sc).model
     assert model.neq and model.nmocap
@@ -120,6 +135,7 @@ def test_the_scored_prediction_starts_from_the_whole_state_welds_and_mocap_inclu
 
     def spy(m, d, *args, **kwargs):
         seen.append((d.eq_active.copy(), d.mocap_pos.copy()))
+
     estimate.observe(data, [], np.zeros(model.nu))
     data.time += model.opt.timestep
     orig, D.predict = D.predict, spy
@@ -137,6 +153,7 @@ def test_a_planner_slower_than_three_world_steps_is_still_scored(caplog):
     # states 5 world steps apart (a planner that slow sees no state between): the gate was
     # 1..3 steps, so the estimate never answered and said nothing
     import mujoco
+
     sc = load_scenario("navigation")
     model = compile_model(sc)
     dt = model.opt.timestep
@@ -146,7 +163,7 @@ def test_a_planner_slower_than_three_world_steps_is_still_scored(caplog):
         data.time = 5 * k * dt
         estimate.observe(data, [], np.zeros(model.nu))
     assert estimate.observed == 2
-    data.time += 100 * dt                    # a gap longer than any candidate: not scored, said
+    data.time += 100 * dt  # a gap longer than any candidate: not scored, said
     with caplog.at_level("WARNING", logger="m3p2i.planner"):
         estimate.observe(data, [], np.zeros(model.nu))
     assert estimate.observed == 2

@@ -37,15 +37,20 @@ def test_each_generated_table_has_one_home():
             path = (doc.parent / source).resolve()
             assert path.is_file(), f"{doc.relative_to(ROOT)}: block source {source} is not a file"
             homes.setdefault(path, set()).add(doc)
-    shared = {str(p.relative_to(ROOT)): sorted(str(d.relative_to(ROOT)) for d in docs)
-              for p, docs in homes.items() if len(docs) > 1}
+    shared = {
+        str(p.relative_to(ROOT)): sorted(str(d.relative_to(ROOT)) for d in docs)
+        for p, docs in homes.items()
+        if len(docs) > 1
+    }
     assert not shared, f"results files feeding blocks in more than one file: {shared}"
     assert homes, "no generated block found"
 
 
 def test_block_sources_are_collected_from_every_kind_of_block():
-    text = ("<!-- m3p2i report a.csv b.csv -->\n<!-- end of report -->\n<!-- m3p2i grid c.csv -->\n"
-            "<!-- soak d.json -->\n<!-- benchmark e.json -->\n`<!-- m3p2i report PATH... -->`\n")
+    text = (
+        "<!-- m3p2i report a.csv b.csv -->\n<!-- end of report -->\n<!-- m3p2i grid c.csv -->\n"
+        "<!-- soak d.json -->\n<!-- benchmark e.json -->\n`<!-- m3p2i report PATH... -->`\n"
+    )
     assert block_sources(text) == ["a.csv", "b.csv", "c.csv", "d.json", "e.json"]
 
 
@@ -65,7 +70,7 @@ def broken_links(doc: Path) -> list[str]:
     bad = []
     for m in LINK.finditer(text):
         target = m["target"]
-        if re.match(r"[a-z]+:", target):               # http(s), mailto: not checked offline
+        if re.match(r"[a-z]+:", target):  # http(s), mailto: not checked offline
             continue
         file, _, anchor = target.partition("#")
         path = (doc.parent / file).resolve() if file else doc

@@ -14,7 +14,14 @@ from server.episode_log import read_log
 from shared import protocol as P
 from shared.endpoints import Endpoints
 from shared.scenario import SCENARIO_DIR
-from tests.helpers import StateWatcher, free_port_block, start_planner, start_server, stop, wait_until
+from tests.helpers import (
+    StateWatcher,
+    free_port_block,
+    start_planner,
+    start_server,
+    stop,
+    wait_until,
+)
 
 pytestmark = pytest.mark.slow
 
@@ -86,11 +93,12 @@ def test_killed_planner_leaves_the_robot_held_still(tmp_path):
     planner = start_planner("navigation", port)
     watcher = StateWatcher(port)
     try:
-        assert wait_until(lambda: np.abs(watcher.latest().qvel).max() > 0.3, timeout=60), \
+        assert wait_until(lambda: np.abs(watcher.latest().qvel).max() > 0.3, timeout=60), (
             "the robot never started moving"
+        )
         planner.kill()
         planner.wait()
-        time.sleep(0.8)                      # > command timeout + velocity servo settling
+        time.sleep(0.8)  # > command timeout + velocity servo settling
         a = watcher.latest()
         time.sleep(0.5)
         b = watcher.latest()
@@ -130,8 +138,9 @@ def test_world_survives_garbage_and_logs_the_rejections(tmp_path):
         reply = P.decode(req.recv())
         assert isinstance(reply, P.Error) and "scenario mismatch" in reply.reason
         assert server.poll() is None, "the world crashed"
-        assert wait_until(lambda: sum(r.get("what") == "rejected" for r in read_log(log)) >= 4,
-                          timeout=10), "bad commands were not all logged as rejected"
+        assert wait_until(
+            lambda: sum(r.get("what") == "rejected" for r in read_log(log)) >= 4, timeout=10
+        ), "bad commands were not all logged as rejected"
         assert server.poll() is None, "the world crashed"
         req.send(P.encode(P.Control(op="shutdown")))
         assert req.poll(5000)
@@ -155,7 +164,7 @@ def test_planner_outlives_a_server_restart(tmp_path):
     watcher = StateWatcher(port)
     try:
         assert wait_until(lambda: watcher.latest().seq > 10, timeout=60), "no progress"
-        first.kill()                                  # the world dies mid-episode
+        first.kill()  # the world dies mid-episode
         first.wait()
         time.sleep(1.0)
         assert planner.poll() is None, "the planner died with the server"
@@ -174,6 +183,7 @@ def test_planner_outlives_a_server_restart(tmp_path):
 
 def test_ctrl_c_keeps_the_episode_log(tmp_path):
     import signal
+
     port = free_port_block()
     log = tmp_path / "episode.jsonl"
     server = start_server("navigation", port, log, "--mode", "realtime")
@@ -195,6 +205,7 @@ def test_ctrl_c_keeps_the_episode_log(tmp_path):
 
 def test_protocol_version_mismatch_is_refused(tmp_path):
     import msgpack
+
     port = free_port_block()
     server = start_server("navigation", port, tmp_path / "log.jsonl")
     ctx = zmq.Context()
@@ -202,8 +213,11 @@ def test_protocol_version_mismatch_is_refused(tmp_path):
     req.setsockopt(zmq.LINGER, 0)
     req.connect(Endpoints(port=port).control)
     try:
-        req.send(msgpack.packb({"type": "hello", "v": 99, "scenario": "navigation",
-                                "scenario_hash": "x"}))
+        req.send(
+            msgpack.packb(
+                {"type": "hello", "v": 99, "scenario": "navigation", "scenario_hash": "x"}
+            )
+        )
         assert req.poll(30000)
         reply = P.decode(req.recv())
         assert isinstance(reply, P.Error) and "protocol version 99 not supported" in reply.reason

@@ -8,15 +8,22 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from planner_client.cli import with_delays
 from server.app import ServerOptions, WorldServer
 from shared import protocol as P
 from shared.endpoints import Endpoints
 from shared.evaluation.episode import read_log
 from shared.scenario import load_scenario
 from shared.tools.inprocess import build_episode, run_episode
-from planner_client.cli import with_delays
-from tests.helpers import StateWatcher, free_port_block, start_planner, start_server, stop, \
-    wait_episode, wait_until
+from tests.helpers import (
+    StateWatcher,
+    free_port_block,
+    start_planner,
+    start_server,
+    stop,
+    wait_episode,
+    wait_until,
+)
 from tests.test_view_control import _ask
 
 
@@ -45,8 +52,9 @@ def test_a_reset_while_carrying_is_followed_by_a_whole_successful_episode(tmp_pa
     planner = start_planner("pick_place", port, "--seed", "0")
     watcher = StateWatcher(port)
     try:
-        assert wait_until(lambda: _carrying(log), timeout=300, period=0.2), \
+        assert wait_until(lambda: _carrying(log), timeout=300, period=0.2), (
             "the robot never carried the cube"
+        )
         watcher.control(port, "reset")
         out = wait_episode(server, planner, timeout=600)
         planner.communicate(timeout=60)
@@ -60,10 +68,10 @@ def test_a_reset_while_carrying_is_followed_by_a_whole_successful_episode(tmp_pa
     steps = _steps(records)
     before = [s for s in steps if s["wall"] < reset["wall"]]
     after = [s for s in steps if s["wall"] > reset["wall"]]
-    assert before[-1]["time"] >= 2.0 and after[0]["time"] < 0.05   # the world restarted
+    assert before[-1]["time"] >= 2.0 and after[0]["time"] < 0.05  # the world restarted
     assert reset["time"] == pytest.approx(before[-1]["time"])
     assert summary["resets"] == 1
-    assert after[-1]["time"] < 10.0                       # the restarted part, not a time-out
+    assert after[-1]["time"] < 10.0  # the restarted part, not a time-out
 
 
 def _command(episode, ctrl, t0: float | None = None, knots: int = 20) -> P.Command:
@@ -71,8 +79,14 @@ def _command(episode, ctrl, t0: float | None = None, knots: int = 20) -> P.Comma
     a plan dated ``t0`` (None: the state's time, what a lock-step planner sends)."""
     ctrl = np.asarray(ctrl, float)
     t0 = episode.world.time if t0 is None else t0
-    return P.Command(session=episode.session, seq=episode.seq, ctrl=ctrl,
-                     plan_ctrl=np.tile(ctrl, (knots, 1)), plan_t0=t0, plan_dt=episode.dt)
+    return P.Command(
+        session=episode.session,
+        seq=episode.seq,
+        ctrl=ctrl,
+        plan_ctrl=np.tile(ctrl, (knots, 1)),
+        plan_t0=t0,
+        plan_dt=episode.dt,
+    )
 
 
 def test_the_summarys_steps_count_world_steps_not_control_ops(tmp_path):
@@ -103,10 +117,10 @@ def test_lockstep_plays_the_previous_plan_until_a_plan_dated_ahead_starts(tmp_pa
     a, b = np.array([0.1, -0.1]), np.array([-0.1, 0.1])
     try:
         episode.publish()
-        episode.play(_command(episode, a))                      # state 0: a, from now on
+        episode.play(_command(episode, a))  # state 0: a, from now on
         first = episode.seq - 1
         episode.publish()
-        ahead = _command(episode, b, t0=episode.world.time + 2 * dt)   # state 1: b, 2 steps on
+        ahead = _command(episode, b, t0=episode.world.time + 2 * dt)  # state 1: b, 2 steps on
         episode.play(ahead, steps=4)
         episode.finish()
     finally:
@@ -128,8 +142,8 @@ def test_lockstep_with_a_planner_declaring_a_state_delay_moves_the_robot(tmp_pat
     result = run_episode(sc, seed=0, log_path=tmp_path / "e.jsonl", max_steps=30, threads=1)
     steps = _steps(read_log(result.log_path))
     assert len(steps) == 30
-    assert all(s["safe"] for s in steps[:ahead])           # before the first plan's date
-    assert not any(s["safe"] for s in steps[ahead:])       # then always a plan, 3 states old
+    assert all(s["safe"] for s in steps[:ahead])  # before the first plan's date
+    assert not any(s["safe"] for s in steps[ahead:])  # then always a plan, 3 states old
     assert all(s["plan_seq"] == s["seq"] - 1 - ahead for s in steps[ahead:])
     start, end = np.array(steps[0]["qpos"][:2]), np.array(steps[-1]["qpos"][:2])
     assert np.linalg.norm(end - start) > 0.1
@@ -138,15 +152,20 @@ def test_lockstep_with_a_planner_declaring_a_state_delay_moves_the_robot(tmp_pat
 def test_a_kept_world_never_overwrites_the_log_of_a_seed_it_served(tmp_path):
     """``--keep-serving``: a reset to a seed already served begins an episode whose log has a
     path of its own; the finished episode's log keeps its steps and summary."""
-    server = WorldServer(load_scenario("navigation"), Endpoints(port=free_port_block()),
-                         tmp_path / "seed-{seed}.jsonl", ServerOptions(keep_serving=True), seed=3)
+    server = WorldServer(
+        load_scenario("navigation"),
+        Endpoints(port=free_port_block()),
+        tmp_path / "seed-{seed}.jsonl",
+        ServerOptions(keep_serving=True),
+        seed=3,
+    )
     try:
         server.episode.apply(None)
         first = server.log.path
         paths = [first]
         for _ in range(2):
             assert isinstance(_ask(server, P.Control(op="reset", seed=3)), P.Control)
-            server._serve_episode()                   # as run() does: this episode ends ...
+            server._serve_episode()  # as run() does: this episode ends ...
             server._begin_episode(server._next_seed)  # ... and the seed's next begins
             server._next_seed = None
             paths.append(server.log.path)

@@ -50,7 +50,7 @@ def test_every_listed_name_exists(equation, names):
     files = [n for n in names if "/" in n]
     assert code or files, f"{equation} names no code"
     for name in code:
-        resolve(name)                       # raises when a module or attribute is gone
+        resolve(name)  # raises when a module or attribute is gone
     for path in files:
         assert (ROOT / path).is_file(), path
 

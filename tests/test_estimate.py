@@ -18,7 +18,7 @@ from shared.config import ConfigError
 from shared.scenario import SCENARIO_DIR, EstimateConfig, load_scenario, parse_scenario
 from shared.scene import initial_data
 
-V, W, DT = np.array([0.3, -0.2, 0.0]), 0.5, 0.05      # the box: m/s, rad/s about z, s per state
+V, W, DT = np.array([0.3, -0.2, 0.0]), 0.5, 0.05  # the box: m/s, rad/s about z, s per state
 
 
 @pytest.fixture(scope="module")
@@ -34,15 +34,22 @@ def _states(push, seconds: float, noise: float, seed: int = 0):
     measured with ``noise`` (m, std)."""
     model, data, qa, _ = push
     rng = np.random.default_rng(seed)
-    p0 = data.qpos[qa:qa + 3].copy()
+    p0 = data.qpos[qa : qa + 3].copy()
     for k in range(int(seconds / DT)):
         t = k * DT
         qpos = data.qpos.copy()
-        qpos[qa:qa + 3] = p0 + V * t + rng.normal(0.0, noise, 3)
-        qpos[qa + 3:qa + 7] = [np.cos(W * t / 2), 0.0, 0.0, np.sin(W * t / 2)]
-        yield P.State(session="s", seq=k, time=t, qpos=qpos, qvel=np.zeros(model.nv),
-                      act=data.act.copy(), mocap_pos=data.mocap_pos.copy(),
-                      mocap_quat=data.mocap_quat.copy())
+        qpos[qa : qa + 3] = p0 + V * t + rng.normal(0.0, noise, 3)
+        qpos[qa + 3 : qa + 7] = [np.cos(W * t / 2), 0.0, 0.0, np.sin(W * t / 2)]
+        yield P.State(
+            session="s",
+            seq=k,
+            time=t,
+            qpos=qpos,
+            qvel=np.zeros(model.nv),
+            act=data.act.copy(),
+            mocap_pos=data.mocap_pos.copy(),
+            mocap_quat=data.mocap_quat.copy(),
+        )
 
 
 def _run(push, cfg, seconds=3.0, noise=0.005):
@@ -51,7 +58,9 @@ def _run(push, cfg, seconds=3.0, noise=0.005):
     out = []
     for state in _states(push, seconds, noise):
         mirror.apply(state)
-        out.append((state.time, mirror.data.qvel[va:va + 6].copy(), mirror.data.qpos[qa:qa + 3].copy()))
+        out.append(
+            (state.time, mirror.data.qvel[va : va + 6].copy(), mirror.data.qpos[qa : qa + 3].copy())
+        )
     return out
 
 
@@ -68,13 +77,14 @@ def test_velocities_withheld_by_the_world_are_estimated_from_the_poses(push):
 
 def test_filtered_poses_are_closer_to_the_truth_than_the_measured_ones(push):
     _, data, qa, _ = push
-    p0 = data.qpos[qa:qa + 3]
+    p0 = data.qpos[qa : qa + 3]
     w = 0.3
     filtered = _run(push, EstimateConfig(pose_filter=w, object_velocities="from_poses"))
-    measured = _run(push, EstimateConfig(velocity_filter=0.999))   # active, poses unfiltered
+    measured = _run(push, EstimateConfig(velocity_filter=0.999))  # active, poses unfiltered
 
     def error(run, lag=0.0):
         return np.mean([np.linalg.norm(p - (p0 + V * (t - lag))) for t, _, p in run[20:]])
+
     # an exponential filter lags a moving box by (1 - w) / w steps: compared with that lag, it
     # has less than half the measurement's error
     assert error(filtered, lag=(1 - w) / w * DT) < 0.5 * error(measured)
@@ -88,29 +98,45 @@ def test_received_velocities_pass_through_by_default(push):
 
 def test_a_teleport_restarts_the_filters(push):
     model, data, qa, va = push
-    mirror = Mirror(model, estimate=EstimateConfig(object_velocities="from_poses",
-                                                   pose_filter=0.5, velocity_filter=0.5))
+    mirror = Mirror(
+        model,
+        estimate=EstimateConfig(
+            object_velocities="from_poses", pose_filter=0.5, velocity_filter=0.5
+        ),
+    )
     states = list(_states(push, 1.0, 0.0))
     for s in states:
         mirror.apply(s)
     jumped = states[-1].qpos.copy()
-    jumped[qa] += 1.0                                  # 1 m in 0.05 s: 20 m/s
+    jumped[qa] += 1.0  # 1 m in 0.05 s: 20 m/s
     last = states[-1]
-    mirror.apply(P.State(session="s", seq=last.seq + 1, time=last.time + DT, qpos=jumped,
-                         qvel=last.qvel, act=last.act, mocap_pos=last.mocap_pos,
-                         mocap_quat=last.mocap_quat))
-    assert np.all(mirror.data.qvel[va:va + 6] == 0)
+    mirror.apply(
+        P.State(
+            session="s",
+            seq=last.seq + 1,
+            time=last.time + DT,
+            qpos=jumped,
+            qvel=last.qvel,
+            act=last.act,
+            mocap_pos=last.mocap_pos,
+            mocap_quat=last.mocap_quat,
+        )
+    )
+    assert np.all(mirror.data.qvel[va : va + 6] == 0)
     assert mirror.data.qpos[qa] == pytest.approx(jumped[qa])
 
 
-@pytest.mark.parametrize("key, value, expected", [
-    ("object_velocities", "guessed", "one of: from_poses, received"),
-    ("pose_filter", 0, "(0, 1]"),
-    ("velocity_filter", 1.5, "(0, 1]"),
-    ("max_speed", -1, "> 0"),
-    ("still_speed", -0.1, ">= 0"),
-    ("filter", 0.5, "unknown key"),
-])
+@pytest.mark.parametrize(
+    "key, value, expected",
+    [
+        ("object_velocities", "guessed", "one of: from_poses, received"),
+        ("pose_filter", 0, "(0, 1]"),
+        ("velocity_filter", 1.5, "(0, 1]"),
+        ("max_speed", -1, "> 0"),
+        ("still_speed", -0.1, ">= 0"),
+        ("filter", 0.5, "unknown key"),
+    ],
+)
 def test_estimate_keys_are_checked(key, value, expected):
     raw = yaml.safe_load((SCENARIO_DIR / "push.yaml").read_text())
     raw["planner"]["estimate"] = {key: value}
@@ -137,11 +163,25 @@ def _mocap_run(table, cfg, velocity=(0.0, 0.0, 0.0), seconds=3.0, noise=0.005, d
     out = []
     for k in range(int(seconds / dt)):
         pos = p0 + np.asarray(velocity) * k * dt + rng.normal(0.0, noise, p0.shape)
-        mirror.apply(P.State(session="s", seq=k, time=k * dt, qpos=data.qpos.copy(),
-                             qvel=np.zeros(model.nv), act=data.act.copy(), mocap_pos=pos,
-                             mocap_quat=data.mocap_quat.copy()))
+        mirror.apply(
+            P.State(
+                session="s",
+                seq=k,
+                time=k * dt,
+                qpos=data.qpos.copy(),
+                qvel=np.zeros(model.nv),
+                act=data.act.copy(),
+                mocap_pos=pos,
+                mocap_quat=data.mocap_quat.copy(),
+            )
+        )
         if k * dt >= 0.5:
-            out.append((mirror.mocap().vel[0].copy(), mirror.data.mocap_pos[0] - p0[0] - np.asarray(velocity) * k * dt))
+            out.append(
+                (
+                    mirror.mocap().vel[0].copy(),
+                    mirror.data.mocap_pos[0] - p0[0] - np.asarray(velocity) * k * dt,
+                )
+            )
     return out
 
 
@@ -154,7 +194,7 @@ def test_a_noisy_fixed_object_is_filtered_and_does_not_move(table):
     run = _mocap_run(table, cfg)
     speeds = np.array([np.linalg.norm(v) for v, _ in run])
     assert speeds.max() < 0.2 and np.median(speeds) < 0.06
-    assert np.median([np.linalg.norm(e) for _, e in run]) < 0.004      # 5 mm measured
+    assert np.median([np.linalg.norm(e) for _, e in run]) < 0.004  # 5 mm measured
     still = _mocap_run(table, dataclasses.replace(cfg, still_speed=0.12))
     assert np.mean([not v.any() for v, _ in still]) > 0.99
 
@@ -163,8 +203,9 @@ def test_a_moving_fixed_object_keeps_its_velocity_above_still_speed(table):
     """A scripted obstacle at 0.3 m/s, 5 mm noisy: its velocity is estimated within 5 cm/s on
     average, and ``still_speed`` (0.12 m/s) does not stop it."""
     v = np.array([0.3, 0.0, 0.0])
-    cfg = EstimateConfig(object_velocities="from_poses", pose_filter=0.15, velocity_filter=0.3,
-                         still_speed=0.12)
+    cfg = EstimateConfig(
+        object_velocities="from_poses", pose_filter=0.15, velocity_filter=0.3, still_speed=0.12
+    )
     vel = np.array([u for u, _ in _mocap_run(table, cfg, velocity=v)])
     assert np.linalg.norm(vel.mean(0) - v) < 0.05
     assert np.all(np.linalg.norm(vel, axis=1) > 0.12)
@@ -181,12 +222,22 @@ def test_still_speed_zeroes_a_resting_objects_velocity(push):
         out = []
         for k in range(200):
             qpos = data.qpos.copy()
-            qpos[qa:qa + 3] += rng.normal(0.0, 0.005, 3)
-            mirror.apply(P.State(session="s", seq=k, time=k * 0.01, qpos=qpos, qvel=np.zeros(model.nv),
-                                 act=data.act.copy(), mocap_pos=data.mocap_pos.copy(),
-                                 mocap_quat=data.mocap_quat.copy()))
-            out.append(not mirror.data.qvel[va:va + 6].any())
+            qpos[qa : qa + 3] += rng.normal(0.0, 0.005, 3)
+            mirror.apply(
+                P.State(
+                    session="s",
+                    seq=k,
+                    time=k * 0.01,
+                    qpos=qpos,
+                    qvel=np.zeros(model.nv),
+                    act=data.act.copy(),
+                    mocap_pos=data.mocap_pos.copy(),
+                    mocap_quat=data.mocap_quat.copy(),
+                )
+            )
+            out.append(not mirror.data.qvel[va : va + 6].any())
         return np.mean(out[50:])
+
     cfg = EstimateConfig(object_velocities="from_poses", pose_filter=0.15, velocity_filter=0.3)
     assert run(cfg) == 0.0
     assert run(dataclasses.replace(cfg, still_speed=0.12)) > 0.99
@@ -194,6 +245,7 @@ def test_still_speed_zeroes_a_resting_objects_velocity(push):
 
 def test_a_state_with_the_same_time_stamp_is_a_duplicate_not_a_new_episode():
     from planner_client.estimate import PoseFilter
+
     cfg = EstimateConfig(pose_filter=0.5, velocity_filter=0.5)
     f = PoseFilter(1, cfg)
     quat = np.array([[1.0, 0.0, 0.0, 0.0]])
@@ -201,9 +253,9 @@ def test_a_state_with_the_same_time_stamp_is_a_duplicate_not_a_new_episode():
         f(k * DT, np.array([[0.1 * k, 0.0, 0.0]]), quat)
     pos, vel = f.pos.copy(), f.vel.copy()
     assert vel[0, 0] > 0.5
-    f(9 * DT, np.array([[0.93, 0.0, 0.0]]), quat)     # the last state again, re-measured
+    f(9 * DT, np.array([[0.93, 0.0, 0.0]]), quat)  # the last state again, re-measured
     np.testing.assert_array_equal(f.pos, pos)
     np.testing.assert_array_equal(f.vel, vel)
-    f(0.0, np.array([[5.0, 0.0, 0.0]]), quat)          # time went back: a new episode
+    f(0.0, np.array([[5.0, 0.0, 0.0]]), quat)  # time went back: a new episode
     np.testing.assert_array_equal(f.pos, [[5.0, 0.0, 0.0]])
     assert not f.vel.any()

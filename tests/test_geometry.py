@@ -15,8 +15,9 @@ from shared.geometry import symmetric_orientation_error, symmetric_orientation_e
 
 
 def rot(axis, degrees) -> np.ndarray:
-    return Rotation.from_rotvec(np.radians(degrees) * np.asarray(axis, float)
-                                / np.linalg.norm(axis)).as_matrix()
+    return Rotation.from_rotvec(
+        np.radians(degrees) * np.asarray(axis, float) / np.linalg.norm(axis)
+    ).as_matrix()
 
 
 def random_rotations(n: int, seed: int) -> np.ndarray:
@@ -37,17 +38,19 @@ def cube_symmetries() -> list[np.ndarray]:
 
 # ---------------------------------------------------------------- phi (paper Eq. 33) -----------------
 
+
 def test_identical_frames_give_zero():
     frames = random_rotations(20, seed=1)
-    np.testing.assert_allclose(symmetric_orientation_error(frames, frames), np.zeros(20),
-                               atol=1e-12, rtol=0)
+    np.testing.assert_allclose(
+        symmetric_orientation_error(frames, frames), np.zeros(20), atol=1e-12, rtol=0
+    )
 
 
 @pytest.mark.parametrize("axis", [(1, 0, 0), (0, 1, 0), (0, 0, 1)])
 @pytest.mark.parametrize("degrees", [90, 180, 270, -90])
 def test_quarter_turns_about_any_axis_give_zero(axis, degrees):
     base = random_rotations(1, seed=2)[0]
-    turned = base @ rot(axis, degrees)      # turned about the object's own axis
+    turned = base @ rot(axis, degrees)  # turned about the object's own axis
     assert float(symmetric_orientation_error(base, turned)) == pytest.approx(0.0, abs=1e-12)
     assert float(symmetric_orientation_error(turned, base)) == pytest.approx(0.0, abs=1e-12)
 
@@ -129,7 +132,8 @@ def test_batched_shapes_broadcast_against_one_goal():
     assert phi.shape == (6, 4)
     for s, t in itertools.product(range(6), range(4)):
         assert float(phi[s, t]) == pytest.approx(
-            float(symmetric_orientation_error(samples[s, t], goal)), abs=1e-12)
+            float(symmetric_orientation_error(samples[s, t], goal)), abs=1e-12
+        )
 
 
 def test_mixed_inputs_follow_the_tensor_argument():
@@ -143,9 +147,9 @@ def test_numpy_inputs_stay_in_numpy_and_agree_with_torch():
     u, v = random_rotations(40, seed=14), random_rotations(40, seed=15)
     phi = symmetric_orientation_error(u, v)
     assert isinstance(phi, np.ndarray) and phi.dtype == np.float64 and phi.shape == (40,)
-    torch.testing.assert_close(torch.as_tensor(phi),
-                               symmetric_orientation_error(torch.as_tensor(u), v),
-                               atol=1e-12, rtol=0)
+    torch.testing.assert_close(
+        torch.as_tensor(phi), symmetric_orientation_error(torch.as_tensor(u), v), atol=1e-12, rtol=0
+    )
 
 
 def _axes_in(u: np.ndarray, v: np.ndarray) -> np.ndarray:
@@ -164,8 +168,9 @@ def test_relative_axes_version_matches_rotation_matrices():
     samples = Rotation.random(12, random_state=4).as_matrix().reshape(4, 3, 3, 3)
     got = symmetric_orientation_error_relative(torch.as_tensor(_axes_in(samples, goal)))
     assert got.shape == (4, 3)
-    torch.testing.assert_close(got, torch.as_tensor(symmetric_orientation_error(samples, goal)),
-                               atol=1e-12, rtol=0)
+    torch.testing.assert_close(
+        got, torch.as_tensor(symmetric_orientation_error(samples, goal)), atol=1e-12, rtol=0
+    )
 
 
 def test_relative_axes_version_reads_mujoco_frame_sensors_and_a_cube_symmetry_costs_nothing():

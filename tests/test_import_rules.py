@@ -55,7 +55,7 @@ def imports(path: Path, root: Path) -> set[str]:
             out.update(a.name for a in node.names)
         elif isinstance(node, ast.ImportFrom):
             if node.level:
-                base = package.split(".")[:len(package.split(".")) - node.level + 1]
+                base = package.split(".")[: len(package.split(".")) - node.level + 1]
                 prefix = ".".join(base + ([node.module] if node.module else []))
             else:
                 prefix = node.module or ""
@@ -70,8 +70,7 @@ def _within(name: str, prefix: str) -> bool:
 
 
 def is_contract(module: str) -> bool:
-    return _within(module, "shared") and not any(
-        _within(module, p) for p in CONTRACT_MAY_NOT)
+    return _within(module, "shared") and not any(_within(module, p) for p in CONTRACT_MAY_NOT)
 
 
 def violations(root: Path) -> list[str]:
@@ -81,8 +80,9 @@ def violations(root: Path) -> list[str]:
             importer = module_name(path, root)
             for imported in sorted(imports(path, root)):
                 free = [r for p, rs in COMPOSITION.items() if _within(importer, p) for r in rs]
-                rules = [(a, b) for a, b in FORBIDDEN if _within(importer, a)
-                         and (a, b) not in free]
+                rules = [
+                    (a, b) for a, b in FORBIDDEN if _within(importer, a) and (a, b) not in free
+                ]
                 if is_contract(importer):
                     rules += [(importer, p) for p in CONTRACT_MAY_NOT]
                 for _, forbidden in rules:
@@ -117,10 +117,16 @@ def test_the_checker_finds_each_kind_of_violation(tmp_path):
     _write(tmp_path, "shared/scenario.py", "from shared.tools import bench\n")
     _write(tmp_path, "shared/scene.py", "from .evaluation.metrics import x\n")
     _write(tmp_path, "shared/evaluation/metrics.py", "from ..tools.launch import y\n")
-    _write(tmp_path, "shared/tools/cli.py", "from shared.evaluation import episode\n"
-                                              "from shared.scenario import load_scenario\n")
-    _write(tmp_path, "shared/tools/inprocess.py", "from server.episode import Episode\n"
-                                                    "from planner_client.controller import C\n")
+    _write(
+        tmp_path,
+        "shared/tools/cli.py",
+        "from shared.evaluation import episode\nfrom shared.scenario import load_scenario\n",
+    )
+    _write(
+        tmp_path,
+        "shared/tools/inprocess.py",
+        "from server.episode import Episode\nfrom planner_client.controller import C\n",
+    )
     _write(tmp_path, "shared/evaluation/episode.py", "from server.app import WorldServer\n")
     _write(tmp_path, "shared/protocol.py", "import planner_client.controller\n")
     found = "\n".join(violations(tmp_path))
@@ -129,9 +135,9 @@ def test_the_checker_finds_each_kind_of_violation(tmp_path):
     assert "shared.scenario imports shared.tools" in found
     assert "shared.scene imports shared.evaluation.metrics" in found
     assert "shared.evaluation.metrics imports shared.tools.launch" in found
-    assert "shared.tools.cli" not in found     # the tools may import everything in shared ...
-    assert "shared.tools.inprocess" not in found   # ... and both processes' packages
-    assert "shared.evaluation.episode imports server.app" in found     # no one else in shared
+    assert "shared.tools.cli" not in found  # the tools may import everything in shared ...
+    assert "shared.tools.inprocess" not in found  # ... and both processes' packages
+    assert "shared.evaluation.episode imports server.app" in found  # no one else in shared
     assert "shared.protocol imports planner_client.controller" in found
 
 
@@ -139,7 +145,9 @@ def test_the_world_server_starts_without_torch():
     # torch is the planner's: importing it would cost every server start ~1.5 s (docs/speed.md)
     import subprocess
     import sys
+
     code = "import sys, server.cli; print(sorted(m for m in sys.modules if m.split('.')[0] == 'torch')[:3])"
-    out = subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True, text=True,
-                         check=True).stdout.strip()
+    out = subprocess.run(
+        [sys.executable, "-c", code], cwd=ROOT, capture_output=True, text=True, check=True
+    ).stdout.strip()
     assert out == "[]", f"server.cli imports torch: {out}"

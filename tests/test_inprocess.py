@@ -9,12 +9,12 @@ import dataclasses
 import numpy as np
 import pytest
 
+from planner_client.controller import LayoutMismatch
+from planner_client.task import TaskDecision
 from shared import protocol as P
 from shared.evaluation.episode import read_log, steps, summary
 from shared.scenario import load_scenario
 from shared.tools.inprocess import build_controller, run_episode
-from planner_client.controller import LayoutMismatch
-from planner_client.task import TaskDecision
 from tests.helpers import free_port_block, start_planner, start_server, stop, wait_episode
 
 
@@ -32,29 +32,43 @@ def controller(nav):
 
 
 def _state(model, seq: int = 3, time: float = 0.15, **fields) -> P.State:
-    return P.State(session="s", seq=seq, time=time, qpos=np.zeros(model.nq),
-                   qvel=np.zeros(model.nv), act=np.zeros(model.na),
-                   mocap_pos=np.zeros((model.nmocap, 3)),
-                   mocap_quat=np.tile([1.0, 0, 0, 0], (model.nmocap, 1)), **fields)
+    return P.State(
+        session="s",
+        seq=seq,
+        time=time,
+        qpos=np.zeros(model.nq),
+        qvel=np.zeros(model.nv),
+        act=np.zeros(model.na),
+        mocap_pos=np.zeros((model.nmocap, 3)),
+        mocap_quat=np.tile([1.0, 0, 0, 0], (model.nmocap, 1)),
+        **fields,
+    )
 
 
 def test_a_step_answers_the_state_with_a_plan_dated_at_its_time(controller, nav):
     model = controller.planner.problem.model
     cmd = controller.step(_state(model))
     assert (cmd.session, cmd.seq, cmd.action) == ("s", 3, "navigate")
-    assert cmd.plan_t0 == 0.15 and cmd.plan_dt == controller.planner.dt   # lock-step: no lead
+    assert cmd.plan_t0 == 0.15 and cmd.plan_dt == controller.planner.dt  # lock-step: no lead
     assert cmd.plan_ctrl.shape == (nav.planner.horizon, model.nu)
     np.testing.assert_array_equal(cmd.ctrl, cmd.plan_ctrl[0])
     assert cmd.plan_time > 0 and controller.stats.iterations == 1
     assert controller.stats.action_changes == [(0.15, "navigate", ("navigate",))]
-    diag = controller.diagnostics()                   # made when asked, from the last step
+    diag = controller.diagnostics()  # made when asked, from the last step
     assert diag.seq == 3 and diag.mode_names == ["navigate"] and diag.top.shape[-1] == 3
 
 
 def test_a_task_that_says_stop_gets_the_safe_stop_without_a_plan(controller):
     model = controller.planner.problem.model
-    controller.task = type("Done", (), {"decide": lambda self, data, extras, time: TaskDecision(
-        action="done", modes=("navigate",), stop=True)})()
+    controller.task = type(
+        "Done",
+        (),
+        {
+            "decide": lambda self, data, extras, time: TaskDecision(
+                action="done", modes=("navigate",), stop=True
+            )
+        },
+    )()
     cmd = controller.step(_state(model))
     assert not cmd.has_plan and cmd.plan_t0 is None
     np.testing.assert_array_equal(cmd.ctrl, controller.robot.safe_stop())
@@ -71,8 +85,13 @@ def test_the_end_of_the_episode_and_a_wrong_layout_are_told(controller):
 
 def test_an_episode_in_process_stops_after_max_steps(tmp_path):
     seen = []
-    result = run_episode("navigation", log_path=tmp_path / "e.jsonl", max_steps=3, threads=1,
-                         on_step=lambda state, cmd: seen.append((state.seq, cmd.seq)))
+    result = run_episode(
+        "navigation",
+        log_path=tmp_path / "e.jsonl",
+        max_steps=3,
+        threads=1,
+        on_step=lambda state, cmd: seen.append((state.seq, cmd.seq)),
+    )
     assert result.status == "stopped" and result.summary["steps"] == 3
     assert seen == [(0, 0), (1, 1), (2, 2)]
     assert result.stats.iterations == 3 and result.stats.final_status == "stopped"
@@ -86,7 +105,7 @@ def test_an_episode_in_process_is_the_two_process_lockstep_episode(scenario, tmp
     two = tmp_path / "two-process.jsonl"
     server = start_server(scenario, port, two, "--seed", "0")
     planner = start_planner(scenario, port, "--seed", "0")
-    try:           # both run beside the in-process episode: lock-step does not depend on load
+    try:  # both run beside the in-process episode: lock-step does not depend on load
         one = run_episode(scenario, seed=0, log_path=tmp_path / "in-process.jsonl")
         out = wait_episode(server, planner, timeout=600)
         planner.communicate(timeout=30)
@@ -98,7 +117,7 @@ def test_an_episode_in_process_is_the_two_process_lockstep_episode(scenario, tmp
     assert len(ours) == len(theirs) == one.summary["steps"]
     assert ours[-1]["time"] == theirs[-1]["time"]
     for key in ("qpos", "qvel", "ctrl", "action", "plan_seq", "age", "safe"):
-        assert [s[key] for s in ours] == [s[key] for s in theirs], key      # bit for bit
+        assert [s[key] for s in ours] == [s[key] for s in theirs], key  # bit for bit
     other = summary(read_log(two))
     assert other["status"] == one.summary["status"] == "success"
     assert other["measures"] == one.summary["measures"]

@@ -11,8 +11,13 @@ import pytest
 import yaml
 
 from shared.config import ConfigError
-from shared.evaluation.metrics import (MetricsEvaluator, contact_onsets, mean_hz, orientation_error,
-                            position_error)
+from shared.evaluation.metrics import (
+    MetricsEvaluator,
+    contact_onsets,
+    mean_hz,
+    orientation_error,
+    position_error,
+)
 from shared.scenario import load_scenario, parse_scenario
 from shared.scene import compile_model
 
@@ -23,17 +28,31 @@ SCENARIO = {
         "timestep": 0.05,
         "arena": {"half_size": 4.0},
         "objects": [
-            {"name": "box", "shape": "box", "size": [0.2, 0.2, 0.05], "pos": [1.0, 2.0, 0.05],
-             "fixed": False},
-            {"name": "goal", "shape": "box", "size": [0.2, 0.2, 0.005], "pos": [1.3, 2.4, 0.005],
-             "visual": True},
+            {
+                "name": "box",
+                "shape": "box",
+                "size": [0.2, 0.2, 0.05],
+                "pos": [1.0, 2.0, 0.05],
+                "fixed": False,
+            },
+            {
+                "name": "goal",
+                "shape": "box",
+                "size": [0.2, 0.2, 0.005],
+                "pos": [1.3, 2.4, 0.005],
+                "visual": True,
+            },
             {"name": "obstacle", "shape": "cylinder", "size": [0.3, 0.2], "pos": [-2.0, 0.0, 0.2]},
         ],
     },
-    "episode": {"max_time": 10.0, "success": [{"near": {"a": "box", "b": "goal", "within": 0.1,
-                                                        "axes": "xy"}}]},
-    "metrics": {"orientation": {"a": "box", "b": "goal"},
-                "collisions": {"a": "robot", "with": ["obstacle"]}},
+    "episode": {
+        "max_time": 10.0,
+        "success": [{"near": {"a": "box", "b": "goal", "within": 0.1, "axes": "xy"}}],
+    },
+    "metrics": {
+        "orientation": {"a": "box", "b": "goal"},
+        "collisions": {"a": "robot", "with": ["obstacle"]},
+    },
     "objectives": {"idle": {"terms": [{"term": "control_effort"}]}},
     "modes": ["idle"],
 }
@@ -56,20 +75,35 @@ def hand_made_log(scenario, status: str | None = "timeout") -> list[dict]:
     """A log as the server writes it: header, handshake, steps, summary."""
     model = compile_model(scenario)
     half = math.radians(BOX_YAW) / 2
-    records = [{"kind": "header", "wall": 100.0, "scenario": scenario.name,
-                "scenario_hash": scenario.hash, "source": scenario.source, "seed": 0,
-                "initial": []},
-               {"kind": "event", "wall": 101.0, "what": "handshake"}]
+    records = [
+        {
+            "kind": "header",
+            "wall": 100.0,
+            "scenario": scenario.name,
+            "scenario_hash": scenario.hash,
+            "source": scenario.source,
+            "seed": 0,
+            "initial": [],
+        },
+        {"kind": "event", "wall": 101.0, "what": "handshake"},
+    ]
     for i, (x, pt) in enumerate(zip(ROBOT_X, PLAN_TIMES)):
         qpos = np.zeros(model.nq)
         qpos[:2] = (x, 0.0)
         qpos[2:9] = (1.0, 2.0, 0.05, math.cos(half), 0.0, 0.0, math.sin(half))
-        records.append({"kind": "step", "wall": 101.5 + 0.5 * i, "seq": i + 1,
-                        "time": 0.05 * (i + 1), "qpos": qpos.tolist(),
-                        "qvel": [0.0] * model.nv,
-                        "mocap_pos": model.body_pos[model.body_mocapid >= 0].tolist(),
-                        "mocap_quat": model.body_quat[model.body_mocapid >= 0].tolist(),
-                        "plan_time": pt})
+        records.append(
+            {
+                "kind": "step",
+                "wall": 101.5 + 0.5 * i,
+                "seq": i + 1,
+                "time": 0.05 * (i + 1),
+                "qpos": qpos.tolist(),
+                "qvel": [0.0] * model.nv,
+                "mocap_pos": model.body_pos[model.body_mocapid >= 0].tolist(),
+                "mocap_quat": model.body_quat[model.body_mocapid >= 0].tolist(),
+                "plan_time": pt,
+            }
+        )
     if status:
         records.append({"kind": "summary", "wall": 106.0, "status": status})
     return records
@@ -78,11 +112,11 @@ def hand_made_log(scenario, status: str | None = "timeout") -> list[dict]:
 def test_metrics_of_a_hand_made_log_have_the_known_values(scenario):
     m = MetricsEvaluator(scenario).evaluate(hand_made_log(scenario))
     assert m.status == "timeout" and not m.success
-    assert m.position_error == pytest.approx(0.5)                   # |(1, 2) - (1.3, 2.4)|
-    assert m.orientation_error == pytest.approx(2 - math.sqrt(3))   # 30 deg about z, paper Eq. 33
+    assert m.position_error == pytest.approx(0.5)  # |(1, 2) - (1.3, 2.4)|
+    assert m.orientation_error == pytest.approx(2 - math.sqrt(3))  # 30 deg about z, paper Eq. 33
     assert m.collisions == 2
     assert m.time == pytest.approx(0.35)
-    assert m.wall_time == pytest.approx(104.5 - 101.0)              # handshake -> last step
+    assert m.wall_time == pytest.approx(104.5 - 101.0)  # handshake -> last step
     assert m.planner_hz == pytest.approx(1 / np.mean(PLAN_TIMES))
     assert m.steps == len(ROBOT_X)
 
@@ -99,7 +133,7 @@ def test_status_argument_and_unfinished_logs(scenario):
 def test_pure_maths():
     assert position_error([0, 0, 0], [3, 4, 12]) == pytest.approx(13.0)
     assert position_error([0, 0, 0], [3, 4, 12], "xy") == pytest.approx(5.0)
-    flip = np.diag([1.0, -1.0, -1.0])                  # a cube turned upside down: equivalent
+    flip = np.diag([1.0, -1.0, -1.0])  # a cube turned upside down: equivalent
     assert orientation_error(np.eye(3), flip) == pytest.approx(0.0)
     assert contact_onsets([]) == 0
     assert contact_onsets([True, True, False, True, False, False, True]) == 3
@@ -116,28 +150,45 @@ def test_default_position_metric_is_the_first_near_success_predicate(scenario):
 def test_at_pose_success_gives_position_with_offset_and_orientation(tmp_path):
     """Pick-and-place judges success on at_pose (goal = b + offset, paper Eq. 26): the metrics default
     to the same frames, offset included."""
-    raw = {**SCENARIO, "metrics": {"collisions": {"a": "robot", "with": ["obstacle"]}},
-           "episode": {"max_time": 10.0, "success": [{"at_pose": {
-               "a": "box", "b": "goal", "offset": [0.0, 0.0, 0.045], "within": 0.01,
-               "orientation": 0.01}}]}}
+    raw = {
+        **SCENARIO,
+        "metrics": {"collisions": {"a": "robot", "with": ["obstacle"]}},
+        "episode": {
+            "max_time": 10.0,
+            "success": [
+                {
+                    "at_pose": {
+                        "a": "box",
+                        "b": "goal",
+                        "offset": [0.0, 0.0, 0.045],
+                        "within": 0.01,
+                        "orientation": 0.01,
+                    }
+                }
+            ],
+        },
+    }
     path = tmp_path / "at_pose.yaml"
     path.write_text(yaml.safe_dump(raw))
     sc = load_scenario(path)
     assert sc.metrics.position.offset == (0.0, 0.0, 0.045) and sc.metrics.position.axes == "xyz"
     assert (sc.metrics.orientation.a, sc.metrics.orientation.b) == ("box", "goal")
     m = MetricsEvaluator(sc).evaluate(hand_made_log(sc))
-    assert m.position_error == pytest.approx(0.5)      # heights 0.05 vs 0.005 + 0.045 cancel
+    assert m.position_error == pytest.approx(0.5)  # heights 0.05 vs 0.005 + 0.045 cancel
     assert m.orientation_error == pytest.approx(2 - math.sqrt(3))
 
 
-@pytest.mark.parametrize("metrics, key", [
-    ({"position": {"a": "box"}}, "metrics.position.b"),
-    ({"position": {"a": "box", "b": "goal", "axes": "zx"}}, "metrics.position.axes"),
-    ({"position": {"a": "box", "b": "goal", "offset": [0, 1]}}, "metrics.position.offset"),
-    ({"orientation": {"a": "box", "b": "goal", "axes": "xy"}}, "metrics.orientation.axes"),
-    ({"collisions": {"a": "robot"}}, "metrics.collisions.with"),
-    ({"speed": {}}, "metrics.speed"),
-])
+@pytest.mark.parametrize(
+    "metrics, key",
+    [
+        ({"position": {"a": "box"}}, "metrics.position.b"),
+        ({"position": {"a": "box", "b": "goal", "axes": "zx"}}, "metrics.position.axes"),
+        ({"position": {"a": "box", "b": "goal", "offset": [0, 1]}}, "metrics.position.offset"),
+        ({"orientation": {"a": "box", "b": "goal", "axes": "xy"}}, "metrics.orientation.axes"),
+        ({"collisions": {"a": "robot"}}, "metrics.collisions.with"),
+        ({"speed": {}}, "metrics.speed"),
+    ],
+)
 def test_metrics_section_is_parsed_strictly(metrics, key):
     with pytest.raises(ConfigError) as err:
         parse_scenario({**SCENARIO, "metrics": metrics}, "fixture.yaml")
@@ -156,10 +207,15 @@ def test_unknown_metric_frame_names_the_key(scenario, tmp_path):
 def test_robot_collisions_cover_the_whole_robot_tree(tmp_path):
     """'robot' is every body under the robot's root (a Panda's links and fingers), not only the
     body of its frame (the grasp site on the hand)."""
-    raw = {**SCENARIO, "robot": {"model": "panda"},
-           "episode": {"max_time": 1.0, "success": [{"near": {"a": "robot", "b": "goal",
-                                                               "within": 0.01}}]},
-           "metrics": {"collisions": {"a": "robot", "with": ["obstacle"]}}}
+    raw = {
+        **SCENARIO,
+        "robot": {"model": "panda"},
+        "episode": {
+            "max_time": 1.0,
+            "success": [{"near": {"a": "robot", "b": "goal", "within": 0.01}}],
+        },
+        "metrics": {"collisions": {"a": "robot", "with": ["obstacle"]}},
+    }
     path = tmp_path / "panda.yaml"
     path.write_text(yaml.safe_dump(raw))
     ev = MetricsEvaluator(load_scenario(path))
@@ -174,6 +230,7 @@ def test_robot_collisions_cover_the_whole_robot_tree(tmp_path):
 
 def test_plot_of_the_hand_made_log(scenario, tmp_path):
     from shared.tools.plots import cos_rog, episode_series, plot_episode
+
     series = episode_series(scenario, hand_made_log(scenario))
     assert series.obj is not None and series.time.shape == (len(ROBOT_X),)
     np.testing.assert_allclose(series.obj[-1, :2], [1.0, 2.0], atol=1e-9)

@@ -10,11 +10,9 @@ import pytest
 import torch
 from scipy.signal import savgol_filter
 
-from planner_client.mppi import M3P2I, MPPI, MPPIConfig, ModeSpec
-from planner_client.mppi import sampling
+from planner_client.mppi import M3P2I, MPPI, ModeSpec, MPPIConfig, sampling, temperature
 from planner_client.mppi.sampling import GaussianNoise, HaltonSplineNoise
 from planner_client.mppi.smoothing import savgol_matrix, smooth
-from planner_client.mppi import temperature
 from planner_client.mppi.temperature import adapt_temperature, finite_costs, softmin_weights, weigh
 
 F64 = torch.float64
@@ -37,17 +35,21 @@ def single_integrator(x0: torch.Tensor, v: torch.Tensor) -> torch.Tensor:
 
 # --- one mode is plain MPPI --------------------------------------------------------------------
 
+
 def wiggly_costs(v: torch.Tensor) -> torch.Tensor:
     p = single_integrator(t(0.0, 0.0), v)
     return ((p - t(2.0, 1.0)) ** 2).sum(-1) + torch.sin(3.0 * p[..., 0])
 
 
-@pytest.mark.parametrize("kw", [
-    dict(sampling="gaussian", null_action=False, keep_best=False),            # literal thesis Alg. 2
-    dict(sampling="halton", savgol_window=5, control_cost=1.0, gamma=0.9),
-    dict(sampling="halton", halton_rotate=False, bound="squash", lambda_init=0.3),
-    dict(sampling="gaussian", savgol_window=7, control_cost=0.5, u_min=None, u_max=None),
-])
+@pytest.mark.parametrize(
+    "kw",
+    [
+        dict(sampling="gaussian", null_action=False, keep_best=False),  # literal thesis Alg. 2
+        dict(sampling="halton", savgol_window=5, control_cost=1.0, gamma=0.9),
+        dict(sampling="halton", halton_rotate=False, bound="squash", lambda_init=0.3),
+        dict(sampling="gaussian", savgol_window=7, control_cost=0.5, u_min=None, u_max=None),
+    ],
+)
 def test_one_mode_m3p2i_is_mppi(kw):
     # M3P2I takes all its means in one product Σ ω V, MPPI (thesis Alg. 2) adds Σ ω ε to U:
     # equal since Σ ω = 1, to rounding, which 25 iterations of feedback must not amplify
@@ -59,19 +61,19 @@ def test_one_mode_m3p2i_is_mppi(kw):
         torch.testing.assert_close(va, vb, **close)
         ra, rb = plain.update(wiggly_costs(va)), multi.update(wiggly_costs(vb))
         for field in ("U", "u0", "weights", "best", "etas", "mode_costs", "fused_eta"):
-            torch.testing.assert_close(getattr(ra, field), getattr(rb, field), **close,
-                                       msg=field)
+            torch.testing.assert_close(getattr(ra, field), getattr(rb, field), **close, msg=field)
     assert math.isclose(float(rb.mode_weights), 1.0, rel_tol=1e-12)
 
 
 # --- closed loop: double integrator -------------------------------------------------------------
+
 
 def double_integrator_costs(x: torch.Tensor, v: torch.Tensor, goal: torch.Tensor) -> torch.Tensor:
     """State x = (p, ṗ) in R⁴, acceleration control; per-step cost ``[S, T]``, terminal ×10."""
     dt = 0.05
     vel = x[2:] + dt * torch.cumsum(v, dim=1)
     pos = x[:2] + dt * torch.cumsum(vel, dim=1)
-    c = ((pos - goal) ** 2).sum(-1) + 0.1 * (vel ** 2).sum(-1)
+    c = ((pos - goal) ** 2).sum(-1) + 0.1 * (vel**2).sum(-1)
     c[:, -1] *= 10.0
     return c
 
@@ -79,10 +81,15 @@ def double_integrator_costs(x: torch.Tensor, v: torch.Tensor, goal: torch.Tensor
 @pytest.mark.parametrize("planner", ["mppi-gaussian", "m3p2i-halton"])
 def test_double_integrator_reaches_goal(planner):
     goal = t(1.5, -1.0)
-    cfg = cfg_of(noise_sigma=(1.5, 1.5), u_min=(-3.0, -3.0), u_max=(3.0, 3.0), seed=1,
-                 sampling="gaussian" if planner == "mppi-gaussian" else "halton",
-                 eta_bounds=None if planner == "mppi-gaussian" else (3.0, 10.0),
-                 savgol_window=0 if planner == "mppi-gaussian" else 9)
+    cfg = cfg_of(
+        noise_sigma=(1.5, 1.5),
+        u_min=(-3.0, -3.0),
+        u_max=(3.0, 3.0),
+        seed=1,
+        sampling="gaussian" if planner == "mppi-gaussian" else "halton",
+        eta_bounds=None if planner == "mppi-gaussian" else (3.0, 10.0),
+        savgol_window=0 if planner == "mppi-gaussian" else 9,
+    )
     mpc = MPPI(cfg, 150) if planner == "mppi-gaussian" else M3P2I(cfg, [ModeSpec("go", 150)])
     x = torch.zeros(4, dtype=F64)
     for _ in range(120):
@@ -163,6 +170,7 @@ def test_bimodal_m3p2i_commits_to_a_side_where_unimodal_mppi_stalls():
 
 # --- a mode that cannot succeed -----------------------------------------------------------------
 
+
 def test_hopeless_mode_gets_vanishing_fused_weight():
     goal = t(5.0, 0.0)
     cfg = cfg_of(eta_bounds=(3.0, 10.0), seed=2)
@@ -176,7 +184,7 @@ def test_hopeless_mode_gets_vanishing_fused_weight():
     w = torch.stack(weights)
     assert torch.allclose(w.sum(-1), torch.ones(30, dtype=F64))
     assert float(w[3:, 1].max()) < 1e-6
-    assert float(x[0]) > 2.7          # close to full speed all the way
+    assert float(x[0]) > 2.7  # close to full speed all the way
 
 
 def test_mode_with_huge_cost_offset_is_ignored_but_keeps_its_own_mean():
@@ -198,16 +206,24 @@ def test_mode_with_huge_cost_offset_is_ignored_but_keeps_its_own_mean():
 
 # --- update equations against a direct evaluation -----------------------------------------------
 
+
 @pytest.mark.parametrize("smoothed", [False, True])
 def test_update_matches_eqs_4_to_12_for_unequal_modes(smoothed):
     """With ``smoothed`` every mean is also Savitzky-Golay filtered and clamped into tight
     bounds (the SGF and projection of thesis Alg. 2 line 33), before the one-step shift."""
     box = dict(u_min=(-0.3, -0.25), u_max=(0.3, 0.35)) if smoothed else dict(u_min=None, u_max=None)
-    cfg = cfg_of(gamma=0.9, alpha_u=0.6, lambda_init=0.7, null_action=False, keep_best=False,
-                 savgol_window=5 if smoothed else 0, **box)
+    cfg = cfg_of(
+        gamma=0.9,
+        alpha_u=0.6,
+        lambda_init=0.7,
+        null_action=False,
+        keep_best=False,
+        savgol_window=5 if smoothed else 0,
+        **box,
+    )
     modes = [ModeSpec("a", 30), ModeSpec("b", 50), ModeSpec("c", 7)]
     planner = M3P2I(cfg, modes)
-    planner.update(wiggly_costs(planner.sample()))     # non-zero means and plan
+    planner.update(wiggly_costs(planner.sample()))  # non-zero means and plan
     u_prev = planner.nominal.clone()
 
     def finish(u):
@@ -220,19 +236,19 @@ def test_update_matches_eqs_4_to_12_for_unequal_modes(smoothed):
     step = wiggly_costs(v)
     result = planner.update(step)
 
-    s = (step * 0.9 ** torch.arange(15, dtype=F64)).sum(-1)                     # paper Eq. 4
+    s = (step * 0.9 ** torch.arange(15, dtype=F64)).sum(-1)  # paper Eq. 4
     fused = torch.exp(-(s - s.min()) / 0.7)
-    fused = fused / fused.sum()                                                  # paper Eqs. 9-11
-    u = finish((1 - 0.6) * u_prev + 0.6 * (fused[:, None, None] * v).sum(0))    # paper Eq. 12
+    fused = fused / fused.sum()  # paper Eqs. 9-11
+    u = finish((1 - 0.6) * u_prev + 0.6 * (fused[:, None, None] * v).sum(0))  # paper Eq. 12
     assert torch.allclose(result.weights, fused, atol=1e-14)
     assert torch.allclose(result.U, u, atol=1e-12)
     for i, rows in enumerate(planner.mode_slices):
-        w = torch.exp(-(s[rows] - s[rows].min()) / 0.7)                         # paper Eqs. 5-7
+        w = torch.exp(-(s[rows] - s[rows].min()) / 0.7)  # paper Eqs. 5-7
         assert torch.isclose(result.etas[i], w.sum())
         assert torch.isclose(result.mode_costs[i], s[rows].min())
         assert torch.isclose(result.mode_weights[i], fused[rows].sum())
-        mu = finish(((w / w.sum())[:, None, None] * v[rows]).sum(0))             # paper Eq. 8
-        assert torch.allclose(planner.means[i, :-1], mu[1:], atol=1e-12)       # after the shift
+        mu = finish(((w / w.sum())[:, None, None] * v[rows]).sum(0))  # paper Eq. 8
+        assert torch.allclose(planner.means[i, :-1], mu[1:], atol=1e-12)  # after the shift
         assert torch.equal(planner.means[i, -1], planner.means[i, -2])
         assert torch.equal(result.best[i], v[rows][s[rows].argmin()])
     assert torch.allclose(planner.nominal[:-1], u[1:], atol=1e-12)
@@ -249,7 +265,7 @@ def test_a_results_figures_read_late_are_its_own_iterations(modes):
     cfg = cfg_of(eta_bounds=(2.0, 6.0), lambda_init=0.05)
     late, early = M3P2I(cfg, modes), M3P2I(cfg, modes)
     kept = []
-    for scale in (1.0, 1e3, 1e-2, 1.0):     # new cost scales: λ is re-tuned every time
+    for scale in (1.0, 1e3, 1e-2, 1.0):  # new cost scales: λ is re-tuned every time
         kept.append(late.update(scale * wiggly_costs(late.sample())))
         r = early.update(scale * wiggly_costs(early.sample()))
         kept[-1:] = [(kept[-1], r.diag.clone())]
@@ -258,7 +274,7 @@ def test_a_results_figures_read_late_are_its_own_iterations(modes):
         assert r.diag.dtype == torch.float64 and r.diag.device.type == "cpu"
         assert torch.equal(r.diag, diag)
         n = len(modes)
-        assert torch.equal(r.lambdas, diag[3 * n + 1:4 * n + 1]) and r.num_modes == n
+        assert torch.equal(r.lambdas, diag[3 * n + 1 : 4 * n + 1]) and r.num_modes == n
         assert float(r.mode_weights.sum()) == pytest.approx(1.0)
 
 
@@ -275,15 +291,18 @@ def test_diverged_rollouts_get_zero_weight():
 
 # --- temperature adaptation (paper Alg. 3) ------------------------------------------------------------
 
+
 @pytest.mark.parametrize("bounds", [(3.0, 10.0), (10.0, 30.0), (1.5, 2.0)])
 def test_temperature_lands_eta_in_window_for_any_cost_spread(bounds):
     gen = torch.Generator().manual_seed(0)
     spreads = [1e-3, 1e-1, 1.0, 1e2, 1e4, 1e6]
     rows = []
     for spread in spreads:
-        rows.append(spread * torch.rand(200, generator=gen, dtype=F64))               # uniform
-        rows.append(spread * torch.logspace(-6, 0, 200, dtype=F64)[torch.randperm(200, generator=gen)])
-        rows.append(spread * torch.rand(200, generator=gen, dtype=F64) ** 8)          # clustered low
+        rows.append(spread * torch.rand(200, generator=gen, dtype=F64))  # uniform
+        rows.append(
+            spread * torch.logspace(-6, 0, 200, dtype=F64)[torch.randperm(200, generator=gen)]
+        )
+        rows.append(spread * torch.rand(200, generator=gen, dtype=F64) ** 8)  # clustered low
     costs = torch.stack(rows).numpy()
     gaps = costs - costs.min(-1, keepdims=True)
     for lam0 in (1e-8, 1.0, 1e8):
@@ -297,8 +316,9 @@ def test_temperature_keeps_lambda_inside_window_and_handles_unreachable_windows(
     costs = np.linspace(0.0, 1.0, 100)[None]
     lam = np.array([0.05])
     eta = softmin_weights(costs, lam[:, None])[1]
-    assert np.array_equal(adapt_temperature(costs, lam, (float(eta[0]) - 1, float(eta[0]) + 1), 20),
-                          lam)
+    assert np.array_equal(
+        adapt_temperature(costs, lam, (float(eta[0]) - 1, float(eta[0]) + 1), 20), lam
+    )
 
     ties = np.concatenate([np.zeros(20), np.linspace(1, 2, 80)])
     too_few = np.linspace(0.0, 1.0, 5)
@@ -309,9 +329,9 @@ def test_temperature_keeps_lambda_inside_window_and_handles_unreachable_windows(
     assert np.isfinite(lam).all()
     w, eta, _ = softmin_weights(gaps, lam[:, None])
     assert np.allclose(w.sum(-1), np.ones(3))
-    assert float(eta[0]) == pytest.approx(20.0, abs=1e-6)          # only the ties count
-    assert float(eta[1]) > 4.8                                     # all five count
-    assert float(lam[2]) == 1.0                                    # nothing to tune
+    assert float(eta[0]) == pytest.approx(20.0, abs=1e-6)  # only the ties count
+    assert float(eta[1]) > 4.8  # all five count
+    assert float(lam[2]) == 1.0  # nothing to tune
 
 
 def test_one_modes_steady_weighing_is_the_general_one_bit_for_bit(monkeypatch):
@@ -330,16 +350,17 @@ def test_one_modes_steady_weighing_is_the_general_one_bit_for_bit(monkeypatch):
     for scale in (1e-3, 1.0, 1e4):
         costs = scale * rng.random(200) ** 3
         for bounds in ((3.0, 10.0), None):
-            for lam in (scale / 20, scale * 1e-9):       # in the window (once adapted), out
+            for lam in (scale / 20, scale * 1e-9):  # in the window (once adapted), out
                 if bounds is not None and lam == scale / 20:
-                    lam = adapt_temperature((costs - costs.min())[None], np.array([lam]),
-                                            bounds, 20)[0]
+                    lam = adapt_temperature(
+                        (costs - costs.min())[None], np.array([lam]), bounds, 20
+                    )[0]
                 lam = np.full(2, lam)
                 steady += temperature._weigh_steady(costs, lam, bounds) is not None
                 short, general = both(costs, lam, bounds)
                 for field in ("w", "eta", "beta", "lam", "best", "costs"):
                     assert np.array_equal(getattr(short, field), getattr(general, field)), field
-    assert steady == 9                         # all but the three out of their window
+    assert steady == 9  # all but the three out of their window
     costs = rng.random(200)
     costs[[4, 9]] = [math.nan, -math.inf]
     assert temperature._weigh_steady(costs, np.full(2, 0.1), None) is None
@@ -360,8 +381,10 @@ def test_one_modes_steady_weighing_is_the_general_one_bit_for_bit(monkeypatch):
 
 def test_planner_etas_stay_in_window_across_iterations():
     bounds = (3.0, 10.0)
-    planner = M3P2I(cfg_of(eta_bounds=bounds, lambda_init=1e3),
-                    [ModeSpec("a", 60), ModeSpec("b", 60), ModeSpec("c", 80)])
+    planner = M3P2I(
+        cfg_of(eta_bounds=bounds, lambda_init=1e3),
+        [ModeSpec("a", 60), ModeSpec("b", 60), ModeSpec("c", 80)],
+    )
     scale = torch.tensor([1e-3] * 60 + [1.0] * 60 + [1e6] * 80, dtype=F64)[:, None]
     for _ in range(10):
         v = planner.sample()
@@ -371,6 +394,7 @@ def test_planner_etas_stay_in_window_across_iterations():
 
 
 # --- sampling ----------------------------------------------------------------------------------
+
 
 def test_halton_samples_are_deterministic_for_a_seed():
     def run(seed):
@@ -415,12 +439,12 @@ def test_halton_draws_made_in_blocks_are_the_draws_made_one_at_a_time(monkeypatc
     monkeypatch.setattr(sampling, "MAX_BLOCK", 1)
     single = HaltonSplineNoise(40, 6, 2, 2, 2, 3, True, F64, dev)
     assert single.block == 1
-    n = 2 * blocked.block + 1                  # across two refills of the block
+    n = 2 * blocked.block + 1  # across two refills of the block
     first = [blocked.draw().clone() for _ in range(n)]
     for i, x in enumerate(first):
         assert torch.equal(x, single.draw()), f"draw {i}"
-    assert len({x.sum().item() for x in first}) == n        # every draw rotated anew
-    blocked.reset()                                          # mid-block: the stream restarts
+    assert len({x.sum().item() for x in first}) == n  # every draw rotated anew
+    blocked.reset()  # mid-block: the stream restarts
     assert torch.equal(blocked.draw(), first[0])
 
 
@@ -455,6 +479,7 @@ def test_samples_respect_bounds_pins_null_action_and_kept_best(bound):
 
 # --- smoothing ----------------------------------------------------------------------------------
 
+
 @pytest.mark.parametrize("horizon,window,order", [(15, 9, 2), (12, 5, 3), (9, 9, 2)])
 def test_savgol_matrix_matches_scipy_interp_mode(horizon, window, order):
     x = np.random.default_rng(0).normal(size=(horizon, 3))
@@ -466,6 +491,7 @@ def test_savgol_matrix_matches_scipy_interp_mode(horizon, window, order):
 
 
 # --- changing modes -----------------------------------------------------------------------------
+
 
 def test_set_modes_keeps_persisting_means_and_seeds_new_ones_from_the_plan():
     planner = M3P2I(cfg_of(eta_bounds=(3.0, 10.0)), [ModeSpec("push", 40), ModeSpec("pull", 40)])
@@ -505,6 +531,7 @@ def test_misuse_is_reported():
 
 # --- non-finite costs and the control cost with pinned channels ----------------------------------
 
+
 def unpinned_costs(v: torch.Tensor) -> torch.Tensor:
     """A state cost of channels 0 and 1 only: equal for every mode, whatever channel 2 holds."""
     return ((v[..., :2] - t(0.5, -0.5)) ** 2).sum(-1)
@@ -513,9 +540,18 @@ def unpinned_costs(v: torch.Tensor) -> torch.Tensor:
 def test_control_cost_leaves_pinned_channels_out():
     # Suction pinned on (1.0): ε is 0 there but μ is 1, so μᵀΣ⁻¹μ would charge every sample of the
     # mode T/σ² · λ₀/2 = 187.5 for a choice the noise never made.
-    cfg = cfg_of(nu=3, noise_sigma=(0.8, 0.8, 0.2), u_min=(-1.0, -1.0, 0.0), u_max=(1.0, 1.0, 1.0),
-                 eta_bounds=(10.0, 30.0), control_cost=1.0, seed=5)
-    planner = M3P2I(cfg, [ModeSpec("off", 100, fixed={2: 0.0}), ModeSpec("on", 100, fixed={2: 1.0})])
+    cfg = cfg_of(
+        nu=3,
+        noise_sigma=(0.8, 0.8, 0.2),
+        u_min=(-1.0, -1.0, 0.0),
+        u_max=(1.0, 1.0, 1.0),
+        eta_bounds=(10.0, 30.0),
+        control_cost=1.0,
+        seed=5,
+    )
+    planner = M3P2I(
+        cfg, [ModeSpec("off", 100, fixed={2: 0.0}), ModeSpec("on", 100, fixed={2: 1.0})]
+    )
     shares = [float(planner.command(unpinned_costs).mode_weights[1]) for _ in range(30)]
     assert float(planner.means[1, 0, 2]) == 1.0
     share = sum(shares[5:]) / len(shares[5:])
@@ -550,8 +586,10 @@ def test_temperature_is_capped_for_gaps_near_the_float_maximum():
 
 def test_minus_inf_cost_gets_no_weight():
     # -inf is a diverged rollout, not a perfect one.
-    for planner in (M3P2I(cfg_of(eta_bounds=(3.0, 10.0)), [ModeSpec("a", 20), ModeSpec("b", 20)]),
-                    MPPI(cfg_of(), 40)):
+    for planner in (
+        M3P2I(cfg_of(eta_bounds=(3.0, 10.0)), [ModeSpec("a", 20), ModeSpec("b", 20)]),
+        MPPI(cfg_of(), 40),
+    ):
         c = wiggly_costs(planner.sample())
         c[7, 3] = -math.inf
         result = planner.update(c)
@@ -569,11 +607,11 @@ def test_mode_without_a_finite_cost_keeps_its_mean():
     c = wiggly_costs(planner.sample())
     c[broken] = math.nan
     result = planner.update(c)
-    assert torch.equal(planner.means[1, :-1], mu[1, 1:])          # no update, only the shift
+    assert torch.equal(planner.means[1, :-1], mu[1, 1:])  # no update, only the shift
     assert float(result.mode_weights[1]) == 0.0 and float(result.etas[1]) == 0.0
     assert torch.isfinite(result.weights).all() and torch.isfinite(result.lambdas).all()
     assert not torch.equal(planner.means[0, :-1], mu[0, 1:])
-    assert result.finite                                          # the other mode has a plan
+    assert result.finite  # the other mode has a plan
 
 
 @pytest.mark.parametrize("kind", ["m3p2i", "mppi"])
@@ -581,17 +619,19 @@ def test_mode_without_a_finite_cost_keeps_its_mean():
 def test_no_finite_cost_at_all_is_flagged_and_changes_nothing(kind, bad):
     cfg = cfg_of(savgol_window=5, seed=8)
     cfg = cfg if kind == "mppi" else dataclasses.replace(cfg, eta_bounds=(3.0, 10.0))
-    planner = MPPI(cfg, 40) if kind == "mppi" else M3P2I(cfg, [ModeSpec("a", 20), ModeSpec("b", 20)])
-    plan = lambda p: p.U if kind == "mppi" else p.nominal       # noqa: E731
+    planner = (
+        MPPI(cfg, 40) if kind == "mppi" else M3P2I(cfg, [ModeSpec("a", 20), ModeSpec("b", 20)])
+    )
+    plan = lambda p: p.U if kind == "mppi" else p.nominal  # noqa: E731
     planner.update(wiggly_costs(planner.sample()))
     before = plan(planner).clone()
     planner.sample()
     result = planner.update(torch.full((40, 15), bad, dtype=F64))
     assert torch.isfinite(result.U).all() and torch.isfinite(result.weights).all()
-    assert float(result.weights.sum()) == 0.0                     # no sample is worth anything
+    assert float(result.weights.sum()) == 0.0  # no sample is worth anything
     assert torch.equal(plan(planner)[:-1], before[1:])
     assert not result.finite
-    assert planner.update(wiggly_costs(planner.sample())).finite        # planning resumes
+    assert planner.update(wiggly_costs(planner.sample())).finite  # planning resumes
     assert torch.isfinite(plan(planner)).all()
 
 
@@ -599,22 +639,24 @@ def test_eta_window_a_mode_cannot_reach_is_refused():
     cfg = cfg_of(eta_bounds=(10.0, 30.0))
     with pytest.raises(ValueError, match=r"mode 'small'.* 5 samples.*\(10\.0, 30\.0\)"):
         M3P2I(cfg, [ModeSpec("small", 5), ModeSpec("large", 40)])
-    M3P2I(cfg, [ModeSpec("edge", 10), ModeSpec("large", 40)])          # η_l = K: approached
+    M3P2I(cfg, [ModeSpec("edge", 10), ModeSpec("large", 40)])  # η_l = K: approached
     planner = M3P2I(cfg, [ModeSpec("a", 40), ModeSpec("b", 40)])
     with pytest.raises(ValueError, match="mode 'c'"):
         planner.set_modes([ModeSpec("a", 40), ModeSpec("c", 8)])
-    assert [m.name for m in planner.modes] == ["a", "b"]                 # nothing changed
+    assert [m.name for m in planner.modes] == ["a", "b"]  # nothing changed
 
 
 def test_the_samplers_tables_come_from_the_cache_once_computed(tmp_path, monkeypatch):
     from planner_client.mppi import cache
     from planner_client.mppi.sampling import halton_uniforms
+
     monkeypatch.setenv("M3P2I_CACHE", str(tmp_path / "cache"))
     calls = []
 
     def compute():
         calls.append(1)
         return np.arange(6.0).reshape(2, 3)
+
     first = cache.cached_table("t-2x3", (2, 3), compute)
     again = cache.cached_table("t-2x3", (2, 3), compute)
     assert calls == [1] and np.array_equal(first, again)
@@ -624,8 +666,13 @@ def test_the_samplers_tables_come_from_the_cache_once_computed(tmp_path, monkeyp
     assert np.array_equal(cache.cached_table("t-2x3", (2, 3), compute), first) and calls == [1, 1]
     # the cached Halton points are SciPy's, bit for bit
     from scipy.stats import qmc
-    assert np.array_equal(halton_uniforms(16, 5, 3), qmc.Halton(d=5, scramble=True, seed=3).random(16))
-    assert np.array_equal(halton_uniforms(16, 5, 3), qmc.Halton(d=5, scramble=True, seed=3).random(16))
+
+    assert np.array_equal(
+        halton_uniforms(16, 5, 3), qmc.Halton(d=5, scramble=True, seed=3).random(16)
+    )
+    assert np.array_equal(
+        halton_uniforms(16, 5, 3), qmc.Halton(d=5, scramble=True, seed=3).random(16)
+    )
     # a cache that cannot be written only costs the computation
     monkeypatch.setenv("M3P2I_CACHE", "/proc/m3p2i-no-such-dir")
     assert np.array_equal(cache.cached_table("t-2x3", (2, 3), compute), first)

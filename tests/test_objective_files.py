@@ -13,8 +13,10 @@ from shared.scenario import SCENARIO_DIR, load_scenario
 LIBRARY = {
     "description": "test objectives",
     "objectives": {
-        "go": {"terms": [{"term": "distance", "a": "robot", "b": "box", "axes": "xy"}],
-               "fixed": {"suction": 0.0}},
+        "go": {
+            "terms": [{"term": "distance", "a": "robot", "b": "box", "axes": "xy"}],
+            "fixed": {"suction": 0.0},
+        },
         "go_hard": {"extends": "go", "terms": [{"term": "velocity", "a": "robot"}]},
     },
 }
@@ -25,9 +27,13 @@ def _files(tmp_path, library=LIBRARY, objectives=None, include=None):
     lib.write_text(yaml.safe_dump(library))
     raw = yaml.safe_load((SCENARIO_DIR / "push.yaml").read_text())
     raw["include"] = include or [str(lib)]
-    raw["objectives"] = objectives or {"push": {"extends": "go_hard",
-                                                "terms": [{"term": "control_effort"}],
-                                                "fixed": {"suction": 0.5}}}
+    raw["objectives"] = objectives or {
+        "push": {
+            "extends": "go_hard",
+            "terms": [{"term": "control_effort"}],
+            "fixed": {"suction": 0.5},
+        }
+    }
     path = tmp_path / "scenario.yaml"
     path.write_text(yaml.safe_dump(raw))
     return path, lib
@@ -62,8 +68,9 @@ def test_an_unknown_include_names_the_key_and_the_choices(tmp_path):
 
 def test_an_unknown_base_names_the_key_and_the_choices(tmp_path):
     path, _ = _files(tmp_path, objectives={"push": {"extends": "gogo"}})
-    with pytest.raises(ConfigError,
-                       match=r"objectives\.push\.extends: must be one of: go, go_hard \(got .gogo."):
+    with pytest.raises(
+        ConfigError, match=r"objectives\.push\.extends: must be one of: go, go_hard \(got .gogo."
+    ):
         load_scenario(path)
 
 
@@ -77,12 +84,17 @@ def test_a_name_defined_in_two_included_files_is_an_error(tmp_path):
 
 
 def test_a_fault_in_an_included_file_names_that_file(tmp_path):
-    library = {"objectives": {"go": {"terms": [{"term": "distance", "a": "robot", "b": "bocks"}]},
-                              "go_hard": {"extends": "go"}}}
+    library = {
+        "objectives": {
+            "go": {"terms": [{"term": "distance", "a": "robot", "b": "bocks"}]},
+            "go_hard": {"extends": "go"},
+        }
+    }
     path, lib = _files(tmp_path, library=library)
     errors = [str(e) for e in planner_check.scenario_errors(path)]
-    assert any(e.startswith(f"{lib}: objectives.go.terms[0].b: no body named 'bocks'")
-               for e in errors), errors
+    assert any(
+        e.startswith(f"{lib}: objectives.go.terms[0].b: no body named 'bocks'") for e in errors
+    ), errors
 
 
 def test_the_shipped_push_and_pull_are_defined_once():

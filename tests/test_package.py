@@ -51,6 +51,7 @@ def cli(*args: str):
 
 # ------------------------------------------------------------------------------------- lookup
 
+
 def test_lookup_order_path_then_env_folders_then_current_folder_then_shipped(user, monkeypatch):
     first, second = user / "first", user / "second"
     monkeypatch.setenv(ENV_VAR, os.pathsep.join([str(first), str(second)]))
@@ -65,7 +66,7 @@ def test_lookup_order_path_then_env_folders_then_current_folder_then_shipped(use
     assert find("b") == in_second
     assert find("c") == in_local
     assert find("navigation") == SCENARIO_DIR / "navigation.yaml"
-    assert find(elsewhere) == elsewhere                   # a path is taken as given
+    assert find(elsewhere) == elsewhere  # a path is taken as given
     assert load_scenario("a").description == "first"
 
 
@@ -77,8 +78,15 @@ def test_a_users_file_shadows_the_shipped_one_and_list_says_so(user):
     assert out.exit_code == 0, out.output
     lines = out.output.splitlines()
     assert lines[0] == "./configs/scenarios (current folder):"
-    assert lines[1].split() == ["navigation", "[shadows", "the", "shipped", "navigation]", "my",
-                                "navigation"]
+    assert lines[1].split() == [
+        "navigation",
+        "[shadows",
+        "the",
+        "shipped",
+        "navigation]",
+        "my",
+        "navigation",
+    ]
     assert lines[2].startswith("shipped ") and lines[2].endswith("scenarios:")
     shipped_nav = next(line for line in lines[3:] if line.split()[0] == "navigation")
     assert "[not used: ./configs/scenarios/navigation.yaml comes first]" in shipped_nav
@@ -136,17 +144,22 @@ def test_objective_files_are_looked_up_beside_the_users_scenario_folders(user, m
 def test_bench_files_are_looked_up_like_scenarios(user):
     local = user / "configs" / "bench"
     local.mkdir(parents=True)
-    (local / "mine.yaml").write_text(yaml.safe_dump(
-        {"cases": [{"case": "nav", "scenario": "navigation", "trials": 1}]}))
+    (local / "mine.yaml").write_text(
+        yaml.safe_dump({"cases": [{"case": "nav", "scenario": "navigation", "trials": 1}]})
+    )
     assert load_bench("mine").source == str(local / "mine.yaml")
     assert Path(load_bench("paper").source) == shipped("bench", "paper.yaml")
     out = cli("list", "bench").output.splitlines()
     assert out[:2] == ["./configs/bench (current folder):", "  mine"]
-    with pytest.raises(ConfigError, match=r"no such bench file or name .*one of: mine, paper, planning-model, realtime, robustness, samples;"):
+    with pytest.raises(
+        ConfigError,
+        match=r"no such bench file or name .*one of: mine, paper, planning-model, realtime, robustness, samples;",
+    ):
         load_bench("nope")
 
 
 # ---------------------------------------------------------------------------------- m3p2i new
+
 
 def test_new_writes_a_renamed_copy_into_the_users_folder(user):
     out = cli("new", "mine", "--from", "navigation")
@@ -162,7 +175,7 @@ def test_new_writes_a_renamed_copy_into_the_users_folder(user):
 
 def test_new_goes_to_the_first_env_folder_and_may_shadow_a_shipped_name(user, monkeypatch):
     monkeypatch.setenv(ENV_VAR, str(user / "mine"))
-    out = cli("new", "push", "--from", "push")            # include: [push_pull] still found
+    out = cli("new", "push", "--from", "push")  # include: [push_pull] still found
     assert out.exit_code == 0, out.output
     assert "it shadows " in out.output and "push.yaml (shipped)" in out.output
     assert load_scenario("push").source == str(user / "mine" / "push.yaml")
@@ -174,7 +187,9 @@ def test_new_refuses_to_overwrite(user):
     path.write_text("# edited\n" + path.read_text())
     out = cli("new", "mine", "--from", "push")
     assert out.exit_code == 2
-    assert "./configs/scenarios/mine.yaml: exists already (m3p2i new never overwrites)" in out.output
+    assert (
+        "./configs/scenarios/mine.yaml: exists already (m3p2i new never overwrites)" in out.output
+    )
     assert path.read_text().startswith("# edited\n")
 
 
@@ -189,14 +204,17 @@ def test_new_from_an_unknown_scenario_or_with_a_path_as_name_fails_clearly(user)
 
 # ------------------------------------------------------------------------------------ the wheel
 
+
 def test_pyproject_lists_every_package():
     """packages.find cannot see configs/ mapped to shared.configs, so the list is written out:
     a package missing from it would be missing from the wheel."""
-    tomllib = pytest.importorskip("tomllib")          # Python 3.11+
+    tomllib = pytest.importorskip("tomllib")  # Python 3.11+
     tool = tomllib.loads((ROOT / "pyproject.toml").read_text())["tool"]["setuptools"]
-    found = {".".join(p.parent.relative_to(ROOT).parts)
-             for top in ("shared", "server", "planner_client")
-             for p in (ROOT / top).rglob("__init__.py")}
+    found = {
+        ".".join(p.parent.relative_to(ROOT).parts)
+        for top in ("shared", "server", "planner_client")
+        for p in (ROOT / top).rglob("__init__.py")
+    }
     assert sorted(tool["packages"]) == sorted(found | {"shared.configs"})
     assert tool["package-dir"] == {"shared.configs": "configs"}
 
@@ -206,8 +224,9 @@ WHEEL_SOURCES = ("pyproject.toml", "README.md", "configs", "shared", "server", "
 
 def run(cmd: list, cwd: Path, env: dict, timeout: float = 600) -> str:
     """Run ``cmd``; its output, or a failure that shows it."""
-    done = subprocess.run([str(c) for c in cmd], cwd=cwd, env=env, capture_output=True,
-                          text=True, timeout=timeout)
+    done = subprocess.run(
+        [str(c) for c in cmd], cwd=cwd, env=env, capture_output=True, text=True, timeout=timeout
+    )
     assert done.returncode == 0, f"{cmd} exited {done.returncode}:\n{done.stdout}\n{done.stderr}"
     return done.stdout
 
@@ -223,12 +242,28 @@ def test_the_wheel_installs_and_runs_from_an_empty_folder(tmp_path):
         else:
             shutil.copy(ROOT / name, src / name)
     env = {k: v for k, v in os.environ.items() if k not in ("PYTHONPATH", ENV_VAR)}
-    run([sys.executable, "-m", "pip", "wheel", "--no-deps", "--no-build-isolation", "--no-index",
-         "-w", tmp_path / "dist", src], tmp_path, env)
+    run(
+        [
+            sys.executable,
+            "-m",
+            "pip",
+            "wheel",
+            "--no-deps",
+            "--no-build-isolation",
+            "--no-index",
+            "-w",
+            tmp_path / "dist",
+            src,
+        ],
+        tmp_path,
+        env,
+    )
     (wheel,) = (tmp_path / "dist").glob("m3p2i-*.whl")
     carried = set(zipfile.ZipFile(wheel).namelist())
-    configs = {f"shared/configs/{p.relative_to(ROOT / 'configs').as_posix()}"
-               for p in (ROOT / "configs").rglob("*.yaml")}
+    configs = {
+        f"shared/configs/{p.relative_to(ROOT / 'configs').as_posix()}"
+        for p in (ROOT / "configs").rglob("*.yaml")
+    }
     robots = {f"shared/robots/{p.name}" for p in (ROOT / "shared" / "robots").glob("*.xml")}
     assert configs | robots <= carried
 
@@ -237,10 +272,26 @@ def test_the_wheel_installs_and_runs_from_an_empty_folder(tmp_path):
     venv = tmp_path / "venv"
     run([sys.executable, "-m", "venv", "--without-pip", venv], tmp_path, env)
     python = venv / "bin" / "python"
-    run([sys.executable, "-m", "pip", "--python", python, "install", "--no-deps", "--no-index",
-         wheel], tmp_path, env)
-    purelib = Path(run([python, "-c", "import sysconfig; print(sysconfig.get_path('purelib'))"],
-                       tmp_path, env).strip())
+    run(
+        [
+            sys.executable,
+            "-m",
+            "pip",
+            "--python",
+            python,
+            "install",
+            "--no-deps",
+            "--no-index",
+            wheel,
+        ],
+        tmp_path,
+        env,
+    )
+    purelib = Path(
+        run(
+            [python, "-c", "import sysconfig; print(sysconfig.get_path('purelib'))"], tmp_path, env
+        ).strip()
+    )
     (purelib / "test-environment.pth").write_text("\n".join(site.getsitepackages()) + "\n")
 
     empty = tmp_path / "empty"

@@ -16,8 +16,13 @@ from shared.scenario import load_scenario
 from shared.scene import compile_model
 from tests.episodes import Episode
 
-START = {"preplace": "not_at_preplace", "holding": "not_holding", "reachable": "not_reachable",
-         "placed": "not_placed_on", "goal": "goal_free"}
+START = {
+    "preplace": "not_at_preplace",
+    "holding": "not_holding",
+    "reachable": "not_reachable",
+    "placed": "not_placed_on",
+    "goal": "goal_free",
+}
 
 
 def _decide(scenario: str, **observed):
@@ -26,20 +31,25 @@ def _decide(scenario: str, **observed):
     return ActiveInferencePlanner(sc.task).step(obs)
 
 
-@pytest.mark.parametrize("observed, action", [
-    ({}, "reach"),
-    ({"reachable": "reachable"}, "pick"),
-    ({"reachable": "reachable", "holding": "holding"}, "move2place"),
-    ({"holding": "holding", "preplace": "at_preplace"}, "place"),
-    ({"goal": "goal_blocked"}, "reach"),       # picking does not need the goal
-])
+@pytest.mark.parametrize(
+    "observed, action",
+    [
+        ({}, "reach"),
+        ({"reachable": "reachable"}, "pick"),
+        ({"reachable": "reachable", "holding": "holding"}, "move2place"),
+        ({"holding": "holding", "preplace": "at_preplace"}, "place"),
+        ({"goal": "goal_blocked"}, "reach"),  # picking does not need the goal
+    ],
+)
 def test_template_chains_reach_pick_move2place_place(observed, action):
     d = _decide("pick_place_reactive", **observed)
     assert (d.status, d.action) == ("running", action)
 
 
 def test_a_blocked_goal_stops_the_robot_with_the_reason():
-    d = _decide("pick_place_reactive", reachable="reachable", holding="holding", goal="goal_blocked")
+    d = _decide(
+        "pick_place_reactive", reachable="reachable", holding="holding", goal="goal_blocked"
+    )
     assert d.status == "failure"
     assert "no action takes goal from goal_blocked to goal_free" in d.reason
 
@@ -75,10 +85,12 @@ def panda(lockstep_episodes):
 
 def _report(name: str, ep: Episode) -> None:
     m = ep.summary.get("measures", {})
-    print(f"\n{name} seed {ep.row['seed']}: {ep.row['status']} at t={float(ep.row['time']):.2f} s, "
-          f"position error {m.get('position error cube_a-cube_b', float('nan')):.4f} m, "
-          f"orientation error {m.get('orientation error cube_a-cube_b', float('nan')):.4f}, "
-          f"planner {float(ep.row['planner_hz']):.1f} Hz, wall {float(ep.row['trial_wall']):.0f} s")
+    print(
+        f"\n{name} seed {ep.row['seed']}: {ep.row['status']} at t={float(ep.row['time']):.2f} s, "
+        f"position error {m.get('position error cube_a-cube_b', float('nan')):.4f} m, "
+        f"orientation error {m.get('orientation error cube_a-cube_b', float('nan')):.4f}, "
+        f"planner {float(ep.row['planner_hz']):.1f} Hz, wall {float(ep.row['trial_wall']):.0f} s"
+    )
 
 
 def _succeeded_within_tolerance(name: str, episodes: dict) -> list[Episode]:
@@ -91,7 +103,9 @@ def _succeeded_within_tolerance(name: str, episodes: dict) -> list[Episode]:
     assert won, f"{name}: no seed of {SEEDS} succeeded"
     for ep in won:
         m = ep.summary["measures"]
-        assert m["position error cube_a-cube_b"] < 0.01 and m["orientation error cube_a-cube_b"] < 0.01
+        assert (
+            m["position error cube_a-cube_b"] < 0.01 and m["orientation error cube_a-cube_b"] < 0.01
+        )
     return won
 
 
@@ -104,17 +118,22 @@ def test_reactive_run_picks_the_stolen_cube_again_and_succeeds(panda):
     for ep in _succeeded_within_tolerance("pick_place_reactive", panda):
         # the template's chain up to the theft (the goal's block then reports a failure)
         assert _first_occurrences(ep.actions)[:3] == ["reach", "pick", "move2place"]
-        assert [e["object"] for e in ep.disturbances] == \
-            ["cube_a", "cube_a", "blocker", "blocker", "cube_a"]
-        assert ep.actions.count("place") >= 2             # placed, unstacked, placed again
+        assert [e["object"] for e in ep.disturbances] == [
+            "cube_a",
+            "cube_a",
+            "blocker",
+            "blocker",
+            "cube_a",
+        ]
+        assert ep.actions.count("place") >= 2  # placed, unstacked, placed again
     for seed in SEEDS:
         ep = panda[("pick_place_reactive", seed)]
         # stolen during transport: active inference goes back to reach and pick, whatever the
         # hand does next; with the goal blocked it reports failure instead of placing
-        after_steal = ep.actions[ep.actions.index("move2place") + 1:]
+        after_steal = ep.actions[ep.actions.index("move2place") + 1 :]
         assert after_steal[:2] == ["reach", "pick"], ep.actions
-        assert "failure" in ep.actions[ep.actions.index("move2place"):]
-        assert ep.actions.count("pick") >= 2              # the re-grasp happened
+        assert "failure" in ep.actions[ep.actions.index("move2place") :]
+        assert ep.actions.count("pick") >= 2  # the re-grasp happened
 
 
 def _grasp_axis(scenario: str, records) -> np.ndarray:
@@ -139,13 +158,15 @@ def test_shelf_scenario_grasps_from_the_side_in_the_shelf_and_from_above_on_the_
     for seed, case in zip(SEEDS, ("shelf", "table")):
         ep = panda[("pick_shelf", seed)]
         start_z = ep.records[0]["initial"][0]["pos"][2]
-        assert (start_z > 1.2) == (case == "shelf")     # shelf at 1.3 m, table 1.025
+        assert (start_z > 1.2) == (case == "shelf")  # shelf at 1.3 m, table 1.025
         z_hand = _grasp_axis("pick_shelf", ep.records)
-        print(f"pick_shelf seed {seed} ({case}): hand z axis at pick "
-              f"{np.round(z_hand, 2).tolist()}, collisions {ep.row['collisions']}")
+        print(
+            f"pick_shelf seed {seed} ({case}): hand z axis at pick "
+            f"{np.round(z_hand, 2).tolist()}, collisions {ep.row['collisions']}"
+        )
         if case == "table":
-            assert z_hand[2] < -0.9                     # pointing down
+            assert z_hand[2] < -0.9  # pointing down
         else:
-            assert abs(z_hand[2]) < 0.2                 # level
+            assert abs(z_hand[2]) < 0.2  # level
         assert float(ep.row["collisions"]) == 0
-        assert "modes ['reach_top', 'reach_side']" in ep.planner_log   # M3P2I sampled both
+        assert "modes ['reach_top', 'reach_side']" in ep.planner_log  # M3P2I sampled both

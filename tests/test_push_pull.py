@@ -16,8 +16,8 @@ from tests.episodes import with_max_time
 
 pytestmark = pytest.mark.slow
 
-SUCTION = 2   # point_robot_suction: ctrl = (vel_x, vel_y, suction)
-BOX = slice(2, 4)   # the box's x, y in qpos, after the robot's two slide joints
+SUCTION = 2  # point_robot_suction: ctrl = (vel_x, vel_y, suction)
+BOX = slice(2, 4)  # the box's x, y in qpos, after the robot's two slide joints
 
 # The hybrid's corner-to-corner episodes take 9-12 s (mean 10.4 s over 20 seeds); push alone gets
 # the hybrid's longest time to show that it mostly stalls.
@@ -32,9 +32,18 @@ def episode_specs(out):
     push_corner2 = with_max_time("push_corner2", CORNER2_PUSH_TIME, out)
     specs = [("push_pull_corner2", "push_pull_corner2", seed) for seed in HYBRID_SEEDS]
     specs += [("push_corner2", push_corner2, seed) for seed in PUSH_SEEDS]
-    specs += [(name, name, seed) for name in ("push", "pull", "push_dynamic_obstacle",
-                                              "pull_dynamic_obstacle", "push_pull_corner1",
-                                              "push_pull_aip") for seed in PAIR]
+    specs += [
+        (name, name, seed)
+        for name in (
+            "push",
+            "pull",
+            "push_dynamic_obstacle",
+            "pull_dynamic_obstacle",
+            "push_pull_corner1",
+            "push_pull_aip",
+        )
+        for seed in PAIR
+    ]
     return specs
 
 
@@ -45,8 +54,12 @@ def episodes(lockstep_episodes):
 
 def _runs(episodes, name: str, seeds=PAIR) -> list:
     runs = [episodes[(name, s)] for s in seeds]
-    print(f"\n{name}: " + ", ".join(f"seed {r.row['seed']} {r.row['status']} "
-                                     f"({float(r.row['time']):.2f} s)" for r in runs))
+    print(
+        f"\n{name}: "
+        + ", ".join(
+            f"seed {r.row['seed']} {r.row['status']} ({float(r.row['time']):.2f} s)" for r in runs
+        )
+    )
     return runs
 
 
@@ -85,7 +98,7 @@ def test_push_and_pull_among_a_moving_obstacle_never_touch_it(episodes, scenario
     for r in runs:
         assert float(r.row["collisions"]) == 0
         mover = np.array([s["mocap_pos"][-1][:2] for s in r.steps])
-        assert np.ptp(mover[:, 1]) > 1.0           # it did move across the way
+        assert np.ptp(mover[:, 1]) > 1.0  # it did move across the way
 
 
 def test_hybrid_puts_the_box_into_a_corner(episodes):

@@ -28,15 +28,22 @@ def with_world(name: str, add) -> mujoco.MjModel:
     return spec.compile()
 
 
-def add_box(world, name: str, half: list[float], pos: list[float], mass: float,
-            friction: float = 0.5) -> None:
+def add_box(
+    world, name: str, half: list[float], pos: list[float], mass: float, friction: float = 0.5
+) -> None:
     body = world.add_body(name=name, pos=pos)
     body.add_freejoint(name=f"{name}_free")
-    body.add_geom(name=name, type=mujoco.mjtGeom.mjGEOM_BOX, size=half, mass=mass,
-                  friction=[friction, 0.005, 0.0001])
+    body.add_geom(
+        name=name,
+        type=mujoco.mjtGeom.mjGEOM_BOX,
+        size=half,
+        mass=mass,
+        friction=[friction, 0.005, 0.0001],
+    )
 
 
 # ---------------------------------------------------------------- registry <-> MJCF ------------
+
 
 def test_built_in_robots_are_registered():
     assert set(BUILT_IN) <= set(ROBOTS)
@@ -51,8 +58,11 @@ def test_registry_entry_matches_mjcf(name):
     assert len(spec.safe_ctrl) == model.nu
     lo, hi = model.actuator_ctrlrange.T
     assert np.all(lo <= spec.safe_ctrl) and np.all(np.asarray(spec.safe_ctrl) <= hi)
-    kind, frame = ((mujoco.mjtObj.mjOBJ_SITE, spec.frame[5:]) if spec.frame.startswith("site:")
-                   else (mujoco.mjtObj.mjOBJ_BODY, spec.frame))
+    kind, frame = (
+        (mujoco.mjtObj.mjOBJ_SITE, spec.frame[5:])
+        if spec.frame.startswith("site:")
+        else (mujoco.mjtObj.mjOBJ_BODY, spec.frame)
+    )
     assert mujoco.mj_name2id(model, kind, frame) >= 0, f"frame {spec.frame!r} not in {spec.mjcf}"
 
 
@@ -73,6 +83,7 @@ def test_suction_variant_has_the_point_robots_body_and_drive():
 
 
 # ---------------------------------------------------------------- point robot ------------------
+
 
 def test_point_robot_tracks_velocity_without_touching_the_floor():
     model = with_world("point_robot", lambda world: None)
@@ -101,10 +112,12 @@ def test_point_robot_commands_are_clamped_to_its_speed_limit():
 
 # ---------------------------------------------------------------- suction ----------------------
 
+
 def suction_scene() -> tuple[mujoco.MjModel, mujoco.MjData]:
     """The thesis box (0.4 x 0.4 x 0.1 m, 1 kg) touching the robot's +x side, settled."""
-    model = with_world("point_robot_suction",
-                       lambda w: add_box(w, "box", [0.2, 0.2, 0.05], [0.4, 0.0, 0.05], 1.0))
+    model = with_world(
+        "point_robot_suction", lambda w: add_box(w, "box", [0.2, 0.2, 0.05], [0.4, 0.0, 0.05], 1.0)
+    )
     data = mujoco.MjData(model)
     for _ in range(10):
         mujoco.mj_step(model, data)
@@ -125,19 +138,19 @@ def box_gap(data) -> float:
 def test_suction_drags_the_box_when_the_robot_backs_away_and_turns():
     model, data = suction_scene()
     box0, robot0 = data.body("box").xpos.copy(), data.body("robot").xpos.copy()
-    drive(model, data, (-0.5, 0.0), 1.0, 2.0)      # straight pull, about 1 m
+    drive(model, data, (-0.5, 0.0), 1.0, 2.0)  # straight pull, about 1 m
     robot_moved = data.body("robot").xpos - robot0
     box_moved = data.body("box").xpos - box0
-    assert robot_moved[0] < -0.8      # the box's friction (5-10 N) slows the servo by F / kv
+    assert robot_moved[0] < -0.8  # the box's friction (5-10 N) slows the servo by F / kv
     np.testing.assert_allclose(box_moved[:2], robot_moved[:2], atol=0.04)
     # attached: pressed into the soft contact (1.8 cm under steady suction), not torn off
     assert -0.03 < box_gap(data) < 0.01
-    drive(model, data, (-0.5, 0.5), 1.0, 1.0)      # pull diagonally: the box swings behind
+    drive(model, data, (-0.5, 0.5), 1.0, 1.0)  # pull diagonally: the box swings behind
     drive(model, data, (0.0, 0.0), 1.0, 0.5)
     offset = data.body("box").xpos[:2] - data.body("robot").xpos[:2]
     # still attached: centre distance between face-on (0.4) and corner-on (0.2 + 0.2 * sqrt 2)
     assert 0.37 < np.linalg.norm(offset) < 0.5
-    assert abs(data.body("box").xpos[2] - 0.05) < 0.01     # still lying on the floor
+    assert abs(data.body("box").xpos[2] - 0.05) < 0.01  # still lying on the floor
 
 
 def test_without_suction_the_box_stays():
@@ -157,6 +170,7 @@ def test_suction_at_rest_holds_the_box_steadily():
 
 # ---------------------------------------------------------------- diff drive -------------------
 
+
 def body_frame_velocity(data) -> np.ndarray:
     """(forward, lateral, yaw rate) of the diff drive."""
     c, s = np.cos(data.qpos[2]), np.sin(data.qpos[2])
@@ -171,7 +185,7 @@ def test_diff_drive_tracks_forward_speed_and_yaw_rate():
         data.ctrl[:] = [1.0, 0.5, 0.0]
         mujoco.mj_step(model, data)
         v = body_frame_velocity(data)
-        if step == 1:           # kv dt / inertia = 1.5: 1 - 1 / 2.5^2 of the command
+        if step == 1:  # kv dt / inertia = 1.5: 1 - 1 / 2.5^2 of the command
             np.testing.assert_allclose(v[[0, 2]], [0.84, 0.42], atol=2e-3)
         assert data.ncon == 0
     np.testing.assert_allclose(body_frame_velocity(data)[[0, 2]], [1.0, 0.5], rtol=1e-3)
@@ -181,7 +195,7 @@ def test_diff_drive_turns_in_place_and_drives_along_its_new_heading():
     model = load("diff_drive")
     data = mujoco.MjData(model)
     steps = round((np.pi / 2) / 1.0 / model.opt.timestep)
-    for i in range(steps + 20):     # 1 rad/s for ~pi/2, then let the servo settle
+    for i in range(steps + 20):  # 1 rad/s for ~pi/2, then let the servo settle
         data.ctrl[:] = [0.0, 1.0 if i < steps else 0.0, 0.0]
         mujoco.mj_step(model, data)
     heading = data.qpos[2]
@@ -258,21 +272,22 @@ def test_panda_home_pose_kinematics():
     # down (values from the DH table with the 0.1034 m TCP offset)
     grasp = data.site("grasp")
     np.testing.assert_allclose(grasp.xpos - PANDA_BASE, [0.307, 0.0, 0.487], atol=1e-3)
-    assert grasp.xpos[2] > 1.0       # above the table top
+    assert grasp.xpos[2] > 1.0  # above the table top
     np.testing.assert_allclose(grasp.xmat.reshape(3, 3)[:, 2], [0, 0, -1], atol=1e-3)
     # fingertip sites measure the opening width; the home keyframe opens the hand fully
     width = np.linalg.norm(data.site("finger_left").xpos - data.site("finger_right").xpos)
     assert width == pytest.approx(0.08, abs=1e-9)
-    np.testing.assert_allclose((data.site("finger_left").xpos + data.site("finger_right").xpos) / 2,
-                               grasp.xpos, atol=1e-9)
-    assert data.ncon == 0            # no self-contact
+    np.testing.assert_allclose(
+        (data.site("finger_left").xpos + data.site("finger_right").xpos) / 2, grasp.xpos, atol=1e-9
+    )
+    assert data.ncon == 0  # no self-contact
 
 
 def test_panda_holds_still_and_tracks_joint_velocities():
     model = load("panda")
     data = panda_at_home(model)
     q0 = data.qpos.copy()
-    for _ in range(100):             # zero command, gravity compensated: no sag
+    for _ in range(100):  # zero command, gravity compensated: no sag
         mujoco.mj_step(model, data)
     np.testing.assert_allclose(data.qpos, q0, atol=1e-9)
     for joint in range(7):
@@ -292,7 +307,10 @@ def test_panda_gripper_mirrors_one_command():
         for _ in range(50):
             data.ctrl[7] = target
             mujoco.mj_step(model, data)
-        left, right = data.joint("panda_finger_joint1").qpos[0], data.joint("panda_finger_joint2").qpos[0]
+        left, right = (
+            data.joint("panda_finger_joint1").qpos[0],
+            data.joint("panda_finger_joint2").qpos[0],
+        )
         assert left == pytest.approx(right, abs=1e-4)
         assert left + right == pytest.approx(target, abs=1e-3)
 
@@ -303,21 +321,25 @@ def test_panda_grasps_and_lifts_a_cube():
 
     def cube_on_a_post(world):
         # a 5 cm cube centred between the open fingers, resting on a thin post
-        world.add_geom(name="post", type=mujoco.mjtGeom.mjGEOM_BOX, size=[0.02, 0.02, 0.05],
-                       pos=[tcp[0], tcp[1], tcp[2] - 0.075])
+        world.add_geom(
+            name="post",
+            type=mujoco.mjtGeom.mjGEOM_BOX,
+            size=[0.02, 0.02, 0.05],
+            pos=[tcp[0], tcp[1], tcp[2] - 0.075],
+        )
         add_box(world, "cube", [0.025] * 3, list(tcp), 0.1)
 
     model = with_world("panda", cube_on_a_post)
     data = panda_at_home(model)
     for _ in range(20):
         mujoco.mj_step(model, data)
-    data.ctrl[7] = 0.0                                       # close
+    data.ctrl[7] = 0.0  # close
     for _ in range(30):
         mujoco.mj_step(model, data)
     l_gripper = np.linalg.norm(data.site("finger_left").xpos - data.site("finger_right").xpos)
-    assert 0.047 < l_gripper < 0.05                          # pads pressed on the 5 cm cube
+    assert 0.047 < l_gripper < 0.05  # pads pressed on the 5 cm cube
     cube_z0 = data.body("cube").xpos[2]
-    for joint, velocity in ((1, -0.5), (3, 0.5)):            # shoulder back, then elbow open
+    for joint, velocity in ((1, -0.5), (3, 0.5)):  # shoulder back, then elbow open
         for _ in range(40):
             data.ctrl[:7] = 0.0
             data.ctrl[joint] = velocity
@@ -325,7 +347,7 @@ def test_panda_grasps_and_lifts_a_cube():
         assert np.linalg.norm(data.body("cube").xpos - data.site("grasp").xpos) < 0.01
     assert data.body("cube").xpos[2] - cube_z0 > 0.1
     data.ctrl[:] = 0.0
-    data.ctrl[7] = 0.08                                      # open: the cube drops
+    data.ctrl[7] = 0.08  # open: the cube drops
     for _ in range(30):
         mujoco.mj_step(model, data)
     assert data.site("grasp").xpos[2] - data.body("cube").xpos[2] > 0.05

@@ -91,6 +91,7 @@ def test_robot_qpos_sets_the_start_state_not_the_joint_zero():
     # MuJoCo measures hinge angles from qpos0: the Panda at robot.qpos must be drawn exactly like
     # its own "home" keyframe, and its joint zero must stay where the MJCF puts it
     import mujoco
+
     from shared.robots import get_robot
     from shared.scene import initial_data
 
@@ -115,7 +116,7 @@ def test_success_must_hold_for_episode_hold_seconds(nav_raw):
     while world.status == "running":
         world.step(np.zeros(2))
         steps += 1
-    assert world.status == "success" and steps == 5         # 0.05 s steps: held from t = 0.05
+    assert world.status == "success" and steps == 5  # 0.05 s steps: held from t = 0.05
     nav_raw["episode"]["hold"] = -1
     assert "episode.hold: must be >= 0" in _error(nav_raw)
 
@@ -124,12 +125,12 @@ def test_a_safe_stop_keeps_the_gripper_command():
     from server.world import SimWorld
 
     world = SimWorld(load_scenario("pick_place"))
-    np.testing.assert_array_equal(world.safe_command(), 0.0)    # before any command
+    np.testing.assert_array_equal(world.safe_command(), 0.0)  # before any command
     ctrl = np.full(8, 0.5)
     ctrl[7] = 0.08
     world.step(ctrl)
     expected = np.zeros(8)
-    expected[7] = 0.08                                           # joints stop, the hand stays open
+    expected[7] = 0.08  # joints stop, the hand stays open
     np.testing.assert_array_equal(world.safe_command(), expected)
 
 
@@ -144,18 +145,29 @@ def test_randomize_choose_draws_one_of_the_listed_start_positions():
     sc = parse_scenario(raw, "test.yaml")
     assert sc.world.randomize[0].choose == tuple(tuple(p) for p in spots)
     drawn = set()
-    for seed in range(8):            # the server draws at reset, from its --seed
+    for seed in range(8):  # the server draws at reset, from its --seed
         world = SimWorld(sc, seed=seed)
         drawn.add(tuple(round(v, 6) for v in world.initial[0]["pos"]))
     assert drawn == {tuple(p) for p in spots}
 
 
-@pytest.mark.parametrize("entry, message", [
-    ({"choose": [[0.1, 0.0, 1.0]]}, "world.randomize[0].choose: needs at least two start positions"),
-    ({"choose": [[0.1, 0.0, 1.0], [0.2, 0.0]]}, "world.randomize[0].choose[1]: needs 3 numbers"),
-    ({"choose": [[0.1, 0.0, 1.0], [0.2, 0.0, 1.0]], "x": [0.0, 0.1]},
-     "world.randomize[0].x: give either choose or x/y ranges, not both"),
-])
+@pytest.mark.parametrize(
+    "entry, message",
+    [
+        (
+            {"choose": [[0.1, 0.0, 1.0]]},
+            "world.randomize[0].choose: needs at least two start positions",
+        ),
+        (
+            {"choose": [[0.1, 0.0, 1.0], [0.2, 0.0]]},
+            "world.randomize[0].choose[1]: needs 3 numbers",
+        ),
+        (
+            {"choose": [[0.1, 0.0, 1.0], [0.2, 0.0, 1.0]], "x": [0.0, 0.1]},
+            "world.randomize[0].x: give either choose or x/y ranges, not both",
+        ),
+    ],
+)
 def test_randomize_choose_errors_name_the_key(entry, message):
     raw = _shelf_raw()
     raw["world"]["randomize"] = [{"object": "cube_a", **entry}]
@@ -167,11 +179,17 @@ def test_a_move_fires_delay_seconds_after_its_condition_first_holds(nav_raw):
     nav_raw["world"]["disturbances"] = [
         {"move": {"object": "pillar", "when": always, "delay": 0.5, "pos": [0.0, 3.0, 0.2]}},
         # chained: holds once the pillar is near the goal, i.e. after the first move
-        {"move": {"object": "block_a", "delay": 0.25, "pos": [2.0, -2.0, 0.2],
-                  "when": {"near": {"a": "pillar", "b": "goal", "within": 3.5}}}},
+        {
+            "move": {
+                "object": "block_a",
+                "delay": 0.25,
+                "pos": [2.0, -2.0, 0.2],
+                "when": {"near": {"a": "pillar", "b": "goal", "within": 3.5}},
+            }
+        },
     ]
     world = SimWorld(parse_scenario(nav_raw, "x.yaml"))
-    for _ in range(30):                                  # 1.5 s of 0.05 s steps
+    for _ in range(30):  # 1.5 s of 0.05 s steps
         world.step(np.zeros(2))
     moved = [(e["object"], round(e["time"], 2)) for e in world.events if "object" in e]
     # the condition holds before the first step (t = 0); the chained one from the step after
@@ -182,6 +200,9 @@ def test_a_move_fires_delay_seconds_after_its_condition_first_holds(nav_raw):
 
 def test_a_delay_needs_a_condition(nav_raw):
     nav_raw["world"]["disturbances"] = [
-        {"move": {"object": "pillar", "delay": 1.0, "pos": [0, 3, 0.2]}}]
-    assert ("world.disturbances[0].move.delay: a delay counts from when the `when` condition "
-            "first holds") in _error(nav_raw)
+        {"move": {"object": "pillar", "delay": 1.0, "pos": [0, 3, 0.2]}}
+    ]
+    assert (
+        "world.disturbances[0].move.delay: a delay counts from when the `when` condition "
+        "first holds"
+    ) in _error(nav_raw)

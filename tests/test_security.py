@@ -18,13 +18,27 @@ from shared import protocol as P
 from shared.config import ConfigError
 from shared.endpoints import Endpoints
 from shared.scenario import load_scenario
-from shared.security import (ExposureError, HandshakeMonitor, curve_client, is_loopback,
-                             keys_for_cli, load_planner_keys, load_world_keys, make_keys)
+from shared.security import (
+    ExposureError,
+    HandshakeMonitor,
+    curve_client,
+    is_loopback,
+    keys_for_cli,
+    load_planner_keys,
+    load_world_keys,
+    make_keys,
+)
 from shared.tools.cli import app as m3p2i
 from shared.tools.launch import EpisodeLaunch
 from shared.tools.video import DiagnosticsRecorder, read_tops
-from tests.helpers import StateWatcher, free_port_block, start_planner, start_server, stop, \
-    wait_episode
+from tests.helpers import (
+    StateWatcher,
+    free_port_block,
+    start_planner,
+    start_server,
+    stop,
+    wait_episode,
+)
 
 pytestmark = pytest.mark.skipif(not zmq.has("curve"), reason="libzmq without CURVE")
 
@@ -52,13 +66,18 @@ def intruder(tmp_path_factory, keys) -> Path:
 
 # ------------------------------------------------------------------------------ key files
 
+
 def test_m3p2i_keys_writes_both_pairs_secrets_owner_only_and_never_replaces_them(tmp_path):
     folder = tmp_path / "k"
     result = CliRunner().invoke(m3p2i, ["keys", str(folder)])
     assert result.exit_code == 0, result.output
     secrets = [folder / "world" / "world.key_secret", folder / "planner" / "planner.key_secret"]
-    publics = [folder / "world" / "world.key", folder / "world" / "planners" / "planner.key",
-               folder / "planner" / "planner.key", folder / "planner" / "world.key"]
+    publics = [
+        folder / "world" / "world.key",
+        folder / "world" / "planners" / "planner.key",
+        folder / "planner" / "planner.key",
+        folder / "planner" / "world.key",
+    ]
     assert [_mode(p) for p in secrets] == [0o600, 0o600]
     assert [_mode(p) for p in publics] == [0o644] * 4
     assert "world.key_secret (600)" in result.output
@@ -73,10 +92,12 @@ def test_m3p2i_keys_writes_both_pairs_secrets_owner_only_and_never_replaces_them
     assert secrets[0].read_bytes() == before
 
 
-@pytest.mark.parametrize("side,loader", [("world", load_world_keys),
-                                         ("planner", load_planner_keys)])
-def test_a_secret_key_readable_by_others_is_refused_with_the_chmod_that_fixes_it(tmp_path, side,
-                                                                                  loader):
+@pytest.mark.parametrize(
+    "side,loader", [("world", load_world_keys), ("planner", load_planner_keys)]
+)
+def test_a_secret_key_readable_by_others_is_refused_with_the_chmod_that_fixes_it(
+    tmp_path, side, loader
+):
     make_keys(tmp_path / "k")
     secret = tmp_path / "k" / side / f"{side}.key_secret"
     secret.chmod(0o640)
@@ -88,7 +109,7 @@ def test_a_secret_key_readable_by_others_is_refused_with_the_chmod_that_fixes_it
 
 def test_missing_or_malformed_keys_name_the_file(tmp_path):
     make_keys(tmp_path / "k")
-    (tmp_path / "k" / "planner" / "world.key").write_text("public-key = \"too short\"\n")
+    (tmp_path / "k" / "planner" / "world.key").write_text('public-key = "too short"\n')
     with pytest.raises(ConfigError, match=r"planner/world.key: malformed key.*40 characters"):
         load_planner_keys(tmp_path / "k")
     for p in (tmp_path / "k" / "world" / "planners").iterdir():
@@ -101,6 +122,7 @@ def test_missing_or_malformed_keys_name_the_file(tmp_path):
 
 # ------------------------------------------------------------------------------ exposure
 
+
 def test_only_loopback_counts_as_loopback():
     assert all(map(is_loopback, ["127.0.0.1", "127.0.0.2", "::1", "[::1]", "localhost"]))
     assert not any(map(is_loopback, ["0.0.0.0", "*", "192.168.1.10", "eth0", "robot.local"]))
@@ -111,26 +133,39 @@ def test_insecure_is_warned_at_start_and_contradicts_keys(keys):
     assert keys_for_cli({"--host": "0.0.0.0"}, None, True, load_world_keys, warnings.append) is None
     assert len(warnings) == 1 and "INSECURE" in warnings[0] and "--host 0.0.0.0" in warnings[0]
     keys_for_cli({"--host": "127.0.0.1"}, None, True, load_world_keys, warnings.append)
-    assert len(warnings) == 1              # loopback: nothing exposed, nothing to warn about
+    assert len(warnings) == 1  # loopback: nothing exposed, nothing to warn about
     with pytest.raises(ExposureError, match="contradict"):
         keys_for_cli({"--host": "0.0.0.0"}, keys, True, load_world_keys, warnings.append)
-    assert keys_for_cli({"--host": "0.0.0.0"}, keys, False, load_world_keys,
-                        warnings.append) == load_world_keys(keys)
+    assert keys_for_cli(
+        {"--host": "0.0.0.0"}, keys, False, load_world_keys, warnings.append
+    ) == load_world_keys(keys)
 
 
 def test_server_binding_all_interfaces_without_keys_exits_saying_how_to_make_keys(tmp_path):
     from server.cli import app as server
-    result = CliRunner().invoke(server, ["--scenario", "navigation", "--host", "0.0.0.0",
-                                         "--port", str(free_port_block()), "--log",
-                                         str(tmp_path / "log.jsonl")])
+
+    result = CliRunner().invoke(
+        server,
+        [
+            "--scenario",
+            "navigation",
+            "--host",
+            "0.0.0.0",
+            "--port",
+            str(free_port_block()),
+            "--log",
+            str(tmp_path / "log.jsonl"),
+        ],
+    )
     assert result.exit_code == 2, result.output
     assert "--host 0.0.0.0 is a network address" in result.output
     assert "m3p2i keys DIR" in result.output and "--insecure" in result.output
-    assert not (tmp_path / "log.jsonl").exists()   # refused before anything started
+    assert not (tmp_path / "log.jsonl").exists()  # refused before anything started
 
 
 def test_planner_to_a_network_address_without_keys_is_refused_likewise():
     from planner_client.cli import app as planner
+
     result = CliRunner().invoke(planner, ["--scenario", "navigation", "--host", "192.168.7.7"])
     assert result.exit_code == 2
     assert "--host 192.168.7.7 is a network address" in result.output
@@ -139,14 +174,18 @@ def test_planner_to_a_network_address_without_keys_is_refused_likewise():
 
 def test_a_loose_secret_key_stops_the_server_before_it_starts(tmp_path):
     from server.cli import app as server
+
     make_keys(tmp_path / "k")
     (tmp_path / "k" / "world" / "world.key_secret").chmod(0o644)
-    result = CliRunner().invoke(server, ["--scenario", "navigation", "--keys",
-                                         str(tmp_path / "k"), "--log", str(tmp_path / "l")])
+    result = CliRunner().invoke(
+        server,
+        ["--scenario", "navigation", "--keys", str(tmp_path / "k"), "--log", str(tmp_path / "l")],
+    )
     assert result.exit_code == 2 and "chmod 600" in result.output
 
 
 # ------------------------------------------------------------------------------ a keyed world
+
 
 class _Peer:
     """A would-be planner on raw sockets: hello on the control socket, a state subscriber."""
@@ -167,8 +206,9 @@ class _Peer:
     def hello(self, timeout_ms: int):
         # a refused connection leaves REQ no peer to send to, or one that is gone the next
         # moment (a peer without keys is re-connected and refused again and again)
-        hello = P.encode(P.Hello(scenario="navigation",
-                                 scenario_hash=load_scenario("navigation").hash))
+        hello = P.encode(
+            P.Hello(scenario="navigation", scenario_hash=load_scenario("navigation").hash)
+        )
         try:
             if not self.req.poll(timeout_ms, zmq.POLLOUT):
                 return None
@@ -187,25 +227,36 @@ class _Peer:
         self.ctx.term()
 
 
-def test_a_keyed_world_answers_only_the_allowed_key_and_logs_every_refusal(tmp_path, keys,
-                                                                           intruder, caplog):
+def test_a_keyed_world_answers_only_the_allowed_key_and_logs_every_refusal(
+    tmp_path, keys, intruder, caplog
+):
     port = free_port_block()
     log = tmp_path / "episode.jsonl"
-    server = WorldServer(load_scenario("navigation"), Endpoints(port=port), log,
-                         ServerOptions(linger=0.0), keys=load_world_keys(keys))
+    server = WorldServer(
+        load_scenario("navigation"),
+        Endpoints(port=port),
+        log,
+        ServerOptions(linger=0.0),
+        keys=load_world_keys(keys),
+    )
     world = threading.Thread(target=server.run, daemon=True)
     world.start()
-    peers = {"wrong key": _Peer(port, intruder), "no key": _Peer(port, None),
-             "allowed": _Peer(port, keys)}
+    peers = {
+        "wrong key": _Peer(port, intruder),
+        "no key": _Peer(port, None),
+        "allowed": _Peer(port, keys),
+    }
     watcher = StateWatcher(port, load_planner_keys(keys))
     try:
         assert isinstance(peers["allowed"].hello(20000), P.Welcome)
-        assert watcher.latest(10).seq == 0          # the tools' helper subscribes over CURVE too
+        assert watcher.latest(10).seq == 0  # the tools' helper subscribes over CURVE too
         for name in ("wrong key", "no key"):
             assert peers[name].hello(1500) is None, f"{name}: got an answer"
             assert peers[name].state(300) is None, f"{name}: got a state"
         # the refused peer sees its handshake fail: its key refused; no keys, no handshake
-        assert zmq.EVENT_HANDSHAKE_FAILED_AUTH in [e for e, _ in peers["wrong key"].monitor.failures()]
+        assert zmq.EVENT_HANDSHAKE_FAILED_AUTH in [
+            e for e, _ in peers["wrong key"].monitor.failures()
+        ]
         assert peers["no key"].monitor.failures()
         watcher.control(port, "shutdown")
         world.join(30)
@@ -214,7 +265,7 @@ def test_a_keyed_world_answers_only_the_allowed_key_and_logs_every_refusal(tmp_p
         watcher.close()
         for p in peers.values():
             p.close()
-        if world.is_alive():     # a failed assertion above: stop the world all the same
+        if world.is_alive():  # a failed assertion above: stop the world all the same
             server._stop = True
             world.join(30)
     records = read_log(log)
@@ -231,18 +282,21 @@ def test_a_keyed_world_answers_only_the_allowed_key_and_logs_every_refusal(tmp_p
 
 @pytest.mark.slow
 def test_navigation_over_curve_reaches_the_goal_while_a_planner_with_another_key_is_refused(
-        tmp_path, keys, intruder):
+    tmp_path, keys, intruder
+):
     port = free_port_block()
     log = tmp_path / "episode.jsonl"
     server = start_server("navigation", port, log, "--keys", str(keys))
     # the diagnostics go to subscribers with the planner's keys only
-    recorders = {"keyed": DiagnosticsRecorder(port, tmp_path / "keyed.jsonl",
-                                              keys=load_planner_keys(keys)),
-                 "keyless": DiagnosticsRecorder(port, tmp_path / "keyless.jsonl")}
+    recorders = {
+        "keyed": DiagnosticsRecorder(port, tmp_path / "keyed.jsonl", keys=load_planner_keys(keys)),
+        "keyless": DiagnosticsRecorder(port, tmp_path / "keyless.jsonl"),
+    }
     # three planners at once: each binds its diagnostics (port + 3) on an address of its own
     # (all of 127.0.0.0/8 is loopback on Linux)
-    refused = start_planner("navigation", port, "--keys", str(intruder),
-                            "--diagnostics-host", "127.0.0.2")
+    refused = start_planner(
+        "navigation", port, "--keys", str(intruder), "--diagnostics-host", "127.0.0.2"
+    )
     keyless = start_planner("navigation", port, "--diagnostics-host", "127.0.0.3")
     planner = start_planner("navigation", port, "--keys", str(keys))
     try:
@@ -279,6 +333,7 @@ def test_the_refusals_queue_is_bounded_when_nobody_drains_it():
     # the planner never reads its diagnostics authenticator's refusals: a viewer retrying with
     # a wrong key must not grow the queue for ever
     from shared.security import Authenticator
+
     ctx = zmq.Context()
     auth = Authenticator(ctx, frozenset(), "test")
     try:

@@ -33,12 +33,21 @@ def _step(wall, safe=False, cmd_age=0.05, ctrl=(0.5, 0.5)):
 def _clean():
     """A world held still from 100.8 s (killed planner at 100.0, time-out 0.5 s) until the
     replacement's first command drives it at 101.5 s; a flood's garbage all rejected."""
-    steps = [_step(99.0 + 0.05 * i) for i in range(20)]                 # driven
-    steps += [_step(100.55 + 0.05 * i, safe=True, cmd_age=None if i % 2 else 0.6)
-              for i in range(19)]                                        # held still
-    steps += [_step(101.5 + 0.05 * i) for i in range(10)]                # replacement drives
-    world = {"role": "world", "log": "episode-0001.jsonl", "steps": steps, "complete": True,
-             "returncode": 0, "stopped_on_purpose": False, "rejected": 150, "rss_growth": 1.0}
+    steps = [_step(99.0 + 0.05 * i) for i in range(20)]  # driven
+    steps += [
+        _step(100.55 + 0.05 * i, safe=True, cmd_age=None if i % 2 else 0.6) for i in range(19)
+    ]  # held still
+    steps += [_step(101.5 + 0.05 * i) for i in range(10)]  # replacement drives
+    world = {
+        "role": "world",
+        "log": "episode-0001.jsonl",
+        "steps": steps,
+        "complete": True,
+        "returncode": 0,
+        "stopped_on_purpose": False,
+        "rejected": 150,
+        "rss_growth": 1.0,
+    }
     kill = soak.Fault("kill", at=100.0, world=1, outage=100.0, resumed=100.01, recovered=101.5)
     flood = soak.Fault("flood", at=102.0, world=1, resumed=102.1, recovered=102.2)
     planners = [{"role": "planner", "rss_growth": 2.0}]
@@ -60,11 +69,11 @@ def _stale(faults, worlds, planners, sent):
 
 
 def _driven_while_down(faults, worlds, planners, sent):
-    worlds[0]["steps"][30].update(safe=False, cmd_age=0.05)   # 101.05 s: planner dead since 100.0 s
+    worlds[0]["steps"][30].update(safe=False, cmd_age=0.05)  # 101.05 s: planner dead since 100.0 s
 
 
 def _slow_takeover(faults, worlds, planners, sent):
-    for s in worlds[0]["steps"][39:]:            # the replacement's first command 1.7 s later
+    for s in worlds[0]["steps"][39:]:  # the replacement's first command 1.7 s later
         s["wall"] += 1.7
     faults[0].recovered = 103.2
 
@@ -93,38 +102,48 @@ def _memory_leak(faults, worlds, planners, sent):
     planners[0]["rss_growth"] = 51.0
 
 
-@pytest.mark.parametrize("fault, check", [
-    (_stale, "no stale command applied"),
-    (_driven_while_down, "safe control while the planner was down"),
-    (_slow_takeover, "killed planner replaced within 3 s"),
-    (_never_recovered, "planner drove on after a flood within 3 s"),
-    (_world_died, "the world never died"),
-    (_torn_log, "every episode log complete with its summary"),
-    (_forged_applied, "garbage rejected, none applied"),
-    (_garbage_unlogged, "garbage rejected, none applied"),
-    (_memory_leak, "memory growth <= 50 MiB per process"),
-])
+@pytest.mark.parametrize(
+    "fault, check",
+    [
+        (_stale, "no stale command applied"),
+        (_driven_while_down, "safe control while the planner was down"),
+        (_slow_takeover, "killed planner replaced within 3 s"),
+        (_never_recovered, "planner drove on after a flood within 3 s"),
+        (_world_died, "the world never died"),
+        (_torn_log, "every episode log complete with its summary"),
+        (_forged_applied, "garbage rejected, none applied"),
+        (_garbage_unlogged, "garbage rejected, none applied"),
+        (_memory_leak, "memory growth <= 50 MiB per process"),
+    ],
+)
 def test_soak_checks_catch_each_violation(fault, check):
     case = _clean()
     fault(*case)
     verdicts = _verdicts(*case)
     assert not verdicts[check], verdicts
-    assert sum(not ok for ok in verdicts.values()) == 1, verdicts   # that one only
+    assert sum(not ok for ok in verdicts.values()) == 1, verdicts  # that one only
 
 
 def test_soak_table_is_rendered_into_its_markers(tmp_path):
     faults, worlds, planners, sent = _clean()
-    results = {"checks": [c.__dict__ for c in soak.evaluate(CFG, faults, worlds, planners, sent)],
-               "faults": {"kill": {"injected": 1, "survived": 1}}, "episodes": {"success": 1},
-               "config": {"scenario": "navigation", "seed": 0}, "worlds": worlds, "steps": 49,
-               "command": "python scripts/soak.py --duration 1", "date": "2026-11-30 18:00 UTC",
-               "wall_s": 1.0, "machine": "test CPU, 2 cores"}
+    results = {
+        "checks": [c.__dict__ for c in soak.evaluate(CFG, faults, worlds, planners, sent)],
+        "faults": {"kill": {"injected": 1, "survived": 1}},
+        "episodes": {"success": 1},
+        "config": {"scenario": "navigation", "seed": 0},
+        "worlds": worlds,
+        "steps": 49,
+        "command": "python scripts/soak.py --duration 1",
+        "date": "2026-11-30 18:00 UTC",
+        "wall_s": 1.0,
+        "machine": "test CPU, 2 cores",
+    }
     (tmp_path / "soak.json").write_text(json.dumps(results))
     text = "intro\n<!-- soak soak.json -->\nold table\n<!-- end of soak -->\nrest\n"
     new = soak.update(text, tmp_path)
     assert "old table" not in new and new.startswith("intro\n") and new.endswith("rest\n")
     assert "| no stale command applied | yes |" in new and "kill 1/1" in new
-    assert soak.update(new, tmp_path) == new          # regenerating changes nothing
+    assert soak.update(new, tmp_path) == new  # regenerating changes nothing
     with pytest.raises(Exception, match="no '<!-- soak PATH -->'"):
         soak.update("no markers here", tmp_path)
 
@@ -137,7 +156,7 @@ def test_world_writes_its_summary_on_sigterm(tmp_path):
     server = start_server("navigation", port, log, "--mode", "realtime")
     watcher = StateWatcher(port)
     try:
-        watcher.latest(timeout=60)            # serving: its episode loop runs
+        watcher.latest(timeout=60)  # serving: its episode loop runs
         server.send_signal(signal.SIGTERM)
         out, _ = server.communicate(timeout=15)
     finally:
@@ -153,8 +172,12 @@ def test_world_writes_its_summary_on_sigterm(tmp_path):
 def _navigation_world(tmp_path: Path, **options):
     """A navigation world server on loopback, logging to ``tmp_path/episode.jsonl``; its log
     and sockets are closed whatever the test does."""
-    server = WorldServer(load_scenario("navigation"), Endpoints(port=free_port_block()),
-                         tmp_path / "episode.jsonl", ServerOptions(**options))
+    server = WorldServer(
+        load_scenario("navigation"),
+        Endpoints(port=free_port_block()),
+        tmp_path / "episode.jsonl",
+        ServerOptions(**options),
+    )
     try:
         yield server
     finally:
@@ -168,15 +191,15 @@ def test_a_signal_as_the_episode_ends_still_leaves_the_summary(tmp_path):
     not cut the log, while one mid-episode still ends the episode as Ctrl-C does."""
     with _navigation_world(tmp_path, keep_serving=True) as server:
         with pytest.raises(KeyboardInterrupt):
-            server.interrupt(signal.SIGTERM)      # serving: the episode ends as on Ctrl-C
+            server.interrupt(signal.SIGTERM)  # serving: the episode ends as on Ctrl-C
         metrics = server.episode.evaluate
 
         def signalled_while_ending(status):
-            server.interrupt(signal.SIGTERM)      # what the handler does when SIGTERM lands here
+            server.interrupt(signal.SIGTERM)  # what the handler does when SIGTERM lands here
             return metrics(status)
 
         server.episode.evaluate = signalled_while_ending
-        outcome = server.run()                    # _stop is set: the episode ends at once
+        outcome = server.run()  # _stop is set: the episode ends at once
     assert outcome.status == "stopped"
     records = read_log(tmp_path / "episode.jsonl")
     assert records[0]["kind"] == "header"
@@ -188,18 +211,18 @@ def test_a_signal_during_a_world_step_lands_once_the_step_is_logged(tmp_path):
     logged, and the summary counted one step more than the log held. The interrupt now waits
     for the step's record, so the log holds every step the world took."""
     with _navigation_world(tmp_path) as server:
-        server._apply(None)                       # one step, no signal
+        server._apply(None)  # one step, no signal
         real_step = server.world.step
 
         def step_then_signal(ctrl):
             real_step(ctrl)
-            server.interrupt(signal.SIGINT)       # what the handler does when SIGINT lands here
+            server.interrupt(signal.SIGINT)  # what the handler does when SIGINT lands here
 
         server.world.step = step_then_signal
         with pytest.raises(KeyboardInterrupt):
             server._apply(None)
         time_stepped = server.world.time
-        outcome = server.run()                    # _stop is set: the episode ends at once
+        outcome = server.run()  # _stop is set: the episode ends at once
     assert outcome.status == "stopped"
     records = read_log(tmp_path / "episode.jsonl")
     steps = [r for r in records if r["kind"] == "step"]
@@ -216,10 +239,29 @@ def test_thirty_second_soak_passes_every_check(tmp_path):
     all; the rest repeat them (60 s and 3-5 s apart before 2026-12-01: 30 s more of the
     suite)."""
     results = tmp_path / "soak.json"
-    run = subprocess.run([sys.executable, str(ROOT / "scripts" / "soak.py"), "--duration", "30",
-                          "--gap-min", "2", "--gap-max", "4", "--seed", "1",
-                          "--out", str(tmp_path / "logs"), "--results", str(results)],
-                         capture_output=True, text=True, timeout=400, env=ENV, cwd=ROOT)
+    run = subprocess.run(
+        [
+            sys.executable,
+            str(ROOT / "scripts" / "soak.py"),
+            "--duration",
+            "30",
+            "--gap-min",
+            "2",
+            "--gap-max",
+            "4",
+            "--seed",
+            "1",
+            "--out",
+            str(tmp_path / "logs"),
+            "--results",
+            str(results),
+        ],
+        capture_output=True,
+        text=True,
+        timeout=400,
+        env=ENV,
+        cwd=ROOT,
+    )
     assert run.returncode == 0, run.stdout[-6000:] + run.stderr[-3000:]
     res = json.loads(results.read_text())
     assert res["ok"] and all(c["ok"] for c in res["checks"]), res["checks"]

@@ -31,8 +31,13 @@ def model():
 
 
 def _state(**over):
-    values = {"qpos": [0.3], "qvel": [0.1], "act": [0.7], "mocap_pos": [1.0, 2.0, 3.0],
-              "mocap_quat": [1.0, 0.0, 0.0, 0.0]}
+    values = {
+        "qpos": [0.3],
+        "qvel": [0.1],
+        "act": [0.7],
+        "mocap_pos": [1.0, 2.0, 3.0],
+        "mocap_quat": [1.0, 0.0, 0.0, 0.0],
+    }
     return {**values, **over}
 
 
@@ -70,11 +75,12 @@ def test_the_server_logs_every_state_field_with_each_step(tmp_path):
     from shared.scenario import load_scenario
     from shared.tools.launch import free_port_block
 
-    server = WorldServer(load_scenario("push_pull"), Endpoints(port=free_port_block()),
-                         tmp_path / "episode.jsonl")
+    server = WorldServer(
+        load_scenario("push_pull"), Endpoints(port=free_port_block()), tmp_path / "episode.jsonl"
+    )
     try:
-        server._apply(None)         # one safe-stop step, as without a planner
-    finally:   # a server left open blocks its ZeroMQ context's clean-up, and the next test hangs
+        server._apply(None)  # one safe-stop step, as without a planner
+    finally:  # a server left open blocks its ZeroMQ context's clean-up, and the next test hangs
         server.log.close()
         server.close()
     (step,) = steps(read_log(tmp_path / "episode.jsonl"))

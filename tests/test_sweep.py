@@ -15,8 +15,16 @@ from shared.scenario import load_scenario
 from shared.tools.bench import BenchOptions, ResultsFile, load_bench, plan_trials, select_cases
 from shared.tools.bench_report import read_results, results_report
 from shared.tools.cli import app
-from shared.tools.sweep import (Sweep, apply_overrides, parse_set, plot_sweep, split_values,
-                                sweep_points, sweep_report, swept_keys)
+from shared.tools.sweep import (
+    Sweep,
+    apply_overrides,
+    parse_set,
+    plot_sweep,
+    split_values,
+    sweep_points,
+    sweep_report,
+    swept_keys,
+)
 
 
 def write_bench(tmp_path, cases, **top):
@@ -26,11 +34,19 @@ def write_bench(tmp_path, cases, **top):
 
 
 def test_set_values_are_yaml_and_commas_inside_brackets_stay():
-    assert split_values("25, 50,[1, 2],{a: 1, b: 2},'x,y'") == ["25", "50", "[1, 2]",
-                                                                 "{a: 1, b: 2}", "'x,y'"]
+    assert split_values("25, 50,[1, 2],{a: 1, b: 2},'x,y'") == [
+        "25",
+        "50",
+        "[1, 2]",
+        "{a: 1, b: 2}",
+        "'x,y'",
+    ]
     sweep = parse_set(["planner.samples=50,100,50", "planner.mppi.alpha_u=0.5,1", "x.flag=true"])
-    assert sweep.keys == (("planner.samples", (50, 100)), ("planner.mppi.alpha_u", (0.5, 1)),
-                          ("x.flag", (True,)))
+    assert sweep.keys == (
+        ("planner.samples", (50, 100)),
+        ("planner.mppi.alpha_u", (0.5, 1)),
+        ("x.flag", (True,)),
+    )
     assert len(sweep.variants()) == 4
     assert sweep.variants()[1] == {"planner.samples": 50, "planner.mppi.alpha_u": 1, "x.flag": True}
     assert Sweep().variants() == [{}]
@@ -51,34 +67,54 @@ def test_overrides_copy_the_mapping_and_create_missing_sections():
 
 
 def test_sweep_variants_have_their_own_hash_file_and_overrides(tmp_path):
-    cfg = load_bench(write_bench(tmp_path, [{"case": "nav", "scenario": "navigation", "trials": 2}],
-                                 sweep={"planner.samples": [50, 100]}))
+    cfg = load_bench(
+        write_bench(
+            tmp_path,
+            [{"case": "nav", "scenario": "navigation", "trials": 2}],
+            sweep={"planner.samples": [50, 100]},
+        )
+    )
     assert cfg.sweep.keys == (("planner.samples", (50, 100)),)
     ready, _ = select_cases(cfg, variant_dir=tmp_path / "v")
     assert [rc.overrides for rc in ready] == [{"planner.samples": 50}, {"planner.samples": 100}]
     assert len({rc.scenario.hash for rc in ready}) == 2
     assert ready[0].scenario.hash != load_scenario("navigation").hash
-    for rc in ready:       # the file both processes load reads back to the same scenario
+    for rc in ready:  # the file both processes load reads back to the same scenario
         again = load_scenario(rc.scenario.source)
         assert again.hash == rc.scenario.hash and again.name == "navigation"
         assert again.planner.samples == rc.overrides["planner.samples"]
     planned, todo = plan_trials(ready, cfg, BenchOptions(tmp_path, 1, 1.0), set())
     assert [(t.seed, t.overrides["planner.samples"]) for t in planned] == [
-        (0, 50), (0, 100), (1, 50), (1, 100)]
+        (0, 50),
+        (0, 100),
+        (1, 50),
+        (1, 100),
+    ]
     assert planned[0].log_dir.as_posix() == "logs/nav@planner.samples=50/seed-000"
     # --set replaces the file's values of a key; the resume key follows the content
-    ready2, _ = select_cases(cfg, sweep=cfg.sweep.merged(parse_set(["planner.samples=100,200"])),
-                             variant_dir=tmp_path / "v")
+    ready2, _ = select_cases(
+        cfg,
+        sweep=cfg.sweep.merged(parse_set(["planner.samples=100,200"])),
+        variant_dir=tmp_path / "v",
+    )
     assert ready2[0].scenario.hash == ready[1].scenario.hash
     with pytest.raises(ConfigError, match="non-empty list"):
-        load_bench(write_bench(tmp_path, [{"case": "nav", "scenario": "navigation", "trials": 1}],
-                               sweep={"planner.samples": 50}))
+        load_bench(
+            write_bench(
+                tmp_path,
+                [{"case": "nav", "scenario": "navigation", "trials": 1}],
+                sweep={"planner.samples": 50},
+            )
+        )
 
 
-@pytest.mark.parametrize("setting, message", [
-    ("planner.samplez=50,100", "planner.samplez: unknown key"),
-    ("planner.samples=100,0", "planner.samples: must be a positive integer (got 0)"),
-])
+@pytest.mark.parametrize(
+    "setting, message",
+    [
+        ("planner.samplez=50,100", "planner.samplez: unknown key"),
+        ("planner.samples=100,0", "planner.samples: must be a positive integer (got 0)"),
+    ],
+)
 def test_a_bad_set_is_the_loaders_error_before_any_trial(tmp_path, setting, message):
     bench = write_bench(tmp_path, [{"case": "nav", "scenario": "navigation", "trials": 1}])
     out = tmp_path / "out"
@@ -89,24 +125,43 @@ def test_a_bad_set_is_the_loaders_error_before_any_trial(tmp_path, setting, mess
 
 
 def _row(case, samples, seed, success, time="", reason="", hz="50.0", hits=""):
-    return {"case": case, "variant": "v", "scenario": case, "scenario_hash": f"h{samples}",
-            "seed": seed, "success": success, "status": "success" if success else "timeout",
-            "reason": reason, "time": time, "planner_hz": hz, "machine": "CPU X, 2 cores",
-            "date": "2026-11-30", "overrides": f'{{"planner.samples": {samples}}}',
-            "collisions": hits}
+    return {
+        "case": case,
+        "variant": "v",
+        "scenario": case,
+        "scenario_hash": f"h{samples}",
+        "seed": seed,
+        "success": success,
+        "status": "success" if success else "timeout",
+        "reason": reason,
+        "time": time,
+        "planner_hz": hz,
+        "machine": "CPU X, 2 cores",
+        "date": "2026-11-30",
+        "overrides": f'{{"planner.samples": {samples}}}',
+        "collisions": hits,
+    }
 
 
 def test_sweep_tables_and_plot_per_key(tmp_path):
     results = ResultsFile(tmp_path / "results.csv")
-    for r in [_row("push", 200, 0, True, 4.0), _row("push", 200, 1, True, 6.0),
-              _row("push", 25, 0, False, hits="1"), _row("push", 25, 1, True, 8.0, hits="0"),
-              _row("pull", 25, 0, False, reason="timeout", hz=""), _row("pull", 25, 1, False)]:
+    for r in [
+        _row("push", 200, 0, True, 4.0),
+        _row("push", 200, 1, True, 6.0),
+        _row("push", 25, 0, False, hits="1"),
+        _row("push", 25, 1, True, 8.0, hits="0"),
+        _row("pull", 25, 0, False, reason="timeout", hz=""),
+        _row("pull", 25, 1, False),
+    ]:
         results.append(r)
     rows = list(csv.DictReader((tmp_path / "results.csv").open()))
     assert swept_keys(rows) == ["planner.samples"]
     points = sweep_points(rows, "planner.samples")
     assert [(p.case, p.value, p.successes, p.trials) for p in points] == [
-        ("push", 25, 1, 2), ("push", 200, 2, 2), ("pull", 25, 0, 2)]
+        ("push", 25, 1, 2),
+        ("push", 200, 2, 2),
+        ("pull", 25, 0, 2),
+    ]
     assert points[1].time == (5.0, 1.0)
     text = sweep_report(rows)
     assert "| push | 25 | 2 | 1/2 (9-91 %) | 8.00 (0.00) | 0.50 | 50.0 |" in text

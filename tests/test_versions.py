@@ -13,15 +13,15 @@ import numpy as np
 import pytest
 import zmq
 
-from shared import protocol as P
-from shared.endpoints import Endpoints
-from shared.scenario import load_scenario
-from shared.tools.launch import free_port_block
 from planner_client.build import build_motion_planner
 from planner_client.controller import Controller
 from planner_client.loop import HandshakeRefused, PlannerClient
 from planner_client.task import FixedModes
 from server.world import SimWorld
+from shared import protocol as P
+from shared.endpoints import Endpoints
+from shared.scenario import load_scenario
+from shared.tools.launch import free_port_block
 from tests.helpers import start_server, stop
 
 
@@ -36,32 +36,54 @@ def planner(nav):
 
 
 def _client(planner, nav, port: int) -> PlannerClient:
-    client = PlannerClient(Controller(planner, FixedModes(("navigate",))), Endpoints(port=port),
-                           nav.name, nav.hash, diagnostics=False)
+    client = PlannerClient(
+        Controller(planner, FixedModes(("navigate",))),
+        Endpoints(port=port),
+        nav.name,
+        nav.hash,
+        diagnostics=False,
+    )
     return client
 
 
 def _close(client: PlannerClient) -> None:
     for s in (client.sub, client.push):
         s.close(0)
-    client.ctx.term()          # the module's planner is shared: not closed here
+    client.ctx.term()  # the module's planner is shared: not closed here
 
 
 # ------------------------------------------------------------------ unit
 
+
 def test_version_1_frames_lack_what_version_2_added():
-    cmd = P.Command(session="s", seq=1, ctrl=np.zeros(2), plan_ctrl=np.ones((3, 2)),
-                    plan_t0=0.5, plan_dt=0.05)
+    cmd = P.Command(
+        session="s", seq=1, ctrl=np.zeros(2), plan_ctrl=np.ones((3, 2)), plan_t0=0.5, plan_dt=0.05
+    )
     raw = msgpack.unpackb(P.encode(cmd, 1))
-    assert raw["v"] == 1 and set(raw) == {"type", "v", "session", "seq", "ctrl", "plan_time",
-                                          "action"}
+    assert raw["v"] == 1 and set(raw) == {
+        "type",
+        "v",
+        "session",
+        "seq",
+        "ctrl",
+        "plan_time",
+        "action",
+    }
     back, version = P.decode_versioned(P.encode(cmd, 1), versions=P.VERSIONS)
     assert version == 1 and not back.has_plan
     with pytest.raises(P.ProtocolError, match="protocol version 1 not supported"):
-        P.decode(P.encode(cmd, 1))                       # the default reads the newest only
-    state = P.State(session="s", seq=0, time=0.0, qpos=np.zeros(2), qvel=np.zeros(2),
-                    act=np.zeros(0), mocap_pos=np.zeros((0, 3)), mocap_quat=np.zeros((0, 4)),
-                    lag=0.2)
+        P.decode(P.encode(cmd, 1))  # the default reads the newest only
+    state = P.State(
+        session="s",
+        seq=0,
+        time=0.0,
+        qpos=np.zeros(2),
+        qvel=np.zeros(2),
+        act=np.zeros(0),
+        mocap_pos=np.zeros((0, 3)),
+        mocap_quat=np.zeros((0, 4)),
+        lag=0.2,
+    )
     assert "lag" not in msgpack.unpackb(P.encode(state, 1))
 
 
@@ -69,21 +91,27 @@ def test_the_world_chooses_the_highest_common_version():
     hello = P.Hello(scenario="n", scenario_hash="h", versions=[1, 2])
     assert P.choose_version(hello, 1) == 2
     assert P.choose_version(P.Hello(scenario="n", scenario_hash="h", versions=[1]), 1) == 1
-    assert P.choose_version(P.Hello(scenario="n", scenario_hash="h"), 2) == 2   # no offer: its v
-    with pytest.raises(P.ProtocolError, match="the planner speaks versions 3, 9, this world "
-                                              "speaks versions 1, 2"):
+    assert P.choose_version(P.Hello(scenario="n", scenario_hash="h"), 2) == 2  # no offer: its v
+    with pytest.raises(
+        P.ProtocolError, match="the planner speaks versions 3, 9, this world speaks versions 1, 2"
+    ):
         P.choose_version(P.Hello(scenario="n", scenario_hash="h", versions=[3, 9]), 1)
 
 
 def test_a_hello_of_an_unknown_version_offering_versions_names_both_sides():
-    frame = msgpack.packb({"type": "hello", "v": 9, "scenario": "n", "scenario_hash": "h",
-                           "versions": [9]})
-    with pytest.raises(P.ProtocolError, match="no common protocol version: the peer speaks "
-                                              "version 9, this side speaks versions 1, 2"):
+    frame = msgpack.packb(
+        {"type": "hello", "v": 9, "scenario": "n", "scenario_hash": "h", "versions": [9]}
+    )
+    with pytest.raises(
+        P.ProtocolError,
+        match="no common protocol version: the peer speaks "
+        "version 9, this side speaks versions 1, 2",
+    ):
         P.decode(frame, versions=P.VERSIONS)
 
 
 # ------------------------------------------------------------------ a current world
+
 
 def test_negotiation_with_a_current_world(nav, planner, tmp_path):
     port = free_port_block()
@@ -98,24 +126,27 @@ def test_negotiation_with_a_current_world(nav, planner, tmp_path):
             req = ctx.socket(zmq.REQ)
             req.setsockopt(zmq.LINGER, 0)
             req.connect(Endpoints(port=port).control)
-            req.send(msgpack.packb({"type": "hello", "scenario": nav.name,
-                                    "scenario_hash": nav.hash, **hello}))
+            req.send(
+                msgpack.packb(
+                    {"type": "hello", "scenario": nav.name, "scenario_hash": nav.hash, **hello}
+                )
+            )
             assert req.poll(30000)
             frame = req.recv()
             req.close()
             return msgpack.unpackb(frame), P.decode_versioned(frame, versions=P.VERSIONS)
 
-        raw, (reply, version) = ask(v=1, versions=[1])        # a planner speaking 1 only
+        raw, (reply, version) = ask(v=1, versions=[1])  # a planner speaking 1 only
         assert raw["type"] == "welcome" and version == 1 and "seed" not in raw
         sub = ctx.socket(zmq.SUB)
         sub.setsockopt(zmq.SUBSCRIBE, b"")
         sub.setsockopt(zmq.LINGER, 0)
         sub.connect(Endpoints(port=port).state)
-        assert sub.poll(10000)                 # re-published every 0.2 s in lock-step
+        assert sub.poll(10000)  # re-published every 0.2 s in lock-step
         state = msgpack.unpackb(sub.recv())
         assert state["v"] == 1 and "lag" not in state
         sub.close()
-        raw, (reply, version) = ask(v=2)       # a planner from before the negotiation
+        raw, (reply, version) = ask(v=2)  # a planner from before the negotiation
         assert raw["type"] == "welcome" and version == 2
         raw, (reply, version) = ask(v=1, versions=[9])
         assert isinstance(reply, P.Error) and reply.versions == [1, 2]
@@ -127,6 +158,7 @@ def test_negotiation_with_a_current_world(nav, planner, tmp_path):
 
 
 # ------------------------------------------------------------------ fake old or unknown worlds
+
 
 class FakeWorld:
     """A world written by hand in msgpack, as a bridge of another protocol version would be:
@@ -142,15 +174,18 @@ class FakeWorld:
         ends = Endpoints(port=self.port)
         self.ctx = zmq.Context()
         self.rep, self.pub, self.pull = (self.ctx.socket(k) for k in (zmq.REP, zmq.PUB, zmq.PULL))
-        for s, addr in ((self.rep, ends.control), (self.pub, ends.state),
-                        (self.pull, ends.command)):
+        for s, addr in (
+            (self.rep, ends.control),
+            (self.pub, ends.state),
+            (self.pull, ends.command),
+        ):
             s.setsockopt(zmq.LINGER, 0)
             s.bind(addr)
         world = SimWorld(nav, 0)
         world.reset()
         self.start = world.state()
         self.nu = int(world.model.nu)
-        self.hellos: list[dict] = []        # every hello, and whether it was accepted
+        self.hellos: list[dict] = []  # every hello, and whether it was accepted
         self.commands: list[dict] = []
         self.refused: list[str] = []
         self.welcomed = False
@@ -175,31 +210,58 @@ class FakeWorld:
             if self.welcomed and time.monotonic() >= next_pub:
                 seq += 1
                 s = self.start
-                self.pub.send(self._frame(
-                    type="state", session="old", seq=seq, time=0.05 * seq,
-                    **{k: P.encode_array(getattr(s, k)) for k in
-                       ("qpos", "qvel", "act", "mocap_pos", "mocap_quat")}))
+                self.pub.send(
+                    self._frame(
+                        type="state",
+                        session="old",
+                        seq=seq,
+                        time=0.05 * seq,
+                        **{
+                            k: P.encode_array(getattr(s, k))
+                            for k in ("qpos", "qvel", "act", "mocap_pos", "mocap_quat")
+                        },
+                    )
+                )
                 next_pub = time.monotonic() + 0.02
 
     def _hello(self, hello: dict) -> None:
-        ok = (hello.get("v") == 1 and set(hello) <= self.V1_HELLO if self.version == 1
-              else self.answer == "welcome")     # version 9: welcome or refuse any hello
+        ok = (
+            hello.get("v") == 1 and set(hello) <= self.V1_HELLO
+            if self.version == 1
+            else self.answer == "welcome"
+        )  # version 9: welcome or refuse any hello
         self.hellos.append({**hello, "accepted": ok})
         if not ok:
-            reason = (f"refused: protocol version {hello.get('v')!r} not supported (this side "
-                      f"speaks version {self.version})" if hello.get("v") != self.version else
-                      f"refused: hello: unknown field(s) {sorted(set(hello) - self.V1_HELLO)}")
+            reason = (
+                f"refused: protocol version {hello.get('v')!r} not supported (this side "
+                f"speaks version {self.version})"
+                if hello.get("v") != self.version
+                else f"refused: hello: unknown field(s) {sorted(set(hello) - self.V1_HELLO)}"
+            )
             self.rep.send(self._frame(type="error", reason=reason))
             return
-        self.rep.send(self._frame(type="welcome", scenario=self.nav.name,
-                                  scenario_hash=self.nav.hash, mode="realtime", dt=0.05,
-                                  nu=self.nu, session="old"))
+        self.rep.send(
+            self._frame(
+                type="welcome",
+                scenario=self.nav.name,
+                scenario_hash=self.nav.hash,
+                mode="realtime",
+                dt=0.05,
+                nu=self.nu,
+                session="old",
+            )
+        )
         self.welcomed = True
 
     def _command(self, cmd: dict) -> None:
         ctrl = cmd.get("ctrl")
-        if (cmd.get("v") != 1 or set(cmd) - self.V1_COMMAND or not isinstance(ctrl, dict)
-                or ctrl.get("shape") != [self.nu] or cmd.get("session") != "old"):
+        if (
+            cmd.get("v") != 1
+            or set(cmd) - self.V1_COMMAND
+            or not isinstance(ctrl, dict)
+            or ctrl.get("shape") != [self.nu]
+            or cmd.get("session") != "old"
+        ):
             self.refused.append(str(cmd))
             return
         self.commands.append(cmd)
@@ -218,7 +280,7 @@ def test_a_version_1_world_is_served_with_one_warning(nav, planner, caplog):
     try:
         with caplog.at_level(logging.INFO, logger="m3p2i.planner"):
             client.run(max_iterations=8)
-            client.handshake(give_up=10)          # a reconnection: no second warning
+            client.handshake(give_up=10)  # a reconnection: no second warning
         assert client.version == 1
         # the offer (hello v1 + versions) is refused by the strict old world, the plain one not
         assert [h["accepted"] for h in world.hellos] == [False, True, False, True]
@@ -234,10 +296,13 @@ def test_a_version_1_world_is_served_with_one_warning(nav, planner, caplog):
         world.close()
 
 
-@pytest.mark.parametrize("answer, reason", [
-    ("welcome", "protocol version 9 not supported (this side speaks versions 1, 2)"),
-    ("error", "the world speaks protocol version 9, this planner speaks versions 1, 2"),
-])
+@pytest.mark.parametrize(
+    "answer, reason",
+    [
+        ("welcome", "protocol version 9 not supported (this side speaks versions 1, 2)"),
+        ("error", "the world speaks protocol version 9, this planner speaks versions 1, 2"),
+    ],
+)
 def test_a_world_of_an_unknown_version_is_refused_with_the_reason(nav, planner, answer, reason):
     world = FakeWorld(nav, version=9, answer=answer)
     client = _client(planner, nav, world.port)
@@ -245,7 +310,7 @@ def test_a_world_of_an_unknown_version_is_refused_with_the_reason(nav, planner, 
         with pytest.raises(HandshakeRefused) as info:
             client.handshake(give_up=10)
         assert reason in str(info.value)
-        assert len(world.hellos) == 1                  # no retry in another form
+        assert len(world.hellos) == 1  # no retry in another form
     finally:
         _close(client)
         world.close()

@@ -13,7 +13,7 @@ from tests.test_metrics import hand_made_log, scenario  # noqa: F401  (fixture)
 
 
 def test_frame_steps_follow_fps_and_speed():
-    times = np.arange(1, 101) * 0.01                          # 1 s of a 0.01 s world
+    times = np.arange(1, 101) * 0.01  # 1 s of a 0.01 s world
     assert video.frame_steps(times, fps=20, speed=1.0) == list(range(0, 100, 5)) + [99]
     assert video.frame_steps(times, fps=10, speed=0.5) == list(range(0, 100, 5)) + [99]
     assert video.frame_steps(np.array([]), fps=20, speed=1.0) == []
@@ -35,8 +35,11 @@ def test_render_a_logged_episode_with_its_sampled_trajectories(scenario, tmp_pat
     video.render_in_child(backend, run, out, width=480, height=360, fps=20, speed=1.0)
 
     from PIL import Image
+
     gif = Image.open(out)
     assert gif.n_frames == 7 and gif.size == (480, 360)
     rgb = np.asarray(gif.convert("RGB")).astype(int)
-    green = (rgb[..., 1] > 120) & (rgb[..., 1] > rgb[..., 0] + 60) & (rgb[..., 1] > rgb[..., 2] + 60)
+    green = (
+        (rgb[..., 1] > 120) & (rgb[..., 1] > rgb[..., 0] + 60) & (rgb[..., 1] > rgb[..., 2] + 60)
+    )
     assert green.sum() > 20, "the sampled trajectory is not drawn"

@@ -15,24 +15,28 @@ import time
 
 import numpy as np
 import pytest
-
 import zmq
 
 from shared import protocol as P
 from shared.endpoints import Endpoints
+from shared.tools.launch import free_port_block
 from shared.tools.view import ControlClient
 from tests.browser import chromium, hue_share, screenshot
 from tests.helpers import ENV, _sigint_as_in_a_terminal, stop
-from shared.tools.launch import free_port_block
 
 pytestmark = pytest.mark.slow
 
 
 def _start(args: list[str]) -> tuple[subprocess.Popen, str]:
     """Start ``m3p2i ARGS`` and return it with the URL it prints (``view: URL``)."""
-    proc = subprocess.Popen([sys.executable, "-m", "shared.tools", *args], stdout=subprocess.PIPE,
-                            stderr=subprocess.STDOUT, text=True, env=ENV,
-                            preexec_fn=_sigint_as_in_a_terminal)
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "shared.tools", *args],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        text=True,
+        env=ENV,
+        preexec_fn=_sigint_as_in_a_terminal,
+    )
     lines: queue.Queue[str] = queue.Queue()
     threading.Thread(target=lambda: [lines.put(line) for line in proc.stdout], daemon=True).start()
     end, seen = time.monotonic() + 180, []
@@ -46,7 +50,7 @@ def _start(args: list[str]) -> tuple[subprocess.Popen, str]:
         seen.append(line)
         if line.startswith("view: "):
             url = line.split(" ", 1)[1].strip()
-            assert url.startswith("http://127.0.0.1:"), url      # loopback by default
+            assert url.startswith("http://127.0.0.1:"), url  # loopback by default
             return proc, url
     stop(proc)
     raise AssertionError("no 'view: URL' line:\n" + "".join(seen))
@@ -81,8 +85,19 @@ def live(tmp_path_factory):
     tmp = tmp_path_factory.mktemp("view")
     run_dir = tmp / "run"
     port = free_port_block()
-    proc, url = _start(["run", "pick_place", "--view", "--run-dir", str(run_dir), "--timeout", "600",
-                        "--port", str(port)])
+    proc, url = _start(
+        [
+            "run",
+            "pick_place",
+            "--view",
+            "--run-dir",
+            str(run_dir),
+            "--timeout",
+            "600",
+            "--port",
+            str(port),
+        ]
+    )
     try:
         # paused, the lock-step world holds its state and the planner, having answered it,
         # stops planning: the browser gets the cores (2 here) to draw the page
@@ -97,10 +112,11 @@ def live(tmp_path_factory):
         end = time.monotonic() + 120
         diags, log = run_dir / "diagnostics.jsonl", run_dir / "episode.jsonl"
         while time.monotonic() < end and not (
-                diags.is_file() and diags.stat().st_size > 0 and '"kind": "step"' in log.read_text()):
+            diags.is_file() and diags.stat().st_size > 0 and '"kind": "step"' in log.read_text()
+        ):
             time.sleep(0.2)
     finally:
-        proc.send_signal(signal.SIGINT)          # m3p2i run stops all its processes
+        proc.send_signal(signal.SIGINT)  # m3p2i run stops all its processes
         try:
             proc.wait(30)
         except subprocess.TimeoutExpired:
@@ -122,8 +138,17 @@ def test_the_live_page_draws_the_scene_and_records_the_planners_trajectories(liv
 def test_the_replay_page_draws_the_logged_episode(live):
     _, run_dir, tmp = live
     assert (run_dir / "episode.jsonl").is_file()
-    proc, url = _start(["view", "--log", str(run_dir), "--view-port", str(free_port_block(count=1)),
-                        "--duration", "300"])
+    proc, url = _start(
+        [
+            "view",
+            "--log",
+            str(run_dir),
+            "--view-port",
+            str(free_port_block(count=1)),
+            "--duration",
+            "300",
+        ]
+    )
     try:
         image = screenshot(url, tmp / "replay.png", check=_check_pick_place)
     finally:

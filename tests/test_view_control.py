@@ -22,12 +22,14 @@ def world(tmp_path):
     servers = []
 
     def make(name: str) -> WorldServer:
-        server = WorldServer(load_scenario(name), Endpoints(port=free_port_block()),
-                             tmp_path / f"{name}.jsonl")
+        server = WorldServer(
+            load_scenario(name), Endpoints(port=free_port_block()), tmp_path / f"{name}.jsonl"
+        )
         servers.append(server)
         return server
+
     yield make
-    for server in servers:     # a server left open blocks its ZeroMQ context: the next test hangs
+    for server in servers:  # a server left open blocks its ZeroMQ context: the next test hangs
         server.log.close()
         server.close()
 
@@ -37,8 +39,11 @@ def _ask(server: WorldServer, msg: P.Control):
     ctx = zmq.Context.instance()
     req = ctx.socket(zmq.REQ)
     req.setsockopt(zmq.LINGER, 0)
-    req.connect(Endpoints(port=int(server.rep.getsockopt_string(zmq.LAST_ENDPOINT)
-                                   .rsplit(":", 1)[1])).control)
+    req.connect(
+        Endpoints(
+            port=int(server.rep.getsockopt_string(zmq.LAST_ENDPOINT).rsplit(":", 1)[1])
+        ).control
+    )
     try:
         req.send(P.encode(msg))
         for _ in range(50):
@@ -58,8 +63,15 @@ def test_a_moved_cube_is_published_and_logged_as_a_disturbance(world):
     server = world("pick_place")
     half = np.sqrt(0.5)
     seq = server.episode.seq
-    reply = _ask(server, P.Control(op="move", object="cube_a", pos=np.array([0.5, 0.1, 1.1]),
-                                   quat=np.array([half, 0.0, 0.0, half])))
+    reply = _ask(
+        server,
+        P.Control(
+            op="move",
+            object="cube_a",
+            pos=np.array([0.5, 0.1, 1.1]),
+            quat=np.array([half, 0.0, 0.0, half]),
+        ),
+    )
     assert isinstance(reply, P.Control) and reply.op == "move"
     cube = server.world.model.body("cube_a")
     np.testing.assert_allclose(server.world.data.xpos[cube.id], [0.5, 0.1, 1.1])
@@ -68,7 +80,7 @@ def test_a_moved_cube_is_published_and_logged_as_a_disturbance(world):
     assert server.episode.seq == seq + 1
     state = server.world.state()
     adr = server.world.model.jnt_qposadr[cube.jntadr[0]]
-    np.testing.assert_allclose(state.qpos[adr:adr + 3], [0.5, 0.1, 1.1])
+    np.testing.assert_allclose(state.qpos[adr : adr + 3], [0.5, 0.1, 1.1])
     (event,) = _events(server, "disturbance")
     assert event["object"] == "cube_a" and event["source"] == "control"
     np.testing.assert_allclose(event["pos"], [0.5, 0.1, 1.1])
@@ -84,20 +96,23 @@ def test_a_fixed_obstacle_moves_through_its_mocap_body(world):
     np.testing.assert_allclose(server.world.data.mocap_pos[mocap], [1.0, -2.0, 0.2])
 
 
-@pytest.mark.parametrize("name, reason", [
-    ("panda_link3", "'panda_link3' is part of the robot or the arena, not a scenario object"),
-    ("finger_left", "'finger_left' is part of the robot or the arena"),     # a geom's name
-    ("floor", "'floor' is part of the robot or the arena"),
-    ("no_such_cube", "unknown object 'no_such_cube'"),
-])
+@pytest.mark.parametrize(
+    "name, reason",
+    [
+        ("panda_link3", "'panda_link3' is part of the robot or the arena, not a scenario object"),
+        ("finger_left", "'finger_left' is part of the robot or the arena"),  # a geom's name
+        ("floor", "'floor' is part of the robot or the arena"),
+        ("no_such_cube", "unknown object 'no_such_cube'"),
+    ],
+)
 def test_moving_a_robot_body_or_an_unknown_name_is_refused_with_the_reason(world, name, reason):
     server = world("pick_place")
     qpos = server.world.data.qpos.copy()
     seq = server.episode.seq
     reply = _ask(server, P.Control(op="move", object=name, pos=np.array([0.5, 0.0, 1.2])))
     assert isinstance(reply, P.Error)
-    assert reason in reply.reason and "cube_a" in reply.reason    # names what can be moved
-    np.testing.assert_array_equal(server.world.data.qpos, qpos)    # nothing moved
+    assert reason in reply.reason and "cube_a" in reply.reason  # names what can be moved
+    np.testing.assert_array_equal(server.world.data.qpos, qpos)  # nothing moved
     assert server.episode.seq == seq
     assert not _events(server, "disturbance")
     (refused,) = _events(server, "control_refused")
@@ -110,8 +125,13 @@ def test_a_paused_lockstep_world_takes_no_command_until_resumed(world):
     push = zmq.Context.instance().socket(zmq.PUSH)
     push.setsockopt(zmq.LINGER, 0)
     push.connect(server.pull.getsockopt_string(zmq.LAST_ENDPOINT))
-    cmd = P.encode(P.Command(session=server.episode.session, seq=server.episode.seq,
-                             ctrl=np.zeros(server.world.model.nu)))
+    cmd = P.encode(
+        P.Command(
+            session=server.episode.session,
+            seq=server.episode.seq,
+            ctrl=np.zeros(server.world.model.nu),
+        )
+    )
     try:
         server.opt.republish = 0.05
         wanted = [lambda c: c.seq == server.episode.seq]
@@ -119,6 +139,7 @@ def test_a_paused_lockstep_world_takes_no_command_until_resumed(world):
         def send_then_wait():
             push.send(cmd)
             return server._next_command(wanted[0])
+
         # paused: the command is dropped; _next_command would wait for ever, so resume from a
         # stand-in planner that re-sends its answer as the lock-step planner does
         calls = []
@@ -126,13 +147,14 @@ def test_a_paused_lockstep_world_takes_no_command_until_resumed(world):
         def poll(timeout, original=server._poll):
             calls.append(1)
             if len(calls) == 5:
-                server._paused = False      # as the op "resume" does (tested below)
+                server._paused = False  # as the op "resume" does (tested below)
             push.send(cmd)
             return original(timeout)
+
         server._poll = poll
         got = send_then_wait()
         assert got is not None and got.seq == server.episode.seq
-        assert len(calls) >= 5               # nothing was taken while paused
+        assert len(calls) >= 5  # nothing was taken while paused
     finally:
         push.close(0)
         del server._poll
@@ -142,8 +164,12 @@ def test_a_paused_lockstep_world_takes_no_command_until_resumed(world):
 
 
 def test_control_messages_on_the_wire():
-    msg = P.Control(op="move", object="cube_a", pos=np.array([1.0, 2.0, 3.0]),
-                    quat=np.array([1.0, 0.0, 0.0, 0.0]))
+    msg = P.Control(
+        op="move",
+        object="cube_a",
+        pos=np.array([1.0, 2.0, 3.0]),
+        quat=np.array([1.0, 0.0, 0.0, 0.0]),
+    )
     back = P.decode(P.encode(msg))
     assert back.object == "cube_a"
     np.testing.assert_array_equal(back.pos, [1, 2, 3])
@@ -161,9 +187,16 @@ def test_control_messages_on_the_wire():
 
 
 def test_diagnostics_name_each_trajectorys_mode():
-    d = P.Diagnostics(seq=1, action="a", alternatives=[], mode_names=["push", "pull"],
-                      mode_weights=np.array([0.5, 0.5]), top=np.zeros((4, 3, 3)), plan_time=0.1,
-                      top_modes=np.array([0, 0, 1, 1]))
+    d = P.Diagnostics(
+        seq=1,
+        action="a",
+        alternatives=[],
+        mode_names=["push", "pull"],
+        mode_weights=np.array([0.5, 0.5]),
+        top=np.zeros((4, 3, 3)),
+        plan_time=0.1,
+        top_modes=np.array([0, 0, 1, 1]),
+    )
     np.testing.assert_array_equal(P.decode(P.encode(d)).top_modes, [0, 0, 1, 1])
     d.top_modes = np.array([0, 1])
     with pytest.raises(P.ProtocolError, match="top_modes"):
@@ -176,30 +209,39 @@ def test_a_replay_reads_the_log_and_the_recorded_diagnostics(world):
     import json
 
     from shared.tools.view import action_timeline, diagnostics_record, load_replay, metrics_text
+
     server = world("navigation")
     for action in ("go", "go", "wait", "wait"):
         server.episode.note_action(action)
         server._apply(None)
     server.log.close()
-    diag = P.Diagnostics(seq=2, action="wait", alternatives=["wait"], mode_names=["wait"],
-                         mode_weights=np.array([1.0]), top=np.ones((2, 3, 3)), plan_time=0.05,
-                         top_modes=np.array([0, 0]))
+    diag = P.Diagnostics(
+        seq=2,
+        action="wait",
+        alternatives=["wait"],
+        mode_names=["wait"],
+        mode_weights=np.array([1.0]),
+        top=np.ones((2, 3, 3)),
+        plan_time=0.05,
+        top_modes=np.array([0, 0]),
+    )
     log_dir = server.log.path.parent
     (log_dir / "diagnostics.jsonl").write_text(json.dumps(diagnostics_record(diag)) + "\n")
     replay = load_replay(server.log.path)
     assert [s["seq"] for s in replay.steps] == [1, 2, 3, 4]
     assert [a for _, a in replay.actions] == ["go", "wait"]
-    assert replay.diagnostics_at(1) is None                 # none recorded yet then
+    assert replay.diagnostics_at(1) is None  # none recorded yet then
     assert replay.diagnostics_at(3)["top_modes"] == [0, 0]  # the newest before
     dt = server.world.dt
     assert "**▶" in action_timeline(replay.actions, 2.5 * dt).splitlines()[1]
-    assert "no summary" in metrics_text(replay.summary)     # the log was cut before its end
+    assert "no summary" in metrics_text(replay.summary)  # the log was cut before its end
 
 
 def test_m3p2i_view_says_what_it_needs(tmp_path):
     from typer.testing import CliRunner
 
     from shared.tools.cli import app
+
     runner = CliRunner()
     result = runner.invoke(app, ["view"])
     assert result.exit_code == 2 and "give a SCENARIO for a live view, or --log" in result.output
@@ -214,15 +256,27 @@ def test_the_views_controls_pass_a_keyed_world(tmp_path):
 
     from shared.security import load_planner_keys, load_world_keys, make_keys
     from shared.tools.view import ControlClient
+
     make_keys(tmp_path / "keys")
     port = free_port_block()
-    server = WorldServer(load_scenario("pick_place"), Endpoints(port=port), tmp_path / "e.jsonl",
-                         keys=load_world_keys(tmp_path / "keys"))
-    client = ControlClient(zmq.Context.instance(), Endpoints(port=port), timeout=10,
-                           keys=load_planner_keys(tmp_path / "keys"))
+    server = WorldServer(
+        load_scenario("pick_place"),
+        Endpoints(port=port),
+        tmp_path / "e.jsonl",
+        keys=load_world_keys(tmp_path / "keys"),
+    )
+    client = ControlClient(
+        zmq.Context.instance(),
+        Endpoints(port=port),
+        timeout=10,
+        keys=load_planner_keys(tmp_path / "keys"),
+    )
     replies = []
-    sender = threading.Thread(target=lambda: replies.append(client.send(P.Control(
-        op="move", object="cube_b", pos=np.array([0.2, 0.2, 1.1])))))
+    sender = threading.Thread(
+        target=lambda: replies.append(
+            client.send(P.Control(op="move", object="cube_b", pos=np.array([0.2, 0.2, 1.1])))
+        )
+    )
     try:
         sender.start()
         for _ in range(200):
@@ -234,5 +288,6 @@ def test_the_views_controls_pass_a_keyed_world(tmp_path):
         server.log.close()
         server.close()
     assert replies == [(True, "move: done")]
-    np.testing.assert_allclose(server.world.data.xpos[server.world.model.body("cube_b").id],
-                               [0.2, 0.2, 1.1])
+    np.testing.assert_allclose(
+        server.world.data.xpos[server.world.model.body("cube_b").id], [0.2, 0.2, 1.1]
+    )

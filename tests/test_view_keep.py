@@ -27,8 +27,9 @@ def _lines(proc: subprocess.Popen) -> queue.Queue:
     return lines
 
 
-def _wait_line(lines: queue.Queue, prefix: str, proc: subprocess.Popen, seen: list[str],
-               timeout: float) -> str:
+def _wait_line(
+    lines: queue.Queue, prefix: str, proc: subprocess.Popen, seen: list[str], timeout: float
+) -> str:
     end = time.monotonic() + timeout
     while time.monotonic() < end:
         try:
@@ -45,10 +46,11 @@ def _wait_line(lines: queue.Queue, prefix: str, proc: subprocess.Popen, seen: li
 
 def _inflate(frame: bytes) -> bytes:
     """A websocket frame of viser's, with its zstd-compressed part (if any) decompressed."""
-    at = frame.find(b"\x28\xb5\x2f\xfd")            # zstd's magic number
+    at = frame.find(b"\x28\xb5\x2f\xfd")  # zstd's magic number
     if at < 0:
         return frame
     import zstandard
+
     try:
         return frame[:at] + zstandard.ZstdDecompressor().decompressobj().decompress(frame[at:])
     except zstandard.ZstdError:
@@ -58,10 +60,16 @@ def _inflate(frame: bytes) -> bytes:
 def _page_messages(url: str, seconds: float = 10.0) -> bytes:
     """What the page's websocket sends a new client (the scene and the panel), as raw bytes."""
     from websockets.sync.client import connect
+
     ws_url = url.replace("http://", "ws://")
     got = b""
-    with connect(ws_url, origin=url.rstrip("/"), open_timeout=10, max_size=None,
-                 subprotocols=["viser-v1.1.1", "viser"]) as ws:
+    with connect(
+        ws_url,
+        origin=url.rstrip("/"),
+        open_timeout=10,
+        max_size=None,
+        subprotocols=["viser-v1.1.1", "viser"],
+    ) as ws:
         end = time.monotonic() + seconds
         while time.monotonic() < end:
             try:
@@ -76,10 +84,27 @@ def _page_messages(url: str, seconds: float = 10.0) -> bytes:
 
 def test_the_page_replays_the_episode_after_it_ends_until_ctrl_c(tmp_path):
     run_dir = tmp_path / "run"
-    proc = subprocess.Popen([sys.executable, "-m", "shared.tools", "run", "navigation", "--view",
-                             "--view-keep", "--run-dir", str(run_dir), "--timeout", "300"],
-                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, env=ENV,
-                            stdin=subprocess.DEVNULL, preexec_fn=_sigint_as_in_a_terminal)
+    proc = subprocess.Popen(
+        [
+            sys.executable,
+            "-m",
+            "shared.tools",
+            "run",
+            "navigation",
+            "--view",
+            "--view-keep",
+            "--run-dir",
+            str(run_dir),
+            "--timeout",
+            "300",
+        ],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        text=True,
+        env=ENV,
+        stdin=subprocess.DEVNULL,
+        preexec_fn=_sigint_as_in_a_terminal,
+    )
     seen: list[str] = []
     try:
         lines = _lines(proc)
@@ -88,8 +113,8 @@ def test_the_page_replays_the_episode_after_it_ends_until_ctrl_c(tmp_path):
         assert f"view still at {url}: Ctrl-C to quit" in kept
         summary = json.loads((run_dir / "episode.jsonl").read_text().splitlines()[-1])
         assert summary["kind"] == "summary"
-        time.sleep(3.0)                       # the world and planner are gone by now
-        assert proc.poll() is None            # ... and the run waits
+        time.sleep(3.0)  # the world and planner are gone by now
+        assert proc.poll() is None  # ... and the run waits
         with urllib.request.urlopen(url, timeout=10) as reply:
             assert reply.status == 200
         page = _page_messages(url)

@@ -13,10 +13,20 @@ import pytest
 from shared.scenario import load_scenario
 from shared.scene import compile_model, initial_data
 from shared.tools.view import MODE_COLOURS, path_segments, trajectory_segments, weight_bar
-from shared.tools.view_scene import (box_mesh, camera_for, capsule_mesh, cylinder_mesh,
-                                     geom_poses, scene_bounds, scene_shapes, sphere_mesh)
+from shared.tools.view_scene import (
+    box_mesh,
+    camera_for,
+    capsule_mesh,
+    cylinder_mesh,
+    geom_poses,
+    scene_bounds,
+    scene_shapes,
+    sphere_mesh,
+)
 
-SCENARIOS = sorted(p.stem for p in (Path(__file__).parents[1] / "configs" / "scenarios").glob("*.yaml"))
+SCENARIOS = sorted(
+    p.stem for p in (Path(__file__).parents[1] / "configs" / "scenarios").glob("*.yaml")
+)
 
 
 def _signed_volume(v: np.ndarray, f: np.ndarray) -> float:
@@ -43,12 +53,16 @@ def test_the_shipped_scenarios_use_these_geom_types():
     assert kinds == {"plane", "box", "cylinder", "capsule"}
 
 
-@pytest.mark.parametrize("mesh, volume, extent", [
-    (box_mesh(np.array([0.1, 0.2, 0.3])), 0.2 * 0.4 * 0.6, [0.1, 0.2, 0.3]),
-    (cylinder_mesh(0.1, 0.25), np.pi * 0.1 ** 2 * 0.5, [0.1, 0.1, 0.25]),
-    (capsule_mesh(0.1, 0.25), np.pi * 0.1 ** 2 * 0.5 + 4 / 3 * np.pi * 0.1 ** 3, [0.1, 0.1, 0.35]),
-    (sphere_mesh(0.2), 4 / 3 * np.pi * 0.2 ** 3, [0.2, 0.2, 0.2]),
-], ids=["box", "cylinder", "capsule", "sphere"])
+@pytest.mark.parametrize(
+    "mesh, volume, extent",
+    [
+        (box_mesh(np.array([0.1, 0.2, 0.3])), 0.2 * 0.4 * 0.6, [0.1, 0.2, 0.3]),
+        (cylinder_mesh(0.1, 0.25), np.pi * 0.1**2 * 0.5, [0.1, 0.1, 0.25]),
+        (capsule_mesh(0.1, 0.25), np.pi * 0.1**2 * 0.5 + 4 / 3 * np.pi * 0.1**3, [0.1, 0.1, 0.35]),
+        (sphere_mesh(0.2), 4 / 3 * np.pi * 0.2**3, [0.2, 0.2, 0.2]),
+    ],
+    ids=["box", "cylinder", "capsule", "sphere"],
+)
 def test_primitives_are_closed_outward_meshes_of_mujocos_size(mesh, volume, extent):
     v, f = mesh
     np.testing.assert_allclose(np.abs(v).max(0), extent, rtol=1e-6)
@@ -102,7 +116,7 @@ def test_a_mesh_geom_is_drawn_with_its_own_vertices_and_material_colour():
     mujoco.mj_forward(model, data)
     (shape,) = scene_shapes(model)
     assert shape.kind == "mesh" and len(shape.faces) == 4 and shape.movable
-    assert shape.rgba == (0.0, 0.0, 1.0, 1.0)        # the material's: the geom kept the default
+    assert shape.rgba == (0.0, 0.0, 1.0, 1.0)  # the material's: the geom kept the default
     pos, quat = geom_poses(model, data)
     rot = np.empty(9)
     mujoco.mju_quat2Mat(rot, quat[0])
@@ -119,8 +133,8 @@ def test_pick_place_colours_and_what_moves():
     rgba = {o.name: tuple(o.rgba) for o in sc.world.objects}
     for name in ("cube_a", "cube_b"):
         assert shapes[name].rgba == pytest.approx(rgba[name])
-        assert shapes[name].movable                       # free objects
-    assert shapes["link1"].movable and shapes["finger_left"].movable    # the arm
+        assert shapes[name].movable  # free objects
+    assert shapes["link1"].movable and shapes["finger_left"].movable  # the arm
     assert shapes["link1"].rgba == pytest.approx((0.95, 0.95, 0.95, 1.0))
     assert not shapes["floor"].movable and not shapes["mount"].movable  # never re-sent
     assert shapes["floor"].kind == "plane"
@@ -147,7 +161,7 @@ def test_the_camera_frames_the_scene(name):
     # the whole scene within the page's 75° field of view (R / sin 37.5° = 1.64 R), not lost
     # in the distance
     assert 1.64 * radius < distance < 3 * radius
-    assert position[2] > look_at[2]                   # from above
+    assert position[2] > look_at[2]  # from above
 
 
 def test_trajectories_are_coloured_by_their_mode():
@@ -176,7 +190,7 @@ def test_the_arena_walls_are_drawn_along_the_walls_and_as_tall_as_configured():
         if not s.name.startswith("wall_"):
             continue
         world = s.vertices @ data.geom_xmat[s.geom_id].reshape(3, 3).T + data.geom_xpos[s.geom_id]
-        np.testing.assert_allclose(world[:, 2].min(), 0.0, atol=1e-6)      # from the floor
-        np.testing.assert_allclose(world[:, 2].max(), 2 * z, atol=1e-6)    # up to 2 x wall_height
+        np.testing.assert_allclose(world[:, 2].min(), 0.0, atol=1e-6)  # from the floor
+        np.testing.assert_allclose(world[:, 2].max(), 2 * z, atol=1e-6)  # up to 2 x wall_height
         span = np.ptp(world[:, :2], axis=0)
         np.testing.assert_allclose(sorted(span), [0.0, 2 * h], atol=1e-6)  # the arena's side

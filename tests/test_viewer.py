@@ -13,17 +13,23 @@ import mujoco
 import numpy as np
 
 from server.app import WorldServer
-from shared.tools.cli import free_port_block
 from shared.endpoints import Endpoints
 from shared.scenario import load_scenario
+from shared.tools.cli import free_port_block
 
 
 class DraggingViewer:
     """Drags ``body`` with ``force`` (N, world frame) or, for a mocap body, moves it by
     ``shift`` (m) per sync, as the passive viewer does while the mouse is held."""
 
-    def __init__(self, model: mujoco.MjModel, data: mujoco.MjData, body: str,
-                 force=(0.0, 0.0, 0.0), shift=(0.0, 0.0, 0.0)):
+    def __init__(
+        self,
+        model: mujoco.MjModel,
+        data: mujoco.MjData,
+        body: str,
+        force=(0.0, 0.0, 0.0),
+        shift=(0.0, 0.0, 0.0),
+    ):
         self.data = data
         self.body = model.body(body).id
         self.mocap = int(model.body_mocapid[self.body])
@@ -39,8 +45,9 @@ class DraggingViewer:
 
 
 def _server(scenario: str, tmp_path) -> WorldServer:
-    return WorldServer(load_scenario(scenario), Endpoints(port=free_port_block()),
-                       tmp_path / "episode.jsonl")
+    return WorldServer(
+        load_scenario(scenario), Endpoints(port=free_port_block()), tmp_path / "episode.jsonl"
+    )
 
 
 def test_a_cube_dragged_in_the_viewer_moves_in_the_published_state(tmp_path):
@@ -48,18 +55,19 @@ def test_a_cube_dragged_in_the_viewer_moves_in_the_published_state(tmp_path):
     try:
         cube = server.world.model.body("cube_a")
         adr = server.world.model.jnt_qposadr[cube.jntadr[0]]
-        before = server.world.state().qpos[adr:adr + 3].copy()
+        before = server.world.state().qpos[adr : adr + 3].copy()
         # 0.05 kg cube: 1 N lifts it against gravity (0.49 N) and pulls it towards the robot
-        server.viewer = DraggingViewer(server.world.model, server.world.data, "cube_a",
-                                       force=(-0.3, 0.0, 1.0))
+        server.viewer = DraggingViewer(
+            server.world.model, server.world.data, "cube_a", force=(-0.3, 0.0, 1.0)
+        )
         for _ in range(30):
-            server._apply(None)             # one world step with the robot held still
-        after = server.world.state().qpos[adr:adr + 3]
+            server._apply(None)  # one world step with the robot held still
+        after = server.world.state().qpos[adr : adr + 3]
     finally:
         server.close()
     assert server.viewer.syncs == 30
-    assert after[2] - before[2] > 0.02        # lifted off the table
-    assert after[0] - before[0] < -0.005      # and dragged towards the robot
+    assert after[2] - before[2] > 0.02  # lifted off the table
+    assert after[0] - before[0] < -0.005  # and dragged towards the robot
 
 
 def test_a_fixed_object_dragged_in_the_viewer_is_published_where_it_was_put(tmp_path):
@@ -67,8 +75,9 @@ def test_a_fixed_object_dragged_in_the_viewer_is_published_where_it_was_put(tmp_
     try:
         mocap = server.world.model.body_mocapid[server.world.model.body("blocker").id]
         start = server.world.data.mocap_pos[mocap].copy()
-        server.viewer = DraggingViewer(server.world.model, server.world.data, "blocker",
-                                       shift=(0.0, -0.01, 0.0))
+        server.viewer = DraggingViewer(
+            server.world.model, server.world.data, "blocker", shift=(0.0, -0.01, 0.0)
+        )
         for _ in range(10):
             server._apply(None)
         published = server.world.state().mocap_pos[mocap]

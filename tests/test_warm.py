@@ -35,8 +35,10 @@ def _trials(cases: list[tuple[str, str, list[int]]]) -> list[B.Trial]:
 
 def _steps(path) -> list[tuple]:
     """What the world did at each step: time, state and the control that drove it."""
-    return [(s["time"], s["qpos"], s["qvel"], s["ctrl"], s["action"])
-            for s in episode.steps(episode.read_log(path))]
+    return [
+        (s["time"], s["qpos"], s["qvel"], s["ctrl"], s["action"])
+        for s in episode.steps(episode.read_log(path))
+    ]
 
 
 def test_a_warm_pair_gives_each_seed_the_episode_of_a_fresh_pair(tmp_path):
@@ -51,35 +53,52 @@ def test_a_warm_pair_gives_each_seed_the_episode_of_a_fresh_pair(tmp_path):
         opts = B.BenchOptions(out_dir=tmp_path / name, workers=1, timeout=300, fresh=fresh_pairs)
         results = B.ResultsFile(tmp_path / name / "results.csv")
         runs[name] = B.run_trials(todo, opts, results)
+
     # lock-step episodes do not depend on the load: both benches at once, one core each
-    threads = [threading.Thread(target=bench, args=args)
-               for args in (("warm", warm, False), ("fresh", fresh, True))]
+    threads = [
+        threading.Thread(target=bench, args=args)
+        for args in (("warm", warm, False), ("fresh", fresh, True))
+    ]
     for t in threads:
         t.start()
     for t in threads:
         t.join()
     assert runs == {"warm": True, "fresh": True}
-    rows = {name: {(r["case"], r["seed"]): r for r in B.ResultsFile(tmp_path / name / "results.csv").rows()}
-            for name in runs}
+    rows = {
+        name: {
+            (r["case"], r["seed"]): r for r in B.ResultsFile(tmp_path / name / "results.csv").rows()
+        }
+        for name in runs
+    }
     assert all(not r["reason"] for r in rows["warm"].values()), rows["warm"]
     # one pair per case, not one per trial: the later seeds really ran warm
     for case in ("navigation", "battery"):
         assert len(list((tmp_path / "warm" / "logs" / case / "pairs").iterdir())) == 1
-    assert "new episode (seed 2)" in (tmp_path / "warm/logs/navigation/seed-002/planner.log").read_text()
+    assert (
+        "new episode (seed 2)"
+        in (tmp_path / "warm/logs/navigation/seed-002/planner.log").read_text()
+    )
     for key, row in rows["fresh"].items():
         assert not row["reason"]
         same = rows["warm"][key]
         for column in ("status", "position_error", "time", "steps", "initial"):
             assert same[column] == row[column], (key, column)
-        assert _steps(tmp_path / "warm" / same["log"]) == _steps(tmp_path / "fresh" / row["log"]), key
+        assert _steps(tmp_path / "warm" / same["log"]) == _steps(tmp_path / "fresh" / row["log"]), (
+            key
+        )
         # the warm trial's time is the episode's, not the processes' start-up
-        assert float(same["trial_wall"]) - float(same["wall_time"]) < \
-            float(row["trial_wall"]) - float(row["wall_time"])
+        assert float(same["trial_wall"]) - float(same["wall_time"]) < float(
+            row["trial_wall"]
+        ) - float(row["wall_time"])
 
 
 def test_a_trial_that_fails_takes_its_pair_down_and_the_next_starts_afresh(tmp_path):
-    launch = EpisodeLaunch(scenario="navigation", run_dir=tmp_path / "pair", threads=1,
-                           log=str(tmp_path / "seed-{seed:03d}" / "episode.jsonl"))
+    launch = EpisodeLaunch(
+        scenario="navigation",
+        run_dir=tmp_path / "pair",
+        threads=1,
+        log=str(tmp_path / "seed-{seed:03d}" / "episode.jsonl"),
+    )
     pair = WarmPair(launch)
     try:
         late = pair.run(0, timeout=0.2)
@@ -96,8 +115,13 @@ def test_a_trial_that_fails_takes_its_pair_down_and_the_next_starts_afresh(tmp_p
 
 @pytest.fixture
 def kept_world(tmp_path):
-    server = WorldServer(load_scenario("navigation"), Endpoints(port=free_port_block()),
-                         tmp_path / "seed-{seed}.jsonl", ServerOptions(keep_serving=True), seed=3)
+    server = WorldServer(
+        load_scenario("navigation"),
+        Endpoints(port=free_port_block()),
+        tmp_path / "seed-{seed}.jsonl",
+        ServerOptions(keep_serving=True),
+        seed=3,
+    )
     yield server
     server.log.close()
     server.close()
@@ -107,15 +131,19 @@ def test_a_kept_world_begins_the_seeds_episode_on_a_seeded_reset(kept_world, tmp
     first = kept_world.episode.session
     assert kept_world.log.path == tmp_path / "seed-3.jsonl"
     assert isinstance(_ask(kept_world, P.Control(op="reset", seed=7)), P.Control)
-    assert not kept_world._running()          # the running episode ends ...
+    assert not kept_world._running()  # the running episode ends ...
     kept_world._serve_episode()
-    kept_world._begin_episode(kept_world._next_seed)   # ... as run() does, and the next begins
+    kept_world._begin_episode(kept_world._next_seed)  # ... as run() does, and the next begins
     assert kept_world.episode.session != first and kept_world.episode.seq == 0
     assert episode.summary(episode.read_log(tmp_path / "seed-3.jsonl"))["status"] == "stopped"
     assert episode.header(episode.read_log(tmp_path / "seed-7.jsonl"))["seed"] == 7
-    fresh = WorldServer(load_scenario("navigation"), Endpoints(port=free_port_block()),
-                        tmp_path / "fresh.jsonl", seed=7)
-    try:   # the kept world's start for seed 7 is a fresh world's
+    fresh = WorldServer(
+        load_scenario("navigation"),
+        Endpoints(port=free_port_block()),
+        tmp_path / "fresh.jsonl",
+        seed=7,
+    )
+    try:  # the kept world's start for seed 7 is a fresh world's
         np.testing.assert_array_equal(kept_world.world.data.qpos, fresh.world.data.qpos)
     finally:
         fresh.log.close()
@@ -123,8 +151,9 @@ def test_a_kept_world_begins_the_seeds_episode_on_a_seeded_reset(kept_world, tmp
 
 
 def test_a_seeded_reset_is_refused_by_a_world_serving_one_episode(tmp_path):
-    server = WorldServer(load_scenario("navigation"), Endpoints(port=free_port_block()),
-                         tmp_path / "episode.jsonl")
+    server = WorldServer(
+        load_scenario("navigation"), Endpoints(port=free_port_block()), tmp_path / "episode.jsonl"
+    )
     try:
         reply = _ask(server, P.Control(op="reset", seed=4))
         assert isinstance(reply, P.Error) and "--keep-serving" in reply.reason
@@ -141,8 +170,9 @@ def test_reset_seeds_on_the_wire():
         P.decode(P.encode(P.Control(op="pause", seed=5)))
     with pytest.raises(P.ProtocolError, match="0 <= seed"):
         P.decode(P.encode(P.Control(op="reset", seed=-1)))
-    welcome = P.Welcome(scenario="s", scenario_hash="h", mode="lockstep", dt=0.01, nu=2,
-                        session="a", seed=9)
+    welcome = P.Welcome(
+        scenario="s", scenario_hash="h", mode="lockstep", dt=0.01, nu=2, session="a", seed=9
+    )
     assert P.decode(P.encode(welcome)).seed == 9
 
 

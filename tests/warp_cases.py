@@ -9,21 +9,26 @@ from dataclasses import dataclass
 import mujoco
 import numpy as np
 
+from planner_client.problem import PlanningProblem, build_problem
 from shared.scenario import load_scenario
 from shared.scene import get_full_state, initial_data
-from planner_client.problem import PlanningProblem, build_problem
 
 
 @dataclass
 class Case:
     problem: PlanningProblem
-    x0: np.ndarray            # [nstate] full physics state
-    control: np.ndarray       # [S, T, nu]
+    x0: np.ndarray  # [nstate] full physics state
+    control: np.ndarray  # [S, T, nu]
     mocap: tuple[np.ndarray, np.ndarray]
 
 
-def _controls(model: mujoco.MjModel, samples: int, horizon: int, seed: int,
-              toward: dict[int, float] | None = None) -> np.ndarray:
+def _controls(
+    model: mujoco.MjModel,
+    samples: int,
+    horizon: int,
+    seed: int,
+    toward: dict[int, float] | None = None,
+) -> np.ndarray:
     """Random controls in the actuators' ranges; channels in ``toward`` held at that value for
     the first half of the samples (driving into an obstacle)."""
     rng = np.random.default_rng(seed)
@@ -45,12 +50,12 @@ def case(scenario: str, contact: bool, samples: int = 16, seed: int = 0) -> Case
     d = initial_data(sc, m)
     toward = None
     if contact and scenario == "navigation":
-        d.qpos[:2] = (-0.75, 1.5)                    # 0.35 m east of block_a's face at x = -1.1
-        toward = {0: m.actuator_ctrlrange[0, 0]}     # full speed west
+        d.qpos[:2] = (-0.75, 1.5)  # 0.35 m east of block_a's face at x = -1.1
+        toward = {0: m.actuator_ctrlrange[0, 0]}  # full speed west
     elif contact and scenario == "push_pull":
         box = m.body("box").jntadr[0]
         d.qpos[:2] = d.qpos[m.jnt_qposadr[box]] - 0.45, d.qpos[m.jnt_qposadr[box] + 1]
-        toward = {0: m.actuator_ctrlrange[0, 1]}     # full speed east, into the box
+        toward = {0: m.actuator_ctrlrange[0, 1]}  # full speed east, into the box
     elif contact and scenario == "pick_place":
         toward = {1: m.actuator_ctrlrange[1, 1], 3: m.actuator_ctrlrange[3, 1]}  # reach down
     mujoco.mj_forward(m, d)

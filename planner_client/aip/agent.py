@@ -37,22 +37,29 @@ class FactorModel:
     name: str
     states: tuple[str, ...]
     actions: tuple[str, ...]  # actions[IDLE_INDEX] is the implicit idle
-    A: np.ndarray             # [n_states, n_states], identity
-    B: np.ndarray             # [n_states, n_states, n_actions]
-    log_E: np.ndarray         # [n_actions], ln of the normalised habits
+    A: np.ndarray  # [n_states, n_states], identity
+    B: np.ndarray  # [n_states, n_states, n_actions]
+    log_E: np.ndarray  # [n_actions], ln of the normalised habits
     kappa_d: float
 
     @classmethod
     def from_template(cls, factor: FactorTemplate, idle_habit: float) -> FactorModel:
         n = len(factor.states)
-        B = np.stack([np.eye(n)] + [transition_matrix(a.effect, factor.states)
-                                    for a in factor.actions], axis=2)
+        B = np.stack(
+            [np.eye(n)] + [transition_matrix(a.effect, factor.states) for a in factor.actions],
+            axis=2,
+        )
         habits = np.array([idle_habit] + [a.habit for a in factor.actions])
         arrays = (np.eye(n), B, maths.log_eps(maths.normalise_columns(habits)))
         for array in arrays:
             array.flags.writeable = False
-        return cls(factor.name, factor.states, (IDLE, *(a.name for a in factor.actions)),
-                   *arrays, factor.kappa_d)
+        return cls(
+            factor.name,
+            factor.states,
+            (IDLE, *(a.name for a in factor.actions)),
+            *arrays,
+            factor.kappa_d,
+        )
 
 
 class Perception(NamedTuple):
@@ -60,9 +67,9 @@ class Perception(NamedTuple):
 
     obs: int
     posterior: maths.StatePosterior
-    F: np.ndarray         # [n_actions], thesis Eq. 2.13
+    F: np.ndarray  # [n_actions], thesis Eq. 2.13
     outcomes: np.ndarray  # [n_obs, n_actions], o^π = A B_π s_0^π
-    G_flat: np.ndarray    # [n_actions], thesis Eq. 2.15 with C = 0
+    G_flat: np.ndarray  # [n_actions], thesis Eq. 2.15 with C = 0
 
 
 class Policies(NamedTuple):

@@ -48,11 +48,11 @@ def normalise_columns(x: np.ndarray) -> np.ndarray:
 class StatePosterior(NamedTuple):
     """Policy-conditioned beliefs of thesis Eq. 2.14, each ``[n_states, n_policies]`` unless noted."""
 
-    s0: np.ndarray         # s_0^π, the current state
-    s1: np.ndarray         # s_1^π, the next state
+    s0: np.ndarray  # s_0^π, the current state
+    s1: np.ndarray  # s_1^π, the next state
     predicted: np.ndarray  # B_π s_0^π, the prior over the next state
-    lik0: np.ndarray       # Aᵀ o_0, likelihood of the current observation, [n_states]
-    lik1: np.ndarray       # Aᵀ o_1^π, likelihood of the assumed next observation
+    lik0: np.ndarray  # Aᵀ o_0, likelihood of the current observation, [n_states]
+    lik1: np.ndarray  # Aᵀ o_1^π, likelihood of the assumed next observation
 
 
 def state_posterior(A: np.ndarray, B: np.ndarray, D: np.ndarray, obs: int) -> StatePosterior:

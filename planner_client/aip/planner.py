@@ -36,8 +36,8 @@ GOAL_PREFERENCE = 1.0
 PUSHED_PREFERENCE = 2.0
 
 Status = Literal["running", "success", "failure"]
-Found = list[tuple[str, tuple[str, ...]]]    # admissible action, chain of reasons leading to it
-Blocked = list[tuple[str, list[StateRef]]]   # blocked action, its unmet preconditions
+Found = list[tuple[str, tuple[str, ...]]]  # admissible action, chain of reasons leading to it
+Blocked = list[tuple[str, list[StateRef]]]  # blocked action, its unmet preconditions
 
 
 @dataclass(frozen=True)
@@ -63,10 +63,13 @@ class ActiveInferencePlanner:
     def __init__(self, template: TaskTemplate, *, alternatives: bool = True):
         self.template = template
         self.alternatives = alternatives
-        self._agents = {f.name: FactorAgent(FactorModel.from_template(f, template.idle_habit))
-                        for f in template.factors}
-        self._index = {StateRef(f.name, s): i for f in template.factors
-                       for i, s in enumerate(f.states)}
+        self._agents = {
+            f.name: FactorAgent(FactorModel.from_template(f, template.idle_habit))
+            for f in template.factors
+        }
+        self._index = {
+            StateRef(f.name, s): i for f in template.factors for i, s in enumerate(f.states)
+        }
         self._preconditions = {a.name: a.preconditions for a in template.actions()}
         self._n_actions = len(self._preconditions)
 
@@ -76,8 +79,10 @@ class ActiveInferencePlanner:
             agent.reset()
 
     def beliefs(self) -> dict[str, dict[str, float]]:
-        return {f: dict(zip(agent.model.states, map(float, agent.belief)))
-                for f, agent in self._agents.items()}
+        return {
+            f: dict(zip(agent.model.states, map(float, agent.belief)))
+            for f, agent in self._agents.items()
+        }
 
     def step(self, observation: Mapping[str, int | str]) -> Decision:
         """Decide for one tick from one observation per factor (state index or state name)."""
@@ -100,14 +105,21 @@ class ActiveInferencePlanner:
         found, blocked = self._search(obs, seen, prefs, log_E, q)
         if found:
             names = tuple(name for name, _ in found)
-            return Decision("running", names[0], names, " -> ".join((names[0],) + found[0][1]),
-                            beliefs)
-        return Decision("failure", None, (), self._failure_reason(obs, unmet_goals, blocked),
-                        beliefs)
+            return Decision(
+                "running", names[0], names, " -> ".join((names[0],) + found[0][1]), beliefs
+            )
+        return Decision(
+            "failure", None, (), self._failure_reason(obs, unmet_goals, blocked), beliefs
+        )
 
-    def _search(self, obs: dict[str, int], seen: dict[str, Perception],
-                prefs: dict[str, np.ndarray], log_E: dict[str, np.ndarray],
-                q: dict[str, np.ndarray]) -> tuple[Found, Blocked]:
+    def _search(
+        self,
+        obs: dict[str, int],
+        seen: dict[str, Perception],
+        prefs: dict[str, np.ndarray],
+        log_E: dict[str, np.ndarray],
+        q: dict[str, np.ndarray],
+    ) -> tuple[Found, Blocked]:
         """Back-chaining over preconditions; rewrites ``prefs``, ``log_E`` and ``q`` in place."""
         why: dict[str, tuple[str, ...]] = {f: () for f in self._agents}
         for goal in self.template.goals:
@@ -116,8 +128,10 @@ class ActiveInferencePlanner:
         blocked: Blocked = []
         # Every pass inhibits one action for good, so all are idle after at most n_actions passes.
         for _ in range(self._n_actions + 1):
-            proposal = next(((f, int(np.argmax(q[f]))) for f in self._agents
-                             if np.argmax(q[f]) != IDLE_INDEX), None)
+            proposal = next(
+                ((f, int(np.argmax(q[f]))) for f in self._agents if np.argmax(q[f]) != IDLE_INDEX),
+                None,
+            )
             if proposal is None:
                 break
             f, a = proposal
@@ -139,29 +153,36 @@ class ActiveInferencePlanner:
                 q[g] = self._evaluate(g, seen[g], prefs[g], log_E[g])
         return found, blocked
 
-    def _evaluate(self, factor: str, perception: Perception, prefs: np.ndarray,
-                  log_E: np.ndarray) -> np.ndarray:
+    def _evaluate(
+        self, factor: str, perception: Perception, prefs: np.ndarray, log_E: np.ndarray
+    ) -> np.ndarray:
         return self._agents[factor].evaluate(perception, log_eps(prefs), log_E).q
 
-    def _failure_reason(self, obs: dict[str, int], unmet_goals: list[StateRef],
-                        blocked: Blocked) -> str:
+    def _failure_reason(
+        self, obs: dict[str, int], unmet_goals: list[StateRef], blocked: Blocked
+    ) -> str:
         parts = [f"no admissible action towards {', '.join(map(str, unmet_goals))}"]
         if blocked:
-            parts.append("blocked: " + "; ".join(f"{name} needs {', '.join(map(str, unmet))}"
-                                                 for name, unmet in blocked))
+            parts.append(
+                "blocked: "
+                + "; ".join(f"{name} needs {', '.join(map(str, unmet))}" for name, unmet in blocked)
+            )
         wanted = list(dict.fromkeys(unmet_goals + [p for _, unmet in blocked for p in unmet]))
         for ref in wanted:
             current = self._agents[ref.factor].model.states[obs[ref.factor]]
-            if not any(a.effect.target(current) == ref.state
-                       for a in self.template.factor(ref.factor).actions):
+            if not any(
+                a.effect.target(current) == ref.state
+                for a in self.template.factor(ref.factor).actions
+            ):
                 parts.append(f"no action takes {ref.factor} from {current} to {ref.state}")
         return "; ".join(parts)
 
     def _indices(self, observation: Mapping[str, int | str]) -> dict[str, int]:
         for name in observation:
             if name not in self._agents:
-                raise ValueError(f"observation for unknown factor {name!r} "
-                                 f"(factors: {', '.join(self._agents)})")
+                raise ValueError(
+                    f"observation for unknown factor {name!r} (factors: {', '.join(self._agents)})"
+                )
         indices = {}
         for f, agent in self._agents.items():
             if f not in observation:
@@ -169,10 +190,15 @@ class ActiveInferencePlanner:
             value, states = observation[f], agent.model.states
             if isinstance(value, str) and value in states:
                 indices[f] = states.index(value)
-            elif (isinstance(value, (int, np.integer)) and not isinstance(value, bool)
-                  and 0 <= value < len(states)):
+            elif (
+                isinstance(value, (int, np.integer))
+                and not isinstance(value, bool)
+                and 0 <= value < len(states)
+            ):
                 indices[f] = int(value)
             else:
-                raise ValueError(f"bad observation for factor {f!r}: {value!r} (expected a state "
-                                 f"index 0..{len(states) - 1} or one of: {', '.join(states)})")
+                raise ValueError(
+                    f"bad observation for factor {f!r}: {value!r} (expected a state "
+                    f"index 0..{len(states) - 1} or one of: {', '.join(states)})"
+                )
         return indices

@@ -27,13 +27,14 @@ class RolloutBackend(Protocol):
     """The interface :class:`~planner_client.motion.MotionPlanner` rolls out through."""
 
     name: str
-    device: torch.device           # where sensordata lives, and so the costs and M3P2I update
+    device: torch.device  # where sensordata lives, and so the costs and M3P2I update
 
     def set_mocap(self, pos: np.ndarray, quat: np.ndarray) -> None:
         """Mocap poses ``[nmocap, 3]``, ``[nmocap, 4]`` every rollout starts from."""
 
-    def sensors(self, x0: np.ndarray, control: torch.Tensor,
-                mocap_path: np.ndarray | None = None) -> torch.Tensor:
+    def sensors(
+        self, x0: np.ndarray, control: torch.Tensor, mocap_path: np.ndarray | None = None
+    ) -> torch.Tensor:
         """Roll out ``control [S, T, nu]`` from the full physics state ``x0 [nstate]``; return
         ``sensordata [S, T, nsensordata]`` after each step (as ``mujoco.rollout`` records it).
         With ``mocap_path [T, nmocap, 3]`` the mocap bodies are placed there at each step."""
@@ -42,9 +43,18 @@ class RolloutBackend(Protocol):
         """Release threads and device memory."""
 
 
-def make_backend(name: str, model: mujoco.MjModel, *, samples: int, horizon: int,
-                 nthread: int = 0, device: str = "cuda:0", nconmax: int | None = None,
-                 njmax: int | None = None, source: str = "") -> RolloutBackend:
+def make_backend(
+    name: str,
+    model: mujoco.MjModel,
+    *,
+    samples: int,
+    horizon: int,
+    nthread: int = 0,
+    device: str = "cuda:0",
+    nconmax: int | None = None,
+    njmax: int | None = None,
+    source: str = "",
+) -> RolloutBackend:
     """The backend ``name`` (``mujoco`` or ``warp``) for the planner's ``model``.
 
     ``samples`` x ``horizon`` size the warp backend's buffers up front (its "worlds"); ``source``
@@ -53,10 +63,18 @@ def make_backend(name: str, model: mujoco.MjModel, *, samples: int, horizon: int
     """
     if name == "mujoco":
         from planner_client.backends.mujoco_pool import MujocoPoolBackend
+
         return MujocoPoolBackend(model, nthread)
     if name == "warp":
         from planner_client.backends.warp import WarpBackend
-        return WarpBackend(model, samples=samples, horizon=horizon, device=device,
-                           nconmax=nconmax, njmax=njmax, source=source)
-    raise ConfigError(source, "planner.backend", "unknown rollout backend", name,
-                      "mujoco or warp")
+
+        return WarpBackend(
+            model,
+            samples=samples,
+            horizon=horizon,
+            device=device,
+            nconmax=nconmax,
+            njmax=njmax,
+            source=source,
+        )
+    raise ConfigError(source, "planner.backend", "unknown rollout backend", name, "mujoco or warp")

@@ -15,8 +15,9 @@ class MujocoPoolBackend(RolloutEngine):
     name = "mujoco"
     device = torch.device("cpu")
 
-    def sensors(self, x0: np.ndarray, control: torch.Tensor,
-                mocap_path: np.ndarray | None = None) -> torch.Tensor:
+    def sensors(
+        self, x0: np.ndarray, control: torch.Tensor, mocap_path: np.ndarray | None = None
+    ) -> torch.Tensor:
         """``sensordata [S, T, nsensordata]`` of ``control [S, T, nu]`` rolled out from ``x0``;
         a view of a buffer the next call overwrites."""
         return torch.from_numpy(self.run(x0, control.numpy(), mocap_path))

@@ -25,8 +25,8 @@ import mujoco
 import numpy as np
 import torch
 
-from shared.config import ConfigError
 from planner_client.backends.warp_limits import buffer_sizes, check_warp
+from shared.config import ConfigError
 
 log = logging.getLogger("m3p2i.planner")
 
@@ -34,13 +34,17 @@ log = logging.getLogger("m3p2i.planner")
 def import_warp(source: str = ""):
     """``(warp, mujoco_warp)``, or a :class:`ConfigError` saying to install m3p2i[gpu]."""
     try:
-        import warp as wp
         import mujoco_warp as mjw
+        import warp as wp
     except ImportError as exc:
-        raise ConfigError(source, "planner.backend",
-                          f"the warp backend needs the m3p2i[gpu] extra ({exc.name} is missing): "
-                          "pip install -e '.[gpu]' in a clone", "warp",
-                          "planner.backend: mujoco, or install m3p2i[gpu]") from None
+        raise ConfigError(
+            source,
+            "planner.backend",
+            f"the warp backend needs the m3p2i[gpu] extra ({exc.name} is missing): "
+            "pip install -e '.[gpu]' in a clone",
+            "warp",
+            "planner.backend: mujoco, or install m3p2i[gpu]",
+        ) from None
     return wp, mjw
 
 
@@ -48,15 +52,16 @@ def import_warp(source: str = ""):
 class _Worlds:
     """MJWarp data for S worlds and the per-step buffers of one (S, T), as Warp arrays and
     torch views of the same memory."""
-    data: object                     # mujoco_warp.Data
-    ctrl_seq: object                 # wp.array [T, S, nu]
-    mocap_seq: object | None         # wp.array [T, S, nmocap] of vec3
-    out: object                      # wp.array [T, S, nsensordata]
+
+    data: object  # mujoco_warp.Data
+    ctrl_seq: object  # wp.array [T, S, nu]
+    mocap_seq: object | None  # wp.array [T, S, nmocap] of vec3
+    out: object  # wp.array [T, S, nsensordata]
     ctrl_seq_t: torch.Tensor
     mocap_seq_t: torch.Tensor | None
     out_t: torch.Tensor
-    sensordata: torch.Tensor         # [S, T, nsensordata] float64, what sensors() returns
-    graphs: dict                     # with/without a mocap path -> captured CUDA graph
+    sensordata: torch.Tensor  # [S, T, nsensordata] float64, what sensors() returns
+    graphs: dict  # with/without a mocap path -> captured CUDA graph
 
 
 class WarpBackend:
@@ -71,9 +76,17 @@ class WarpBackend:
 
     name = "warp"
 
-    def __init__(self, model: mujoco.MjModel, *, samples: int = 0, horizon: int = 0,
-                 device: str = "cuda:0", nconmax: int | None = None, njmax: int | None = None,
-                 source: str = ""):
+    def __init__(
+        self,
+        model: mujoco.MjModel,
+        *,
+        samples: int = 0,
+        horizon: int = 0,
+        device: str = "cuda:0",
+        nconmax: int | None = None,
+        njmax: int | None = None,
+        source: str = "",
+    ):
         wp, mjw = import_warp(source)
         self._wp, self._mjw = wp, mjw
         check_warp(model, source)
@@ -81,30 +94,45 @@ class WarpBackend:
             self.wp_device = wp.get_device(device)
         except (RuntimeError, ValueError):
             have = ", ".join(d.alias for d in wp.get_devices())
-            raise ConfigError(source, "planner.device",
-                              "Warp has no such device (planner.device, or --device)", device,
-                              f"one of: {have}") from None
+            raise ConfigError(
+                source,
+                "planner.device",
+                "Warp has no such device (planner.device, or --device)",
+                device,
+                f"one of: {have}",
+            ) from None
         self.device = torch.device(wp.device_to_torch(self.wp_device))
         self.model = model
         self.nconmax, self.njmax = buffer_sizes(model, nconmax, njmax)
         with wp.ScopedDevice(self.wp_device):
             try:
                 self.wmodel = mjw.put_model(model)
-            except (NotImplementedError, ValueError) as exc:   # a limit check_warp missed
-                raise ConfigError(source, "planner.backend",
-                                  f"MuJoCo Warp cannot roll out this scenario's model: {exc}",
-                                  "warp", "planner.backend: mujoco") from None
-        self._capacity = int(sum(int(f) for f in mjw.OverflowType
-                                 if f.name not in ("NONE", "ALL", "ITERATIONS", "LS_ITERATIONS")))
+            except (NotImplementedError, ValueError) as exc:  # a limit check_warp missed
+                raise ConfigError(
+                    source,
+                    "planner.backend",
+                    f"MuJoCo Warp cannot roll out this scenario's model: {exc}",
+                    "warp",
+                    "planner.backend: mujoco",
+                ) from None
+        self._capacity = int(
+            sum(
+                int(f)
+                for f in mjw.OverflowType
+                if f.name not in ("NONE", "ALL", "ITERATIONS", "LS_ITERATIONS")
+            )
+        )
         self._warned: set[str] = set()
-        self._compiled = False           # CUDA: kernels are compiled by an uncaptured first run
+        self._compiled = False  # CUDA: kernels are compiled by an uncaptured first run
         self._worlds: dict[tuple[int, int], _Worlds] = {}
         bodies = np.flatnonzero(model.body_mocapid >= 0)
         order = bodies[np.argsort(model.body_mocapid[bodies])]
         self._mocap_pos = torch.tensor(model.body_pos[order], dtype=torch.float32)
         self._mocap_quat = torch.tensor(model.body_quat[order], dtype=torch.float32)
-        self._sizes = [mujoco.mj_stateSize(model, getattr(mujoco.mjtState, f"mjSTATE_{p}"))
-                       for p in ("TIME", "QPOS", "QVEL", "ACT")]
+        self._sizes = [
+            mujoco.mj_stateSize(model, getattr(mujoco.mjtState, f"mjSTATE_{p}"))
+            for p in ("TIME", "QPOS", "QVEL", "ACT")
+        ]
         if samples and horizon:
             self._get_worlds(samples, horizon)
 
@@ -120,17 +148,21 @@ class WarpBackend:
         with wp.ScopedDevice(self.wp_device):
             data = self._mjw.make_data(m, nworld=samples, nconmax=self.nconmax, njmax=self.njmax)
             ctrl_seq = wp.zeros((horizon, samples, m.nu), dtype=float)
-            mocap_seq = (wp.zeros((horizon, samples, m.nmocap), dtype=wp.vec3)
-                         if m.nmocap else None)
+            mocap_seq = wp.zeros((horizon, samples, m.nmocap), dtype=wp.vec3) if m.nmocap else None
             out = wp.zeros((horizon, samples, m.nsensordata), dtype=float)
         worlds = _Worlds(
-            data=data, ctrl_seq=ctrl_seq, mocap_seq=mocap_seq, out=out,
+            data=data,
+            ctrl_seq=ctrl_seq,
+            mocap_seq=mocap_seq,
+            out=out,
             ctrl_seq_t=wp.to_torch(ctrl_seq),
             mocap_seq_t=None if mocap_seq is None else wp.to_torch(mocap_seq),
             out_t=wp.to_torch(out),
-            sensordata=torch.empty(samples, horizon, m.nsensordata, dtype=torch.float64,
-                                   device=self.device),
-            graphs={})
+            sensordata=torch.empty(
+                samples, horizon, m.nsensordata, dtype=torch.float64, device=self.device
+            ),
+            graphs={},
+        )
         self._worlds[key] = worlds
         return worlds
 
@@ -155,7 +187,9 @@ class WarpBackend:
         wp.to_torch(d.overflow).zero_()
         if self.model.nmocap:
             wp.to_torch(d.mocap_pos).copy_(self._mocap_pos.to(self.device).expand(d.nworld, -1, -1))
-            wp.to_torch(d.mocap_quat).copy_(self._mocap_quat.to(self.device).expand(d.nworld, -1, -1))
+            wp.to_torch(d.mocap_quat).copy_(
+                self._mocap_quat.to(self.device).expand(d.nworld, -1, -1)
+            )
 
     def _steps(self, w: _Worlds, horizon: int, with_path: bool) -> None:
         wp, d = self._wp, w.data
@@ -166,8 +200,9 @@ class WarpBackend:
             self._mjw.step(self.wmodel, d)
             wp.copy(w.out[t], d.sensordata)
 
-    def sensors(self, x0: np.ndarray, control: torch.Tensor,
-                mocap_path: np.ndarray | None = None) -> torch.Tensor:
+    def sensors(
+        self, x0: np.ndarray, control: torch.Tensor, mocap_path: np.ndarray | None = None
+    ) -> torch.Tensor:
         """``sensordata [S, T, nsensordata]`` (float64, on this backend's device) of
         ``control [S, T, nu]`` rolled out from ``x0``; with ``mocap_path [T, nmocap, 3]`` the
         mocap bodies follow it. A buffer the next call with the same S, T overwrites."""
@@ -181,15 +216,16 @@ class WarpBackend:
         with_path = mocap_path is not None and self.model.nmocap > 0
         if with_path:
             path = torch.as_tensor(np.asarray(mocap_path, dtype=np.float32)).to(self.device)
-            w.mocap_seq_t.copy_(path.reshape(horizon, 1, self.model.nmocap, 3)
-                                .expand(-1, samples, -1, -1))
+            w.mocap_seq_t.copy_(
+                path.reshape(horizon, 1, self.model.nmocap, 3).expand(-1, samples, -1, -1)
+            )
         with wp.ScopedDevice(self.wp_device):
             if self.wp_device.is_cuda:
                 # torch filled the inputs on its stream, Warp runs on its own: order them
                 torch.cuda.synchronize(self.device)
                 graph = w.graphs.get(with_path)
                 if graph is None and not self._compiled:
-                    self._steps(w, horizon, with_path)       # first run: compiles the kernels
+                    self._steps(w, horizon, with_path)  # first run: compiles the kernels
                     self._compiled = True
                     self._start(w, x0)
                     torch.cuda.synchronize(self.device)
@@ -217,12 +253,23 @@ class WarpBackend:
         for v in flags[bad].tolist():
             seen |= int(v)
         for f in self._mjw.OverflowType:
-            if f.value and not f.value & (f.value - 1) and seen & f.value and f.name not in self._warned:
+            if (
+                f.value
+                and not f.value & (f.value - 1)
+                and seen & f.value
+                and f.name not in self._warned
+            ):
                 self._warned.add(f.name)
-                log.warning("MJWarp buffer overflow (%s) in %d of %d rollouts: they get no weight; "
-                            "raise planner.nconmax (contacts per world, now %d) or planner.njmax "
-                            "(constraint rows, now %d)", f.name, int(bad.sum()), len(bad),
-                            self.nconmax, self.njmax)
+                log.warning(
+                    "MJWarp buffer overflow (%s) in %d of %d rollouts: they get no weight; "
+                    "raise planner.nconmax (contacts per world, now %d) or planner.njmax "
+                    "(constraint rows, now %d)",
+                    f.name,
+                    int(bad.sum()),
+                    len(bad),
+                    self.nconmax,
+                    self.njmax,
+                )
 
     def close(self) -> None:
         self._worlds.clear()

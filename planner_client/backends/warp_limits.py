@@ -41,9 +41,22 @@ def warp_limits(model: mujoco.MjModel) -> list[str]:
     per_object = (
         (model.geom_type, T.GeomType, mujoco.mjtGeom, O.mjOBJ_GEOM, "geom", "type"),
         (model.sensor_type, T.SensorType, mujoco.mjtSensor, O.mjOBJ_SENSOR, "sensor", "type"),
-        (model.actuator_trntype, T.TrnType, mujoco.mjtTrn, O.mjOBJ_ACTUATOR, "actuator",
-         "transmission"),
-        (model.actuator_dyntype, T.DynType, mujoco.mjtDyn, O.mjOBJ_ACTUATOR, "actuator", "dynamics"),
+        (
+            model.actuator_trntype,
+            T.TrnType,
+            mujoco.mjtTrn,
+            O.mjOBJ_ACTUATOR,
+            "actuator",
+            "transmission",
+        ),
+        (
+            model.actuator_dyntype,
+            T.DynType,
+            mujoco.mjtDyn,
+            O.mjOBJ_ACTUATOR,
+            "actuator",
+            "dynamics",
+        ),
         (model.actuator_gaintype, T.GainType, mujoco.mjtGain, O.mjOBJ_ACTUATOR, "actuator", "gain"),
         (model.actuator_biastype, T.BiasType, mujoco.mjtBias, O.mjOBJ_ACTUATOR, "actuator", "bias"),
         (model.eq_type, T.EqType, mujoco.mjtEq, O.mjOBJ_EQUALITY, "equality", "type"),
@@ -58,34 +71,42 @@ def warp_limits(model: mujoco.MjModel) -> list[str]:
         if int(v) not in ok_wrap:
             problems.append(f"tendon wrap #{i} has type {mujoco.mjtWrap(int(v)).name}")
     for value, supported, enum, what in (
-            (model.opt.integrator, T.IntegratorType, mujoco.mjtIntegrator, "integrator"),
-            (model.opt.cone, T.ConeType, mujoco.mjtCone, "cone"),
-            (model.opt.solver, T.SolverType, mujoco.mjtSolver, "solver")):
+        (model.opt.integrator, T.IntegratorType, mujoco.mjtIntegrator, "integrator"),
+        (model.opt.cone, T.ConeType, mujoco.mjtCone, "cone"),
+        (model.opt.solver, T.SolverType, mujoco.mjtSolver, "solver"),
+    ):
         if int(value) not in {int(v) for v in supported}:
             problems.append(f"option {what} {enum(int(value)).name}")
     for flags, supported, enum, what in (
-            (model.opt.disableflags, T.DisableBit, mujoco.mjtDisableBit, "disable flag"),
-            (model.opt.enableflags, T.EnableBit, mujoco.mjtEnableBit, "enable flag")):
+        (model.opt.disableflags, T.DisableBit, mujoco.mjtDisableBit, "disable flag"),
+        (model.opt.enableflags, T.EnableBit, mujoco.mjtEnableBit, "enable flag"),
+    ):
         known = int(np.bitwise_or.reduce([int(v) for v in supported]))
         bit = 1
         while bit <= int(flags):
             if int(flags) & bit and not bit & known:
                 problems.append(f"option {what} {enum(bit).name}")
             bit <<= 1
-    for values, objtype, kind in ((model.body_plugin, O.mjOBJ_BODY, "body"),
-                                  (model.actuator_plugin, O.mjOBJ_ACTUATOR, "actuator"),
-                                  (model.sensor_plugin, O.mjOBJ_SENSOR, "sensor")):
+    for values, objtype, kind in (
+        (model.body_plugin, O.mjOBJ_BODY, "body"),
+        (model.actuator_plugin, O.mjOBJ_ACTUATOR, "actuator"),
+        (model.sensor_plugin, O.mjOBJ_SENSOR, "sensor"),
+    ):
         for i in np.flatnonzero(np.asarray(values) != -1):
             problems.append(f"{_name(model, objtype, int(i), kind)} uses a plugin")
     if model.nv > 60 and model.opt.jacobian == mujoco.mjtJacobian.mjJAC_DENSE:
-        problems.append(f"option jacobian mjJAC_DENSE with nv = {model.nv} (MJWarp: dense only "
-                        "up to nv = 60; use sparse or auto)")
+        problems.append(
+            f"option jacobian mjJAC_DENSE with nv = {model.nv} (MJWarp: dense only "
+            "up to nv = 60; use sparse or auto)"
+        )
     problems += _adhesion_with_distance_sensors(model)
     for part in _UNCOPIED_STATE:
         n = mujoco.mj_stateSize(model, getattr(mujoco.mjtState, f"mjSTATE_{part}"))
         if n:
-            problems.append(f"{n} values of {part.lower()} state (the warp backend starts each "
-                            f"rollout from {', '.join(p.lower() for p in COPIED_STATE)} only)")
+            problems.append(
+                f"{n} values of {part.lower()} state (the warp backend starts each "
+                f"rollout from {', '.join(p.lower() for p in COPIED_STATE)} only)"
+            )
     return problems
 
 
@@ -114,17 +135,22 @@ def _adhesion_with_distance_sensors(model: mujoco.MjModel) -> list[str]:
     problems = []
     for a in np.flatnonzero(model.actuator_trntype == int(mujoco.mjtTrn.mjTRN_BODY)):
         body = int(model.actuator_trnid[a, 0])
-        sensors = [_name(model, O.mjOBJ_SENSOR, int(s), "sensor")
-                   for s in range(model.nsensor) if int(model.sensor_type[s]) in dist_types
-                   and body in bodies(int(model.sensor_objtype[s]), int(model.sensor_objid[s]))
-                   | bodies(int(model.sensor_reftype[s]), int(model.sensor_refid[s]))]
+        sensors = [
+            _name(model, O.mjOBJ_SENSOR, int(s), "sensor")
+            for s in range(model.nsensor)
+            if int(model.sensor_type[s]) in dist_types
+            and body
+            in bodies(int(model.sensor_objtype[s]), int(model.sensor_objid[s]))
+            | bodies(int(model.sensor_reftype[s]), int(model.sensor_refid[s]))
+        ]
         if sensors:
             problems.append(
                 f"{_name(model, O.mjOBJ_ACTUATOR, int(a), 'actuator')} (adhesion on body "
                 f"{model.body(body).name!r}) with distance sensors of that body "
                 f"({', '.join(sensors)}): MJWarp counts the sensors' distance-only contacts in "
                 "the adhesion's average and weakens it (measured on push_pull: 11 N instead of "
-                "100 N)")
+                "100 N)"
+            )
     return problems
 
 
@@ -133,13 +159,18 @@ def check_warp(model: mujoco.MjModel, source: str = "") -> None:
     every feature of ``model`` MJWarp cannot roll out."""
     problems = warp_limits(model)
     if problems:
-        raise ConfigError(source, "planner.backend",
-                          "MuJoCo Warp cannot roll out this scenario's model: " + "; ".join(problems),
-                          "warp", "planner.backend: mujoco, or a model within MJWarp's limits")
+        raise ConfigError(
+            source,
+            "planner.backend",
+            "MuJoCo Warp cannot roll out this scenario's model: " + "; ".join(problems),
+            "warp",
+            "planner.backend: mujoco, or a model within MJWarp's limits",
+        )
 
 
-def buffer_sizes(model: mujoco.MjModel, nconmax: int | None = None,
-                 njmax: int | None = None) -> tuple[int, int]:
+def buffer_sizes(
+    model: mujoco.MjModel, nconmax: int | None = None, njmax: int | None = None
+) -> tuple[int, int]:
     """Contacts and constraint rows allocated per world: the given ones, else twice what
     MuJoCo finds at the model's reference pose or MJWarp's own default, whichever is larger.
 

@@ -4,10 +4,25 @@ Terms live by concept: ``geometry`` (distances, orientation, approach), ``contac
 ``push_pull``, ``gripper``, ``control``, ``joints`` (limits, posture); what several of them use is public in ``helpers``.
 """
 
-from planner_client.costs.base import TERMS, CostTerm, JointInfo, RolloutBatch, TermContext, register
-from planner_client.costs.objective import Objective, build_objective
 # importing the term modules registers their terms
 from planner_client.costs import contact, control, geometry, gripper, joints, push_pull  # noqa: F401
+from planner_client.costs.base import (
+    TERMS,
+    CostTerm,
+    JointInfo,
+    RolloutBatch,
+    TermContext,
+    register,
+)
+from planner_client.costs.objective import Objective, build_objective
 
-__all__ = ["TERMS", "CostTerm", "JointInfo", "Objective", "RolloutBatch", "TermContext", "build_objective",
-           "register"]
+__all__ = [
+    "TERMS",
+    "CostTerm",
+    "JointInfo",
+    "Objective",
+    "RolloutBatch",
+    "TermContext",
+    "build_objective",
+    "register",
+]

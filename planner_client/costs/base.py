@@ -15,25 +15,28 @@ from typing import ClassVar
 
 import torch
 
+from planner_client.sensors import SensorColumns, SensorRequest
 from shared.config import Section, string_list
 from shared.frames import FrameResolver
-from planner_client.sensors import SensorColumns, SensorRequest
 
 TERMS: dict[str, type[CostTerm]] = {}
 
 
 def register(name: str) -> Callable[[type], type]:
     """Class decorator: make a term available to YAML as ``term: name``."""
+
     def wrap(cls: type) -> type:
         cls.name = name
         TERMS[name] = cls
         return cls
+
     return wrap
 
 
 @dataclass
 class RolloutBatch:
     """What terms read: ``sensordata [S, T, nsensordata]`` and ``controls [S, T, nu]``."""
+
     sensordata: torch.Tensor
     controls: torch.Tensor
     columns: SensorColumns
@@ -54,6 +57,7 @@ class Norm:
     together with its other norm terms (:mod:`planner_client.costs.norms`). ``floor`` bounds the
     squared norm from below before the root (:func:`~planner_client.costs.helpers.sparse_norm`).
     """
+
     components: tuple[tuple[float, tuple[tuple[SensorRequest, int, float], ...]], ...]
     floor: float = 0.0
 
@@ -62,6 +66,7 @@ class Norm:
 class JointInfo:
     """A robot joint (hinge or slide) as terms see it: its range (None when unlimited), whether
     it is a hinge (radians) or a slide (metres), and its position in the scenario's start pose."""
+
     range: tuple[float, float] | None
     hinge: bool
     start: float
@@ -70,11 +75,12 @@ class JointInfo:
 @dataclass
 class TermContext:
     """What a term may check its parameters against at load time."""
+
     source: str
     resolve: FrameResolver
     obstacles: list[str]
     actuators: list[str]
-    joints: dict[str, JointInfo] = field(default_factory=dict)   # the robot's, in qpos order
+    joints: dict[str, JointInfo] = field(default_factory=dict)  # the robot's, in qpos order
 
     def frame(self, s: Section, key: str, default: str | None = None) -> str:
         """A frame name parameter, checked to exist in the model."""
@@ -102,6 +108,7 @@ class TermContext:
 
 class CostTerm(ABC):
     """Base class of cost terms; subclasses are registered with :func:`register`."""
+
     name: ClassVar[str]
 
     @classmethod

@@ -8,12 +8,18 @@ from dataclasses import dataclass
 import mujoco
 import torch
 
+from planner_client.costs.base import CostTerm, Norm, register
+from planner_client.costs.helpers import (
+    SQUARE_FLOOR,
+    axes_param,
+    frame_params,
+    last_sum,
+    norm,
+    sparse_norm,
+)
+from planner_client.sensors import SensorRequest
 from shared.config import positive
 from shared.geometry import select_axes
-from planner_client.costs.base import CostTerm, Norm, register
-from planner_client.costs.helpers import (SQUARE_FLOOR, axes_param, frame_params, last_sum, norm,
-                                          sparse_norm)
-from planner_client.sensors import SensorRequest
 
 
 @register("collision")
@@ -27,6 +33,7 @@ class Collision(CostTerm):
     penetration. ``obstacles`` defaults to the arena walls and every object marked ``obstacle``
     in the scenario (by default every non-visual one, free objects included).
     """
+
     a: str
     obstacles: tuple[str, ...]
     margin: float
@@ -37,20 +44,30 @@ class Collision(CostTerm):
         if ctx.resolve(a).kind == mujoco.mjtObj.mjOBJ_SITE:
             # MuJoCo's distance sensor measures a body's own geoms (not its children's); a site
             # has none, and the model would not compile
-            raise s.error("a", "distances need a body, not a site", a,
-                          "a body name, e.g. panda_hand (its own geoms, not the fingers)")
+            raise s.error(
+                "a",
+                "distances need a body, not a site",
+                a,
+                "a body name, e.g. panda_hand (its own geoms, not the fingers)",
+            )
         names = ctx.bodies(s, "obstacles", tuple(ctx.obstacles))
-        return cls(a=a, obstacles=tuple(n for n in names if n != a),
-                   margin=s.opt("margin", 0.1, positive, "metres > 0"))
+        return cls(
+            a=a,
+            obstacles=tuple(n for n in names if n != a),
+            margin=s.opt("margin", 0.1, positive, "metres > 0"),
+        )
 
     def sensors(self):
         return [SensorRequest("distance", self.a, o, cutoff=self.margin) for o in self.obstacles]
 
     def __call__(self, batch):
         if not self.obstacles:
-            return torch.zeros(batch.controls.shape[:2], dtype=batch.sensordata.dtype,
-                               device=batch.sensordata.device)
-        d = batch.columns.take_all(batch.sensordata, self.requests)        # [S, T, n_obstacles]
+            return torch.zeros(
+                batch.controls.shape[:2],
+                dtype=batch.sensordata.dtype,
+                device=batch.sensordata.device,
+            )
+        d = batch.columns.take_all(batch.sensordata, self.requests)  # [S, T, n_obstacles]
         return last_sum(torch.clamp(self.margin - d, min=0.0)) / self.margin
 
 
@@ -69,6 +86,7 @@ class ContactForce(CostTerm):
     1e-150 N rather than 0 (:func:`~planner_client.costs.helpers.sparse_norm`: most readings
     are zero, and the square root of zero is torch's slow case).
     """
+
     a: str
     obstacles: tuple[str, ...]
 
@@ -88,15 +106,20 @@ class ContactForce(CostTerm):
 
     def __call__(self, batch):
         if not self.obstacles:
-            return torch.zeros(batch.controls.shape[:2], dtype=batch.sensordata.dtype,
-                               device=batch.sensordata.device)
-        f = batch.columns.take_all(batch.sensordata, self.requests)         # [S, T, 3 n_obstacles]
-        f = f.unflatten(-1, (len(self.requests), 3))                       # [S, T, n_obstacles, 3]
+            return torch.zeros(
+                batch.controls.shape[:2],
+                dtype=batch.sensordata.dtype,
+                device=batch.sensordata.device,
+            )
+        f = batch.columns.take_all(batch.sensordata, self.requests)  # [S, T, 3 n_obstacles]
+        f = f.unflatten(-1, (len(self.requests), 3))  # [S, T, n_obstacles, 3]
         return last_sum(sparse_norm(f))
 
     def norms(self):
-        return [Norm(tuple((0.0, ((req, i, 1.0),)) for i in range(3)), floor=SQUARE_FLOOR)
-                for req in self.requests]
+        return [
+            Norm(tuple((0.0, ((req, i, 1.0),)) for i in range(3)), floor=SQUARE_FLOOR)
+            for req in self.requests
+        ]
 
 
 @register("dynamic_obstacle")
@@ -114,6 +137,7 @@ class DynamicObstacle(CostTerm):
     Parameters: ``a`` robot frame, ``obstacle`` frame, ``axes`` xyz (default) or xy. The value
     is 1 at contact of the two frame origins and decays per metre of separation.
     """
+
     a: str
     obstacle: str
     axes: str

@@ -4,15 +4,16 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from shared.config import string_list
 from planner_client.costs.base import CostTerm, register
 from planner_client.costs.helpers import last_sum
+from shared.config import string_list
 
 
 @register("control_effort")
 @dataclass
 class ControlEffort(CostTerm):
     """Σ_j u_j² over the control channels listed (all by default): a smoothness regulariser."""
+
     channels: tuple[int, ...] | None
 
     @classmethod

@@ -8,12 +8,18 @@ from dataclasses import dataclass
 
 import torch
 
+from planner_client.costs.base import CostTerm, Norm, RolloutBatch, register
+from planner_client.costs.helpers import (
+    axes_param,
+    constant,
+    cosine,
+    cosine_value,
+    frame_params,
+    norm,
+)
+from planner_client.sensors import SensorRequest
 from shared.config import non_negative, one_of, positive, vector
 from shared.geometry import AXES, select_axes, symmetric_orientation_error_relative
-from planner_client.costs.base import CostTerm, Norm, RolloutBatch, register
-from planner_client.costs.helpers import (axes_param, constant, cosine, cosine_value,
-                                          frame_params, norm)
-from planner_client.sensors import SensorRequest
 
 
 @register("distance")
@@ -22,6 +28,7 @@ class Distance(CostTerm):
     """S_dist(a, b) = |x_a - (x_b + offset)| (paper Eq. 14, thesis Eq. 4.5); ``axes: xy`` ignores
     height. ``offset`` (world frame, metres; default 0) places a target relative to a movable
     object: the paper's pre-place and goal locations above cube B (paper Eqs. 25, 26, 29)."""
+
     a: str
     b: str
     axes: str
@@ -29,8 +36,12 @@ class Distance(CostTerm):
 
     @classmethod
     def from_params(cls, s, ctx):
-        return cls(a=ctx.frame(s, "a"), b=ctx.frame(s, "b"), axes=axes_param(s),
-                   offset=s.opt("offset", (0.0, 0.0, 0.0), vector(3), "[x, y, z] in metres"))
+        return cls(
+            a=ctx.frame(s, "a"),
+            b=ctx.frame(s, "b"),
+            axes=axes_param(s),
+            offset=s.opt("offset", (0.0, 0.0, 0.0), vector(3), "[x, y, z] in metres"),
+        )
 
     def sensors(self):
         return [SensorRequest("framepos", self.a), SensorRequest("framepos", self.b)]
@@ -44,14 +55,16 @@ class Distance(CostTerm):
 
     def norms(self):
         pa, pb = self.requests
-        return [Norm(tuple((-self.offset[i], ((pa, i, 1.0), (pb, i, -1.0)))
-                           for i in AXES[self.axes]))]
+        return [
+            Norm(tuple((-self.offset[i], ((pa, i, 1.0), (pb, i, -1.0))) for i in AXES[self.axes]))
+        ]
 
 
 @register("velocity")
 @dataclass
 class Velocity(CostTerm):
     """|v_a|: linear speed of frame ``a`` (a velocity regulariser, e.g. to arrive at rest)."""
+
     a: str
     axes: str
 
@@ -80,6 +93,7 @@ class Orientation(CostTerm):
     in the frame of ``a`` ``[S, T, 9]``: the rotation from a to b, which MuJoCo computes in the
     rollout itself.
     """
+
     a: str
     b: str
 
@@ -88,12 +102,15 @@ class Orientation(CostTerm):
         return cls(**frame_params(s, ctx, "a", "b"))
 
     def sensors(self):
-        return [SensorRequest(kind, self.b, ref=self.a)
-                for kind in ("framexaxis", "frameyaxis", "framezaxis")]
+        return [
+            SensorRequest(kind, self.b, ref=self.a)
+            for kind in ("framexaxis", "frameyaxis", "framezaxis")
+        ]
 
     def __call__(self, batch):
         return symmetric_orientation_error_relative(
-            batch.columns.take_all(batch.sensordata, self.requests))
+            batch.columns.take_all(batch.sensordata, self.requests)
+        )
 
 
 @register("reach")
@@ -118,6 +135,7 @@ class Reach(CostTerm):
     side, z_O lies flat and Eq. 27 would ask for a hand pointing sideways at table height, so a
     dropped cube could never be grasped again from above.
     """
+
     ee: str
     obj: str
     theta: float
@@ -126,15 +144,23 @@ class Reach(CostTerm):
 
     @classmethod
     def from_params(cls, s, ctx):
-        return cls(**frame_params(s, ctx, "ee", "obj"),
-                   theta=s.req("theta", cosine_value, "a cosine in [-1, 1]"),
-                   tilt_weight=s.opt("tilt_weight", 1.0, non_negative, "a number >= 0"),
-                   obj_axis=s.opt("obj_axis", "z", one_of(("z", "up"))))
+        return cls(
+            **frame_params(s, ctx, "ee", "obj"),
+            theta=s.req("theta", cosine_value, "a cosine in [-1, 1]"),
+            tilt_weight=s.opt("tilt_weight", 1.0, non_negative, "a number >= 0"),
+            obj_axis=s.opt("obj_axis", "z", one_of(("z", "up"))),
+        )
 
     def sensors(self):
-        axes = ("framexaxis", "frameyaxis", "framezaxis") if self.obj_axis == "up" else ("framezaxis",)
-        return [SensorRequest("framepos", self.ee), SensorRequest("framepos", self.obj),
-                SensorRequest("framezaxis", self.ee), *(SensorRequest(a, self.obj) for a in axes)]
+        axes = (
+            ("framexaxis", "frameyaxis", "framezaxis") if self.obj_axis == "up" else ("framezaxis",)
+        )
+        return [
+            SensorRequest("framepos", self.ee),
+            SensorRequest("framepos", self.obj),
+            SensorRequest("framezaxis", self.ee),
+            *(SensorRequest(a, self.obj) for a in axes),
+        ]
 
     def __call__(self, batch):
         x_ee, x_o, z_ee, *obj_axes = (batch.get(r) for r in self.requests)
@@ -146,8 +172,8 @@ class Reach(CostTerm):
 def top_axis(axes: torch.Tensor) -> torch.Tensor:
     """Of a body's axes ``[..., 3, 3]`` (x, y, z, each a world vector), the one, signed, that
     points most nearly up ``[..., 3]``: the normal of a box's top face however it lies."""
-    up = axes[..., 2]                                                    # [..., 3]
-    best = up.abs().argmax(dim=-1, keepdim=True)                         # [..., 1]
+    up = axes[..., 2]  # [..., 3]
+    best = up.abs().argmax(dim=-1, keepdim=True)  # [..., 1]
     axis = torch.take_along_dim(axes, best[..., None], dim=-2).squeeze(-2)
     return axis * torch.sign(torch.take_along_dim(up, best, dim=-1))
 
@@ -162,14 +188,17 @@ class Tilt(CostTerm):
     tilts there pinches the cube on its edges. Parameters and the absolute residual as in
     ``reach``; ``obj`` may be the held cube itself.
     """
+
     ee: str
     obj: str
     theta: float
 
     @classmethod
     def from_params(cls, s, ctx):
-        return cls(**frame_params(s, ctx, "ee", "obj"),
-                   theta=s.req("theta", cosine_value, "a cosine in [-1, 1]"))
+        return cls(
+            **frame_params(s, ctx, "ee", "obj"),
+            theta=s.req("theta", cosine_value, "a cosine in [-1, 1]"),
+        )
 
     def sensors(self):
         return [SensorRequest("framezaxis", self.ee), SensorRequest("framezaxis", self.obj)]
@@ -196,6 +225,7 @@ class ApproachCone(CostTerm):
     bottom matters too: with a pointed cone, the sampled wobble of a hand 1 cm over the cube
     cost more the lower it went, and it hovered there.
     """
+
     ee: str
     obj: str
     slope: float
@@ -204,10 +234,12 @@ class ApproachCone(CostTerm):
 
     @classmethod
     def from_params(cls, s, ctx):
-        return cls(**frame_params(s, ctx, "ee", "obj"),
-                   slope=s.opt("slope", 1.0, positive, "a number > 0"),
-                   height=s.opt("height", 0.05, positive, "metres > 0"),
-                   radius=s.opt("radius", 0.0, non_negative, "metres >= 0"))
+        return cls(
+            **frame_params(s, ctx, "ee", "obj"),
+            slope=s.opt("slope", 1.0, positive, "a number > 0"),
+            height=s.opt("height", 0.05, positive, "metres > 0"),
+            radius=s.opt("radius", 0.0, non_negative, "metres >= 0"),
+        )
 
     def sensors(self):
         return [SensorRequest("framepos", self.ee), SensorRequest("framepos", self.obj)]

@@ -4,10 +4,10 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from shared.config import non_negative, one_of
 from planner_client.costs.base import CostTerm, register
 from planner_client.costs.helpers import frame_params, norm
 from planner_client.sensors import SensorRequest
+from shared.config import non_negative, one_of
 
 
 @register("gripper_width")
@@ -19,6 +19,7 @@ class GripperWidth(CostTerm):
     (paper Eq. 30, opening to release; l in metres stays far below 1), ``value: w`` gives |l - w|
     (e.g. the cube's width, to hold without squeezing). Exactly one of ``target``/``value``.
     """
+
     left: str
     right: str
     target: str
@@ -28,8 +29,11 @@ class GripperWidth(CostTerm):
     def from_params(cls, s, ctx):
         named = frame_params(s, ctx, "left", "right")
         if s.has("target") == s.has("value"):
-            raise s.error("target", "give exactly one of target (closed|open) or value (metres)",
-                          expected="target: closed, target: open or value: <width>")
+            raise s.error(
+                "target",
+                "give exactly one of target (closed|open) or value (metres)",
+                expected="target: closed, target: open or value: <width>",
+            )
         if s.has("value"):
             return cls(**named, target="value", value=s.req("value", non_negative, "metres >= 0"))
         return cls(**named, target=s.req("target", one_of(["closed", "open"])), value=0.0)

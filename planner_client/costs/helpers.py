@@ -7,10 +7,10 @@ import functools
 
 import torch
 
-from shared.config import Section, number, one_of
-from shared.geometry import AXES, select_axes
 from planner_client.costs.base import RolloutBatch, TermContext
 from planner_client.sensors import SensorRequest
+from shared.config import Section, number, one_of
+from shared.geometry import AXES, select_axes
 
 
 def axes_param(s: Section, default: str = "xyz") -> str:
@@ -66,9 +66,10 @@ def sparse_norm(x: torch.Tensor) -> torch.Tensor:
     return last_sum(x * x).clamp_min_(SQUARE_FLOOR).sqrt_()
 
 
-@functools.lru_cache(maxsize=None)
-def constant(values: tuple[float, ...], dtype: torch.dtype,
-             device: torch.device = torch.device("cpu")) -> torch.Tensor:
+@functools.cache
+def constant(
+    values: tuple[float, ...], dtype: torch.dtype, device: torch.device = torch.device("cpu")
+) -> torch.Tensor:
     """A term's parameter ``values`` as a tensor on ``device``, made once (read-only: terms run
     every planner iteration, and a new tensor costs as much as the operation using it)."""
     return torch.tensor(values, dtype=dtype, device=device)

@@ -33,8 +33,12 @@ class NormObjective:
         nsensordata: width of ``sensordata``.
     """
 
-    def __init__(self, terms: list[tuple[CostTerm, torch.Tensor]], sensor_columns: SensorColumns,
-                 nsensordata: int):
+    def __init__(
+        self,
+        terms: list[tuple[CostTerm, torch.Tensor]],
+        sensor_columns: SensorColumns,
+        nsensordata: int,
+    ):
         weights = terms[0][1]
         dtype, device = weights.dtype, weights.device
         components, group, floors, columns = [], [], [], []
@@ -46,18 +50,18 @@ class NormObjective:
                 floors.append(norm.floor)
                 columns.append(w)
         m, g = len(components), len(floors)
-        lin = torch.zeros(nsensordata, m, dtype=dtype, device=device)     # L
-        bias = torch.zeros(m, dtype=dtype, device=device)                 # b
+        lin = torch.zeros(nsensordata, m, dtype=dtype, device=device)  # L
+        bias = torch.zeros(m, dtype=dtype, device=device)  # b
         for i, (b, parts) in enumerate(components):
             bias[i] = b
             for req, index, coef in parts:
                 lin[sensor_columns.spans[req].start + index, i] += coef
         self.lin = lin
         self.bias = bias if bool(bias.any()) else None
-        groups = torch.zeros(m, g, dtype=dtype, device=device)            # component -> norm
+        groups = torch.zeros(m, g, dtype=dtype, device=device)  # component -> norm
         groups[torch.arange(m, device=device), torch.tensor(group, device=device)] = 1.0
         self.groups = groups
-        self.floor = torch.tensor(floors, dtype=dtype, device=device)     # [G]
+        self.floor = torch.tensor(floors, dtype=dtype, device=device)  # [G]
         # W [T, G] as the block-diagonal [T·G, T] that sums each step's weighted norms
         weights = torch.stack(columns, dim=-1)
         self.weights = torch.block_diag(*weights[:, :, None])

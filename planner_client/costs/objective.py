@@ -6,11 +6,11 @@ from dataclasses import dataclass, field
 
 import torch
 
-from shared.config import ErrorLog, Section, one_of
-from shared.scenario import ObjectiveConfig, TermConfig
 from planner_client.costs.base import TERMS, CostTerm, RolloutBatch, TermContext
 from planner_client.costs.norms import NormObjective, fusable
 from planner_client.sensors import SensorRequest
+from shared.config import ErrorLog, Section, one_of
+from shared.scenario import ObjectiveConfig, TermConfig
 
 _WHEN = ("all", "running", "terminal")
 
@@ -19,7 +19,7 @@ _WHEN = ("all", "running", "terminal")
 class WeightedTerm:
     term: CostTerm
     weight: float
-    when: str   # all steps, running steps only (t < T-1), or the terminal step only (paper Eq. 4)
+    when: str  # all steps, running steps only (t < T-1), or the terminal step only (paper Eq. 4)
 
 
 @dataclass
@@ -31,17 +31,19 @@ class Objective:
     forces) computes them in one pass (:class:`~planner_client.costs.norms.NormObjective`) and
     adds the others one by one.
     """
+
     name: str
     terms: list[WeightedTerm]
-    fixed: dict[int, float]         # control channel -> pinned value for this mode
+    fixed: dict[int, float]  # control channel -> pinned value for this mode
     _masks: dict = field(default_factory=dict, repr=False)
     _fused: dict = field(default_factory=dict, repr=False)
 
     def sensors(self) -> list[SensorRequest]:
         return [r for wt in self.terms for r in wt.term.sensors()]
 
-    def __call__(self, batch: RolloutBatch,
-                 values: dict[str, torch.Tensor] | None = None) -> torch.Tensor:
+    def __call__(
+        self, batch: RolloutBatch, values: dict[str, torch.Tensor] | None = None
+    ) -> torch.Tensor:
         """Per-step costs ``[S, T]`` of the batch's rows.
 
         ``values``: unweighted term values ``[S, T]`` on these rows by :attr:`CostTerm.key`,
@@ -67,8 +69,9 @@ class Objective:
             out = value * weights if out is None else out.addcmul_(value, weights)
         return out
 
-    def _split(self, batch: RolloutBatch) -> tuple[NormObjective | None,
-                                                   list[tuple[CostTerm, torch.Tensor]]]:
+    def _split(
+        self, batch: RolloutBatch
+    ) -> tuple[NormObjective | None, list[tuple[CostTerm, torch.Tensor]]]:
         """The fused form of this objective's norm terms for the batch's sensor columns, shapes
         and device, and its other weighted terms; made once per columns object. ``None`` and all
         the terms when fewer than two are norms (one alone is as fast on its own)."""
@@ -80,13 +83,17 @@ class Objective:
             norms, rest = [], []
             for term, w in weighted:
                 (norms if fusable([term]) else rest).append((term, w))
-            split = ((NormObjective(norms, batch.columns, sd.shape[-1]), rest) if len(norms) > 1
-                     else (None, weighted))
+            split = (
+                (NormObjective(norms, batch.columns, sd.shape[-1]), rest)
+                if len(norms) > 1
+                else (None, weighted)
+            )
             self._fused[key] = (batch.columns, split)
         return split
 
-    def _weighted(self, horizon: int, dtype: torch.dtype,
-                  device: torch.device) -> list[tuple[CostTerm, torch.Tensor]]:
+    def _weighted(
+        self, horizon: int, dtype: torch.dtype, device: torch.device
+    ) -> list[tuple[CostTerm, torch.Tensor]]:
         """Each distinct term (by :attr:`CostTerm.key`) with its weight · mask over the horizon
         ``[T]``, summed over the entries that list it (a distance in every step and again,
         weighted more, at the terminal one: paper Eq. 4): made once, then one multiply-add per
@@ -124,8 +131,9 @@ def build_objective(name: str, cfg: ObjectiveConfig, ctx: TermContext) -> Object
 
 
 def _weighted_term(tc: TermConfig, ctx: TermContext) -> WeightedTerm:
-    s = Section({"term": tc.term, "weight": tc.weight, **tc.params}, tc.source or ctx.source,
-                tc.path)
+    s = Section(
+        {"term": tc.term, "weight": tc.weight, **tc.params}, tc.source or ctx.source, tc.path
+    )
     s.req("term", str)
     s.opt("weight", 1.0)
     if tc.term not in TERMS:

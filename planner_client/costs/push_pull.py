@@ -7,11 +7,11 @@ from dataclasses import dataclass
 
 import torch
 
-from shared.config import positive, string_list
-from shared.geometry import select_axes
 from planner_client.costs.base import CostTerm, register
 from planner_client.costs.helpers import axes_param, cos_rog, cosine, frame_params, norm
 from planner_client.sensors import SensorRequest
+from shared.config import positive, string_list
+from shared.geometry import select_axes
 
 
 @register("push_align")
@@ -23,6 +23,7 @@ class PushAlign(CostTerm):
     rising to 1 with R between O and G, where a push drives O away from G. Parameters: ``a``
     robot frame, ``obj``, ``goal``; ``axes`` xy (default) or xyz for the angle.
     """
+
     a: str
     obj: str
     goal: str
@@ -67,6 +68,7 @@ class PullDirection(CostTerm):
     robot close to the object (paper Eq. 13); a scenario that pulls without that precondition must
     still let the robot drive up to the object, which paper Eq. 21 alone forbids.
     """
+
     a: str
     obj: str
     channels: tuple[int, ...]
@@ -79,10 +81,18 @@ class PullDirection(CostTerm):
         axes = axes_param(s, "xy")
         names = s.req("actuators", string_list, "a list of actuator names")
         if len(names) != len(axes):
-            raise s.error("actuators", f"needs one velocity actuator per axis of {axes!r}",
-                          list(names), f"{len(axes)} actuator names")
-        return cls(**named, channels=ctx.channels(s, "actuators", names), axes=axes,
-                   within=s.opt("within", None, positive, "metres > 0"))
+            raise s.error(
+                "actuators",
+                f"needs one velocity actuator per axis of {axes!r}",
+                list(names),
+                f"{len(axes)} actuator names",
+            )
+        return cls(
+            **named,
+            channels=ctx.channels(s, "actuators", names),
+            axes=axes,
+            within=s.opt("within", None, positive, "metres > 0"),
+        )
 
     def sensors(self):
         return [SensorRequest("framepos", self.a), SensorRequest("framepos", self.obj)]

@@ -4,7 +4,7 @@ Pure torch, no simulator: the planners hand out control sequences ``[S, T, nu]``
 per-step costs ``[S, T]``. See docs/mppi.md for the equations and parameters.
 """
 
-from .config import MPPIConfig, ModeSpec
+from .config import ModeSpec, MPPIConfig
 from .m3p2i import M3P2I
 from .mppi import MPPI
 from .result import PlanResult

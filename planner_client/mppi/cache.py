@@ -24,10 +24,12 @@ def cache_dir() -> Path:
     return Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "m3p2i"
 
 
-def cached_table(name: str, shape: tuple[int, ...], compute: Callable[[], np.ndarray]) -> np.ndarray:
+def cached_table(
+    name: str, shape: tuple[int, ...], compute: Callable[[], np.ndarray]
+) -> np.ndarray:
     """``compute()`` (a float64 array of ``shape``, a pure function of ``name``), read from the
     cache when there; ``name`` must say everything the result depends on."""
-    import scipy   # its version is part of the key (scipy's own __init__ is light)
+    import scipy  # its version is part of the key (scipy's own __init__ is light)
 
     path = cache_dir() / f"{name}-scipy{scipy.__version__}.npy"
     try:

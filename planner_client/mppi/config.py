@@ -82,35 +82,59 @@ class MPPIConfig:
 
         need(self.horizon >= 1, f"horizon must be >= 1, got {self.horizon}")
         need(self.nu >= 1, f"nu must be >= 1, got {self.nu}")
-        need(len(self.noise_sigma) == self.nu,
-             f"noise_sigma needs {self.nu} entries, got {len(self.noise_sigma)}")
-        need(all(s > 0 and math.isfinite(s) for s in self.noise_sigma),
-             f"noise_sigma entries must be finite and > 0, got {self.noise_sigma}")
-        need(self.sampling in ("halton", "gaussian"),
-             f"sampling must be 'halton' or 'gaussian', got {self.sampling!r}")
+        need(
+            len(self.noise_sigma) == self.nu,
+            f"noise_sigma needs {self.nu} entries, got {len(self.noise_sigma)}",
+        )
+        need(
+            all(s > 0 and math.isfinite(s) for s in self.noise_sigma),
+            f"noise_sigma entries must be finite and > 0, got {self.noise_sigma}",
+        )
+        need(
+            self.sampling in ("halton", "gaussian"),
+            f"sampling must be 'halton' or 'gaussian', got {self.sampling!r}",
+        )
         need(self.knot_every >= 1, f"knot_every must be >= 1, got {self.knot_every}")
         need(self.spline_degree >= 1, f"spline_degree must be >= 1, got {self.spline_degree}")
         need(0.0 < self.gamma <= 1.0, f"gamma must be in (0, 1], got {self.gamma}")
-        need(self.lambda_init > 0 and math.isfinite(self.lambda_init),
-             f"lambda_init must be finite and > 0, got {self.lambda_init}")
+        need(
+            self.lambda_init > 0 and math.isfinite(self.lambda_init),
+            f"lambda_init must be finite and > 0, got {self.lambda_init}",
+        )
         if self.eta_bounds is not None:
             lo, hi = self.eta_bounds
-            need(1.0 <= lo <= hi, f"eta_bounds must satisfy 1 <= eta_l <= eta_u, got {self.eta_bounds}")
+            need(
+                1.0 <= lo <= hi,
+                f"eta_bounds must satisfy 1 <= eta_l <= eta_u, got {self.eta_bounds}",
+            )
         need(self.adapt_iters >= 1, f"adapt_iters must be >= 1, got {self.adapt_iters}")
         need(0.0 < self.alpha_u <= 1.0, f"alpha_u must be in (0, 1], got {self.alpha_u}")
         need((self.u_min is None) == (self.u_max is None), "give both u_min and u_max, or neither")
         if self.u_min is not None:
-            need(len(self.u_min) == self.nu and len(self.u_max) == self.nu,
-                 f"u_min and u_max need {self.nu} entries each")
-            need(all(lo < hi for lo, hi in zip(self.u_min, self.u_max)),
-                 f"u_min must be < u_max per channel, got {self.u_min}, {self.u_max}")
-        need(self.bound in ("clamp", "squash"), f"bound must be 'clamp' or 'squash', got {self.bound!r}")
+            need(
+                len(self.u_min) == self.nu and len(self.u_max) == self.nu,
+                f"u_min and u_max need {self.nu} entries each",
+            )
+            need(
+                all(lo < hi for lo, hi in zip(self.u_min, self.u_max)),
+                f"u_min must be < u_max per channel, got {self.u_min}, {self.u_max}",
+            )
+        need(
+            self.bound in ("clamp", "squash"),
+            f"bound must be 'clamp' or 'squash', got {self.bound!r}",
+        )
         if self.bound == "squash" and self.u_min is not None:
-            need(all(map(math.isfinite, self.u_min + self.u_max)), "bound 'squash' needs finite u_min, u_max")
+            need(
+                all(map(math.isfinite, self.u_min + self.u_max)),
+                "bound 'squash' needs finite u_min, u_max",
+            )
         if self.savgol_window:
-            need(self.savgol_window % 2 == 1 and 0 <= self.savgol_order < self.savgol_window <= self.horizon,
-                 f"savgol_window must be odd, > savgol_order and <= horizon "
-                 f"(got window {self.savgol_window}, order {self.savgol_order}, horizon {self.horizon})")
+            need(
+                self.savgol_window % 2 == 1
+                and 0 <= self.savgol_order < self.savgol_window <= self.horizon,
+                f"savgol_window must be odd, > savgol_order and <= horizon "
+                f"(got window {self.savgol_window}, order {self.savgol_order}, horizon {self.horizon})",
+            )
         need(self.control_cost >= 0.0, f"control_cost must be >= 0, got {self.control_cost}")
 
 

@@ -61,8 +61,9 @@ class Device:
         """The caller's per-step costs, checked to be ``shape`` ``[S, T]``, in the planner's
         dtype and on its device (unconverted when they already are)."""
         if tuple(step_costs.shape) != shape:
-            raise ValueError(f"step_costs must have shape {shape} [S, T], "
-                             f"got {tuple(step_costs.shape)}")
+            raise ValueError(
+                f"step_costs must have shape {shape} [S, T], got {tuple(step_costs.shape)}"
+            )
         if step_costs.dtype == self.dtype and step_costs.device == self.device:
             return step_costs
         return step_costs.to(dtype=self.dtype, device=self.device)

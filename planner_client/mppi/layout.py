@@ -24,14 +24,14 @@ class ModeLayout:
     v; with clamp bounds, or pins and no bounds, ``clamp`` does bounds and pins in one kernel.
     """
 
-    slices: list[slice]          # [N] rows of each mode
-    starts: list[int]            # [N] first row of each mode (slices' starts)
-    row_mode: Tensor             # [S] mode of each sample row
-    first: Tensor                # [N] first row of each mode
-    last: Tensor                 # [N] last row of each mode
-    null: Tensor                 # [N, T, nu] each mode's null action: zero, bounded, pinned
-    pin_keep: Tensor | None      # [S, 1, nu] 0 on pinned channels, 1 elsewhere; None: no pins
-    pin_value: Tensor            # [S, 1, nu] pinned values, 0 elsewhere
+    slices: list[slice]  # [N] rows of each mode
+    starts: list[int]  # [N] first row of each mode (slices' starts)
+    row_mode: Tensor  # [S] mode of each sample row
+    first: Tensor  # [N] first row of each mode
+    last: Tensor  # [N] last row of each mode
+    null: Tensor  # [N, T, nu] each mode's null action: zero, bounded, pinned
+    pin_keep: Tensor | None  # [S, 1, nu] 0 on pinned channels, 1 elsewhere; None: no pins
+    pin_value: Tensor  # [S, 1, nu] pinned values, 0 elsewhere
     clamp: tuple[Tensor, Tensor] | None  # [S, 1, nu] lo and hi, lo = hi = value where pinned
 
     @staticmethod
@@ -60,9 +60,17 @@ class ModeLayout:
             clamp = (torch.where(pinned, value, lo), torch.where(pinned, value, hi))
         row_mode = torch.repeat_interleave(torch.arange(len(counts), device=dev.device), k)
         null = box.project(dev.zeros(len(modes), cfg.horizon, cfg.nu)) * keep[last] + value[last]
-        return ModeLayout(slices=slices, starts=[int(a) for a in starts], row_mode=row_mode,
-                          first=first, last=last, null=null, pin_keep=pin_keep,
-                          pin_value=value, clamp=clamp)
+        return ModeLayout(
+            slices=slices,
+            starts=[int(a) for a in starts],
+            row_mode=row_mode,
+            first=first,
+            last=last,
+            null=null,
+            pin_keep=pin_keep,
+            pin_value=value,
+            clamp=clamp,
+        )
 
 
 def check_modes(modes: Sequence[ModeSpec], cfg: MPPIConfig) -> None:
@@ -83,6 +91,8 @@ def check_modes(modes: Sequence[ModeSpec], cfg: MPPIConfig) -> None:
         # it is never met, and adaptation would drive λ_i to its largest value every iteration.
         # η_l = K_i is allowed (approached as λ grows). The fused row has S ≥ K_i samples.
         if cfg.eta_bounds is not None and cfg.eta_bounds[0] > m.samples:
-            raise ValueError(f"mode {m.name!r}: {m.samples} samples cannot reach the eta window "
-                             f"{tuple(cfg.eta_bounds)}: eta counts the samples that carry "
-                             f"weight, so eta_l must be <= {m.samples}")
+            raise ValueError(
+                f"mode {m.name!r}: {m.samples} samples cannot reach the eta window "
+                f"{tuple(cfg.eta_bounds)}: eta counts the samples that carry "
+                f"weight, so eta_l must be <= {m.samples}"
+            )

@@ -17,7 +17,7 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from .config import MPPIConfig, ModeSpec
+from .config import ModeSpec, MPPIConfig
 from .layout import ModeLayout
 from .mppi import Parts, control_costs, trajectory_costs
 from .result import PlanResult, diagnostics
@@ -57,8 +57,13 @@ class M3P2I:
         dtype, device: of every tensor the planner makes and returns.
     """
 
-    def __init__(self, cfg: MPPIConfig, modes: Sequence[ModeSpec],
-                 dtype: torch.dtype = torch.float64, device: str | torch.device = "cpu"):
+    def __init__(
+        self,
+        cfg: MPPIConfig,
+        modes: Sequence[ModeSpec],
+        dtype: torch.dtype = torch.float64,
+        device: str | torch.device = "cpu",
+    ):
         self._p = Parts(cfg, sum(m.samples for m in modes), dtype, device)
         self._set_layout(modes)
         self.reset()
@@ -105,7 +110,7 @@ class M3P2I:
         """Zero means and plans (clamped into the bounds), initial temperatures, fresh random
         stream."""
         p, n = self._p, len(self._modes)
-        u = p.box.project(p.zeros())                            # [T, nu]
+        u = p.box.project(p.zeros())  # [T, nu]
         # (μ_1..μ_N and u [N + 1, T, nu], best [N, T, nu]) as the last update left them; what
         # sample() draws around is derived from them
         self._unshifted = (u.expand(n + 1, -1, -1).clone(), u.expand(n, -1, -1).clone())
@@ -129,10 +134,11 @@ class M3P2I:
         u = plans[-1]
         plans = torch.stack([plans[i] if i is not None else u for i in keep] + [u])
         best = torch.stack([best[i] if i is not None else u for i in keep])
-        lam = np.array([self._lam[i] if i is not None else p.cfg.lambda_init for i in keep]
-                       + [self._lam[-1]])
+        lam = np.array(
+            [self._lam[i] if i is not None else p.cfg.lambda_init for i in keep] + [self._lam[-1]]
+        )
         previous = self._s
-        self._set_layout(modes)          # validates before anything changes
+        self._set_layout(modes)  # validates before anything changes
         self._unshifted = (plans, best)
         self._retime(self._steps)
         self._lam = lam
@@ -192,12 +198,12 @@ class M3P2I:
             ``finite`` is ``False`` when no sample had a finite cost.
         """
         p, lay, n = self._p, self._layout, len(self._modes)
-        v = self._take_samples()                                        # V: [S, T, nu]
+        v = self._take_samples()  # V: [S, T, nu]
         S, T, nu = v.shape
         costs = trajectory_costs(p.dev.step_costs(step_costs, (S, T)), p.discount)  # Eq. 4: [S]
         if p.cfg.control_cost:
             # thesis Alg. 2 line 18 for V_k's noise about its own mode's mean μ_i(k)
-            mu = self._plans.index_select(0, lay.row_mode)              # [S, T, nu]
+            mu = self._plans.index_select(0, lay.row_mode)  # [S, T, nu]
             costs = costs + control_costs(mu, v - mu, p.inv_var, p.control_coef, lay.pin_keep)
         # Each mode i over its rows κ(i) (Alg. 4 lines 18-20) and, fused, all S (line 24), on
         # the host (few numbers: NumPy beats torch's dispatch):
@@ -205,29 +211,34 @@ class M3P2I:
         #   Alg. 3       λ re-tuned until η lies in [η_l, η_u] (when eta_bounds is set)
         #   Eqs. 6, 10   η = Σ_k exp(-(S_k - β)/λ)
         #   Eqs. 5, 9    ω_k = exp(-(S_k - β)/λ)/η; a diverged rollout (NaN, ±inf) gets 0
-        wt = weigh(p.dev.host(costs), lay.slices, self._lam, p.cfg.eta_bounds,
-                   p.cfg.adapt_iters)
+        wt = weigh(p.dev.host(costs), lay.slices, self._lam, p.cfg.eta_bounds, p.cfg.adapt_iters)
         self._lam, self._costs = wt.lam, wt.costs
-        w = p.dev.tensor(wt.w)                                          # [N + 1, S]
+        w = p.dev.tensor(wt.w)  # [N + 1, S]
         # Eq. 8: μ_i ← Σ_k ω_i(k) V_k, and Eq. 12's Σ_k ω̃_k V_k, in one product (a mode's
         # row of w is 0 outside its samples)
-        means = w @ v.reshape(S, T * nu)                                # [N + 1, T·nu]
-        if p.cfg.alpha_u != 1.0:                                        # Eq. 12: α_u step
+        means = w @ v.reshape(S, T * nu)  # [N + 1, T·nu]
+        if p.cfg.alpha_u != 1.0:  # Eq. 12: α_u step
             means[n] = torch.lerp(self._plans[n].reshape(-1), means[n], p.cfg.alpha_u)
         # thesis Alg. 2 line 33: SGF and projection onto the bounds of μ_1..μ_N and u; in
         # the same product, their shift for the next iteration (paper Alg. 4 line 29)
-        plans, shifted = p.smoothing.and_shift(means)                   # [N + 1, T, nu] each
-        best = v.index_select(0, p.dev.rows(wt.best))                   # [N, T, nu]
+        plans, shifted = p.smoothing.and_shift(means)  # [N + 1, T, nu] each
+        best = v.index_select(0, p.dev.rows(wt.best))  # [N, T, nu]
         # a row without a finite cost (a mode whose rollouts all diverged, or all S) keeps
         # its λ, mean and best sequence; the fused row its plan, which is then flagged
-        alive = wt.eta > 0                                              # [N + 1]
+        alive = wt.eta > 0  # [N + 1]
         alive[n] &= p.dev.finite_row(plans, n)
         plans, best = self._commit(plans, shifted, best, alive)
-        return PlanResult(U=plans[n], best=best, fused=w, finite=bool(alive[n]),
-                          make_diag=functools.partial(diagnostics, wt, lay.starts))
+        return PlanResult(
+            U=plans[n],
+            best=best,
+            fused=w,
+            finite=bool(alive[n]),
+            make_diag=functools.partial(diagnostics, wt, lay.starts),
+        )
 
-    def _commit(self, plans: Tensor, shifted: Tensor, best: Tensor,
-                alive: np.ndarray) -> tuple[Tensor, Tensor]:
+    def _commit(
+        self, plans: Tensor, shifted: Tensor, best: Tensor, alive: np.ndarray
+    ) -> tuple[Tensor, Tensor]:
         """Keeps an update's means and plan ``plans [N + 1, T, nu]`` (``shifted``: the same a
         step later) and best sequences ``best [N, T, nu]`` for the next iteration; a row not
         ``alive [N + 1]`` keeps its previous ones. Returns the kept plans and best sequences."""
@@ -238,7 +249,7 @@ class M3P2I:
             return plans, best
         keep = torch.from_numpy(alive).to(self._p.dev.device)[:, None, None]
         plans = torch.where(keep, plans, self._plans)
-        best = torch.where(keep[:len(self._modes)], best, self._best)
+        best = torch.where(keep[: len(self._modes)], best, self._best)
         self._unshifted = (plans, best)
         self._retime(1.0)
         return plans, best

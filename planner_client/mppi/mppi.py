@@ -36,8 +36,9 @@ def trajectory_costs(step_costs: Tensor, discount: Tensor) -> Tensor:
     return step_costs @ discount
 
 
-def control_costs(mean: Tensor, eps: Tensor, inv_var: Tensor, coef: Tensor | float,
-                  keep: Tensor | None = None) -> Tensor:
+def control_costs(
+    mean: Tensor, eps: Tensor, inv_var: Tensor, coef: Tensor | float, keep: Tensor | None = None
+) -> Tensor:
     """Importance-sampling control cost  coef · Σ_t (u_tᵀΣ⁻¹u_t + 2u_tᵀΣ⁻¹ε_t)  (thesis Alg. 2
     line 18, thesis Eq. 2.46) with coef = λ/2 · scale and diagonal Σ, over the sampled channels
     only.
@@ -58,7 +59,7 @@ def control_costs(mean: Tensor, eps: Tensor, inv_var: Tensor, coef: Tensor | flo
         ``[S]`` costs.
     """
     if keep is not None:
-        mean = mean * keep      # u = 0 removes the channel's whole term, 2uᵀΣ⁻¹ε included
+        mean = mean * keep  # u = 0 removes the channel's whole term, 2uᵀΣ⁻¹ε included
     return coef * (mean * (mean + 2.0 * eps) * inv_var).sum(dim=(-2, -1))
 
 
@@ -67,8 +68,9 @@ class Parts:
     ``[nu]``, 1/σ² ``[nu]``, discounts γ^t ``[T]``, bounds, control-cost coefficient, the
     finishing of their means (smoothing, projection, shift) and their sampler."""
 
-    def __init__(self, cfg: MPPIConfig, samples: int, dtype: torch.dtype,
-                 device: str | torch.device):
+    def __init__(
+        self, cfg: MPPIConfig, samples: int, dtype: torch.dtype, device: str | torch.device
+    ):
         self.cfg = cfg
         self.dev = dev = Device(dtype, device)
         self.sigma = torch.tensor(cfg.noise_sigma, dtype=dtype, device=dev.device)
@@ -106,11 +108,18 @@ class MPPI:
         samples: K.
     """
 
-    def __init__(self, cfg: MPPIConfig, samples: int, dtype: torch.dtype = torch.float64,
-                 device: str | torch.device = "cpu"):
+    def __init__(
+        self,
+        cfg: MPPIConfig,
+        samples: int,
+        dtype: torch.dtype = torch.float64,
+        device: str | torch.device = "cpu",
+    ):
         if cfg.eta_bounds is not None or cfg.alpha_u != 1.0:
-            raise ValueError("MPPI (thesis Alg. 2) has a fixed temperature and full steps: "
-                             "use eta_bounds=None, alpha_u=1.0, or M3P2I")
+            raise ValueError(
+                "MPPI (thesis Alg. 2) has a fixed temperature and full steps: "
+                "use eta_bounds=None, alpha_u=1.0, or M3P2I"
+            )
         if samples < 1 + cfg.null_action + cfg.keep_best:
             raise ValueError(f"MPPI needs more than {cfg.null_action + cfg.keep_best} samples")
         self.num_samples = samples
@@ -120,9 +129,9 @@ class MPPI:
     def reset(self) -> None:
         """Zero control sequence (clamped into the bounds), fresh random stream."""
         p = self._p
-        self._null = p.box.project(p.zeros())    # [T, nu]
-        self.U = self._null.clone()              # [T, nu]
-        self._best = self._null.clone()          # [T, nu]
+        self._null = p.box.project(p.zeros())  # [T, nu]
+        self.U = self._null.clone()  # [T, nu]
+        self._best = self._null.clone()  # [T, nu]
         self._v: Tensor | None = None
         p.noise.reset()
 
@@ -148,28 +157,29 @@ class MPPI:
             ``U [T, nu]`` before the shift, the lowest-cost sample ``[1, T, nu]`` and the
             weights ω ``[K]`` (as both rows of ``fused [2, K]``).
         """
-        p, v = self._p, self._take_samples()                        # V: [K, T, nu]
+        p, v = self._p, self._take_samples()  # V: [K, T, nu]
         lam = p.cfg.lambda_init
         step_costs = p.dev.step_costs(step_costs, (self.num_samples, p.cfg.horizon))
-        costs = trajectory_costs(step_costs, p.discount)            # paper Eq. 4: S [K]
-        eps = v - self.U                                            # ε = V - U, bounded [K, T, nu]
-        if p.cfg.control_cost:                                      # line 18: + λ/2 (…)
+        costs = trajectory_costs(step_costs, p.discount)  # paper Eq. 4: S [K]
+        eps = v - self.U  # ε = V - U, bounded [K, T, nu]
+        if p.cfg.control_cost:  # line 18: + λ/2 (…)
             costs = costs + control_costs(self.U, eps, p.inv_var, p.control_coef)
         # lines 25-29: ρ = min S, η = Σ exp(-(S - ρ)/λ), ω = exp(-(S - ρ)/λ)/η, on the host;
         # a diverged rollout (NaN, ±inf) gets ω = 0
         costs = finite_costs(p.dev.host(costs))
         w, eta, rho = softmin_weights(costs, lam)
-        w = p.dev.tensor(w)                                         # [K]
-        u = p.smoothing(self.U + (w[:, None, None] * eps).sum(dim=0))   # line 33: U ← SGF(…)
+        w = p.dev.tensor(w)  # [K]
+        u = p.smoothing(self.U + (w[:, None, None] * eps).sum(dim=0))  # line 33: U ← SGF(…)
         finite = bool(eta > 0) and p.dev.finite(u)
         best = v[int(np.argmin(costs))]
-        if not finite:      # no finite cost (all weights 0): keep U and the best, flag the result
+        if not finite:  # no finite cost (all weights 0): keep U and the best, flag the result
             u, best = self.U, self._best
         # one mode: its weights are the fused ones, all the weight is its own
         diag = functools.partial(np.array, [1.0, rho, eta, eta, lam, lam], dtype=np.float64)
-        result = PlanResult(U=u, best=best[None], fused=w.expand(2, -1), finite=finite,
-                            make_diag=diag)
-        self.U, self._best = shift(u), shift(best)                  # lines 36-39
+        result = PlanResult(
+            U=u, best=best[None], fused=w.expand(2, -1), finite=finite, make_diag=diag
+        )
+        self.U, self._best = shift(u), shift(best)  # lines 36-39
         return result
 
     def command(self, evaluate: Callable[[Tensor], Tensor]) -> PlanResult:

@@ -67,20 +67,20 @@ class PlanResult:
     def mode_weights(self) -> Tensor:
         """``[N]`` fused weight mass of each mode's samples (sums to 1); the dominant mode
         decides discrete choices such as suction on/off."""
-        return self.diag[:self.num_modes]
+        return self.diag[: self.num_modes]
 
     @property
     def mode_costs(self) -> Tensor:
         """``[N]`` lowest total cost among each mode's samples (β_i, paper Eq. 7)."""
         n = self.num_modes
-        return self.diag[n:2 * n]
+        return self.diag[n : 2 * n]
 
     @property
     def etas(self) -> Tensor:
         """``[N]`` per-mode normalisers η_i (paper Eq. 6), roughly the number of samples that
         count."""
         n = self.num_modes
-        return self.diag[2 * n:3 * n]
+        return self.diag[2 * n : 3 * n]
 
     @property
     def fused_eta(self) -> Tensor:
@@ -91,7 +91,7 @@ class PlanResult:
     def lambdas(self) -> Tensor:
         """``[N]`` per-mode temperatures λ_i used this iteration."""
         n = self.num_modes
-        return self.diag[3 * n + 1:4 * n + 1]
+        return self.diag[3 * n + 1 : 4 * n + 1]
 
     @property
     def fused_lambda(self) -> Tensor:

@@ -60,25 +60,37 @@ def spline_basis(horizon: int, knot_every: int, degree: int) -> np.ndarray:
 
     def compute() -> np.ndarray:
         from scipy.interpolate import make_interp_spline
+
         knot_t = np.arange(n_knots) * knot_every
         return make_interp_spline(knot_t, np.eye(n_knots), k=k, axis=0)(np.arange(horizon))
+
     return cached_table(f"spline-T{horizon}-every{knot_every}-k{k}", (horizon, n_knots), compute)
 
 
 def halton_uniforms(samples: int, dims: int, seed: int) -> np.ndarray:
     """``[samples, dims]`` scrambled Halton points in (0, 1); scrambling removes the strong
     correlations plain Halton has between high-prime dimensions (many channels × knots)."""
+
     def compute() -> np.ndarray:
         from scipy.stats import qmc
+
         return qmc.Halton(d=dims, scramble=True, seed=seed).random(samples)
+
     return cached_table(f"halton-{samples}x{dims}-seed{seed}", (samples, dims), compute)
 
 
 class GaussianNoise:
     """I.i.d. standard normal noise per step (thesis Alg. 2 line 13), redrawn every call."""
 
-    def __init__(self, samples: int, horizon: int, nu: int, seed: int,
-                 dtype: torch.dtype, device: torch.device):
+    def __init__(
+        self,
+        samples: int,
+        horizon: int,
+        nu: int,
+        seed: int,
+        dtype: torch.dtype,
+        device: torch.device,
+    ):
         self._seed = seed
         self._gen = torch.Generator(device=device)
         self._out = torch.empty(samples, horizon, nu, dtype=dtype, device=device)
@@ -104,22 +116,34 @@ class HaltonSplineNoise:
     where after each rollout they paid for their code again (navigation's draw took 130 µs
     of a 3 ms iteration). At GPU scale a draw fills the block by itself."""
 
-    def __init__(self, samples: int, horizon: int, nu: int, knot_every: int, degree: int,
-                 seed: int, rotate: bool, dtype: torch.dtype, device: torch.device):
+    def __init__(
+        self,
+        samples: int,
+        horizon: int,
+        nu: int,
+        knot_every: int,
+        degree: int,
+        seed: int,
+        rotate: bool,
+        dtype: torch.dtype,
+        device: torch.device,
+    ):
         basis = spline_basis(horizon, knot_every, degree)
         n_knots = basis.shape[1]
         self._seed = seed
-        self._basis_t = torch.as_tensor(basis.T.copy(), dtype=dtype, device=device)   # [J, T]
+        self._basis_t = torch.as_tensor(basis.T.copy(), dtype=dtype, device=device)  # [J, T]
         # Halton dimension c·J + j is the knot j of channel c: [S, nu, J].
-        self._knots_u = torch.as_tensor(halton_uniforms(samples, n_knots * nu, seed),
-                                        dtype=dtype, device=device).view(samples, nu, n_knots)
+        self._knots_u = torch.as_tensor(
+            halton_uniforms(samples, n_knots * nu, seed), dtype=dtype, device=device
+        ).view(samples, nu, n_knots)
         self._gen = torch.Generator(device=device)
-        self.block = max(1, min(MAX_BLOCK, BLOCK_NUMBERS // (samples * nu * horizon))) \
-            if rotate else 1
+        self.block = (
+            max(1, min(MAX_BLOCK, BLOCK_NUMBERS // (samples * nu * horizon))) if rotate else 1
+        )
         self._shift = torch.empty(self.block, 1, nu, n_knots, dtype=dtype, device=device)
         self._z = torch.empty(self.block, samples, nu, n_knots, dtype=dtype, device=device)
         self._out = torch.empty(self.block, samples, nu, horizon, dtype=dtype, device=device)
-        self._draws = list(self._out.transpose(2, 3).unbind(0))   # [S, T, nu] views, made once
+        self._draws = list(self._out.transpose(2, 3).unbind(0))  # [S, T, nu] views, made once
         self._fixed = None
         if not rotate:
             self._splines(self._z.copy_(self._knots_u))
@@ -146,13 +170,25 @@ class HaltonSplineNoise:
         """Uniform knots ``[B, S, nu, J]`` (overwritten) -> spline noise in the block's buffer,
         read as the B ``[S, T, nu]`` views of :attr:`_draws`."""
         z = torch.special.ndtri(u.clamp_(_U_EPS, 1 - _U_EPS), out=u)
-        torch.mm(z.view(-1, z.shape[-1]), self._basis_t, out=self._out.view(-1, self._out.shape[-1]))
+        torch.mm(
+            z.view(-1, z.shape[-1]), self._basis_t, out=self._out.view(-1, self._out.shape[-1])
+        )
 
 
-def make_noise(cfg: MPPIConfig, samples: int, dtype: torch.dtype,
-               device: torch.device) -> GaussianNoise | HaltonSplineNoise:
+def make_noise(
+    cfg: MPPIConfig, samples: int, dtype: torch.dtype, device: torch.device
+) -> GaussianNoise | HaltonSplineNoise:
     """The sampler named by ``cfg.sampling`` for ``samples`` rows."""
     if cfg.sampling == "halton":
-        return HaltonSplineNoise(samples, cfg.horizon, cfg.nu, cfg.knot_every, cfg.spline_degree,
-                                 cfg.seed, cfg.halton_rotate, dtype, device)
+        return HaltonSplineNoise(
+            samples,
+            cfg.horizon,
+            cfg.nu,
+            cfg.knot_every,
+            cfg.spline_degree,
+            cfg.seed,
+            cfg.halton_rotate,
+            dtype,
+            device,
+        )
     return GaussianNoise(samples, cfg.horizon, cfg.nu, cfg.seed, dtype, device)

@@ -22,14 +22,17 @@ from .shift import shift_index
 
 def savgol_matrix(horizon: int, window: int, order: int) -> np.ndarray:
     """``[T, T]`` matrix M with ``smoothed = M @ U`` for ``U`` of shape ``[T, nu]``."""
+
     def compute() -> np.ndarray:
         from scipy.signal import savgol_coeffs
+
         m = np.zeros((horizon, horizon))
         half = window // 2
         for t in range(horizon):
             start = min(max(t - half, 0), horizon - window)
-            m[t, start:start + window] = savgol_coeffs(window, order, pos=t - start, use="dot")
+            m[t, start : start + window] = savgol_coeffs(window, order, pos=t - start, use="dot")
         return m
+
     return cached_table(f"savgol-T{horizon}-w{window}-p{order}", (horizon, horizon), compute)
 
 
@@ -39,17 +42,18 @@ def smooth(matrix: Tensor, u: Tensor) -> Tensor:
     return matrix @ u
 
 
-def smooth_shift_matrix(savgol: Tensor | None, horizon: int, nu: int, dtype: torch.dtype,
-                        device: torch.device) -> Tensor:
+def smooth_shift_matrix(
+    savgol: Tensor | None, horizon: int, nu: int, dtype: torch.dtype, device: torch.device
+) -> Tensor:
     """``[T·nu, 2·T·nu]``: a mean sequence flattened to ``[T·nu]`` (step-major) times it is the
     sequence smoothed by ``savgol [T, T]`` (none: unchanged), then that smoothed sequence
     shifted by one step as :func:`~.shift.shift` does (the last step repeated). The update
     smooths its new means and shifts them for the next iteration in this one product instead
     of a batched product and an index per sequence."""
     eye = torch.eye(horizon, dtype=dtype, device=device)
-    smooth_m = eye if savgol is None else savgol                           # [T, T]
+    smooth_m = eye if savgol is None else savgol  # [T, T]
     lo_idx, _ = shift_index(horizon, 1, device)
-    steps = torch.cat([smooth_m, smooth_m.index_select(0, lo_idx)])       # [2T, T]
+    steps = torch.cat([smooth_m, smooth_m.index_select(0, lo_idx)])  # [2T, T]
     return torch.kron(steps, torch.eye(nu, dtype=dtype, device=device)).T.contiguous()
 
 
@@ -61,9 +65,13 @@ class Smoothing:
     def __init__(self, cfg: MPPIConfig, box: Box, dtype: torch.dtype, device: torch.device):
         t = cfg.horizon
         self.horizon, self.nu, self.box = t, cfg.nu, box
-        self.savgol = (torch.as_tensor(savgol_matrix(t, cfg.savgol_window, cfg.savgol_order),
-                                       dtype=dtype, device=device)
-                       if cfg.savgol_window else None)                 # [T, T]
+        self.savgol = (
+            torch.as_tensor(
+                savgol_matrix(t, cfg.savgol_window, cfg.savgol_order), dtype=dtype, device=device
+            )
+            if cfg.savgol_window
+            else None
+        )  # [T, T]
         self.smooth_shift = smooth_shift_matrix(self.savgol, t, cfg.nu, dtype, device)
         if box.active:
             self.flat_lo, self.flat_hi = box.lo.repeat(2 * t), box.hi.repeat(2 * t)

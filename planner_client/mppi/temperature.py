@@ -99,8 +99,13 @@ class Weights:
     costs: np.ndarray
 
 
-def weigh(costs: np.ndarray, modes: Sequence[slice], lam: np.ndarray,
-          eta_bounds: tuple[float, float] | None, max_iters: int) -> Weights:
+def weigh(
+    costs: np.ndarray,
+    modes: Sequence[slice],
+    lam: np.ndarray,
+    eta_bounds: tuple[float, float] | None,
+    max_iters: int,
+) -> Weights:
     """Weights of total costs ``[S]`` for each mode (its rows ``modes[i]``) and for all of them
     together, with the temperatures ``lam [N + 1]`` adapted first when ``eta_bounds`` is given.
 
@@ -116,9 +121,9 @@ def weigh(costs: np.ndarray, modes: Sequence[slice], lam: np.ndarray,
     # is made once and repeated
     single = n == 1 and lam[0] == lam[1]
     if single:
-        table, lam = costs[None], lam[:1]                          # [1, S]
+        table, lam = costs[None], lam[:1]  # [1, S]
     else:
-        table = np.full((n + 1, costs.shape[0]), np.inf)            # [N + 1, S]
+        table = np.full((n + 1, costs.shape[0]), np.inf)  # [N + 1, S]
         for i, rows in enumerate(modes):
             table[i, rows] = costs[rows]
         table[n] = costs
@@ -134,32 +139,40 @@ def weigh(costs: np.ndarray, modes: Sequence[slice], lam: np.ndarray,
     return Weights(w=w, eta=eta, beta=beta, lam=lam, best=best, costs=costs)
 
 
-def _weigh_steady(costs: np.ndarray, lam: np.ndarray,
-                  eta_bounds: tuple[float, float] | None) -> Weights | None:
+def _weigh_steady(
+    costs: np.ndarray, lam: np.ndarray, eta_bounds: tuple[float, float] | None
+) -> Weights | None:
     """:func:`weigh` of one mode whose costs ``[S]`` have no NaN or -inf and whose λ (``lam [2]``,
     equal) keeps η in its window: a planner's usual iteration, in a third of the NumPy calls
     (each pays for its code again after a rollout) and to the same bits. ``None`` in any
     other case, for :func:`weigh` to handle."""
-    k = int(costs.argmin())                         # a NaN's row if there is one
+    k = int(costs.argmin())  # a NaN's row if there is one
     beta = costs[k]
     # β is NaN with a NaN cost, -inf with a -inf one, +inf with no finite one: the general
     # path's cases; a +inf cost among finite ones has weight exp(-inf) = 0 here as there
     if not math.isfinite(beta):
         return None
-    e = np.subtract(costs, beta)                    # the gaps d (cost_gaps)
-    np.exp(np.divide(e, -lam[0], out=e), out=e)     # exp(-d/λ), as gap_weights computes it
+    e = np.subtract(costs, beta)  # the gaps d (cost_gaps)
+    np.exp(np.divide(e, -lam[0], out=e), out=e)  # exp(-d/λ), as gap_weights computes it
     eta = e.sum()
     if eta_bounds is not None and not eta_bounds[0] <= eta <= eta_bounds[1]:
         return None
     w = np.empty((2, costs.shape[0]), dtype=costs.dtype)
     np.divide(e, eta, out=w[0])
     w[1] = w[0]
-    return Weights(w=w, eta=np.array([eta, eta]), beta=np.array([beta, beta]), lam=lam.copy(),
-                   best=np.array([k]), costs=costs)
+    return Weights(
+        w=w,
+        eta=np.array([eta, eta]),
+        beta=np.array([beta, beta]),
+        lam=lam.copy(),
+        best=np.array([k]),
+        costs=costs,
+    )
 
 
-def adapt_temperature(gaps: np.ndarray, lam: np.ndarray, eta_bounds: tuple[float, float],
-                      max_iters: int) -> np.ndarray:
+def adapt_temperature(
+    gaps: np.ndarray, lam: np.ndarray, eta_bounds: tuple[float, float], max_iters: int
+) -> np.ndarray:
     """Re-tune λ per row until η(λ) = Σ_k exp(-d_k/λ) lies in ``[η_l, η_u]`` (paper Alg. 3).
 
     paper Alg. 3 multiplies λ by 0.9 or 1.2 until η is in the window, which needs tens to hundreds of steps

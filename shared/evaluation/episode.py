@@ -44,7 +44,7 @@ def has_summary(path: str | Path) -> bool:
                 f.seek(size - block)
                 tail = f.read(block)
                 if not tail.endswith(b"\n"):
-                    return False            # a line still being written
+                    return False  # a line still being written
                 lines = tail[:-1].rsplit(b"\n", 1)
                 if len(lines) == 2 or block == size:
                     break
@@ -92,8 +92,9 @@ def find_log(path: str | Path) -> Path:
     if p.is_dir():
         p = p / "episode.jsonl"
     if not p.is_file():
-        raise FileNotFoundError(f"no episode log at {path} (a .jsonl file or a run folder "
-                                "holding episode.jsonl)")
+        raise FileNotFoundError(
+            f"no episode log at {path} (a .jsonl file or a run folder holding episode.jsonl)"
+        )
     return p
 
 
@@ -105,11 +106,20 @@ def log_scenario(records: list[dict], override: str | None = None) -> Scenario:
         return load_scenario(override)
     head = header(records)
     if not head.get("source"):
-        raise ConfigError("episode log", "header.source", "the log names no scenario file",
-                          expected="--scenario NAME")
+        raise ConfigError(
+            "episode log",
+            "header.source",
+            "the log names no scenario file",
+            expected="--scenario NAME",
+        )
     scenario = load_scenario(head["source"])
     if head.get("scenario_hash") not in (None, scenario.hash):
-        raise ConfigError(scenario.source, "", "the scenario changed since the log was written",
-                          f"hash {scenario.hash}", f"hash {head['scenario_hash']} (pass --scenario "
-                          "with the version the log was written for)")
+        raise ConfigError(
+            scenario.source,
+            "",
+            "the scenario changed since the log was written",
+            f"hash {scenario.hash}",
+            f"hash {head['scenario_hash']} (pass --scenario "
+            "with the version the log was written for)",
+        )
     return scenario

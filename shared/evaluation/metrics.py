@@ -16,11 +16,11 @@ from dataclasses import asdict, dataclass
 import mujoco
 import numpy as np
 
-from shared.evaluation import episode
 from shared.config import ErrorLog
+from shared.evaluation import episode
+from shared.evaluation.replay import load_step, replay, resolve_frame
 from shared.frames import Frame
 from shared.geometry import select_axes, symmetric_orientation_error
-from shared.evaluation.replay import load_step, replay, resolve_frame
 from shared.robots import get_robot
 from shared.scenario import Scenario
 from shared.scene import compile_model
@@ -29,14 +29,17 @@ from shared.scene import compile_model
 @dataclass(frozen=True)
 class EpisodeMetrics:
     """One episode's figures; a metric the scenario does not configure is None."""
-    status: str                      # success | timeout | stopped | unfinished (log cut short)
+
+    status: str  # success | timeout | stopped | unfinished (log cut short)
     success: bool
-    position_error: float | None     # m, metrics.position's a to b (+ offset) at the end
-    orientation_error: float | None  # paper Eq. 33 phi between metrics.orientation's frames at the end
-    collisions: int | None           # contact onsets between metrics.collisions' bodies
-    time: float                      # simulated seconds until the episode ended
-    wall_time: float                 # wall seconds from the planner's handshake to the last step
-    planner_hz: float                # 1 / mean planning time of the commands that drove the steps
+    position_error: float | None  # m, metrics.position's a to b (+ offset) at the end
+    orientation_error: (
+        float | None
+    )  # paper Eq. 33 phi between metrics.orientation's frames at the end
+    collisions: int | None  # contact onsets between metrics.collisions' bodies
+    time: float  # simulated seconds until the episode ended
+    wall_time: float  # wall seconds from the planner's handshake to the last step
+    planner_hz: float  # 1 / mean planning time of the commands that drove the steps
     steps: int
 
     def as_dict(self) -> dict:
@@ -44,6 +47,7 @@ class EpisodeMetrics:
 
 
 # ---------------------------------------------------------------------------------------- maths
+
 
 def position_error(pos_a: np.ndarray, pos_b: np.ndarray, axes: str = "xyz") -> float:
     """Euclidean distance between two positions along ``axes`` (``xy``, ``xz``, ``yz``, ``xyz``)."""
@@ -53,8 +57,9 @@ def position_error(pos_a: np.ndarray, pos_b: np.ndarray, axes: str = "xyz") -> f
 
 def orientation_error(rot_a: np.ndarray, rot_b: np.ndarray) -> float:
     """paper Eq. 33's phi between two rotation matrices (symmetric-object metric, 0 = equivalent)."""
-    return float(symmetric_orientation_error(np.asarray(rot_a, dtype=float),
-                                             np.asarray(rot_b, dtype=float)))
+    return float(
+        symmetric_orientation_error(np.asarray(rot_a, dtype=float), np.asarray(rot_b, dtype=float))
+    )
 
 
 def contact_onsets(touching: Sequence[bool]) -> int:
@@ -78,12 +83,15 @@ def wall_time(records: list[dict]) -> float:
     steps = episode.steps(records)
     if not steps:
         return 0.0
-    start = next((r["wall"] for r in records if r.get("what") == "handshake"),
-                 episode.header(records).get("wall", steps[0]["wall"]))
+    start = next(
+        (r["wall"] for r in records if r.get("what") == "handshake"),
+        episode.header(records).get("wall", steps[0]["wall"]),
+    )
     return max(0.0, float(steps[-1]["wall"] - start))
 
 
 # ------------------------------------------------------------------------------------ evaluator
+
 
 class MetricsEvaluator:
     """A scenario's metrics bound to its compiled model: frame names are resolved once, here, so
@@ -93,7 +101,7 @@ class MetricsEvaluator:
         self.scenario = scenario
         self.model = model if model is not None else compile_model(scenario)
         cfg = scenario.metrics
-        errors = ErrorLog()     # every wrong frame name at once
+        errors = ErrorLog()  # every wrong frame name at once
         self.position = self.orientation = None
         if cfg.position:
             self.position = self._frames(cfg.position, "metrics.position", errors)
@@ -102,8 +110,9 @@ class MetricsEvaluator:
         self._geoms_a = self._geoms_b = None
         if cfg.collisions:
             self._geoms_a = errors.call(self._geom_mask, cfg.collisions.a, "metrics.collisions.a")
-            self._geoms_b = errors.call(self._geom_mask, cfg.collisions.with_,
-                                        "metrics.collisions.with")
+            self._geoms_b = errors.call(
+                self._geom_mask, cfg.collisions.with_, "metrics.collisions.with"
+            )
         errors.raise_if_any()
 
     def _frames(self, pair, key: str, errors: ErrorLog) -> tuple[Frame, Frame] | None:
@@ -133,10 +142,16 @@ class MetricsEvaluator:
         elif self._geoms_a is not None:
             collisions = 0
         return EpisodeMetrics(
-            status=status, success=status == "success", position_error=pos_err,
-            orientation_error=ori_err, collisions=collisions,
-            time=float(steps[-1]["time"]) if steps else 0.0, wall_time=wall_time(records),
-            planner_hz=mean_hz([s.get("plan_time", 0.0) for s in steps]), steps=len(steps))
+            status=status,
+            success=status == "success",
+            position_error=pos_err,
+            orientation_error=ori_err,
+            collisions=collisions,
+            time=float(steps[-1]["time"]) if steps else 0.0,
+            wall_time=wall_time(records),
+            planner_hz=mean_hz([s.get("plan_time", 0.0) for s in steps]),
+            steps=len(steps),
+        )
 
     def touching(self, data: mujoco.MjData) -> bool:
         """Whether any contact (penetration or touch, not the collision margin) joins a geom of
@@ -156,7 +171,9 @@ class MetricsEvaluator:
         robot_frame = get_robot(self.scenario.robot.model).frame
         for i, name in enumerate(names):
             frame = resolve_frame(self.scenario, m, name, f"{key}[{i}]")
-            body = frame.id if frame.kind == mujoco.mjtObj.mjOBJ_BODY else int(m.site_bodyid[frame.id])
+            body = (
+                frame.id if frame.kind == mujoco.mjtObj.mjOBJ_BODY else int(m.site_bodyid[frame.id])
+            )
             if name == "robot" or name == robot_frame:
                 body = int(m.body_rootid[body])
             mask |= np.isin(m.geom_bodyid, _subtree(m, body))
@@ -186,4 +203,3 @@ def describe(m: EpisodeMetrics) -> str:
         parts.append(f"collisions {m.collisions}")
     parts += [f"time {m.time:.2f} s", f"wall {m.wall_time:.1f} s", f"planner {m.planner_hz:.1f} Hz"]
     return ", ".join(parts)
-

@@ -30,8 +30,9 @@ def load_step(model: mujoco.MjModel, data: mujoco.MjData, step: dict) -> None:
     try:
         set_state(model, data, values)
     except ValueError as exc:
-        raise ValueError(f"step {step.get('seq')}: {exc} (was the log written for another "
-                         "scenario?)") from None
+        raise ValueError(
+            f"step {step.get('seq')}: {exc} (was the log written for another scenario?)"
+        ) from None
     mujoco.mj_forward(model, data)
 
 
@@ -46,10 +47,13 @@ def replay(model: mujoco.MjModel, steps: Iterable[dict]) -> Iterator[mujoco.MjDa
 def resolve_frame(scenario: Scenario, model: mujoco.MjModel, name: str, key: str) -> Frame:
     """A YAML frame name of the scenario, or a ConfigError naming ``key`` and the valid names."""
     return FrameResolver(model, get_robot(scenario.robot.model).frame).checked(
-        name, scenario.source, key)
+        name, scenario.source, key
+    )
 
 
-def frame_tracks(model: mujoco.MjModel, steps: list[dict], frames: dict[str, Frame]) -> dict[str, np.ndarray]:
+def frame_tracks(
+    model: mujoco.MjModel, steps: list[dict], frames: dict[str, Frame]
+) -> dict[str, np.ndarray]:
     """World positions ``[len(steps), 3]`` of each named frame over the logged steps."""
     out = {name: np.empty((len(steps), 3)) for name in frames}
     for i, data in enumerate(replay(model, steps)):

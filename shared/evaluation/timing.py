@@ -30,8 +30,15 @@ def timing_summary(records: list[dict]) -> dict | None:
     return {
         "plans": int(plan_runs.size),
         "steps_per_plan": _mean_max(plan_runs),
-        "age_ms": ({"mean": float(ages.mean()), "p95": float(np.percentile(ages, 95)),
-                    "max": float(ages.max())} if ages.size else None),
+        "age_ms": (
+            {
+                "mean": float(ages.mean()),
+                "p95": float(np.percentile(ages, 95)),
+                "max": float(ages.max()),
+            }
+            if ages.size
+            else None
+        ),
         "safe_steps": int((~planned).sum()),
         "steps": len(steps),
     }

@@ -66,8 +66,10 @@ def register(spec: RobotSpec) -> RobotSpec:
     if spec.name in ROBOTS:
         raise ValueError(f"robot {spec.name!r} registered twice")
     if len(spec.ctrl_units) != len(spec.ctrl_names):
-        raise ValueError(f"robot {spec.name!r}: {len(spec.ctrl_units)} ctrl_units for "
-                         f"{len(spec.ctrl_names)} ctrl_names; one unit per control")
+        raise ValueError(
+            f"robot {spec.name!r}: {len(spec.ctrl_units)} ctrl_units for "
+            f"{len(spec.ctrl_names)} ctrl_names; one unit per control"
+        )
     ROBOTS[spec.name] = spec
     return spec
 
@@ -79,46 +81,54 @@ def get_robot(name: str) -> RobotSpec:
         raise KeyError(f"unknown robot {name!r}; registered: {', '.join(sorted(ROBOTS))}") from None
 
 
-register(RobotSpec(
-    name="point_robot",
-    mjcf="point_robot.xml",
-    frame="robot",
-    description="omnidirectional point robot: velocity actuators on x and y (thesis code)",
-    ctrl_names=("vel_x", "vel_y"),
-    ctrl_units=("m/s", "m/s"),
-    safe_ctrl=(0.0, 0.0),
-))
+register(
+    RobotSpec(
+        name="point_robot",
+        mjcf="point_robot.xml",
+        frame="robot",
+        description="omnidirectional point robot: velocity actuators on x and y (thesis code)",
+        ctrl_names=("vel_x", "vel_y"),
+        ctrl_units=("m/s", "m/s"),
+        safe_ctrl=(0.0, 0.0),
+    )
+)
 
-register(RobotSpec(
-    name="point_robot_suction",
-    mjcf="point_robot_suction.xml",
-    frame="robot",
-    description="point robot with the pull suction: world velocities vel_x, vel_y (m/s) and "
-                "suction in [0, 1] (adhesion actuator, 250 N at 1)",
-    ctrl_names=("vel_x", "vel_y", "suction"),
-    ctrl_units=("m/s", "m/s", "fraction"),
-    safe_ctrl=(0.0, 0.0, 0.0),
-))
+register(
+    RobotSpec(
+        name="point_robot_suction",
+        mjcf="point_robot_suction.xml",
+        frame="robot",
+        description="point robot with the pull suction: world velocities vel_x, vel_y (m/s) and "
+        "suction in [0, 1] (adhesion actuator, 250 N at 1)",
+        ctrl_names=("vel_x", "vel_y", "suction"),
+        ctrl_units=("m/s", "m/s", "fraction"),
+        safe_ctrl=(0.0, 0.0, 0.0),
+    )
+)
 
-register(RobotSpec(
-    name="diff_drive",
-    mjcf="diff_drive.xml",
-    frame="robot",
-    description="non-holonomic differential drive: body-frame forward speed (m/s) and yaw rate "
-                "(rad/s); lateral_grip is the passive tyre grip, its control value is ignored",
-    ctrl_names=("forward", "yaw_rate", "lateral_grip"),
-    ctrl_units=("m/s", "rad/s", "ignored"),
-    safe_ctrl=(0.0, 0.0, 0.0),
-))
+register(
+    RobotSpec(
+        name="diff_drive",
+        mjcf="diff_drive.xml",
+        frame="robot",
+        description="non-holonomic differential drive: body-frame forward speed (m/s) and yaw rate "
+        "(rad/s); lateral_grip is the passive tyre grip, its control value is ignored",
+        ctrl_names=("forward", "yaw_rate", "lateral_grip"),
+        ctrl_units=("m/s", "rad/s", "ignored"),
+        safe_ctrl=(0.0, 0.0, 0.0),
+    )
+)
 
-register(RobotSpec(
-    name="panda",
-    mjcf="panda.xml",
-    frame="site:grasp",
-    description="Franka Emika Panda on the table: joint velocities j1..j7 (rad/s) and gripper "
-                "opening width (m, 0 closed .. 0.08 open)",
-    ctrl_names=("j1", "j2", "j3", "j4", "j5", "j6", "j7", "gripper"),
-    ctrl_units=("rad/s",) * 7 + ("m",),
-    safe_ctrl=(0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0),
-    hold_ctrl=("gripper",),
-))
+register(
+    RobotSpec(
+        name="panda",
+        mjcf="panda.xml",
+        frame="site:grasp",
+        description="Franka Emika Panda on the table: joint velocities j1..j7 (rad/s) and gripper "
+        "opening width (m, 0 closed .. 0.08 open)",
+        ctrl_names=("j1", "j2", "j3", "j4", "j5", "j6", "j7", "gripper"),
+        ctrl_units=("rad/s",) * 7 + ("m",),
+        safe_ctrl=(0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0),
+        hold_ctrl=("gripper",),
+    )
+)

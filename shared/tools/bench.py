@@ -21,35 +21,62 @@ import fnmatch
 import json
 import os
 import platform
-import shutil
 import queue
+import shutil
 import threading
 import time
-
-import yaml
 from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
 
+import yaml
 from rich.console import Console
-from rich.progress import (BarColumn, MofNCompleteColumn, Progress, SpinnerColumn, TextColumn,
-                           TimeElapsedColumn, TimeRemainingColumn)
+from rich.progress import (
+    BarColumn,
+    MofNCompleteColumn,
+    Progress,
+    SpinnerColumn,
+    TextColumn,
+    TimeElapsedColumn,
+    TimeRemainingColumn,
+)
 
-from shared.evaluation import episode
 from shared.config import ConfigError, Section, flag, load_yaml, one_of, positive, positive_int
 from shared.config_files import find
-from shared.faults import read_old_name
-from shared.tools.launch import MODES, EpisodeLaunch, mode_conflicts, run_episode
+from shared.evaluation import episode
 from shared.evaluation.metrics import MetricsEvaluator
+from shared.faults import read_old_name
 from shared.scenario import Scenario, find_scenario, load_scenario, parse_scenario
+from shared.tools.launch import MODES, EpisodeLaunch, mode_conflicts, run_episode
 from shared.tools.sweep import Sweep, apply_overrides, file_label, parse_sweep_section, to_cell
 from shared.tools.warm import PairSlot
 
 # results.csv columns; one row per finished trial
-FIELDS = ("case", "variant", "scenario", "scenario_hash", "seed", "success", "status", "reason",
-          "position_error", "orientation_error", "collisions", "time", "wall_time", "planner_hz",
-          "steps", "trial_wall", "initial", "log", "machine", "date", "mode", "overrides")
+FIELDS = (
+    "case",
+    "variant",
+    "scenario",
+    "scenario_hash",
+    "seed",
+    "success",
+    "status",
+    "reason",
+    "position_error",
+    "orientation_error",
+    "collisions",
+    "time",
+    "wall_time",
+    "planner_hz",
+    "steps",
+    "trial_wall",
+    "initial",
+    "log",
+    "machine",
+    "date",
+    "mode",
+    "overrides",
+)
 
 
 def machine() -> str:
@@ -68,16 +95,16 @@ def machine() -> str:
 
 @dataclass(frozen=True)
 class BenchCase:
-    case: str                    # unique name; keys the results and configs/paper_results.yaml
-    variant: str                 # e.g. push / pull / hybrid, normal / reactive
-    scenario: str                # scenario name, or a YAML path relative to the bench file
+    case: str  # unique name; keys the results and configs/paper_results.yaml
+    variant: str  # e.g. push / pull / hybrid, normal / reactive
+    scenario: str  # scenario name, or a YAML path relative to the bench file
     trials: int
-    mode: str = "lockstep"       # lockstep | realtime (run one at a time, on every core)
-    plan_every: int = 1          # lockstep: world steps per command (a slow planner, repeatably)
-    faults: str = ""             # the world's simulated faults: a profile, or a file's path
-    delays: tuple[float, float] | None = None   # compensate: (actuation, state) ms declared
+    mode: str = "lockstep"  # lockstep | realtime (run one at a time, on every core)
+    plan_every: int = 1  # lockstep: world steps per command (a slow planner, repeatably)
+    faults: str = ""  # the world's simulated faults: a profile, or a file's path
+    delays: tuple[float, float] | None = None  # compensate: (actuation, state) ms declared
     estimate_delays: bool = False  # compensate: estimate (the planner measures them online)
-    max_rate: float = 0.0        # realtime: the planner's plans per second at most (0: no cap)
+    max_rate: float = 0.0  # realtime: the planner's plans per second at most (0: no cap)
     realtime_factor: float = 1.0  # realtime: world seconds per wall second (< 1: a slower world)
 
     @property
@@ -101,9 +128,9 @@ class BenchCase:
 class BenchConfig:
     source: str
     cases: tuple[BenchCase, ...]
-    timeout: float = 600.0       # wall-clock seconds per trial
-    quick_trials: int = 2        # trials per case with --quick
-    sweep: Sweep = Sweep()       # every case runs once per combination of these values
+    timeout: float = 600.0  # wall-clock seconds per trial
+    quick_trials: int = 2  # trials per case with --quick
+    sweep: Sweep = Sweep()  # every case runs once per combination of these values
 
 
 def _with_faults(case: BenchCase, c: Section, bench: Path) -> BenchCase:
@@ -111,20 +138,33 @@ def _with_faults(case: BenchCase, c: Section, bench: Path) -> BenchCase:
     (``true``: declare its delays to the planner; ``estimate``: the planner measures them
     online), checked now, not trial by trial."""
     from shared.faults import PROFILES, load_faults
+
     spec = c.opt("faults", "", str, "a profile (nominal, lab, harsh) or a YAML file")
-    compensate = c.opt("compensate", False, _compensation,
-                       "true (declare the delays), false, or estimate (measured online)")
+    compensate = c.opt(
+        "compensate",
+        False,
+        _compensation,
+        "true (declare the delays), false, or estimate (measured online)",
+    )
     if spec and spec not in PROFILES:
         if not (bench.parent / spec).is_file():
-            raise c.error("faults", "neither a profile nor a file", spec,
-                          f"one of: {', '.join(PROFILES)}, or a YAML file of faults: keys "
-                          f"(relative to the bench file)")
+            raise c.error(
+                "faults",
+                "neither a profile nor a file",
+                spec,
+                f"one of: {', '.join(PROFILES)}, or a YAML file of faults: keys "
+                f"(relative to the bench file)",
+            )
         spec = str((bench.parent / spec).resolve())
-    faults = load_faults(spec) if spec else None   # a bad file's error names its own key
+    faults = load_faults(spec) if spec else None  # a bad file's error names its own key
     delays = faults.delays if compensate and faults is not None else None
     if compensate and delays is None:
-        raise c.error("compensate", "no delay to compensate", compensate,
-                      "a case whose faults set actuation_delay_ms or state_delay_ms")
+        raise c.error(
+            "compensate",
+            "no delay to compensate",
+            compensate,
+            "a case whose faults set actuation_delay_ms or state_delay_ms",
+        )
     if compensate == "estimate":
         return dataclasses.replace(case, faults=spec, estimate_delays=True)
     return dataclasses.replace(case, faults=spec, delays=delays)
@@ -149,17 +189,22 @@ def load_bench(name_or_path: str | os.PathLike) -> BenchConfig:
     for c in top.items("cases", required=True):
         # a case's hardware: (the old name of faults:) read as faults:
         c = Section(read_old_name(c.data, c.source, c.path), c.source, c.path)
-        case = BenchCase(case=c.req("case", str), variant=c.opt("variant", "", str),
-                         scenario=c.req("scenario", str, "a scenario name or YAML path"),
-                         trials=c.req("trials", positive_int),
-                         mode=c.opt("mode", "lockstep", one_of(MODES)),
-                         plan_every=c.opt("plan_every", 1, positive_int),
-                         max_rate=c.opt("max_rate", 0.0, positive, "plans per second > 0"),
-                         realtime_factor=c.opt("realtime_factor", 1.0, positive,
-                                               "world seconds per wall second > 0"))
+        case = BenchCase(
+            case=c.req("case", str),
+            variant=c.opt("variant", "", str),
+            scenario=c.req("scenario", str, "a scenario name or YAML path"),
+            trials=c.req("trials", positive_int),
+            mode=c.opt("mode", "lockstep", one_of(MODES)),
+            plan_every=c.opt("plan_every", 1, positive_int),
+            max_rate=c.opt("max_rate", 0.0, positive, "plans per second > 0"),
+            realtime_factor=c.opt(
+                "realtime_factor", 1.0, positive, "world seconds per wall second > 0"
+            ),
+        )
         case = _with_faults(case, c, path)
-        for key, why, value, expected in mode_conflicts(case.mode, case.plan_every,
-                                                        case.max_rate, case.realtime_factor):
+        for key, why, value, expected in mode_conflicts(
+            case.mode, case.plan_every, case.max_rate, case.realtime_factor
+        ):
             raise c.error(key, why, value, expected)
         if case.case in names:
             raise c.error("case", "duplicate case name", case.case, "a unique name")
@@ -168,23 +213,28 @@ def load_bench(name_or_path: str | os.PathLike) -> BenchConfig:
         cases.append(case)
     if not cases:
         raise top.error("cases", "needs at least one case", [])
-    cfg = BenchConfig(source=str(path), cases=tuple(cases),
-                      timeout=top.opt("timeout", 600.0, positive, "wall-clock seconds > 0"),
-                      quick_trials=top.opt("quick_trials", 2, positive_int),
-                      sweep=parse_sweep_section(top.opt("sweep", None), str(path))
-                      if top.has("sweep") else Sweep())
+    cfg = BenchConfig(
+        source=str(path),
+        cases=tuple(cases),
+        timeout=top.opt("timeout", 600.0, positive, "wall-clock seconds > 0"),
+        quick_trials=top.opt("quick_trials", 2, positive_int),
+        sweep=parse_sweep_section(top.opt("sweep", None), str(path))
+        if top.has("sweep")
+        else Sweep(),
+    )
     top.done()
     return cfg
 
 
 # ----------------------------------------------------------------------------------- selection
 
+
 @dataclass(frozen=True)
 class ReadyCase:
     case: BenchCase
     scenario: Scenario
-    evaluator: MetricsEvaluator          # the scenario's metrics, frames resolved
-    overrides: dict = field(default_factory=dict)   # of a sweep: {key: value}
+    evaluator: MetricsEvaluator  # the scenario's metrics, frames resolved
+    overrides: dict = field(default_factory=dict)  # of a sweep: {key: value}
 
 
 @dataclass(frozen=True)
@@ -193,8 +243,12 @@ class SkippedCase:
     reason: str
 
 
-def select_cases(cfg: BenchConfig, patterns: list[str] | None = None, sweep: Sweep | None = None,
-                 variant_dir: Path | None = None) -> tuple[list[ReadyCase], list[SkippedCase]]:
+def select_cases(
+    cfg: BenchConfig,
+    patterns: list[str] | None = None,
+    sweep: Sweep | None = None,
+    variant_dir: Path | None = None,
+) -> tuple[list[ReadyCase], list[SkippedCase]]:
     """The cases matching ``patterns`` (fnmatch, e.g. ``corner*``; all when None) whose scenario
     loads and compiles; the others with the reason (scenario file missing or invalid).
 
@@ -206,8 +260,13 @@ def select_cases(cfg: BenchConfig, patterns: list[str] | None = None, sweep: Swe
     if patterns:
         chosen = [c for c in cfg.cases if any(fnmatch.fnmatchcase(c.case, p) for p in patterns)]
         if not chosen:
-            raise ConfigError(cfg.source, "cases", "no case matches --cases", patterns,
-                              f"names or patterns of: {', '.join(c.case for c in cfg.cases)}")
+            raise ConfigError(
+                cfg.source,
+                "cases",
+                "no case matches --cases",
+                patterns,
+                f"names or patterns of: {', '.join(c.case for c in cfg.cases)}",
+            )
     sweep = cfg.sweep if sweep is None else sweep
     ready, skipped = [], []
     base = Path(cfg.source).parent
@@ -216,13 +275,18 @@ def select_cases(cfg: BenchConfig, patterns: list[str] | None = None, sweep: Swe
         try:
             path = local if local.is_file() else find_scenario(case.scenario)
         except ConfigError:
-            skipped.append(SkippedCase(case, f"no scenario file {case.scenario!r} "
-                                             "(beside the bench file, or a name: m3p2i list)"))
+            skipped.append(
+                SkippedCase(
+                    case,
+                    f"no scenario file {case.scenario!r} "
+                    "(beside the bench file, or a name: m3p2i list)",
+                )
+            )
             continue
         try:
             scenario = load_scenario(path)
             evaluator = MetricsEvaluator(scenario)
-        except (ConfigError, ValueError) as exc:   # ValueError: the model does not compile
+        except (ConfigError, ValueError) as exc:  # ValueError: the model does not compile
             skipped.append(SkippedCase(case, f"invalid scenario: {exc}"))
             continue
         if not sweep.keys:
@@ -235,25 +299,30 @@ def select_cases(cfg: BenchConfig, patterns: list[str] | None = None, sweep: Swe
     return ready, skipped
 
 
-def check_variants(ready: list[ReadyCase], workers: int,
-                   check: Callable[[str], list[str]]) -> list[str]:
+def check_variants(
+    ready: list[ReadyCase], workers: int, check: Callable[[str], list[str]]
+) -> list[str]:
     """Every message ``check`` (:func:`shared.tools.process_checks.scenario_errors`: both processes'
     ``--check``) gives for the sweep variants among ``ready``, ``workers`` at a time; each
     message names the variant's file and the overrides."""
     variants = [rc for rc in ready if rc.overrides]
     with ThreadPoolExecutor(max_workers=max(1, workers)) as pool:
         found = list(pool.map(lambda rc: check(rc.scenario.source), variants))
-    return [f"{rc.case.case} with --set {', '.join(f'{k}={v}' for k, v in rc.overrides.items())}: "
-            f"{m}" for rc, messages in zip(variants, found) for m in messages]
+    return [
+        f"{rc.case.case} with --set {', '.join(f'{k}={v}' for k, v in rc.overrides.items())}: {m}"
+        for rc, messages in zip(variants, found)
+        for m in messages
+    ]
 
 
-def _variant(case: BenchCase, scenario: Scenario, path: Path, overrides: dict,
-             variant_dir: Path) -> ReadyCase:
+def _variant(
+    case: BenchCase, scenario: Scenario, path: Path, overrides: dict, variant_dir: Path
+) -> ReadyCase:
     """``scenario`` with ``overrides``: checked by the loader as if the user had written them in
     ``path`` (so its error names that file and the key), then written to ``variant_dir`` under
     the scenario's own name, for both processes to load."""
     raw = apply_overrides(scenario.raw, overrides)
-    raw.setdefault("name", scenario.name)            # the file name must not rename it
+    raw.setdefault("name", scenario.name)  # the file name must not rename it
     parse_scenario(raw, f"{path} with --set {', '.join(f'{k}={v}' for k, v in overrides.items())}")
     out = variant_dir / f"{case.case}@{file_label(overrides)}" / Path(path).name
     out.parent.mkdir(parents=True, exist_ok=True)
@@ -265,6 +334,7 @@ def _variant(case: BenchCase, scenario: Scenario, path: Path, overrides: dict,
 
 
 # ------------------------------------------------------------------------------------- results
+
 
 class ResultsFile:
     """``results.csv``: one row per finished trial, appended under a lock and synced to disk
@@ -302,8 +372,13 @@ class ResultsFile:
             return
         unknown = set(rows[0]) - set(FIELDS)
         if unknown:
-            raise ConfigError(str(self.path), "", "not a results file of this bench: unknown "
-                              "columns", sorted(unknown), f"columns among: {', '.join(FIELDS)}")
+            raise ConfigError(
+                str(self.path),
+                "",
+                "not a results file of this bench: unknown columns",
+                sorted(unknown),
+                f"columns among: {', '.join(FIELDS)}",
+            )
         tmp = self.path.with_suffix(".csv.tmp")
         with tmp.open("w", newline="") as f:
             writer = csv.DictWriter(f, fieldnames=FIELDS)
@@ -318,7 +393,7 @@ class ResultsFile:
             return
         text = self.path.read_bytes()
         if text and not text.endswith(b"\n"):
-            self.path.write_bytes(text[:text.rfind(b"\n") + 1])
+            self.path.write_bytes(text[: text.rfind(b"\n") + 1])
 
 
 def _cell(value) -> str:
@@ -336,7 +411,9 @@ def trial_key(case: str, seed: int | str, scenario_hash: str) -> tuple[str, int,
     return case, int(seed), scenario_hash
 
 
-def latest_rows(rows: list[dict[str, str]], keys: set[tuple[str, int, str]]) -> list[dict[str, str]]:
+def latest_rows(
+    rows: list[dict[str, str]], keys: set[tuple[str, int, str]]
+) -> list[dict[str, str]]:
     """The rows of the trials in ``keys``, the last one per trial (a rerun appends, never edits)."""
     latest = {}
     for r in rows:
@@ -348,13 +425,14 @@ def latest_rows(rows: list[dict[str, str]], keys: set[tuple[str, int, str]]) -> 
 
 # -------------------------------------------------------------------------------------- trials
 
+
 @dataclass(frozen=True)
 class Trial:
     case: BenchCase
     scenario: Scenario
     evaluator: MetricsEvaluator
     seed: int
-    overrides: dict = field(default_factory=dict)    # of a sweep: {key: value}
+    overrides: dict = field(default_factory=dict)  # of a sweep: {key: value}
 
     @property
     def log_dir(self) -> Path:
@@ -371,16 +449,17 @@ class Trial:
 @dataclass(frozen=True)
 class BenchOptions:
     out_dir: Path
-    workers: int                         # trials at once (each: one server + one planner)
-    timeout: float                       # wall-clock seconds per trial
-    trials: int | None = None            # per case; None: the case's (or quick_trials)
+    workers: int  # trials at once (each: one server + one planner)
+    timeout: float  # wall-clock seconds per trial
+    trials: int | None = None  # per case; None: the case's (or quick_trials)
     quick: bool = False
-    seed: int = 0                        # seed of trial 0; trial i uses seed + i
-    fresh: bool = False                  # two new processes per trial instead of warm pairs
+    seed: int = 0  # seed of trial 0; trial i uses seed + i
+    fresh: bool = False  # two new processes per trial instead of warm pairs
 
 
-def plan_trials(ready: list[ReadyCase], cfg: BenchConfig, opts: BenchOptions,
-                done: set[tuple[str, int, str]]) -> tuple[list[Trial], list[Trial]]:
+def plan_trials(
+    ready: list[ReadyCase], cfg: BenchConfig, opts: BenchOptions, done: set[tuple[str, int, str]]
+) -> tuple[list[Trial], list[Trial]]:
     """(all trials of this run, those still to run), seed-major. Workers start on the first
     cases, one each, and then keep to their case while it has trials (its warm pair serves
     them), so an interrupted bench has results for as many cases as there are workers, and
@@ -389,8 +468,9 @@ def plan_trials(ready: list[ReadyCase], cfg: BenchConfig, opts: BenchOptions,
     for i in range(max(_trials(rc.case, cfg, opts) for rc in ready) if ready else 0):
         for rc in ready:
             if i < _trials(rc.case, cfg, opts):
-                planned.append(Trial(rc.case, rc.scenario, rc.evaluator, opts.seed + i,
-                                     rc.overrides))
+                planned.append(
+                    Trial(rc.case, rc.scenario, rc.evaluator, opts.seed + i, rc.overrides)
+                )
     todo = [t for t in planned if trial_key(t.case.case, t.seed, t.scenario.hash) not in done]
     return planned, todo
 
@@ -401,25 +481,46 @@ def _trials(case: BenchCase, cfg: BenchConfig, opts: BenchOptions) -> int:
     return min(cfg.quick_trials, case.trials) if opts.quick else case.trials
 
 
-def run_trial(trial: Trial, opts: BenchOptions, threads: int, stop: threading.Event,
-              slot: PairSlot | None = None) -> dict | None:
+def run_trial(
+    trial: Trial,
+    opts: BenchOptions,
+    threads: int,
+    stop: threading.Event,
+    slot: PairSlot | None = None,
+) -> dict | None:
     """Run one trial and return its row; None when the bench was interrupted (not recorded, so
     a rerun runs it again). With ``slot``, in the worker's warm pair for the trial's case."""
     rel = trial.log_dir
     run_dir = opts.out_dir / rel
-    launch = EpisodeLaunch(scenario=trial.scenario.source, run_dir=run_dir, seed=trial.seed,
-                           timeout=opts.timeout, threads=threads, mode=trial.case.mode,
-                           plan_every=trial.case.plan_every, faults=trial.case.faults,
-                           delays=trial.case.delays, estimate_delays=trial.case.estimate_delays,
-                           max_rate=trial.case.max_rate, realtime_factor=trial.case.realtime_factor)
+    launch = EpisodeLaunch(
+        scenario=trial.scenario.source,
+        run_dir=run_dir,
+        seed=trial.seed,
+        timeout=opts.timeout,
+        threads=threads,
+        mode=trial.case.mode,
+        plan_every=trial.case.plan_every,
+        faults=trial.case.faults,
+        delays=trial.case.delays,
+        estimate_delays=trial.case.estimate_delays,
+        max_rate=trial.case.max_rate,
+        realtime_factor=trial.case.realtime_factor,
+    )
     if slot is not None:
         case_dir = opts.out_dir / trial.case_dir
-        pair = slot.get(pair_key(trial), dataclasses.replace(
-            launch, run_dir=case_dir / "pairs" / f"seed-{trial.seed:03d}",
-            log=str(case_dir / "seed-{seed:03d}" / "episode.jsonl")))
+        pair = slot.get(
+            pair_key(trial),
+            dataclasses.replace(
+                launch,
+                run_dir=case_dir / "pairs" / f"seed-{trial.seed:03d}",
+                log=str(case_dir / "seed-{seed:03d}" / "episode.jsonl"),
+            ),
+        )
         result = pair.run(trial.seed, opts.timeout, stop)
     else:
-        shutil.rmtree(run_dir, ignore_errors=True)   # a stale log of an interrupted attempt must not count
+        shutil.rmtree(
+            run_dir, ignore_errors=True
+        )  # a stale log of an interrupted attempt must not count
         result = run_episode(launch, stop)
     if result.reason == "interrupted":
         return None
@@ -428,18 +529,27 @@ def run_trial(trial: Trial, opts: BenchOptions, threads: int, stop: threading.Ev
     metrics = (summary or {}).get("metrics") or trial.evaluator.evaluate(records).as_dict()
     initial = episode.header(records).get("initial")
     return {
-        "case": trial.case.case, "variant": trial.case.variant, "scenario": trial.scenario.name,
-        "scenario_hash": trial.scenario.hash, "seed": trial.seed,
+        "case": trial.case.case,
+        "variant": trial.case.variant,
+        "scenario": trial.scenario.name,
+        "scenario_hash": trial.scenario.hash,
+        "seed": trial.seed,
         "success": not result.reason and metrics["status"] == "success",
         "status": metrics["status"],
         "reason": result.reason or ("" if summary else "no episode summary (see the logs)"),
-        "position_error": metrics["position_error"], "orientation_error": metrics["orientation_error"],
-        "collisions": metrics["collisions"], "time": metrics["time"],
-        "wall_time": metrics["wall_time"], "planner_hz": metrics["planner_hz"],
-        "steps": metrics["steps"], "trial_wall": round(result.wall_time, 3),
+        "position_error": metrics["position_error"],
+        "orientation_error": metrics["orientation_error"],
+        "collisions": metrics["collisions"],
+        "time": metrics["time"],
+        "wall_time": metrics["wall_time"],
+        "planner_hz": metrics["planner_hz"],
+        "steps": metrics["steps"],
+        "trial_wall": round(result.wall_time, 3),
         "initial": json.dumps(initial) if initial is not None else "",
         "log": str(rel / "episode.jsonl"),
-        "machine": machine(), "date": time.strftime("%Y-%m-%d"), "mode": trial.case.mode_label,
+        "machine": machine(),
+        "date": time.strftime("%Y-%m-%d"),
+        "mode": trial.case.mode_label,
         "overrides": to_cell(trial.overrides),
     }
 
@@ -447,21 +557,34 @@ def run_trial(trial: Trial, opts: BenchOptions, threads: int, stop: threading.Ev
 def pair_key(trial: Trial) -> tuple:
     """Trials with the same key can share a warm pair: same scenario file, processes' options
     and log folder."""
-    return (trial.case_dir, trial.case.scenario, trial.case.mode, trial.case.plan_every,
-            trial.case.faults, trial.case.delays, trial.case.estimate_delays,
-            trial.case.max_rate, trial.case.realtime_factor)
+    return (
+        trial.case_dir,
+        trial.case.scenario,
+        trial.case.mode,
+        trial.case.plan_every,
+        trial.case.faults,
+        trial.case.delays,
+        trial.case.estimate_delays,
+        trial.case.max_rate,
+        trial.case.realtime_factor,
+    )
 
 
-def run_trials(todo: list[Trial], opts: BenchOptions, results: ResultsFile,
-               on_done: Callable[[dict], None] = lambda row: None) -> bool:
+def run_trials(
+    todo: list[Trial],
+    opts: BenchOptions,
+    results: ResultsFile,
+    on_done: Callable[[dict], None] = lambda row: None,
+) -> bool:
     """Run ``todo`` on ``opts.workers`` threads, each driving one process pair (kept across
     the trials of a case unless ``opts.fresh``); rows are appended as trials finish. Real-time trials come last, one at a time on every core: a world
     that does not wait measures the planner's speed, which other trials would steal. Returns
     False when interrupted (Ctrl-C): running trials are stopped and left out of the file."""
     waiting = [t for t in todo if t.case.mode != "realtime"]
     realtime = [t for t in todo if t.case.mode == "realtime"]
-    return (_run_pool(waiting, opts.workers, opts, results, on_done)
-            and _run_pool(realtime, 1, opts, results, on_done))
+    return _run_pool(waiting, opts.workers, opts, results, on_done) and _run_pool(
+        realtime, 1, opts, results, on_done
+    )
 
 
 class _TrialQueue:
@@ -473,7 +596,7 @@ class _TrialQueue:
     def __init__(self, trials: list[Trial]):
         self._trials = list(trials)
         self._lock = threading.Lock()
-        self._serving: dict[int, tuple] = {}     # worker -> pair key of its last trial
+        self._serving: dict[int, tuple] = {}  # worker -> pair key of its last trial
 
     def take(self, worker: int, key: tuple | None) -> Trial | None:
         """The next trial for ``worker``, whose warm pair (if any) has ``key``."""
@@ -492,34 +615,42 @@ class _TrialQueue:
 _WORKER_DONE = object()
 
 
-def _run_pool(todo: list[Trial], workers: int, opts: BenchOptions, results: ResultsFile,
-              on_done: Callable[[dict], None]) -> bool:
+def _run_pool(
+    todo: list[Trial],
+    workers: int,
+    opts: BenchOptions,
+    results: ResultsFile,
+    on_done: Callable[[dict], None],
+) -> bool:
     if not todo:
         return True
     cores = os.cpu_count() or 1
-    threads = max(1, cores // workers)           # rollout threads per planner: share the cores
+    threads = max(1, cores // workers)  # rollout threads per planner: share the cores
     stop = threading.Event()
     trials = _TrialQueue(todo)
-    finished: queue.Queue = queue.Queue()        # rows, exceptions and _WORKER_DONE
+    finished: queue.Queue = queue.Queue()  # rows, exceptions and _WORKER_DONE
 
     def work(worker: int) -> None:
         slot = None if opts.fresh else PairSlot()
         try:
-            while not stop.is_set() and \
-                    (trial := trials.take(worker, slot and slot.key)) is not None:
+            while (
+                not stop.is_set() and (trial := trials.take(worker, slot and slot.key)) is not None
+            ):
                 row = run_trial(trial, opts, threads, stop, slot)
                 if row is not None:
                     results.append(row)
                     finished.put(row)
-        except BaseException as exc:   # noqa: BLE001 - raised again in the calling thread
+        except BaseException as exc:
             finished.put(exc)
         finally:
             if slot is not None:
                 slot.close()
             finished.put(_WORKER_DONE)
 
-    pool = [threading.Thread(target=work, args=(i,), name=f"bench-worker-{i}", daemon=True)
-            for i in range(min(workers, len(todo)))]
+    pool = [
+        threading.Thread(target=work, args=(i,), name=f"bench-worker-{i}", daemon=True)
+        for i in range(min(workers, len(todo)))
+    ]
     for t in pool:
         t.start()
     running, interrupted, error = len(pool), False, None
@@ -539,7 +670,7 @@ def _run_pool(todo: list[Trial], workers: int, opts: BenchOptions, results: Resu
     except KeyboardInterrupt:
         interrupted = True
     finally:
-        stop.set()                   # the running trials stop, the queued ones never start
+        stop.set()  # the running trials stop, the queued ones never start
         for t in pool:
             t.join()
     if error is not None:
@@ -549,6 +680,12 @@ def _run_pool(todo: list[Trial], workers: int, opts: BenchOptions, results: Resu
 
 def progress(console: Console) -> Progress:
     """The bench's progress bar: last finished trial, count, elapsed and remaining time."""
-    return Progress(SpinnerColumn(), TextColumn("{task.description}"), BarColumn(),
-                    MofNCompleteColumn(), TimeElapsedColumn(), TimeRemainingColumn(),
-                    console=console)
+    return Progress(
+        SpinnerColumn(),
+        TextColumn("{task.description}"),
+        BarColumn(),
+        MofNCompleteColumn(),
+        TimeElapsedColumn(),
+        TimeRemainingColumn(),
+        console=console,
+    )

@@ -27,7 +27,7 @@ from pathlib import Path
 
 from shared.evaluation.metrics import MetricsEvaluator
 from shared.scenario import load_scenario
-from shared.tools.bench import (BenchCase, BenchOptions, ResultsFile, Trial, machine, run_trial)
+from shared.tools.bench import BenchCase, BenchOptions, ResultsFile, Trial, machine, run_trial
 from shared.tools.sweep import to_cell
 
 # seconds a task may run past the trial time-out (start-up of the two processes, scheduling)
@@ -43,8 +43,9 @@ class RayUnavailable(RuntimeError):
 @dataclass(frozen=True)
 class Cluster:
     """The Ray instance the bench runs on."""
-    address: str | None          # None: a local instance started by the bench
-    cpus: float                  # CPUs of the whole cluster, as Ray counts them
+
+    address: str | None  # None: a local instance started by the bench
+    cpus: float  # CPUs of the whole cluster, as Ray counts them
     nodes: int
 
     def describe(self) -> str:
@@ -55,7 +56,7 @@ class Cluster:
 def connect(address: str | None, cpus: int) -> Cluster:
     """Join the Ray cluster at ``address``, or start a local instance of ``cpus`` CPUs; an
     instance this process already started (``ray.init`` in a test) is used as it is."""
-    os.environ.setdefault("RAY_USAGE_STATS_ENABLED", "0")     # no network at run time
+    os.environ.setdefault("RAY_USAGE_STATS_ENABLED", "0")  # no network at run time
     # a local instance: a worker that dies (killed, cancelled by force) takes its process group
     # with it, i.e. the trial's world and planner, instead of leaving them running
     os.environ.setdefault("RAY_process_group_cleanup_enabled", "1")
@@ -70,8 +71,9 @@ def connect(address: str | None, cpus: int) -> Cluster:
             else:
                 ray.init(num_cpus=cpus, include_dashboard=False, log_to_driver=False)
         except (ConnectionError, RuntimeError, ValueError) as exc:
-            raise RayUnavailable(f"cannot start or reach Ray"
-                                 f"{f' at {address}' if address else ''}: {exc}") from None
+            raise RayUnavailable(
+                f"cannot start or reach Ray{f' at {address}' if address else ''}: {exc}"
+            ) from None
     alive = [n for n in ray.nodes() if n.get("Alive")]
     return Cluster(address, float(ray.cluster_resources().get("CPU", 0.0)), len(alive))
 
@@ -79,10 +81,11 @@ def connect(address: str | None, cpus: int) -> Cluster:
 @dataclass(frozen=True)
 class TrialTask:
     """What a Ray task needs to run one trial: plain data, the scenario as text."""
+
     case: BenchCase
-    scenario_file: str           # file name; its stem is the scenario's default name
+    scenario_file: str  # file name; its stem is the scenario's default name
     scenario_text: str
-    scenario_hash: str           # as the driver read it
+    scenario_hash: str  # as the driver read it
     seed: int
     overrides: dict
     timeout: float
@@ -92,8 +95,16 @@ class TrialTask:
 def task_of(trial: Trial, opts: BenchOptions, threads: int) -> TrialTask:
     """The task of ``trial``: the scenario file's text travels with it."""
     path = Path(trial.scenario.source)
-    return TrialTask(trial.case, path.name, path.read_text(), trial.scenario.hash, trial.seed,
-                     dict(trial.overrides), opts.timeout, threads)
+    return TrialTask(
+        trial.case,
+        path.name,
+        path.read_text(),
+        trial.scenario.hash,
+        trial.seed,
+        dict(trial.overrides),
+        opts.timeout,
+        threads,
+    )
 
 
 def remote_trial(task: TrialTask) -> tuple[dict, dict[str, bytes]]:
@@ -108,15 +119,21 @@ def remote_trial(task: TrialTask) -> tuple[dict, dict[str, bytes]]:
         trial = Trial(task.case, scenario, MetricsEvaluator(scenario), task.seed, task.overrides)
         if scenario.hash != task.scenario_hash:
             # another m3p2i version or other included objective files on this node
-            return failure_row(trial, f"the scenario reads differently on this node (hash "
-                                      f"{scenario.hash}, driver {task.scenario_hash})"), {}
+            return failure_row(
+                trial,
+                f"the scenario reads differently on this node (hash "
+                f"{scenario.hash}, driver {task.scenario_hash})",
+            ), {}
         opts = BenchOptions(out_dir=work, workers=1, timeout=task.timeout)
         row = run_trial(trial, opts, task.threads, threading.Event())
-        if row is None:       # only a cancel interrupts it
+        if row is None:  # only a cancel interrupts it
             return failure_row(trial, "the Ray task was cancelled"), {}
         row["scenario_hash"] = task.scenario_hash
-        files = {str(p.relative_to(work)): p.read_bytes()
-                 for p in sorted((work / trial.log_dir).rglob("*")) if p.is_file()}
+        files = {
+            str(p.relative_to(work)): p.read_bytes()
+            for p in sorted((work / trial.log_dir).rglob("*"))
+            if p.is_file()
+        }
         return row, files
     finally:
         shutil.rmtree(work, ignore_errors=True)
@@ -124,35 +141,57 @@ def remote_trial(task: TrialTask) -> tuple[dict, dict[str, bytes]]:
 
 def failure_row(trial: Trial, reason: str) -> dict:
     """The results row of a trial that produced no episode of its own."""
-    return {"case": trial.case.case, "variant": trial.case.variant, "scenario": trial.scenario.name,
-            "scenario_hash": trial.scenario.hash, "seed": trial.seed, "success": False,
-            "status": "failure", "reason": reason, "machine": machine(),
-            "date": time.strftime("%Y-%m-%d"), "mode": trial.case.mode_label,
-            "overrides": to_cell(trial.overrides)}
+    return {
+        "case": trial.case.case,
+        "variant": trial.case.variant,
+        "scenario": trial.scenario.name,
+        "scenario_hash": trial.scenario.hash,
+        "seed": trial.seed,
+        "success": False,
+        "status": "failure",
+        "reason": reason,
+        "machine": machine(),
+        "date": time.strftime("%Y-%m-%d"),
+        "mode": trial.case.mode_label,
+        "overrides": to_cell(trial.overrides),
+    }
 
 
-def run_trials(todo: list[Trial], opts: BenchOptions, results: ResultsFile, cluster: Cluster,
-               cpus_per_trial: int, on_done: Callable[[dict], None] = lambda row: None) -> bool:
+def run_trials(
+    todo: list[Trial],
+    opts: BenchOptions,
+    results: ResultsFile,
+    cluster: Cluster,
+    cpus_per_trial: int,
+    on_done: Callable[[dict], None] = lambda row: None,
+) -> bool:
     """Run ``todo`` as Ray tasks; rows and logs are written as tasks finish. Like the local
     pool, real-time trials come last and one at a time. False when interrupted (Ctrl-C):
     running tasks are cancelled and left out of the file."""
     waiting = [t for t in todo if t.case.mode != "realtime"]
     realtime = [t for t in todo if t.case.mode == "realtime"]
     capacity = max(1, int(cluster.cpus // cpus_per_trial))
-    return (_run(waiting, capacity, opts, results, cpus_per_trial, on_done)
-            and _run(realtime, 1, opts, results, cpus_per_trial, on_done))
+    return _run(waiting, capacity, opts, results, cpus_per_trial, on_done) and _run(
+        realtime, 1, opts, results, cpus_per_trial, on_done
+    )
 
 
-def _run(todo: list[Trial], capacity: int, opts: BenchOptions, results: ResultsFile,
-         cpus: int, on_done: Callable[[dict], None]) -> bool:
+def _run(
+    todo: list[Trial],
+    capacity: int,
+    opts: BenchOptions,
+    results: ResultsFile,
+    cpus: int,
+    on_done: Callable[[dict], None],
+) -> bool:
     import ray
     from ray.exceptions import RayError, TaskCancelledError
 
     # no retries: a trial whose worker died is a failure row, rerun by resuming the bench
     remote = ray.remote(remote_trial).options(num_cpus=cpus, max_retries=0)
     queue = list(todo)
-    running: dict = {}             # ref -> (trial, submitted at)
-    cancelled: dict = {}           # ref -> (reason, cancelled at, forced)
+    running: dict = {}  # ref -> (trial, submitted at)
+    cancelled: dict = {}  # ref -> (reason, cancelled at, forced)
     try:
         while queue or running:
             # no more tasks than fit at once: a task's clock starts when it can start
@@ -170,7 +209,7 @@ def _run(todo: list[Trial], capacity: int, opts: BenchOptions, results: ResultsF
                     row = failure_row(trial, cancelled.get(ref, ("the Ray task was cancelled",))[0])
                 except RayError as exc:
                     row = failure_row(trial, f"the Ray task failed: {_first_line(exc)}")
-                if ref in cancelled:       # it may have stopped its trial and returned
+                if ref in cancelled:  # it may have stopped its trial and returned
                     row, files = failure_row(trial, cancelled[ref][0]), {}
                 _write_logs(opts.out_dir, trial, files)
                 results.append(row)
@@ -179,11 +218,18 @@ def _run(todo: list[Trial], capacity: int, opts: BenchOptions, results: ResultsF
             now = time.monotonic()
             for ref, (trial, started) in running.items():
                 if ref not in cancelled and now - started > opts.timeout + GRACE:
-                    ray.cancel(ref)            # KeyboardInterrupt: the trial stops its processes
-                    cancelled[ref] = (f"timeout: the Ray task ran past {opts.timeout:.0f} s + "
-                                      f"{GRACE:.0f} s and was cancelled", now, False)
-                elif ref in cancelled and not cancelled[ref][2] \
-                        and now - cancelled[ref][1] > FORCE_AFTER:
+                    ray.cancel(ref)  # KeyboardInterrupt: the trial stops its processes
+                    cancelled[ref] = (
+                        f"timeout: the Ray task ran past {opts.timeout:.0f} s + "
+                        f"{GRACE:.0f} s and was cancelled",
+                        now,
+                        False,
+                    )
+                elif (
+                    ref in cancelled
+                    and not cancelled[ref][2]
+                    and now - cancelled[ref][1] > FORCE_AFTER
+                ):
                     ray.cancel(ref, force=True)
                     cancelled[ref] = (cancelled[ref][0], now, True)
     except KeyboardInterrupt:
@@ -200,7 +246,7 @@ def _write_logs(out_dir: Path, trial: Trial, files: dict[str, bytes]) -> None:
     for rel, data in files.items():
         path = out_dir / rel
         if not path.resolve().is_relative_to((out_dir / trial.log_dir).resolve()):
-            continue                   # only the trial's own folder
+            continue  # only the trial's own folder
         path.parent.mkdir(parents=True, exist_ok=True)
         path.write_bytes(data)
 

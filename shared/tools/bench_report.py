@@ -41,7 +41,7 @@ class PaperRow:
     table: str
     row: str
     trials: int
-    values: dict[str, tuple[float, float] | str]   # metric -> (mean, std) or "time-out"
+    values: dict[str, tuple[float, float] | str]  # metric -> (mean, std) or "time-out"
 
     def cell(self, metric: str) -> str:
         v = self.values.get(metric)
@@ -57,10 +57,15 @@ def _paper_value(value) -> tuple[float, float] | str:
 
 
 def _paper_row(s: Section) -> PaperRow:
-    values = {m: s.req(m, _paper_value, f"[mean, std] or {TIME_OUT!r}")
-              for m in METRICS if s.has(m)}
-    row = PaperRow(table=s.req("table", str), row=s.req("row", str),
-                   trials=s.req("trials", positive_int), values=values)
+    values = {
+        m: s.req(m, _paper_value, f"[mean, std] or {TIME_OUT!r}") for m in METRICS if s.has(m)
+    }
+    row = PaperRow(
+        table=s.req("table", str),
+        row=s.req("row", str),
+        trials=s.req("trials", positive_int),
+        values=values,
+    )
     s.done()
     return row
 
@@ -78,6 +83,7 @@ def load_paper(path: Path = PAPER_RESULTS) -> dict[str, PaperRow]:
 
 
 # ---------------------------------------------------------------------------------- statistics
+
 
 def wilson(successes: int, trials: int, z: float = 1.96) -> tuple[float, float]:
     """Wilson score interval of a success rate (95 % for z = 1.96): unlike p ± z·√(p(1-p)/n) it
@@ -97,9 +103,9 @@ class CaseSummary:
     variant: str
     trials: int
     successes: int
-    killed: int                      # trials cut by the harness (time-out, crash)
-    stats: dict[str, Stat | None]    # METRICS + planner_hz
-    seeds: str = ""                  # e.g. "0-49"
+    killed: int  # trials cut by the harness (time-out, crash)
+    stats: dict[str, Stat | None]  # METRICS + planner_hz
+    seeds: str = ""  # e.g. "0-49"
 
     @property
     def success_cell(self) -> str:
@@ -135,9 +141,17 @@ def summarize(rows: list[dict[str, str]], order: list[str]) -> list[CaseSummary]
         stats = {m: _stat([_number(r[m]) for r in ended]) for m in METRICS if m != "time"}
         stats["time"] = _stat([_number(r["time"]) for r in won])
         stats["planner_hz"] = _stat([_number(r["planner_hz"]) for r in ended])
-        out.append(CaseSummary(case=case, variant=mine[0]["variant"], trials=len(mine),
-                               successes=len(won), killed=len(mine) - len(ended), stats=stats,
-                               seeds=seed_ranges(int(r["seed"]) for r in mine)))
+        out.append(
+            CaseSummary(
+                case=case,
+                variant=mine[0]["variant"],
+                trials=len(mine),
+                successes=len(won),
+                killed=len(mine) - len(ended),
+                stats=stats,
+                seeds=seed_ranges(int(r["seed"]) for r in mine),
+            )
+        )
     return out
 
 
@@ -154,9 +168,21 @@ def seed_ranges(seeds) -> str:
 
 # ------------------------------------------------------------------------------------ rendering
 
-HEADERS = ("case", "variant", "seeds", "success (95 % interval)", "pos error [m]", "paper",
-           "ori error (paper Eq. 33)",
-           "paper", "collisions", "paper", "time [s]", "paper", "planner Hz")
+HEADERS = (
+    "case",
+    "variant",
+    "seeds",
+    "success (95 % interval)",
+    "pos error [m]",
+    "paper",
+    "ori error (paper Eq. 33)",
+    "paper",
+    "collisions",
+    "paper",
+    "time [s]",
+    "paper",
+    "planner Hz",
+)
 
 
 _LEFT = ("case", "variant", "seeds")
@@ -187,16 +213,20 @@ def rich_table(rows: list[list[str]], title: str) -> Table:
 
 
 def markdown_table(rows: list[list[str]]) -> str:
-    lines = ["| " + " | ".join(HEADERS) + " |",
-             "|" + "|".join("---" if h in _LEFT else "---:" for h in HEADERS) + "|"]
+    lines = [
+        "| " + " | ".join(HEADERS) + " |",
+        "|" + "|".join("---" if h in _LEFT else "---:" for h in HEADERS) + "|",
+    ]
     lines += ["| " + " | ".join(r) + " |" for r in rows]
     return "\n".join(lines)
 
 
-LEGEND = ("Success over all trials, with its 95 % Wilson interval; mean (std) over trials "
-          "(population std, as the paper): errors and collisions over the trials that ended by "
-          "themselves, time over the successful ones (time-out: none succeeded). *paper*: "
-          "configs/paper_results.yaml (Tables I-III).")
+LEGEND = (
+    "Success over all trials, with its 95 % Wilson interval; mean (std) over trials "
+    "(population std, as the paper): errors and collisions over the trials that ended by "
+    "themselves, time over the successful ones (time-out: none succeeded). *paper*: "
+    "configs/paper_results.yaml (Tables I-III)."
+)
 
 
 def markdown_report(rows: list[list[str]], skipped: list[tuple[str, str]], header: str) -> str:
@@ -207,16 +237,16 @@ def markdown_report(rows: list[list[str]], skipped: list[tuple[str, str]], heade
     return "\n".join(parts) + "\n"
 
 
-
 # ------------------------------------------------------------- reports from committed results
 
-NOTES_FILE = "failures.yaml"     # beside results.csv: {case: {seed: one sentence}}
+NOTES_FILE = "failures.yaml"  # beside results.csv: {case: {seed: one sentence}}
 
 
 @dataclass(frozen=True)
 class Results:
     """One bench's results.csv as a report reads it: per case, the rows of the newest scenario
     version (the hash of its last row), the last row per seed; and the failure notes."""
+
     path: Path
     rows: list[dict[str, str]]
     notes: dict[tuple[str, int], str]
@@ -231,19 +261,29 @@ def read_results(path: str | Path) -> Results:
     path = Path(path)
     csv_path = path / "results.csv" if path.is_dir() else path
     if not csv_path.is_file():
-        raise ConfigError(str(path), "", "no results file", expected="a bench's results.csv or "
-                          "its output folder")
+        raise ConfigError(
+            str(path), "", "no results file", expected="a bench's results.csv or its output folder"
+        )
     with csv_path.open(newline="") as f:
         reader = csv.DictReader(f)
-        missing = [c for c in ("case", "seed", "scenario_hash") if c not in (reader.fieldnames or [])]
+        missing = [
+            c for c in ("case", "seed", "scenario_hash") if c not in (reader.fieldnames or [])
+        ]
         if missing:
-            raise ConfigError(str(csv_path), "", f"no {', '.join(missing)} column",
-                              expected="a bench's results.csv (m3p2i bench writes it)")
+            raise ConfigError(
+                str(csv_path),
+                "",
+                f"no {', '.join(missing)} column",
+                expected="a bench's results.csv (m3p2i bench writes it)",
+            )
         rows = list(reader)
     # a sweep's variants (same case, other overrides) are versions side by side, not in turn
     newest = {(r["case"], r.get("overrides") or ""): r["scenario_hash"] for r in rows}
-    latest = {(r["case"], r.get("overrides") or "", int(r["seed"])): r for r in rows
-              if r["scenario_hash"] == newest[(r["case"], r.get("overrides") or "")]}
+    latest = {
+        (r["case"], r.get("overrides") or "", int(r["seed"])): r
+        for r in rows
+        if r["scenario_hash"] == newest[(r["case"], r.get("overrides") or "")]
+    }
     notes: dict[tuple[str, int], str] = {}
     notes_path = csv_path.parent / NOTES_FILE
     if notes_path.is_file():
@@ -251,8 +291,12 @@ def read_results(path: str | Path) -> Results:
         for case in list(top.data):
             for seed, text in top.section(case).data.items():
                 if not isinstance(seed, int) or not isinstance(text, str):
-                    raise ConfigError(str(notes_path), f"{case}.{seed}", "a failure note is "
-                                      "`SEED: one sentence`", text)
+                    raise ConfigError(
+                        str(notes_path),
+                        f"{case}.{seed}",
+                        "a failure note is `SEED: one sentence`",
+                        text,
+                    )
                 notes[(case, seed)] = text
     return Results(csv_path, list(latest.values()), notes)
 
@@ -268,18 +312,22 @@ def _failure_line(r: dict[str, str], notes: dict[tuple[str, int], str]) -> str:
 def results_report(results: list[Results], paper: dict[str, PaperRow]) -> str:
     """The Markdown a README or doc shows for some results files: one table (a row per case and
     file), the machines and dates the trials ran on, and every failure with its note."""
-    from shared.tools.sweep import swept_keys, sweep_report
+    from shared.tools.sweep import sweep_report, swept_keys
+
     rows, failures, machines, dates = [], [], set(), set()
     swept = [r for res in results for r in res.rows if swept_keys([r])]
-    if swept:     # a sweep: one table per key; its failures are what the rates count
+    if swept:  # a sweep: one table per key; its failures are what the rates count
         return sweep_report(swept) + _trials_ran_on(swept)
     for res in results:
         rows += table_rows(summarize(res.rows, res.cases), paper)
         failures += [_failure_line(r, res.notes) for r in res.rows if r["success"] != "1"]
         machines |= {r.get("machine") or "machine not recorded" for r in res.rows}
         dates |= {r.get("date") or "date not recorded" for r in res.rows}
-    parts = [markdown_table(rows), "", LEGEND + f" Trials ran on {'; '.join(sorted(machines))}, "
-             f"{', '.join(sorted(dates))}."]
+    parts = [
+        markdown_table(rows),
+        "",
+        LEGEND + f" Trials ran on {'; '.join(sorted(machines))}, {', '.join(sorted(dates))}.",
+    ]
     if failures:
         parts += ["", "Failures:", ""] + failures
     return "\n".join(parts) + "\n"
@@ -313,11 +361,15 @@ def update_reports(text: str, base: Path, paper: dict[str, PaperRow]) -> str:
     """``text`` with every ``<!-- m3p2i report PATH... -->`` block regenerated from the results
     files it names (relative to ``base``), up to its ``<!-- end of report -->``, and every
     ``<!-- m3p2i grid PATH... -->`` block (:func:`grid_report`) up to ``<!-- end of grid -->``."""
+
     def read(args: str, tag: str) -> list[Results]:
         if not args:
-            raise ConfigError(str(base), "", f"a {tag} block names no results file",
-                              f"<!-- m3p2i {tag} -->")
+            raise ConfigError(
+                str(base), "", f"a {tag} block names no results file", f"<!-- m3p2i {tag} -->"
+            )
         return [read_results(base / p) for p in args.split()]
-    text = regenerate(text, "m3p2i report", "report",
-                      lambda args: results_report(read(args, "report"), paper))[0]
+
+    text = regenerate(
+        text, "m3p2i report", "report", lambda args: results_report(read(args, "report"), paper)
+    )[0]
     return regenerate(text, "m3p2i grid", "grid", lambda args: grid_report(read(args, "grid")))[0]

@@ -12,6 +12,9 @@ from collections.abc import Callable
 def regenerate(text: str, tag: str, end: str, render: Callable[[str], str]) -> tuple[str, int]:
     """``text`` with the body of every ``<!-- TAG ARGS -->`` block up to its ``<!-- end of
     END -->`` replaced by ``render(ARGS)`` (stripped), and how many blocks there were."""
-    pattern = re.compile(rf"(<!-- {re.escape(tag)} (?P<args>[^>]*?) -->\n)(?P<body>.*?)"
-                         rf"(<!-- end of {re.escape(end)} -->)", re.S)
+    pattern = re.compile(
+        rf"(<!-- {re.escape(tag)} (?P<args>[^>]*?) -->\n)(?P<body>.*?)"
+        rf"(<!-- end of {re.escape(end)} -->)",
+        re.S,
+    )
     return pattern.subn(lambda m: m.group(1) + render(m["args"].strip()) + m.group(4), text)

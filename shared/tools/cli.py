@@ -13,30 +13,51 @@ import sys
 import threading
 import time
 from pathlib import Path
-from typing import Optional
 
 import typer
 
-from shared.cli_common import (EstimateDelays, Faults, Host, Keys, Mode, PlanEvery, Port,
-                               RealtimeFactor, RunDir, ScenarioArgument, Seed, Timeout, Verbose,
-                               Window, default_run_dir, error_blocks, flow_help, summary_line)
-from shared.endpoints import DEFAULT_HOST, DEFAULT_PORT
+from shared.cli_common import (
+    EstimateDelays,
+    Faults,
+    Host,
+    Keys,
+    Mode,
+    PlanEvery,
+    Port,
+    RealtimeFactor,
+    RunDir,
+    ScenarioArgument,
+    Seed,
+    Timeout,
+    Verbose,
+    Window,
+    default_run_dir,
+    error_blocks,
+    flow_help,
+    summary_line,
+)
 from shared.config import ConfigError, load_yaml
 from shared.config_files import ENV_VAR, KINDS, Entry, entries, search_folders, shown
+from shared.endpoints import DEFAULT_HOST, DEFAULT_PORT
 from shared.evaluation.timing import describe_timing
-from shared.tools.launch import EpisodeLaunch, free_port_block, mode_conflicts, run_episode
 from shared.scenario import find_scenario, load_scenario
-from shared.tools.process_checks import scenario_errors
+from shared.tools.launch import EpisodeLaunch, free_port_block, mode_conflicts, run_episode
 from shared.tools.new import new_scenario
+from shared.tools.process_checks import scenario_errors
 
-__all__ = ["app", "free_port_block"]   # free_port_block: tests start processes with it
+__all__ = ["app", "free_port_block"]  # free_port_block: tests start processes with it
 
-app = typer.Typer(add_completion=False, no_args_is_help=True, help=(
-    "m3p2i: reactive task and motion planning with active inference and multi-modal MPPI.\n\n"
-    "`m3p2i run navigation` runs a scenario end to end; `m3p2i list` shows the scenarios and "
-    "where each comes from, `m3p2i new NAME --from SCENARIO` starts your own; "
-    "`m3p2i layout SCENARIO` prints what a hardware bridge must send and accept. "
-    "For two terminals use `m3p2i-server` and `m3p2i-planner` directly."))
+app = typer.Typer(
+    add_completion=False,
+    no_args_is_help=True,
+    help=(
+        "m3p2i: reactive task and motion planning with active inference and multi-modal MPPI.\n\n"
+        "`m3p2i run navigation` runs a scenario end to end; `m3p2i list` shows the scenarios and "
+        "where each comes from, `m3p2i new NAME --from SCENARIO` starts your own; "
+        "`m3p2i layout SCENARIO` prints what a hardware bridge must send and accept. "
+        "For two terminals use `m3p2i-server` and `m3p2i-planner` directly."
+    ),
+)
 
 
 def _load_or_exit(scenario: str):
@@ -67,10 +88,14 @@ def check(scenario: ScenarioArgument) -> None:
 @app.command("layout")
 def layout(
     scenario: ScenarioArgument,
-    as_json: bool = typer.Option(False, "--json", help="Print one JSON object instead of "
-                                 "tables (keys: scenario, scenario_hash, robot, dt, sizes, nu, "
-                                 "qpos, qvel, act, mocap, ctrl, extras, frames), for bridges "
-                                 "and tools in other languages."),
+    as_json: bool = typer.Option(
+        False,
+        "--json",
+        help="Print one JSON object instead of "
+        "tables (keys: scenario, scenario_hash, robot, dt, sizes, nu, "
+        "qpos, qvel, act, mocap, ctrl, extras, frames), for bridges "
+        "and tools in other languages.",
+    ),
 ) -> None:
     """Print what a world (a hardware bridge) must send and accept for SCENARIO, by name:
     each index of state.qpos and state.qvel with its joint, component, unit and frame; each
@@ -80,14 +105,14 @@ def layout(
 
     The planner stops (exit code 3) when a world's first state has other sizes than these."""
     import json
+    from dataclasses import asdict
 
     from rich.console import Console
-
-    from dataclasses import asdict
 
     from shared.layout import bridge_layout, frame_names
     from shared.scene import compile_model
     from shared.tools.layout_table import print_frames, print_layout
+
     try:
         sc = load_scenario(scenario)
         model = compile_model(sc)
@@ -96,8 +121,7 @@ def layout(
         typer.echo(f"error: {exc}", err=True)
         raise typer.Exit(2) from None
     if as_json:
-        typer.echo(json.dumps({**found.to_dict(), "frames": [asdict(f) for f in frames]},
-                              indent=1))
+        typer.echo(json.dumps({**found.to_dict(), "frames": [asdict(f) for f in frames]}, indent=1))
         return
     console = Console(width=None if sys.stdout.isatty() else 200)
     print_layout(found, console)
@@ -110,51 +134,75 @@ def run(
     mode: Mode = "lockstep",
     plan_every: PlanEvery = 1,
     faults: Faults = None,
-    compensate: bool = typer.Option(False, "--compensate", help="Declare the simulated faults' "
-                                    "actuation and state delays to the planner (as a robot's "
-                                    "owner who measured them would, in planner.delays): it plans "
-                                    "from the state predicted for when its plan acts."),
+    compensate: bool = typer.Option(
+        False,
+        "--compensate",
+        help="Declare the simulated faults' "
+        "actuation and state delays to the planner (as a robot's "
+        "owner who measured them would, in planner.delays): it plans "
+        "from the state predicted for when its plan acts.",
+    ),
     estimate_delays: EstimateDelays = False,
-    planner_max_rate: float = typer.Option(0.0, min=0.0, help="realtime: the planner makes at "
-                                           "most this many plans per second (0: as fast as it "
-                                           "can): a slower computer, rehearsed."),
+    planner_max_rate: float = typer.Option(
+        0.0,
+        min=0.0,
+        help="realtime: the planner makes at "
+        "most this many plans per second (0: as fast as it "
+        "can): a slower computer, rehearsed.",
+    ),
     realtime_factor: RealtimeFactor = 1.0,
-    port: int = typer.Option(0, help="The world's first port, as m3p2i-server --port (0: pick "
-                             "a free block of ports)."),
+    port: int = typer.Option(
+        0, help="The world's first port, as m3p2i-server --port (0: pick a free block of ports)."
+    ),
     run_dir: RunDir = None,
     timeout: Timeout = 900.0,
     window: Window = False,
-    view: bool = typer.Option(False, "--view", help="Serve the browser view (m3p2i view) of the "
-                              "episode and print its URL; needs m3p2i\\[view]."),
+    view: bool = typer.Option(
+        False,
+        "--view",
+        help="Serve the browser view (m3p2i view) of the "
+        "episode and print its URL; needs m3p2i\\[view].",
+    ),
     view_port: int = typer.Option(0, help="With --view: the page's port (0: a free one)."),
-    view_exit: Optional[bool] = typer.Option(None, "--view-exit/--view-keep", help="With --view, "
-                                             "once the episode is over: exit, or keep the page "
-                                             "up showing the episode's replay until Ctrl-C "
-                                             "(then exit with the episode's code). Default: "
-                                             "keep when stdin and stdout are a terminal, exit "
-                                             "otherwise (scripts, tests)."),
+    view_exit: bool | None = typer.Option(
+        None,
+        "--view-exit/--view-keep",
+        help="With --view, "
+        "once the episode is over: exit, or keep the page "
+        "up showing the episode's replay until Ctrl-C "
+        "(then exit with the episode's code). Default: "
+        "keep when stdin and stdout are a terminal, exit "
+        "otherwise (scripts, tests).",
+    ),
     seed: Seed = 0,
     verbose: Verbose = False,
     keys: Keys = None,
 ) -> None:
     """Run one episode of SCENARIO with server and planner; exit 0 on success."""
-    flags = {"mode": "--mode", "max_rate": "--planner-max-rate",
-             "realtime_factor": "--realtime-factor", "plan_every": "--plan-every"}
-    for key, why, value, expected in mode_conflicts(mode, plan_every, planner_max_rate,
-                                                    realtime_factor):
+    flags = {
+        "mode": "--mode",
+        "max_rate": "--planner-max-rate",
+        "realtime_factor": "--realtime-factor",
+        "plan_every": "--plan-every",
+    }
+    for key, why, value, expected in mode_conflicts(
+        mode, plan_every, planner_max_rate, realtime_factor
+    ):
         expected = expected.replace("mode: ", "--mode ").replace("plan_every", "--plan-every")
         typer.echo(f"error: {flags[key]} {value}: {why} (expected {expected})", err=True)
         raise typer.Exit(2)
-    if faults is not None:      # first: a mistyped profile is refused at once
+    if faults is not None:  # first: a mistyped profile is refused at once
         faults = _faults_or_exit(faults)
     sc = _load_or_exit(scenario)
     _keys_or_exit(keys)
     delays = _declared_delays_or_exit(sc, faults) if compensate else None
     run_dir = run_dir or default_run_dir(sc.name)
-    typer.echo(f"running {sc.name} ({mode}{', faults ' + faults if faults else ''}"
-               f"{', delays compensated' if delays else ''}"
-               f"{', delays estimated' if estimate_delays else ''}); logs in {run_dir}")
-    if view_exit is None:          # an interactive run keeps its page; a script must not block
+    typer.echo(
+        f"running {sc.name} ({mode}{', faults ' + faults if faults else ''}"
+        f"{', delays compensated' if delays else ''}"
+        f"{', delays estimated' if estimate_delays else ''}); logs in {run_dir}"
+    )
+    if view_exit is None:  # an interactive run keeps its page; a script must not block
         view_exit = not (sys.stdin.isatty() and sys.stdout.isatty())
     codes = []
 
@@ -164,25 +212,41 @@ def run(
         sys.stdout.flush()
 
     try:
-        result = run_episode(EpisodeLaunch(scenario=sc.source, run_dir=run_dir, seed=seed,
-                                           mode=mode, port=port, timeout=timeout, window=window,
-                                           verbose=verbose, plan_every=plan_every, view=view,
-                                           view_port=view_port, keys=keys,
-                                           view_keep=view and not view_exit,
-                                           faults=faults or "", delays=delays,
-                                           estimate_delays=estimate_delays,
-                                           max_rate=planner_max_rate,
-                                           realtime_factor=realtime_factor),
-                             on_view=lambda url: typer.echo(f"view: {url}"), on_kept=kept)
-    except RuntimeError as exc:      # the view could not serve its page
+        result = run_episode(
+            EpisodeLaunch(
+                scenario=sc.source,
+                run_dir=run_dir,
+                seed=seed,
+                mode=mode,
+                port=port,
+                timeout=timeout,
+                window=window,
+                verbose=verbose,
+                plan_every=plan_every,
+                view=view,
+                view_port=view_port,
+                keys=keys,
+                view_keep=view and not view_exit,
+                faults=faults or "",
+                delays=delays,
+                estimate_delays=estimate_delays,
+                max_rate=planner_max_rate,
+                realtime_factor=realtime_factor,
+            ),
+            on_view=lambda url: typer.echo(f"view: {url}"),
+            on_kept=kept,
+        )
+    except RuntimeError as exc:  # the view could not serve its page
         typer.echo(f"error: {exc}", err=True)
         raise typer.Exit(2) from None
-    raise typer.Exit(codes[0] if codes else
-                     _report_run(result, sc.name, run_dir, timeout, mode, plan_every))
+    raise typer.Exit(
+        codes[0] if codes else _report_run(result, sc.name, run_dir, timeout, mode, plan_every)
+    )
 
 
-def _report_run(result, name: str, run_dir: Path, timeout: float, mode: str,
-                plan_every: int) -> int:
+def _report_run(
+    result, name: str, run_dir: Path, timeout: float, mode: str, plan_every: int
+) -> int:
     """``m3p2i run``'s report of an episode (its outcome, or why it has none): the exit code."""
     if result.reason == "timeout":
         typer.echo(f"error: no outcome within {timeout:.0f} s; stopping", err=True)
@@ -207,37 +271,63 @@ def _report_run(result, name: str, run_dir: Path, timeout: float, mode: str,
 
 @app.command("bench")
 def bench(
-    config: str = typer.Argument("paper", help="Bench file: a name (m3p2i list bench) or a "
-                                 "YAML path."),
-    quick: bool = typer.Option(False, "--quick", help="A few trials per case (the file's "
-                               "quick_trials)."),
-    cases: Optional[str] = typer.Option(None, help="Comma-separated case names or patterns, "
-                                        "e.g. 'navigation,corner*'."),
-    out: Optional[Path] = typer.Option(None, help="Output folder (default runs/bench/CONFIG, "
-                                       "with --quick runs/bench/CONFIG-quick); rerun with the "
-                                       "same folder to resume."),
-    workers: int = typer.Option(0, help="Trials at once, each a server + planner pair "
-                                "(0: one per core)."),
-    trials: Optional[int] = typer.Option(None, min=1, help="Trials per case (overrides the file "
-                                         "and --quick)."),
-    timeout: Optional[float] = typer.Option(None, help="Wall-clock seconds per trial before "
-                                            "both processes are killed (default: the file's)."),
+    config: str = typer.Argument(
+        "paper", help="Bench file: a name (m3p2i list bench) or a YAML path."
+    ),
+    quick: bool = typer.Option(
+        False, "--quick", help="A few trials per case (the file's quick_trials)."
+    ),
+    cases: str | None = typer.Option(
+        None, help="Comma-separated case names or patterns, e.g. 'navigation,corner*'."
+    ),
+    out: Path | None = typer.Option(
+        None,
+        help="Output folder (default runs/bench/CONFIG, "
+        "with --quick runs/bench/CONFIG-quick); rerun with the "
+        "same folder to resume.",
+    ),
+    workers: int = typer.Option(
+        0, help="Trials at once, each a server + planner pair (0: one per core)."
+    ),
+    trials: int | None = typer.Option(
+        None, min=1, help="Trials per case (overrides the file and --quick)."
+    ),
+    timeout: float | None = typer.Option(
+        None,
+        help="Wall-clock seconds per trial before both processes are killed (default: the file's).",
+    ),
     seed: int = typer.Option(0, help="Seed of trial 0; trial i uses seed + i."),
-    fresh: bool = typer.Option(False, "--fresh", help="Start a new server + planner pair for "
-                               "every trial. By default each worker keeps its pair across a "
-                               "case's trials and begins each with a seeded reset: the same "
-                               "results, without ~2.5-5 s of start-up per trial."),
-    set_: Optional[list[str]] = typer.Option(None, "--set", help="Sweep a scenario key over "
-                                             "values: KEY=V1,V2,... (repeatable; the product "
-                                             "runs), e.g. --set planner.samples=50,100,200. "
-                                             "Adds to or replaces the file's sweep: section."),
-    ray: bool = typer.Option(False, "--ray", help="Run the trials as Ray tasks on a local Ray "
-                             "instance of --workers CPUs (needs Ray: the 'cluster' extra of m3p2i)."),
-    ray_address: Optional[str] = typer.Option(None, help="Run the trials on the Ray cluster at "
-                                              "this address (e.g. ray://head:10001 or auto); "
-                                              "every node needs m3p2i installed."),
-    cpus_per_trial: int = typer.Option(1, min=1, help="With Ray: CPUs each trial declares, and "
-                                       "the planner's rollout threads."),
+    fresh: bool = typer.Option(
+        False,
+        "--fresh",
+        help="Start a new server + planner pair for "
+        "every trial. By default each worker keeps its pair across a "
+        "case's trials and begins each with a seeded reset: the same "
+        "results, without ~2.5-5 s of start-up per trial.",
+    ),
+    set_: list[str] | None = typer.Option(
+        None,
+        "--set",
+        help="Sweep a scenario key over "
+        "values: KEY=V1,V2,... (repeatable; the product "
+        "runs), e.g. --set planner.samples=50,100,200. "
+        "Adds to or replaces the file's sweep: section.",
+    ),
+    ray: bool = typer.Option(
+        False,
+        "--ray",
+        help="Run the trials as Ray tasks on a local Ray "
+        "instance of --workers CPUs (needs Ray: the 'cluster' extra of m3p2i).",
+    ),
+    ray_address: str | None = typer.Option(
+        None,
+        help="Run the trials on the Ray cluster at "
+        "this address (e.g. ray://head:10001 or auto); "
+        "every node needs m3p2i installed.",
+    ),
+    cpus_per_trial: int = typer.Option(
+        1, min=1, help="With Ray: CPUs each trial declares, and the planner's rollout threads."
+    ),
 ) -> None:
     """Run seeded trials of every case (Tables I-III), resumable; print and write the summary.
 
@@ -249,16 +339,23 @@ def bench(
     from shared.tools import bench as B
     from shared.tools import bench_report as R
     from shared.tools import sweep as S
+
     # piped or logged output gets the whole table instead of 80 columns of wrapped cells
     console = Console(width=None if sys.stdout.isatty() else 200)
     try:
         cfg = B.load_bench(config)
         # --quick has its own folder: its trials are seeds 0-1 of the full run's, but its
         # summary must not replace the full run's summary.md
-        out_dir = out or Path("runs") / "bench" / (Path(cfg.source).stem + ("-quick" if quick else ""))
+        out_dir = out or Path("runs") / "bench" / (
+            Path(cfg.source).stem + ("-quick" if quick else "")
+        )
         swept = cfg.sweep.merged(S.parse_set(set_)) if set_ else cfg.sweep
-        ready, skipped = B.select_cases(cfg, [c.strip() for c in cases.split(",")] if cases else None,
-                                        swept, out_dir / "scenarios")
+        ready, skipped = B.select_cases(
+            cfg,
+            [c.strip() for c in cases.split(",")] if cases else None,
+            swept,
+            out_dir / "scenarios",
+        )
         paper = R.load_paper()
     except ConfigError as exc:
         typer.echo(f"error: {exc}", err=True)
@@ -272,22 +369,35 @@ def bench(
             for message in problems:
                 typer.echo(f"error: {message}", err=True)
             raise typer.Exit(2)
-    opts = B.BenchOptions(out_dir=out_dir, workers=workers or os.cpu_count() or 1,
-                          timeout=timeout or cfg.timeout, trials=trials, quick=quick, seed=seed,
-                          fresh=fresh)
+    opts = B.BenchOptions(
+        out_dir=out_dir,
+        workers=workers or os.cpu_count() or 1,
+        timeout=timeout or cfg.timeout,
+        trials=trials,
+        quick=quick,
+        seed=seed,
+        fresh=fresh,
+    )
     results = B.ResultsFile(out_dir / "results.csv")
     done = {B.trial_key(r["case"], r["seed"], r["scenario_hash"]) for r in results.rows()}
     planned, todo = B.plan_trials(ready, cfg, opts, done)
     for s in skipped:
         console.print(f"[yellow]skipped[/] {s.case.case}: {s.reason}")
     variants = len(swept.variants())
-    shape = f"{len(ready) // variants} cases × {variants} variants" if swept.keys else f"{len(ready)} cases"
-    console.print(f"{len(planned)} trials in {shape}, {len(planned) - len(todo)} already "
-                  f"in {results.path}, {len(todo)} to run on {opts.workers} workers "
-                  f"(time-out {opts.timeout:.0f} s each)")
+    shape = (
+        f"{len(ready) // variants} cases × {variants} variants"
+        if swept.keys
+        else f"{len(ready)} cases"
+    )
+    console.print(
+        f"{len(planned)} trials in {shape}, {len(planned) - len(todo)} already "
+        f"in {results.path}, {len(todo)} to run on {opts.workers} workers "
+        f"(time-out {opts.timeout:.0f} s each)"
+    )
     cluster = None
     if ray or ray_address:
         from shared.tools import bench_ray
+
         try:
             cluster = bench_ray.connect(ray_address, opts.workers)
         except bench_ray.RayUnavailable as exc:
@@ -299,8 +409,13 @@ def bench(
 
         def done(row: dict) -> None:
             label = f" ({S.label(S.from_cell(row['overrides']))})" if row.get("overrides") else ""
-            bar.update(task, advance=1, description=f"{row['case']}{label} seed {row['seed']}: "
-                                                    f"{row['reason'] or row['status']}")
+            bar.update(
+                task,
+                advance=1,
+                description=f"{row['case']}{label} seed {row['seed']}: "
+                f"{row['reason'] or row['status']}",
+            )
+
         if cluster is not None:
             finished = bench_ray.run_trials(todo, opts, results, cluster, cpus_per_trial, done)
         else:
@@ -309,13 +424,16 @@ def bench(
     rows = B.latest_rows(results.rows(), keys)
     # a sweep's variants are rows of their own: "push (samples=50)"
     labelled = [{**r, "case": S.variant_case(r)} for r in rows]
-    order = [S.variant_case({"case": rc.case.case, "overrides": S.to_cell(rc.overrides)})
-             for rc in ready]
+    order = [
+        S.variant_case({"case": rc.case.case, "overrides": S.to_cell(rc.overrides)}) for rc in ready
+    ]
     table = R.table_rows(R.summarize(labelled, order), paper)
     title = f"m3p2i bench {Path(cfg.source).stem}{' --quick' if quick else ''}"
     console.print(R.rich_table(table, title))
-    header = (f"# {title}\n\n{time.strftime('%Y-%m-%d %H:%M')}, {os.cpu_count()} cores; "
-              f"results: `{results.path}`")
+    header = (
+        f"# {title}\n\n{time.strftime('%Y-%m-%d %H:%M')}, {os.cpu_count()} cores; "
+        f"results: `{results.path}`"
+    )
     out_dir.mkdir(parents=True, exist_ok=True)
     text = R.markdown_report(table, [(s.case.case, s.reason) for s in skipped], header)
     if swept.keys:
@@ -325,7 +443,9 @@ def bench(
             for path in S.plot_sweep(rows, out_dir):
                 console.print(f"plot: {path}")
         except ImportError:
-            console.print("[yellow]no sweep plot[/]: it needs matplotlib: pip install 'm3p2i[plots]'")
+            console.print(
+                "[yellow]no sweep plot[/]: it needs matplotlib: pip install 'm3p2i[plots]'"
+            )
     (out_dir / "summary.md").write_text(text)
     console.print(f"summary: {out_dir / 'summary.md'}")
     if not finished:
@@ -335,21 +455,35 @@ def bench(
 
 @app.command("report")
 def report(
-    results: Optional[list[Path]] = typer.Argument(None, help="results.csv files or bench "
-                                                   "output folders to tabulate together."),
-    update: Optional[list[Path]] = typer.Option(None, "--update", help="Markdown file whose "
-                                                "`<!-- m3p2i report PATH... -->` blocks are "
-                                                "regenerated in place (repeatable)."),
-    check: bool = typer.Option(False, "--check", help="With --update: change nothing; exit 1 "
-                               "when a block differs from what its results give."),
-    plots: Optional[Path] = typer.Option(None, "--plots", help="Folder for the sweep plots of "
-                                         "RESULTS (sweep-KEY.png: success and time against "
-                                         "each swept key's value, one line per case)."),
+    results: list[Path] | None = typer.Argument(
+        None, help="results.csv files or bench output folders to tabulate together."
+    ),
+    update: list[Path] | None = typer.Option(
+        None,
+        "--update",
+        help="Markdown file whose "
+        "`<!-- m3p2i report PATH... -->` blocks are "
+        "regenerated in place (repeatable).",
+    ),
+    check: bool = typer.Option(
+        False,
+        "--check",
+        help="With --update: change nothing; exit 1 "
+        "when a block differs from what its results give.",
+    ),
+    plots: Path | None = typer.Option(
+        None,
+        "--plots",
+        help="Folder for the sweep plots of "
+        "RESULTS (sweep-KEY.png: success and time against "
+        "each swept key's value, one line per case).",
+    ),
 ) -> None:
     """Tables from bench results: success with its 95 % Wilson interval, the paper's metrics,
     the machine and date of the trials, every failure with its note (failures.yaml beside
     results.csv). README and docs tables are made this way, never by hand."""
     from shared.tools import bench_report as R
+
     if not results and not update:
         typer.echo("error: give results files to tabulate, or --update FILE", err=True)
         raise typer.Exit(2)
@@ -360,6 +494,7 @@ def report(
             typer.echo(R.results_report(read, paper), nl=False)
             if plots is not None:
                 from shared.tools.sweep import plot_sweep
+
                 for path in plot_sweep([r for res in read for r in res.rows], plots):
                     typer.echo(f"wrote {path}")
         stale = []
@@ -381,14 +516,18 @@ def report(
 
 @app.command("plot")
 def plot(
-    log: Path = typer.Argument(..., help="Episode log (episode.jsonl) or the run folder holding it."),
+    log: Path = typer.Argument(
+        ..., help="Episode log (episode.jsonl) or the run folder holding it."
+    ),
     out: Path = typer.Option(Path("."), help="Folder for episode.png."),
-    scenario: Optional[str] = typer.Option(None, help="Scenario to replay the log into (default: "
-                                           "the file named in the log's header)."),
+    scenario: str | None = typer.Option(
+        None, help="Scenario to replay the log into (default: the file named in the log's header)."
+    ),
 ) -> None:
     """Plot one episode like thesis Figs. A.3-A.5: trajectories, distances, robot-object-goal angle."""
     from shared.evaluation import episode
     from shared.tools.plots import episode_series, plot_episode
+
     try:
         path = episode.find_log(log)
         records = episode.read_log(path)
@@ -408,11 +547,13 @@ def plot(
 
 @app.command("record")
 def record(
-    scenario: Optional[str] = typer.Argument(None, help="Scenario to run and record (name or "
-                                             "path); leave out with --log."),
+    scenario: str | None = typer.Argument(
+        None, help="Scenario to run and record (name or path); leave out with --log."
+    ),
     out: Path = typer.Option(..., help="Video file: .gif (Pillow) or .mp4 (needs ffmpeg)."),
-    log: Optional[Path] = typer.Option(None, help="Render this episode log (or run folder) "
-                                       "instead of running an episode."),
+    log: Path | None = typer.Option(
+        None, help="Render this episode log (or run folder) instead of running an episode."
+    ),
     seed: Seed = 0,
     run_dir: RunDir = None,
     timeout: Timeout = 900.0,
@@ -425,11 +566,14 @@ def record(
     """Record an episode offscreen (EGL or OSMesa) to GIF/MP4, with the planner's best sampled
     trajectories drawn in green."""
     from shared.tools import video
+
     if (scenario is None) == (log is None):
-        typer.echo("error: give a SCENARIO to run, or --log to render an existing episode", err=True)
+        typer.echo(
+            "error: give a SCENARIO to run, or --log to render an existing episode", err=True
+        )
         raise typer.Exit(2)
     try:
-        backend = video.gl_backend()      # before the episode: no point running one we cannot draw
+        backend = video.gl_backend()  # before the episode: no point running one we cannot draw
     except video.NoGLError as exc:
         typer.echo(f"error: {exc}", err=True)
         raise typer.Exit(3) from None
@@ -439,11 +583,20 @@ def record(
         run_dir = run_dir or default_run_dir(sc.name)
         run_dir.mkdir(parents=True, exist_ok=True)
         port = free_port_block()
-        recorder = video.DiagnosticsRecorder(port, run_dir / video.DIAGNOSTICS_FILE,
-                                             keys=planner_keys)
+        recorder = video.DiagnosticsRecorder(
+            port, run_dir / video.DIAGNOSTICS_FILE, keys=planner_keys
+        )
         try:
-            result = run_episode(EpisodeLaunch(scenario=sc.source, run_dir=run_dir, seed=seed,
-                                               port=port, timeout=timeout, keys=keys))
+            result = run_episode(
+                EpisodeLaunch(
+                    scenario=sc.source,
+                    run_dir=run_dir,
+                    seed=seed,
+                    port=port,
+                    timeout=timeout,
+                    keys=keys,
+                )
+            )
         finally:
             recorder.close()
         status = result.summary["status"] if result.summary else result.reason or "no summary"
@@ -459,30 +612,49 @@ def record(
 
 @app.command("view")
 def view(
-    scenario: Optional[str] = typer.Argument(None, help="Scenario the world runs (name or path), "
-                                             "for a live view; leave out with --log."),
-    log: Optional[Path] = typer.Option(None, help="Replay this episode log (or run folder) "
-                                       "instead: a time slider, the actions, the metrics."),
+    scenario: str | None = typer.Argument(
+        None, help="Scenario the world runs (name or path), for a live view; leave out with --log."
+    ),
+    log: Path | None = typer.Option(
+        None,
+        help="Replay this episode log (or run folder) "
+        "instead: a time slider, the actions, the metrics.",
+    ),
     host: Host = DEFAULT_HOST,
     port: Port = DEFAULT_PORT,
     view_port: int = typer.Option(8080, help="Port of the page (the next free one if taken)."),
-    public: bool = typer.Option(False, "--public", help="Serve the page on every network "
-                                "interface, not only loopback, to watch only: its pause, reset "
-                                "and move controls are off (see --public-controls)."),
-    public_controls: bool = typer.Option(False, "--public-controls", help="With --public: keep "
-                                         "the controls, so that anyone who reaches the page can "
-                                         "pause, reset and disturb the world (with the "
-                                         "planner's keys): only on a network you trust."),
-    record: Optional[Path] = typer.Option(None, help="Live: also write the planner's diagnostics "
-                                          "(trajectories, mode weights) to this file, for a replay "
-                                          "(as diagnostics.jsonl beside the episode log)."),
-    duration: Optional[float] = typer.Option(None, help="Stop after this many seconds "
-                                             "(default: until Ctrl-C)."),
+    public: bool = typer.Option(
+        False,
+        "--public",
+        help="Serve the page on every network "
+        "interface, not only loopback, to watch only: its pause, reset "
+        "and move controls are off (see --public-controls).",
+    ),
+    public_controls: bool = typer.Option(
+        False,
+        "--public-controls",
+        help="With --public: keep "
+        "the controls, so that anyone who reaches the page can "
+        "pause, reset and disturb the world (with the "
+        "planner's keys): only on a network you trust.",
+    ),
+    record: Path | None = typer.Option(
+        None,
+        help="Live: also write the planner's diagnostics "
+        "(trajectories, mode weights) to this file, for a replay "
+        "(as diagnostics.jsonl beside the episode log).",
+    ),
+    duration: float | None = typer.Option(
+        None, help="Stop after this many seconds (default: until Ctrl-C)."
+    ),
     keys: Keys = None,
-    replay_after: Optional[Path] = typer.Option(None, help="Live: on SIGUSR1 (what `m3p2i run "
-                                                "--view` sends once its episode is over) the "
-                                                "same page replays this episode log or run "
-                                                "folder, until Ctrl-C."),
+    replay_after: Path | None = typer.Option(
+        None,
+        help="Live: on SIGUSR1 (what `m3p2i run "
+        "--view` sends once its episode is over) the "
+        "same page replays this episode log or run "
+        "folder, until Ctrl-C.",
+    ),
 ) -> None:
     """Show a world and its planner in a browser: the scene from the scenario's model, the
     planner's best sampled trajectories coloured by mode, the executed path, the action and its
@@ -493,11 +665,14 @@ def view(
     `m3p2i run pick_place --view`). Replay: `m3p2i view --log runs/pick_place-.../`."""
     from shared.endpoints import Endpoints
     from shared.tools import view as V
+
     if (scenario is None) == (log is None):
-        typer.echo("error: give a SCENARIO for a live view, or --log to replay an episode", err=True)
+        typer.echo(
+            "error: give a SCENARIO for a live view, or --log to replay an episode", err=True
+        )
         raise typer.Exit(2)
     bind = "0.0.0.0" if public else "127.0.0.1"
-    over = threading.Event()       # the episode is over: --replay-after takes the page over
+    over = threading.Event()  # the episode is over: --replay-after takes the page over
     if replay_after is not None and log is None:
         signal.signal(signal.SIGUSR1, lambda *_: over.set())
     try:
@@ -509,14 +684,20 @@ def view(
                 raise typer.Exit(2) from None
         else:
             sc = _load_or_exit(scenario)
-            shown = V.LiveView(sc, Endpoints(host, port), bind, view_port, record=record,
-                               keys=_keys_or_exit(keys, world=False),
-                               controls=not public or public_controls)
+            shown = V.LiveView(
+                sc,
+                Endpoints(host, port),
+                bind,
+                view_port,
+                record=record,
+                keys=_keys_or_exit(keys, world=False),
+                controls=not public or public_controls,
+            )
     except ImportError as exc:
         typer.echo(f"error: {exc}", err=True)
         raise typer.Exit(2) from None
     if log is None and replay_after is not None:
-        shown.stop = over          # the live view serves until the episode is over
+        shown.stop = over  # the live view serves until the episode is over
     typer.echo(f"view: {shown.url}")
     sys.stdout.flush()
     try:
@@ -524,8 +705,9 @@ def view(
         if over.is_set():
             shown.close(keep_server=True)
             try:
-                shown = V.ReplayView(V.load_replay(replay_after), bind, view_port,
-                                     server=shown.server)
+                shown = V.ReplayView(
+                    V.load_replay(replay_after), bind, view_port, server=shown.server
+                )
             except (ConfigError, FileNotFoundError, ValueError) as exc:
                 typer.echo(f"error: no replay of {replay_after}: {exc}", err=True)
                 raise typer.Exit(1) from None
@@ -542,6 +724,7 @@ def _faults_or_exit(spec: str) -> str:
     """``--faults`` checked before either process starts; what the server is passed (a
     profile's name, or the file's absolute path: the server may run elsewhere than here)."""
     from shared.faults import PROFILES, load_faults
+
     try:
         load_faults(spec)
     except ConfigError as exc:
@@ -554,16 +737,19 @@ def _declared_delays_or_exit(sc, faults: str | None) -> tuple[float, float]:
     """``--compensate``: the (actuation, state) delays in ms of ``--faults``, else of the
     scenario's faults: section, for the planner to declare; exit 2 when there are none."""
     from shared.faults import load_faults
+
     delays = (load_faults(faults) if faults else sc.faults).delays
     if delays is None:
-        typer.echo("error: --compensate: no delay to compensate (give --faults PROFILE, or a "
-                   "scenario whose faults: section sets actuation_delay_ms or state_delay_ms)",
-                   err=True)
+        typer.echo(
+            "error: --compensate: no delay to compensate (give --faults PROFILE, or a "
+            "scenario whose faults: section sets actuation_delay_ms or state_delay_ms)",
+            err=True,
+        )
         raise typer.Exit(2)
     return delays
 
 
-def _keys_or_exit(keys: Optional[Path], world: bool = True):
+def _keys_or_exit(keys: Path | None, world: bool = True):
     """Both sides' keys checked before either process starts (a bad key folder is one clear
     error here, not two processes failing); the planner's (tools use its pair), or None.
     ``world=False``: a tool that starts no world (m3p2i view), which may run on a planner
@@ -571,6 +757,7 @@ def _keys_or_exit(keys: Optional[Path], world: bool = True):
     if keys is None:
         return None
     from shared.security import load_planner_keys, load_world_keys
+
     try:
         if world:
             load_world_keys(keys)
@@ -582,8 +769,10 @@ def _keys_or_exit(keys: Optional[Path], world: bool = True):
 
 @app.command("keys")
 def keys_command(
-    folder: Path = typer.Argument(..., help="Folder to create the keys in (made if missing; "
-                                  "existing keys are never replaced)."),
+    folder: Path = typer.Argument(
+        ...,
+        help="Folder to create the keys in (made if missing; existing keys are never replaced).",
+    ),
 ) -> None:
     """Make CURVE key pairs for the world and the planner, to run them on two machines with
     every socket authenticated and encrypted (ZeroMQ CURVE).
@@ -597,6 +786,7 @@ def keys_command(
     FOLDER/world/planners/ (under a name of its own) and FOLDER/world/world.key over
     OTHER/planner/world.key; the world reads its allow list when it starts."""
     from shared.security import make_keys
+
     try:
         written = make_keys(folder)
     except ConfigError as exc:
@@ -604,8 +794,10 @@ def keys_command(
         raise typer.Exit(2) from None
     for path in written:
         typer.echo(f"wrote {path} ({oct(path.stat().st_mode & 0o777)[2:]})")
-    typer.echo(f"world machine: {folder / 'world'} (keep world.key_secret there only); "
-               f"planner machine: {folder / 'planner'}")
+    typer.echo(
+        f"world machine: {folder / 'world'} (keep world.key_secret there only); "
+        f"planner machine: {folder / 'planner'}"
+    )
 
 
 @app.command("list")
@@ -626,7 +818,7 @@ def list_files(
             shadowed.setdefault(e.shadowed_by, e)
     for folder in search_folders(kind):
         if not folder.path.is_dir():
-            if folder.origin == ENV_VAR:      # the user named it: a typo must not go unnoticed
+            if folder.origin == ENV_VAR:  # the user named it: a typo must not go unnoticed
                 typer.echo(f"{folder}: not a folder")
             continue
         typer.echo(f"{folder}:")
@@ -636,8 +828,11 @@ def list_files(
                 note = f"[not used: {shown(e.shadowed_by)} comes first] "
             elif e.path in shadowed:
                 other = shadowed[e.path]
-                note = (f"[shadows the shipped {e.name}] " if other.folder.origin == "shipped"
-                        else f"[shadows {shown(other.path)}] ")
+                note = (
+                    f"[shadows the shipped {e.name}] "
+                    if other.folder.origin == "shipped"
+                    else f"[shadows {shown(other.path)}] "
+                )
             typer.echo(f"  {e.name:24s} {note}{_description(e, kind)}".rstrip())
 
 
@@ -654,8 +849,9 @@ def _description(entry: Entry, kind: str) -> str:
 @app.command("new")
 def new(
     name: str = typer.Argument(..., help="Name of the new scenario: the file NAME.yaml."),
-    source: str = typer.Option(..., "--from", help="Scenario to copy: a name (m3p2i list) or "
-                               "a YAML path."),
+    source: str = typer.Option(
+        ..., "--from", help="Scenario to copy: a name (m3p2i list) or a YAML path."
+    ),
 ) -> None:
     """Write a copy of scenario SOURCE, named NAME, into your scenario folder (the first of
     M3P2I_SCENARIOS, else ./configs/scenarios) to start from; never overwrites a file."""
@@ -667,12 +863,14 @@ def new(
     typer.echo(f"wrote {shown(made.path)}, a copy of {shown(made.source)}")
     for e in entries("scenarios"):
         if e.shadowed_by == made.path:
-            typer.echo(f"it shadows {shown(e.path)}"
-                       + (" (shipped)" if e.folder.origin == "shipped" else ""))
+            typer.echo(
+                f"it shadows {shown(e.path)}"
+                + (" (shipped)" if e.folder.origin == "shipped" else "")
+            )
     typer.echo(f"edit it, then: m3p2i run {name}")
 
 
-flow_help(app)   # the docstrings above as paragraphs that rich rewraps to the terminal
+flow_help(app)  # the docstrings above as paragraphs that rich rewraps to the terminal
 
 if __name__ == "__main__":
     app()

@@ -41,18 +41,25 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
+from planner_client.build import build_controller as _build_controller
+from planner_client.controller import Controller, LoopStats
+from server.episode import Episode
+from server.interface import Outcome, World
+from server.world import SimWorld
 from shared import protocol as P
 from shared.evaluation.episode import read_log, summary
 from shared.faults import FaultConfig, load_faults
 from shared.scenario import Scenario, load_scenario
-from server.episode import Episode
-from server.interface import Outcome, World
-from server.world import SimWorld
-from planner_client.build import build_controller as _build_controller
-from planner_client.controller import Controller, LoopStats
 
-__all__ = ["EpisodeResult", "build_controller", "build_episode", "drive", "run_episode",
-           "Controller", "Episode"]
+__all__ = [
+    "Controller",
+    "Episode",
+    "EpisodeResult",
+    "build_controller",
+    "build_episode",
+    "drive",
+    "run_episode",
+]
 
 OnStep = Callable[[P.State, P.Command], None]
 """Called with each state and the command answering it, once the world has played it."""
@@ -62,6 +69,7 @@ OnStep = Callable[[P.State, P.Command], None]
 class EpisodeResult:
     """How an in-process episode ended: the world's outcome (measures with ``planner_hz``),
     the log's summary record, where the log is, and what the controller did."""
+
     outcome: Outcome
     summary: dict
     log_path: Path
@@ -81,8 +89,13 @@ def _scenario(scenario: str | Path | Scenario) -> Scenario:
     return scenario if isinstance(scenario, Scenario) else load_scenario(scenario)
 
 
-def build_controller(scenario: str | Path | Scenario, seed: int | None = 0, threads: int = 0,
-                     backend: str | None = None, device: str | None = None) -> Controller:
+def build_controller(
+    scenario: str | Path | Scenario,
+    seed: int | None = 0,
+    threads: int = 0,
+    backend: str | None = None,
+    device: str | None = None,
+) -> Controller:
     """The planner of ``scenario`` (a name, a YAML path or a loaded scenario) as
     ``m3p2i-planner --seed seed`` builds it, without sockets: sampling with ``seed`` (None:
     the scenario's ``planner.mppi.seed``); ``threads``, ``backend`` and ``device`` as the
@@ -90,10 +103,13 @@ def build_controller(scenario: str | Path | Scenario, seed: int | None = 0, thre
     return _build_controller(_scenario(scenario), threads, seed, backend, device)
 
 
-def build_episode(scenario: str | Path | Scenario, seed: int = 0,
-                  log_path: str | Path | None = None,
-                  faults: FaultConfig | str | None = None,
-                  world: type[World] = SimWorld) -> Episode:
+def build_episode(
+    scenario: str | Path | Scenario,
+    seed: int = 0,
+    log_path: str | Path | None = None,
+    faults: FaultConfig | str | None = None,
+    world: type[World] = SimWorld,
+) -> Episode:
     """The world of ``scenario`` from ``seed``'s start as ``m3p2i-server --seed seed`` builds
     it in lock-step, logging to ``log_path`` (default: ``episode.jsonl`` in a new temporary
     folder). ``faults``: a profile name, a file or a config of the faults the world shows
@@ -113,8 +129,13 @@ def _published(episode: Episode) -> P.State:
     return state if state is not None else episode.publish()
 
 
-def drive(episode: Episode, controller: Controller, plan_every: int = 1,
-          max_steps: int | None = None, on_step: OnStep | None = None) -> Outcome:
+def drive(
+    episode: Episode,
+    controller: Controller,
+    plan_every: int = 1,
+    max_steps: int | None = None,
+    on_step: OnStep | None = None,
+) -> Outcome:
     """Lock-step: ``controller`` answers each state of ``episode`` and the world plays each
     command for ``plan_every`` steps, until the episode ends (or ``max_steps`` world steps:
     then it is ``stopped``). The episode is always finished (its summary written, the robot
@@ -126,8 +147,9 @@ def drive(episode: Episode, controller: Controller, plan_every: int = 1,
         while not controller.over(state):
             command = controller.step(state)
             if command is None:
-                raise ValueError(f"state {state.seq} does not fit the planner's model "
-                                 f"(logged above)")
+                raise ValueError(
+                    f"state {state.seq} does not fit the planner's model (logged above)"
+                )
             episode.play(command, plan_every)
             if on_step is not None:
                 on_step(state, command)
@@ -139,10 +161,16 @@ def drive(episode: Episode, controller: Controller, plan_every: int = 1,
     return outcome
 
 
-def run_episode(scenario: str | Path | Scenario, seed: int = 0,
-                log_path: str | Path | None = None, plan_every: int = 1,
-                faults: FaultConfig | str | None = None, max_steps: int | None = None,
-                on_step: OnStep | None = None, threads: int = 0) -> EpisodeResult:
+def run_episode(
+    scenario: str | Path | Scenario,
+    seed: int = 0,
+    log_path: str | Path | None = None,
+    plan_every: int = 1,
+    faults: FaultConfig | str | None = None,
+    max_steps: int | None = None,
+    on_step: OnStep | None = None,
+    threads: int = 0,
+) -> EpisodeResult:
     """One lock-step episode of ``scenario`` in this process: the same steps, log and summary
     as ``m3p2i run SCENARIO --seed seed --plan-every plan_every [--faults ...]`` (world
     and planner seeded with ``seed``). ``max_steps`` stops the episode after that many world
@@ -157,5 +185,6 @@ def run_episode(scenario: str | Path | Scenario, seed: int = 0,
             episode.close()
     finally:
         controller.close()
-    return EpisodeResult(outcome, summary(read_log(episode.log.path)) or {}, episode.log.path,
-                         controller.stats)
+    return EpisodeResult(
+        outcome, summary(read_log(episode.log.path)) or {}, episode.log.path, controller.stats
+    )

@@ -6,11 +6,11 @@ The two sides still meet only over the wire; this module only starts and stops t
 
 from __future__ import annotations
 
+import random
 import signal
 import socket as pysocket
 import subprocess
 import sys
-import random
 import threading
 import time
 import urllib.error
@@ -19,15 +19,15 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
-from shared.evaluation import episode
 from shared.endpoints import DEFAULT_HOST
+from shared.evaluation import episode
 
 # Ports this process already handed out: parallel bench trials pick their blocks at the same
 # moment, before any server has bound them, so "free right now" alone could give two trials
 # overlapping blocks.
 _handed_out: set[int] = set()
 _ports_lock = threading.Lock()
-_random = random.Random()     # its own: tests and planners seed the global one
+_random = random.Random()  # its own: tests and planners seed the global one
 
 
 def free_port_block(host: str = DEFAULT_HOST, count: int = 4) -> int:
@@ -80,8 +80,9 @@ def read_summary(log_path: Path) -> dict | None:
 MODES = ("lockstep", "realtime")
 
 
-def mode_conflicts(mode: str, plan_every: int = 1, max_rate: float = 0.0,
-                   realtime_factor: float = 1.0) -> list[tuple[str, str, object, str]]:
+def mode_conflicts(
+    mode: str, plan_every: int = 1, max_rate: float = 0.0, realtime_factor: float = 1.0
+) -> list[tuple[str, str, object, str]]:
     """The options that mean nothing in ``mode``, each as ``(key, why, value, expected)`` (the
     bench names the key, ``m3p2i run`` its flag): a combination that would be silently ignored
     is refused instead."""
@@ -89,14 +90,32 @@ def mode_conflicts(mode: str, plan_every: int = 1, max_rate: float = 0.0,
         return [("mode", "unknown mode", mode, " or ".join(MODES))]
     out: list[tuple[str, str, object, str]] = []
     if max_rate and mode != "realtime":
-        out.append(("max_rate", "only a real-time world lets a planner fall behind", max_rate,
-                    "mode: realtime (lock-step: plan_every)"))
+        out.append(
+            (
+                "max_rate",
+                "only a real-time world lets a planner fall behind",
+                max_rate,
+                "mode: realtime (lock-step: plan_every)",
+            )
+        )
     if realtime_factor != 1.0 and mode != "realtime":
-        out.append(("realtime_factor", "only a real-time world has a wall clock to follow",
-                    realtime_factor, "mode: realtime"))
+        out.append(
+            (
+                "realtime_factor",
+                "only a real-time world has a wall clock to follow",
+                realtime_factor,
+                "mode: realtime",
+            )
+        )
     if plan_every > 1 and mode != "lockstep":
-        out.append(("plan_every", "only a lock-step world plays a plan for a set number of "
-                    "steps", plan_every, "1 with mode: realtime"))
+        out.append(
+            (
+                "plan_every",
+                "only a lock-step world plays a plan for a set number of steps",
+                plan_every,
+                "1 with mode: realtime",
+            )
+        )
     return out
 
 
@@ -104,6 +123,7 @@ def mode_conflicts(mode: str, plan_every: int = 1, max_rate: float = 0.0,
 class EpisodeRun:
     """How a launched episode ended. ``reason`` is empty when the world ended it by itself;
     otherwise ``timeout`` (wall clock), ``planner exited with code N`` or ``interrupted``."""
+
     log_path: Path
     summary: dict | None
     reason: str
@@ -113,34 +133,43 @@ class EpisodeRun:
 @dataclass(frozen=True)
 class EpisodeLaunch:
     """What to start: the scenario file, where logs go, and the two processes' options."""
-    scenario: str                   # a YAML path (both processes load the same file)
+
+    scenario: str  # a YAML path (both processes load the same file)
     run_dir: Path
-    seed: int = 0                   # server: randomised start; planner: sampling
+    seed: int = 0  # server: randomised start; planner: sampling
     mode: str = "lockstep"
-    port: int = 0                   # 0: a free block
-    timeout: float = 900.0          # wall-clock seconds before both processes are stopped
-    threads: int = 0                # planner rollout threads (0: the scenario's / one per core)
-    plan_every: int = 1             # lockstep: world steps per command (emulates a slow planner)
-    faults: str = ""                # server only: a fault profile or file (docs/faults.md)
-    delays: tuple[float, float] | None = None   # planner only: declared (actuation, state) ms
-    estimate_delays: bool = False   # planner only: measure the delays online
-    max_rate: float = 0.0           # planner only: at most this many plans per second (0: no cap)
-    realtime_factor: float = 1.0    # server, realtime: world seconds per wall second
-    window: bool = False            # server: MuJoCo's own viewer window (a display needed)
-    verbose: bool = False           # children write to this terminal instead of log files
-    view: bool = False              # serve the browser view (m3p2i view) beside the episode
-    view_port: int = 0              # its page's port (0: a free one)
-    view_keep: bool = False         # after the episode, the view replays it until interrupted
-    keys: Path | None = None        # CURVE key folder (m3p2i keys): both processes use it
-    keep_serving: bool = False      # a warm pair (shared.tools.warm): episodes until shut down,
-    log: str = ""                   # each logged to this template ('{seed}' in it)
+    port: int = 0  # 0: a free block
+    timeout: float = 900.0  # wall-clock seconds before both processes are stopped
+    threads: int = 0  # planner rollout threads (0: the scenario's / one per core)
+    plan_every: int = 1  # lockstep: world steps per command (emulates a slow planner)
+    faults: str = ""  # server only: a fault profile or file (docs/faults.md)
+    delays: tuple[float, float] | None = None  # planner only: declared (actuation, state) ms
+    estimate_delays: bool = False  # planner only: measure the delays online
+    max_rate: float = 0.0  # planner only: at most this many plans per second (0: no cap)
+    realtime_factor: float = 1.0  # server, realtime: world seconds per wall second
+    window: bool = False  # server: MuJoCo's own viewer window (a display needed)
+    verbose: bool = False  # children write to this terminal instead of log files
+    view: bool = False  # serve the browser view (m3p2i view) beside the episode
+    view_port: int = 0  # its page's port (0: a free one)
+    view_keep: bool = False  # after the episode, the view replays it until interrupted
+    keys: Path | None = None  # CURVE key folder (m3p2i keys): both processes use it
+    keep_serving: bool = False  # a warm pair (shared.tools.warm): episodes until shut down,
+    log: str = ""  # each logged to this template ('{seed}' in it)
 
     def commands(self, port: int) -> dict[str, list[str]]:
         common = ["--scenario", self.scenario, "--port", str(port), "--seed", str(self.seed)]
         if self.keys is not None:
             common += ["--keys", str(self.keys)]
-        server = [sys.executable, "-m", "server", *common, "--mode", self.mode,
-                  "--log", self.log or str(self.run_dir / "episode.jsonl")]
+        server = [
+            sys.executable,
+            "-m",
+            "server",
+            *common,
+            "--mode",
+            self.mode,
+            "--log",
+            self.log or str(self.run_dir / "episode.jsonl"),
+        ]
         if self.keep_serving:
             server.append("--keep-serving")
         if self.window:
@@ -149,7 +178,7 @@ class EpisodeLaunch:
             server += ["--plan-every", str(self.plan_every)]
         if self.realtime_factor != 1.0:
             server += ["--realtime-factor", repr(self.realtime_factor)]
-        if self.faults:              # the planner is not told: it keeps the nominal model
+        if self.faults:  # the planner is not told: it keeps the nominal model
             server += ["--faults", self.faults]
         planner = [sys.executable, "-m", "planner_client", *common]
         if self.keep_serving:
@@ -159,8 +188,12 @@ class EpisodeLaunch:
         if self.max_rate:
             planner += ["--max-rate", repr(self.max_rate)]
         if self.delays is not None:
-            planner += ["--actuation-delay-ms", repr(self.delays[0]),
-                        "--state-delay-ms", repr(self.delays[1])]
+            planner += [
+                "--actuation-delay-ms",
+                repr(self.delays[0]),
+                "--state-delay-ms",
+                repr(self.delays[1]),
+            ]
         if self.estimate_delays:
             planner.append("--estimate-delays")
         return {"server": server, "planner": planner}
@@ -168,16 +201,30 @@ class EpisodeLaunch:
     def view_command(self, port: int, view_port: int) -> list[str]:
         """The browser view of this episode: it also records the planner's diagnostics beside
         the episode log, so that ``m3p2i view --log`` replays the trajectories too."""
-        cmd = [sys.executable, "-m", "shared.tools", "view", self.scenario, "--port", str(port),
-               "--view-port", str(view_port), "--record", str(self.run_dir / "diagnostics.jsonl")]
-        if self.view_keep:      # on SIGUSR1, the same page replays the episode
+        cmd = [
+            sys.executable,
+            "-m",
+            "shared.tools",
+            "view",
+            self.scenario,
+            "--port",
+            str(port),
+            "--view-port",
+            str(view_port),
+            "--record",
+            str(self.run_dir / "diagnostics.jsonl"),
+        ]
+        if self.view_keep:  # on SIGUSR1, the same page replays the episode
             cmd += ["--replay-after", str(self.run_dir)]
         return cmd + (["--keys", str(self.keys)] if self.keys is not None else [])
 
 
-def run_episode(launch: EpisodeLaunch, stop: threading.Event | None = None,
-                on_view: Callable[[str], None] | None = None,
-                on_kept: Callable[[EpisodeRun, str], None] | None = None) -> EpisodeRun:
+def run_episode(
+    launch: EpisodeLaunch,
+    stop: threading.Event | None = None,
+    on_view: Callable[[str], None] | None = None,
+    on_kept: Callable[[EpisodeRun, str], None] | None = None,
+) -> EpisodeRun:
     """Run one episode to its end, its time-out, a planner crash, Ctrl-C or ``stop``; all
     processes are always gone on return (terminated, then killed after 5 s). With
     ``launch.view`` the browser view starts first (so it sees the episode from its first state)
@@ -197,8 +244,11 @@ def run_episode(launch: EpisodeLaunch, stop: threading.Event | None = None,
             view_port = launch.view_port or free_port_block(count=1)
             out = None if launch.verbose else (launch.run_dir / "view.log").open("w")
             outs["view"] = out
-            procs["view"] = subprocess.Popen(launch.view_command(port, view_port), stdout=out,
-                                             stderr=subprocess.STDOUT if out else None)
+            procs["view"] = subprocess.Popen(
+                launch.view_command(port, view_port),
+                stdout=out,
+                stderr=subprocess.STDOUT if out else None,
+            )
             url = f"http://{DEFAULT_HOST}:{view_port}/"
             wait_served(url, procs["view"], launch.run_dir / "view.log")
             if on_view is not None:
@@ -206,8 +256,9 @@ def run_episode(launch: EpisodeLaunch, stop: threading.Event | None = None,
         for name, cmd in launch.commands(port).items():
             out = None if launch.verbose else (launch.run_dir / f"{name}.log").open("w")
             outs[name] = out
-            procs[name] = subprocess.Popen(cmd, stdout=out,
-                                           stderr=subprocess.STDOUT if out else None)
+            procs[name] = subprocess.Popen(
+                cmd, stdout=out, stderr=subprocess.STDOUT if out else None
+            )
         while procs["server"].poll() is None:
             if time.monotonic() - started > launch.timeout:
                 reason = "timeout"
@@ -222,9 +273,13 @@ def run_episode(launch: EpisodeLaunch, stop: threading.Event | None = None,
             time.sleep(0.1)
         if launch.view and launch.view_keep and not reason and procs["view"].poll() is None:
             stop_processes([procs["server"], procs["planner"]])
-            kept = EpisodeRun(log_path=log_path, summary=read_summary(log_path), reason="",
-                              wall_time=time.monotonic() - started)
-            procs["view"].send_signal(signal.SIGUSR1)     # the page replays the episode
+            kept = EpisodeRun(
+                log_path=log_path,
+                summary=read_summary(log_path),
+                reason="",
+                wall_time=time.monotonic() - started,
+            )
+            procs["view"].send_signal(signal.SIGUSR1)  # the page replays the episode
             if on_kept is not None:
                 on_kept(kept, url)
             while procs["view"].poll() is None and not (stop is not None and stop.is_set()):
@@ -238,8 +293,12 @@ def run_episode(launch: EpisodeLaunch, stop: threading.Event | None = None,
                 out.close()
     if kept is not None:
         return kept
-    return EpisodeRun(log_path=log_path, summary=read_summary(log_path), reason=reason,
-                      wall_time=time.monotonic() - started)
+    return EpisodeRun(
+        log_path=log_path,
+        summary=read_summary(log_path),
+        reason=reason,
+        wall_time=time.monotonic() - started,
+    )
 
 
 def wait_served(url: str, proc: subprocess.Popen, log_file: Path, timeout: float = 120.0) -> None:
@@ -248,8 +307,10 @@ def wait_served(url: str, proc: subprocess.Popen, log_file: Path, timeout: float
     end = time.monotonic() + timeout
     while time.monotonic() < end:
         if proc.poll() is not None:
-            raise RuntimeError(f"the view exited with code {proc.returncode} before serving "
-                               f"its page; see {log_file}")
+            raise RuntimeError(
+                f"the view exited with code {proc.returncode} before serving "
+                f"its page; see {log_file}"
+            )
         try:
             with urllib.request.urlopen(url, timeout=2) as reply:
                 if reply.status == 200:

@@ -20,8 +20,16 @@ def _coordinates(title: str, rows: tuple[Coordinate, ...], ranges: bool) -> Tabl
     if ranges:
         table.add_column("range")
     for r in rows:
-        cells = [str(r.index), r.joint, r.joint_type, r.body, r.component, r.unit, r.frame,
-                 _vector(r.axis)]
+        cells = [
+            str(r.index),
+            r.joint,
+            r.joint_type,
+            r.body,
+            r.component,
+            r.unit,
+            r.frame,
+            _vector(r.axis),
+        ]
         table.add_row(*cells, *([_vector(r.range)] if ranges else []))
     return table
 
@@ -29,19 +37,26 @@ def _coordinates(title: str, rows: tuple[Coordinate, ...], ranges: bool) -> Tabl
 def print_layout(layout: BridgeLayout, console: Console) -> None:
     """Every index of the state a world sends and the command it accepts, as tables."""
     s = layout.sizes
-    console.print(f"[bold]{layout.scenario}[/]: robot {layout.robot}, world timestep "
-                  f"{layout.dt:g} s, scenario hash {layout.scenario_hash}")
-    console.print(f"state: qpos [{s.nq}], qvel [{s.nv}], act [{s.na}], mocap_pos "
-                  f"[{s.nmocap}, 3], mocap_quat [{s.nmocap}, 4]; command: ctrl [{layout.nu}] "
-                  f"(plan_ctrl [H, {layout.nu}])", highlight=False)
+    console.print(
+        f"[bold]{layout.scenario}[/]: robot {layout.robot}, world timestep "
+        f"{layout.dt:g} s, scenario hash {layout.scenario_hash}"
+    )
+    console.print(
+        f"state: qpos [{s.nq}], qvel [{s.nv}], act [{s.na}], mocap_pos "
+        f"[{s.nmocap}, 3], mocap_quat [{s.nmocap}, 4]; command: ctrl [{layout.nu}] "
+        f"(plan_ctrl [H, {layout.nu}])",
+        highlight=False,
+    )
     console.print(_coordinates(f"state.qpos [{s.nq}]: positions", layout.qpos, ranges=True))
     console.print(_coordinates(f"state.qvel [{s.nv}]: velocities", layout.qvel, ranges=False))
-    console.print("frame: world = the world frame (a free joint: its body frame's origin and "
-                  "orientation, its linear velocity); body = the body's own frame (angular "
-                  "velocity, MuJoCo's convention); parent = rotation from the rest orientation "
-                  "in the parent body; axis = along (slide) or about (hinge) the axis, in the "
-                  "body's frame, from the joint's zero. Quaternions are w, x, y, z.",
-                  highlight=False)
+    console.print(
+        "frame: world = the world frame (a free joint: its body frame's origin and "
+        "orientation, its linear velocity); body = the body's own frame (angular "
+        "velocity, MuJoCo's convention); parent = rotation from the rest orientation "
+        "in the parent body; axis = along (slide) or about (hinge) the axis, in the "
+        "body's frame, from the joint's zero. Quaternions are w, x, y, z.",
+        highlight=False,
+    )
     if layout.act:
         table = Table(title=f"state.act [{s.na}]: actuator activations", title_justify="left")
         table.add_column("index", justify="right")
@@ -52,8 +67,11 @@ def print_layout(layout: BridgeLayout, console: Console) -> None:
     else:
         console.print("state.act: empty (no actuator of this model has dynamics)")
     if layout.mocap:
-        console.print(f"state.mocap_pos [{s.nmocap}, 3] (m) and mocap_quat [{s.nmocap}, 4] "
-                      f"(w, x, y, z), world frame: bodies the world moves", highlight=False)
+        console.print(
+            f"state.mocap_pos [{s.nmocap}, 3] (m) and mocap_quat [{s.nmocap}, 4] "
+            f"(w, x, y, z), world frame: bodies the world moves",
+            highlight=False,
+        )
         table = Table()
         table.add_column("row", justify="right")
         table.add_column("body")
@@ -63,14 +81,21 @@ def print_layout(layout: BridgeLayout, console: Console) -> None:
         console.print(table)
     else:
         console.print("state.mocap_pos, mocap_quat: empty, shapes [0, 3] and [0, 4]")
-    table = Table(title=f"command.ctrl [{layout.nu}]: controls (a plan's rows likewise)",
-                  title_justify="left")
+    table = Table(
+        title=f"command.ctrl [{layout.nu}]: controls (a plan's rows likewise)", title_justify="left"
+    )
     for column in ("index", "actuator", "drives", "unit", "range", "safe", "on a safe stop"):
         table.add_column(column, justify="right" if column in ("index", "safe") else "left")
     for c in layout.ctrl:
-        table.add_row(str(c.index), c.actuator, c.target, c.unit,
-                      _vector(c.range) if c.range else "unlimited", f"{c.safe:g}",
-                      "keeps its last command" if c.holds_last else "safe value")
+        table.add_row(
+            str(c.index),
+            c.actuator,
+            c.target,
+            c.unit,
+            _vector(c.range) if c.range else "unlimited",
+            f"{c.safe:g}",
+            "keeps its last command" if c.holds_last else "safe value",
+        )
     console.print(table)
     if layout.extras:
         table = Table(title="state.extras: named values the world reports", title_justify="left")
@@ -85,8 +110,11 @@ def print_layout(layout: BridgeLayout, console: Console) -> None:
 
 def print_frames(frames: tuple[FrameName, ...], console: Console) -> None:
     """The frames a scenario may name, and what each is."""
-    console.print("frames: the names cost terms, observers, the success test and metrics may "
-                  "use (a site as site:NAME)", highlight=False)
+    console.print(
+        "frames: the names cost terms, observers, the success test and metrics may "
+        "use (a site as site:NAME)",
+        highlight=False,
+    )
     table = Table()
     for column in ("name", "kind", "part of"):
         table.add_column(column)

@@ -19,8 +19,8 @@ NAME_LINE = re.compile(r"^name:[ \t]*[^\s#]+", re.MULTILINE)
 
 @dataclass(frozen=True)
 class NewScenario:
-    path: Path          # the file written
-    source: Path        # the file it copies
+    path: Path  # the file written
+    source: Path  # the file it copies
 
 
 def new_scenario(name: str, source: str) -> NewScenario:
@@ -29,20 +29,33 @@ def new_scenario(name: str, source: str) -> NewScenario:
     NAME; the first line says where it came from. Raises :class:`ConfigError` for a bad name, an
     unknown source or an existing file."""
     if not NAME.fullmatch(name):
-        raise ConfigError(name, "", "not a scenario name", expected="letters, digits, '_', '.' "
-                          "and '-', without a path (the file becomes NAME.yaml)")
+        raise ConfigError(
+            name,
+            "",
+            "not a scenario name",
+            expected="letters, digits, '_', '.' "
+            "and '-', without a path (the file becomes NAME.yaml)",
+        )
     src = find(source, "scenarios")
     text, count = NAME_LINE.subn(f"name: {name}", src.read_text(), count=1)
     if count != 1 or (yaml.safe_load(text) or {}).get("name") != name:
-        raise ConfigError(str(src), "name", "no top-level `name: ...` line to set to the new name",
-                          expected="a scenario file with a `name:` line")
+        raise ConfigError(
+            str(src),
+            "name",
+            "no top-level `name: ...` line to set to the new name",
+            expected="a scenario file with a `name:` line",
+        )
     folder = user_folders("scenarios")[0].path
     folder.mkdir(parents=True, exist_ok=True)
     target = folder / f"{name}.yaml"
     try:
-        with target.open("x") as f:        # "x": fails if the file exists, atomically
+        with target.open("x") as f:  # "x": fails if the file exists, atomically
             f.write(f"# Started from {shown(src)} by `m3p2i new`.\n{text}")
     except FileExistsError:
-        raise ConfigError(shown(target), "", "exists already (m3p2i new never overwrites)",
-                          expected="another NAME, or remove the file first") from None
+        raise ConfigError(
+            shown(target),
+            "",
+            "exists already (m3p2i new never overwrites)",
+            expected="another NAME, or remove the file first",
+        ) from None
     return NewScenario(target, src)

@@ -14,21 +14,22 @@ from pathlib import Path
 
 import numpy as np
 
-from shared.evaluation import episode
 from shared.config import ConfigError
+from shared.evaluation import episode
 from shared.evaluation.replay import frame_tracks, resolve_frame
 from shared.geometry import select_axes
 from shared.scenario import Scenario
 from shared.scene import compile_model
 
-ROBOT, OBJECT, GOAL = "#ff7f0e", "#1f77b4", "#2ca02c"      # thesis colours: robot orange, object blue
-ROBOT_OBJECT, OBJECT_GOAL = "#e377c2", "#9467bd"          # pink and purple distance curves
+ROBOT, OBJECT, GOAL = "#ff7f0e", "#1f77b4", "#2ca02c"  # thesis colours: robot orange, object blue
+ROBOT_OBJECT, OBJECT_GOAL = "#e377c2", "#9467bd"  # pink and purple distance curves
 
 
 @dataclass(frozen=True)
 class EpisodeSeries:
     """Frame positions over the logged steps (``[T, 3]``); ``obj`` is None when the tracked
     object is the robot itself."""
+
     name: str
     time: np.ndarray
     robot: np.ndarray
@@ -36,8 +37,8 @@ class EpisodeSeries:
     goal: np.ndarray
     object_name: str
     goal_name: str
-    actions: list[tuple[float, str]]       # (time, action) where the planner's action changed
-    arena: float | None                    # arena half-size, for the xy limits
+    actions: list[tuple[float, str]]  # (time, action) where the planner's action changed
+    arena: float | None  # arena half-size, for the xy limits
 
 
 def cos_rog(robot: np.ndarray, obj: np.ndarray, goal: np.ndarray) -> np.ndarray:
@@ -58,26 +59,40 @@ def episode_series(scenario: Scenario, records: list[dict]) -> EpisodeSeries:
     """Replay a log's steps and track the robot, the object and the goal."""
     pair = scenario.metrics.position
     if pair is None:
-        raise ConfigError(scenario.source, "metrics.position", "nothing to plot: no position "
-                          "metric and no 'near' success predicate", expected="metrics: {position: "
-                          "{a: OBJECT, b: GOAL}}")
+        raise ConfigError(
+            scenario.source,
+            "metrics.position",
+            "nothing to plot: no position metric and no 'near' success predicate",
+            expected="metrics: {position: {a: OBJECT, b: GOAL}}",
+        )
     steps = episode.steps(records)
     if not steps:
         raise ValueError("the episode log has no steps (the episode never started)")
     model = compile_model(scenario)
-    frames = {"robot": resolve_frame(scenario, model, "robot", "robot"),
-              "goal": resolve_frame(scenario, model, pair.b, "metrics.position.b")}
+    frames = {
+        "robot": resolve_frame(scenario, model, "robot", "robot"),
+        "goal": resolve_frame(scenario, model, pair.b, "metrics.position.b"),
+    }
     is_robot = pair.a == "robot"
     if not is_robot:
         frames["obj"] = resolve_frame(scenario, model, pair.a, "metrics.position.a")
     tracks = frame_tracks(model, steps, frames)
-    actions = [(float(r["time"]), r["action"]) for r in records
-               if r.get("kind") == "event" and r.get("what") == "action"]
-    return EpisodeSeries(name=scenario.name, time=np.array([s["time"] for s in steps]),
-                         robot=tracks["robot"], obj=None if is_robot else tracks["obj"],
-                         goal=tracks["goal"] + np.asarray(pair.offset), object_name=pair.a, goal_name=pair.b,
-                         actions=actions,
-                         arena=scenario.world.arena.half_size if scenario.world.arena else None)
+    actions = [
+        (float(r["time"]), r["action"])
+        for r in records
+        if r.get("kind") == "event" and r.get("what") == "action"
+    ]
+    return EpisodeSeries(
+        name=scenario.name,
+        time=np.array([s["time"] for s in steps]),
+        robot=tracks["robot"],
+        obj=None if is_robot else tracks["obj"],
+        goal=tracks["goal"] + np.asarray(pair.offset),
+        object_name=pair.a,
+        goal_name=pair.b,
+        actions=actions,
+        arena=scenario.world.arena.half_size if scenario.world.arena else None,
+    )
 
 
 def plot_episode(series: EpisodeSeries, out: Path, title: str = "") -> Path:
@@ -106,10 +121,18 @@ def plot_episode(series: EpisodeSeries, out: Path, title: str = "") -> Path:
     ax = axes[1]
     tracked = series.robot if series.obj is None else series.obj
     if series.obj is not None:
-        ax.plot(series.time, planar_distance(series.robot, series.obj), color=ROBOT_OBJECT,
-                label=f"robot-{series.object_name}")
-    ax.plot(series.time, planar_distance(tracked, series.goal), color=OBJECT_GOAL,
-            label=f"{'robot' if series.obj is None else series.object_name}-{series.goal_name}")
+        ax.plot(
+            series.time,
+            planar_distance(series.robot, series.obj),
+            color=ROBOT_OBJECT,
+            label=f"robot-{series.object_name}",
+        )
+    ax.plot(
+        series.time,
+        planar_distance(tracked, series.goal),
+        color=OBJECT_GOAL,
+        label=f"{'robot' if series.obj is None else series.object_name}-{series.goal_name}",
+    )
     ax.set(xlabel="time [s]", ylabel="distance [m]", title="distances")
     ax.legend(loc="best", fontsize="small")
 
@@ -118,14 +141,25 @@ def plot_episode(series: EpisodeSeries, out: Path, title: str = "") -> Path:
         ax.plot(series.time, cos_rog(series.robot, series.obj, series.goal), color="black")
         ax.axhline(0.0, color="grey", linewidth=0.5)
         ax.set_ylim(-1.05, 1.05)
-        ax.set(xlabel="time [s]", ylabel=r"cos $\theta_{ROG}$",
-               title="robot-object-goal angle (-1: pushing, 1: pulling)")
+        ax.set(
+            xlabel="time [s]",
+            ylabel=r"cos $\theta_{ROG}$",
+            title="robot-object-goal angle (-1: pushing, 1: pulling)",
+        )
 
     for ax in axes[1:]:
         for t, action in series.actions:
             ax.axvline(t, color="grey", linestyle=":", linewidth=0.8)
-            ax.annotate(action, (t, 1.0), xycoords=("data", "axes fraction"), rotation=90,
-                        va="top", ha="right", fontsize="x-small", color="grey")
+            ax.annotate(
+                action,
+                (t, 1.0),
+                xycoords=("data", "axes fraction"),
+                rotation=90,
+                va="top",
+                ha="right",
+                fontsize="x-small",
+                color="grey",
+            )
 
     out = Path(out)
     out.parent.mkdir(parents=True, exist_ok=True)

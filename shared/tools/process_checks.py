@@ -15,16 +15,21 @@ from pathlib import Path
 
 from shared.cli_common import error_blocks
 
-CHECK_TIMEOUT = 300.0    # seconds; a check compiles the model once per process
+CHECK_TIMEOUT = 300.0  # seconds; a check compiles the model once per process
 
 
 def scenario_errors(path: str | Path) -> list[str]:
     """The messages of every error the world and the planner find in the scenario at
     ``path``; empty when both accept it."""
-    procs = {name: subprocess.Popen([sys.executable, "-m", name, "--scenario", str(path),
-                                     "--check"], stdout=subprocess.PIPE,
-                                    stderr=subprocess.PIPE, text=True)
-             for name in ("server", "planner_client")}
+    procs = {
+        name: subprocess.Popen(
+            [sys.executable, "-m", name, "--scenario", str(path), "--check"],
+            stdout=subprocess.PIPE,
+            stderr=subprocess.PIPE,
+            text=True,
+        )
+        for name in ("server", "planner_client")
+    }
     messages: list[str] = []
     for name, proc in procs.items():
         try:

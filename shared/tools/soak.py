@@ -46,7 +46,6 @@ import sys
 import time
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
-from typing import Optional
 
 import msgpack
 import numpy as np
@@ -69,18 +68,20 @@ FORGED_CTRL = (0.123456, -0.654321)
 
 # ---------------------------------------------------------------- configuration and records
 
+
 @dataclass(frozen=True)
 class SoakConfig:
     """What one soak runs; validated once (:meth:`check`)."""
-    duration: float = 600.0         # seconds of faults; the run ends at most a minute later
+
+    duration: float = 600.0  # seconds of faults; the run ends at most a minute later
     seed: int = 0
     scenario: str = "navigation"
-    command_timeout: float = 0.5    # the world's --command-timeout
-    takeover: float = 3.0           # s from a replacement's start to its first applied command
-    slack: float = 0.25             # s after fault + time-out before the safe control must hold
-    rss_bound: float = 50.0         # MiB of resident-memory growth allowed per process
-    gap: tuple[float, float] = (4.0, 10.0)    # s between faults (uniform)
-    flood_frames: int = 50          # frames of each garbage kind per flood
+    command_timeout: float = 0.5  # the world's --command-timeout
+    takeover: float = 3.0  # s from a replacement's start to its first applied command
+    slack: float = 0.25  # s after fault + time-out before the safe control must hold
+    rss_bound: float = 50.0  # MiB of resident-memory growth allowed per process
+    gap: tuple[float, float] = (4.0, 10.0)  # s between faults (uniform)
+    flood_frames: int = 50  # frames of each garbage kind per flood
     max_episodes: int = 2000
 
     def check(self) -> None:
@@ -103,17 +104,18 @@ class Fault:
     ``outage`` is when the planner stopped commanding (kill, pause), ``resumed`` when it could
     again (replacement started, SIGCONT, new world started); ``recovered`` is the wall time of
     the first step driven by a command that arrived after ``resumed`` (None: never)."""
+
     kind: str
     at: float
-    world: int                      # index of the world process running when it was injected
-    outage: Optional[float] = None
-    resumed: Optional[float] = None
-    recovered: Optional[float] = None
-    served: Optional[float] = None  # wall: the world of the recovery step began serving (header)
+    world: int  # index of the world process running when it was injected
+    outage: float | None = None
+    resumed: float | None = None
+    recovered: float | None = None
+    served: float | None = None  # wall: the world of the recovery step began serving (header)
     detail: dict = field(default_factory=dict)
 
     @property
-    def recovery(self) -> Optional[float]:
+    def recovery(self) -> float | None:
         """Seconds to the first step driven again: from the kill itself for a killed planner
         (its hot spare was told to go at once), else from ``resumed``; when that step is in a
         world that started serving later (a restart, or the episode ended meanwhile), from then:
@@ -127,17 +129,18 @@ class Fault:
 @dataclass
 class Proc:
     """A process of the soak, its resident memory sampled while it runs."""
-    role: str                       # world | planner
+
+    role: str  # world | planner
     index: int
     popen: subprocess.Popen
-    started: float                  # wall
-    log: Optional[Path] = None      # world: its episode log
-    out: Optional[Path] = None      # its standard output
-    active: Optional[float] = None  # wall: a hot spare's go (else its start)
-    rss: list[tuple[float, int]] = field(default_factory=list)   # (wall, bytes)
-    driving_from: Optional[float] = None   # wall of the first step it drove (memory baseline)
+    started: float  # wall
+    log: Path | None = None  # world: its episode log
+    out: Path | None = None  # its standard output
+    active: float | None = None  # wall: a hot spare's go (else its start)
+    rss: list[tuple[float, int]] = field(default_factory=list)  # (wall, bytes)
+    driving_from: float | None = None  # wall of the first step it drove (memory baseline)
     stopped_on_purpose: bool = False
-    returncode: Optional[int] = None
+    returncode: int | None = None
 
     def sample_rss(self) -> None:
         kb = rss_kib(self.popen.pid)
@@ -145,7 +148,7 @@ class Proc:
             self.rss.append((time.time(), kb * 1024))
 
 
-def rss_kib(pid: int) -> Optional[int]:
+def rss_kib(pid: int) -> int | None:
     """VmRSS of ``pid`` in KiB from /proc (None when gone); psutil is not a dependency."""
     try:
         with open(f"/proc/{pid}/status") as f:
@@ -159,11 +162,15 @@ def rss_kib(pid: int) -> Optional[int]:
 
 # ---------------------------------------------------------------- pure checks
 
+
 def stale_steps(steps: list[dict], timeout: float) -> list[dict]:
     """Steps driven by a command (not the safe control) chosen more than ``timeout`` s after
     the newest command arrived: what the watchdog must never let through."""
-    return [s for s in steps if not s.get("safe") and
-            (s.get("cmd_age") is None or s["cmd_age"] > timeout)]
+    return [
+        s
+        for s in steps
+        if not s.get("safe") and (s.get("cmd_age") is None or s["cmd_age"] > timeout)
+    ]
 
 
 def outage_violations(steps: list[dict], start: float, end: float) -> tuple[int, list[dict]]:
@@ -172,7 +179,7 @@ def outage_violations(steps: list[dict], start: float, end: float) -> tuple[int,
     return len(inside), [s for s in inside if not s.get("safe")]
 
 
-def first_driven_after(steps: list[dict], since: float) -> Optional[dict]:
+def first_driven_after(steps: list[dict], since: float) -> dict | None:
     """The first step driven by a command that arrived at or after ``since`` (wall)."""
     for s in steps:
         if not s.get("safe") and s.get("cmd_age") is not None and s["wall"] - s["cmd_age"] >= since:
@@ -186,7 +193,7 @@ def is_forged(ctrl: list[float]) -> bool:
     return bool(np.allclose(ctrl[:n], FORGED_CTRL[:n], rtol=0, atol=1e-9))
 
 
-def rss_growth(samples: list[tuple[float, int]], since: Optional[float]) -> Optional[float]:
+def rss_growth(samples: list[tuple[float, int]], since: float | None) -> float | None:
     """MiB from the first sample at or after ``since`` to the last; None without two."""
     if since is None:
         return None
@@ -203,8 +210,13 @@ class Check:
     detail: str
 
 
-def evaluate(cfg: SoakConfig, faults: list[Fault], worlds: list[dict], planners: list[dict],
-             floods_sent: dict) -> list[Check]:
+def evaluate(
+    cfg: SoakConfig,
+    faults: list[Fault],
+    worlds: list[dict],
+    planners: list[dict],
+    floods_sent: dict,
+) -> list[Check]:
     """The soak's verdicts from what it did (``faults``) and what the logs say (``worlds``:
     per world process its records, exit code and whether it was stopped on purpose)."""
     checks = []
@@ -213,9 +225,14 @@ def evaluate(cfg: SoakConfig, faults: list[Fault], worlds: list[dict], planners:
 
     stale = stale_steps(all_steps, cfg.command_timeout)
     worst = max((s["cmd_age"] for s in driven if s.get("cmd_age") is not None), default=0.0)
-    checks.append(Check("no stale command applied", not stale and bool(driven),
-                        f"{len(stale)} of {len(driven)} driven steps had a command older than "
-                        f"{cfg.command_timeout:g} s (oldest driving: {worst:.3f} s)"))
+    checks.append(
+        Check(
+            "no stale command applied",
+            not stale and bool(driven),
+            f"{len(stale)} of {len(driven)} driven steps had a command older than "
+            f"{cfg.command_timeout:g} s (oldest driving: {worst:.3f} s)",
+        )
+    )
 
     held, bad, windows = 0, [], 0
     for f in faults:
@@ -226,44 +243,75 @@ def evaluate(cfg: SoakConfig, faults: list[Fault], worlds: list[dict], planners:
         n, v = outage_violations(all_steps, f.outage + cfg.command_timeout + cfg.slack, end)
         held += n
         bad += v
-    checks.append(Check("safe control while the planner was down", not bad and (held > 0 or not windows),
-                        f"{held} steps logged in {windows} outages (from fault + "
-                        f"{cfg.command_timeout:g} s + {cfg.slack:g} s), {len(bad)} not safe"))
+    checks.append(
+        Check(
+            "safe control while the planner was down",
+            not bad and (held > 0 or not windows),
+            f"{held} steps logged in {windows} outages (from fault + "
+            f"{cfg.command_timeout:g} s + {cfg.slack:g} s), {len(bad)} not safe",
+        )
+    )
 
-    for kind, label in (("kill", "killed planner replaced"), ("restart", "planner found the restarted world"),
-                        ("pause", "paused planner resumed"), ("flood", "planner drove on after a flood")):
+    for kind, label in (
+        ("kill", "killed planner replaced"),
+        ("restart", "planner found the restarted world"),
+        ("pause", "paused planner resumed"),
+        ("flood", "planner drove on after a flood"),
+    ):
         mine = [f for f in faults if f.kind == kind]
         times = [f.recovery for f in mine if f.recovery is not None]
         late = [f for f in mine if f.recovery is None or f.recovery > cfg.takeover]
         worst_s = f"max {max(times):.2f} s" if times else "none measured"
-        checks.append(Check(f"{label} within {cfg.takeover:g} s", not late,
-                            f"{len(mine) - len(late)}/{len(mine)} ({worst_s})"))
+        checks.append(
+            Check(
+                f"{label} within {cfg.takeover:g} s",
+                not late,
+                f"{len(mine) - len(late)}/{len(mine)} ({worst_s})",
+            )
+        )
 
     cold = [w["serving_after_s"] for w in worlds if w.get("serving_after_s") is not None]
-    if cold:   # the world's own start-up, which the planner's recovery times leave out
+    if cold:  # the world's own start-up, which the planner's recovery times leave out
         restart = next(c for c in checks if c.name.startswith("planner found the restarted"))
-        restart.detail += (f" from its serving; a new world serves {np.median(cold):.2f} s "
-                           f"(median, max {max(cold):.2f} s) after its start")
+        restart.detail += (
+            f" from its serving; a new world serves {np.median(cold):.2f} s "
+            f"(median, max {max(cold):.2f} s) after its start"
+        )
     died = [w for w in worlds if not w["stopped_on_purpose"] and w["returncode"] not in (0, 1)]
-    checks.append(Check("the world never died", not died,
-                        f"{len(worlds)} world processes, {len(died)} ended otherwise than by "
-                        f"their episode's end or the deliberate stop"
-                        + (f" (codes {[w['returncode'] for w in died]})" if died else "")))
+    checks.append(
+        Check(
+            "the world never died",
+            not died,
+            f"{len(worlds)} world processes, {len(died)} ended otherwise than by "
+            f"their episode's end or the deliberate stop"
+            + (f" (codes {[w['returncode'] for w in died]})" if died else ""),
+        )
+    )
 
     incomplete = [w["log"] for w in worlds if not w["complete"]]
-    checks.append(Check("every episode log complete with its summary", not incomplete and bool(worlds),
-                        f"{len(worlds) - len(incomplete)}/{len(worlds)} logs parse, start with the "
-                        f"header and end with the summary (steps = summary.steps)"
-                        + (f"; not: {incomplete[:3]}" if incomplete else "")))
+    checks.append(
+        Check(
+            "every episode log complete with its summary",
+            not incomplete and bool(worlds),
+            f"{len(worlds) - len(incomplete)}/{len(worlds)} logs parse, start with the "
+            f"header and end with the summary (steps = summary.steps)"
+            + (f"; not: {incomplete[:3]}" if incomplete else ""),
+        )
+    )
 
     forged = [s for s in all_steps if is_forged(s["ctrl"])]
     rejected = sum(w["rejected"] for w in worlds)
     expected = floods_sent.get("rejectable", 0)
-    checks.append(Check("garbage rejected, none applied", not forged and rejected >= expected,
-                        f"{floods_sent.get('frames', 0)} frames in {floods_sent.get('floods', 0)} "
-                        f"floods: {rejected} logged as rejected (>= {expected} expected), "
-                        f"{floods_sent.get('wrong_session', 0)} of a wrong session, "
-                        f"{len(forged)} steps with a forged control"))
+    checks.append(
+        Check(
+            "garbage rejected, none applied",
+            not forged and rejected >= expected,
+            f"{floods_sent.get('frames', 0)} frames in {floods_sent.get('floods', 0)} "
+            f"floods: {rejected} logged as rejected (>= {expected} expected), "
+            f"{floods_sent.get('wrong_session', 0)} of a wrong session, "
+            f"{len(forged)} steps with a forged control",
+        )
+    )
 
     growths = {}
     for p in planners + worlds:
@@ -271,10 +319,20 @@ def evaluate(cfg: SoakConfig, faults: list[Fault], worlds: list[dict], planners:
         if g is not None:
             growths.setdefault(p["role"], []).append(g)
     over = {r: max(g) for r, g in growths.items() if max(g) > cfg.rss_bound}
-    text = ", ".join(f"{r}: max {max(g):+.1f} MiB over {len(g)} processes"
-                     for r, g in sorted(growths.items())) or "no process lived long enough"
-    checks.append(Check(f"memory growth <= {cfg.rss_bound:g} MiB per process",
-                        not over and "planner" in growths, text))
+    text = (
+        ", ".join(
+            f"{r}: max {max(g):+.1f} MiB over {len(g)} processes"
+            for r, g in sorted(growths.items())
+        )
+        or "no process lived long enough"
+    )
+    checks.append(
+        Check(
+            f"memory growth <= {cfg.rss_bound:g} MiB per process",
+            not over and "planner" in growths,
+            text,
+        )
+    )
     return checks
 
 
@@ -288,20 +346,33 @@ def world_record(proc: Proc) -> dict:
     with_torn = proc.log.read_text().count("\n") if proc.log and proc.log.is_file() else 0
     steps = episode.steps(records)
     summ = episode.summary(records)
-    complete = (not parse_error and bool(records) and records[0].get("kind") == "header"
-                and records[-1].get("kind") == "summary" and len(records) == with_torn
-                and summ is not None and summ.get("steps") == len(steps))
-    return {"role": "world", "index": proc.index, "log": str(proc.log), "steps": steps,
-            "complete": complete, "returncode": proc.returncode,
-            "stopped_on_purpose": proc.stopped_on_purpose,
-            "status": summ.get("status") if summ else None,
-            "time": summ.get("time") if summ else None,
-            "rejected": summ.get("rejected", 0) if summ else 0,
-            "serving_after_s": records[0]["wall"] - proc.started if records else None,
-            "rss_growth": rss_growth(proc.rss, proc.driving_from)}
+    complete = (
+        not parse_error
+        and bool(records)
+        and records[0].get("kind") == "header"
+        and records[-1].get("kind") == "summary"
+        and len(records) == with_torn
+        and summ is not None
+        and summ.get("steps") == len(steps)
+    )
+    return {
+        "role": "world",
+        "index": proc.index,
+        "log": str(proc.log),
+        "steps": steps,
+        "complete": complete,
+        "returncode": proc.returncode,
+        "stopped_on_purpose": proc.stopped_on_purpose,
+        "status": summ.get("status") if summ else None,
+        "time": summ.get("time") if summ else None,
+        "rejected": summ.get("rejected", 0) if summ else 0,
+        "serving_after_s": records[0]["wall"] - proc.started if records else None,
+        "rss_growth": rss_growth(proc.rss, proc.driving_from),
+    }
 
 
 # ---------------------------------------------------------------- the run
+
 
 class LogTail:
     """Complete records appended to an episode log since the last call."""
@@ -331,7 +402,7 @@ class Soak:
         self.env = {**os.environ, "PYTHONUNBUFFERED": "1"}
         self.worlds: list[Proc] = []
         self.planners: list[Proc] = []
-        self.spare: Optional[Proc] = None
+        self.spare: Proc | None = None
         self.closing = False
         self.tails: dict[int, LogTail] = {}
         self.faults: list[Fault] = []
@@ -343,12 +414,31 @@ class Soak:
     def start_world(self) -> Proc:
         i = len(self.worlds) + 1
         log = self.out / f"episode-{i:04d}.jsonl"
-        cmd = [sys.executable, "-m", "server", "--scenario", self.scenario, "--port", str(self.port),
-               "--mode", "realtime", "--command-timeout", str(self.cfg.command_timeout),
-               "--seed", str(i), "--log", str(log)]
+        cmd = [
+            sys.executable,
+            "-m",
+            "server",
+            "--scenario",
+            self.scenario,
+            "--port",
+            str(self.port),
+            "--mode",
+            "realtime",
+            "--command-timeout",
+            str(self.cfg.command_timeout),
+            "--seed",
+            str(i),
+            "--log",
+            str(log),
+        ]
         with (self.out / f"world-{i:04d}.out").open("w") as out:
-            p = Proc("world", i, subprocess.Popen(cmd, stdout=out, stderr=subprocess.STDOUT,
-                                                  env=self.env), time.time(), log)
+            p = Proc(
+                "world",
+                i,
+                subprocess.Popen(cmd, stdout=out, stderr=subprocess.STDOUT, env=self.env),
+                time.time(),
+                log,
+            )
         p.active = p.started
         self.worlds.append(p)
         self.tails[i] = LogTail(log)
@@ -358,14 +448,33 @@ class Soak:
         """A planner process; ``standby``: a hot spare (``--standby``) that connects when it
         reads a line, started ahead so that a killed planner is replaced without a cold start."""
         i = len(self.planners) + (self.spare is not None) + 1
-        cmd = [sys.executable, "-m", "planner_client", "--scenario", self.scenario, "--port",
-               str(self.port), "--keep-running", "--seed", str(self.cfg.seed + i)]
+        cmd = [
+            sys.executable,
+            "-m",
+            "planner_client",
+            "--scenario",
+            self.scenario,
+            "--port",
+            str(self.port),
+            "--keep-running",
+            "--seed",
+            str(self.cfg.seed + i),
+        ]
         path = self.out / f"planner-{i:03d}.out"
         with path.open("w") as out:
-            p = Proc("planner", i, subprocess.Popen(
-                cmd + (["--standby"] if standby else []), stdout=out, stderr=subprocess.STDOUT,
-                stdin=subprocess.PIPE if standby else subprocess.DEVNULL, env=self.env),
-                time.time(), out=path)
+            p = Proc(
+                "planner",
+                i,
+                subprocess.Popen(
+                    cmd + (["--standby"] if standby else []),
+                    stdout=out,
+                    stderr=subprocess.STDOUT,
+                    stdin=subprocess.PIPE if standby else subprocess.DEVNULL,
+                    env=self.env,
+                ),
+                time.time(),
+                out=path,
+            )
         if standby:
             self.spare = p
         else:
@@ -374,8 +483,11 @@ class Soak:
         return p
 
     def spare_ready(self) -> bool:
-        return (self.spare is not None and self.spare.popen.poll() is None
-                and "standby: ready" in self.spare.out.read_text())
+        return (
+            self.spare is not None
+            and self.spare.popen.poll() is None
+            and "standby: ready" in self.spare.out.read_text()
+        )
 
     def activate_spare(self) -> Proc:
         p, self.spare = self.spare, None
@@ -399,7 +511,7 @@ class Soak:
         for w in self.worlds:
             tail = self.tails[w.index]
             if w.returncode is not None and tail.records and tail.records[-1]["wall"] < since:
-                continue                        # ended before ``since``, read to its end
+                continue  # ended before ``since``, read to its end
             tail.poll()
             out += [r for r in tail.records if r["kind"] == "step" and r["wall"] >= since]
         return out
@@ -412,23 +524,29 @@ class Soak:
         for p in (self.world, self.planner):
             if p.driving_from is None:
                 first = first_driven_after(self.steps_since(p.active), p.active)
-                if first is not None:   # after warm-up (the planner's first iterations allocate)
+                if first is not None:  # after warm-up (the planner's first iterations allocate)
                     p.driving_from = first["wall"] + (5.0 if p.role == "planner" else 1.0)
         if self.world.popen.poll() is not None and self.world.returncode is None:
             self.world.returncode = self.world.popen.returncode
             if len(self.worlds) < self.cfg.max_episodes and not self.closing:
                 self.start_world()
         if self.spare is not None and self.spare.popen.poll() is not None:
-            print(f"spare planner {self.spare.index} exited with code "
-                  f"{self.spare.popen.returncode}; starting another", file=sys.stderr)
+            print(
+                f"spare planner {self.spare.index} exited with code "
+                f"{self.spare.popen.returncode}; starting another",
+                file=sys.stderr,
+            )
             self.spare.returncode = self.spare.popen.returncode
-            self.planners.append(self.spare)   # counted: its log is kept, it never drove
+            self.planners.append(self.spare)  # counted: its log is kept, it never drove
             self.spare = None
             self.start_planner(standby=True)
         if self.planner.popen.poll() is not None:
             self.planner.returncode = self.planner.popen.returncode
-            print(f"planner {self.planner.index} exited by itself with code "
-                  f"{self.planner.returncode}; starting another", file=sys.stderr)
+            print(
+                f"planner {self.planner.index} exited by itself with code "
+                f"{self.planner.returncode}; starting another",
+                file=sys.stderr,
+            )
             self.start_planner()
 
     def mid_episode(self, within: float | None = None) -> bool:
@@ -501,10 +619,14 @@ class Soak:
         frames = []
         frames += [self.rng.randbytes(self.rng.randint(1, 2000)) for _ in range(n)]
         frames += [msgpack.packb(m) for m in self._malformed(n, session)]
-        frames += [P.encode(P.Command(session=session, seq=0, ctrl=np.zeros(nu + 1 + k % 3)))
-                   for k in range(n)]    # wrong shape, right session
-        forged = [P.encode(P.Command(session=bad_session, seq=0, ctrl=np.array(FORGED_CTRL[:nu])))
-                  for _ in range(n)]
+        frames += [
+            P.encode(P.Command(session=session, seq=0, ctrl=np.zeros(nu + 1 + k % 3)))
+            for k in range(n)
+        ]  # wrong shape, right session
+        forged = [
+            P.encode(P.Command(session=bad_session, seq=0, ctrl=np.array(FORGED_CTRL[:nu])))
+            for _ in range(n)
+        ]
         push = socket(self.ctx, zmq.PUSH)
         push.connect(Endpoints(port=self.port).command)
         try:
@@ -513,7 +635,7 @@ class Soak:
                     raise RuntimeError("the world's command socket accepts no frames")
                 push.send(fr, zmq.NOBLOCK)
         finally:
-            time.sleep(0.2)          # let the frames leave before the socket closes
+            time.sleep(0.2)  # let the frames leave before the socket closes
             push.close(0)
         self.floods["floods"] += 1
         self.floods["frames"] += len(frames) + len(forged)
@@ -526,18 +648,23 @@ class Soak:
         base = {"type": "command", "v": P.PROTOCOL_VERSION, "session": session, "seq": 0}
         arr = P.encode_array(np.zeros(2))
         kinds = [
-            [1, 2, 3],                                              # not a map
-            {"type": "nonsense", "v": P.PROTOCOL_VERSION},          # unknown type
-            {**base, "ctrl": arr, "v": 99},                         # wrong version
-            {**base},                                               # ctrl missing
-            {**base, "ctrl": "fast"},                               # ctrl not an array
-            {**base, "ctrl": {**arr, "data": b"\x00" * 3}},         # byte count
-            {**base, "ctrl": {**arr, "dtype": "object"}},           # dtype
-            {**base, "ctrl": P.encode_array(np.array([np.nan, 0.0]))},   # NaN
-            {**base, "ctrl": arr, "extra": 1},                      # unknown field
-            {**base, "ctrl": arr, "seq": "zero"},                   # seq not an int
-            {**base, "ctrl": arr, "plan_ctrl": P.encode_array(np.zeros((3, 5))),
-             "plan_t0": 0.0, "plan_dt": 0.05},                      # plan of the wrong width
+            [1, 2, 3],  # not a map
+            {"type": "nonsense", "v": P.PROTOCOL_VERSION},  # unknown type
+            {**base, "ctrl": arr, "v": 99},  # wrong version
+            {**base},  # ctrl missing
+            {**base, "ctrl": "fast"},  # ctrl not an array
+            {**base, "ctrl": {**arr, "data": b"\x00" * 3}},  # byte count
+            {**base, "ctrl": {**arr, "dtype": "object"}},  # dtype
+            {**base, "ctrl": P.encode_array(np.array([np.nan, 0.0]))},  # NaN
+            {**base, "ctrl": arr, "extra": 1},  # unknown field
+            {**base, "ctrl": arr, "seq": "zero"},  # seq not an int
+            {
+                **base,
+                "ctrl": arr,
+                "plan_ctrl": P.encode_array(np.zeros((3, 5))),
+                "plan_t0": 0.0,
+                "plan_dt": 0.05,
+            },  # plan of the wrong width
         ]
         return [kinds[k % len(kinds)] for k in range(n)]
 
@@ -547,7 +674,7 @@ class Soak:
         since = f.resumed
 
         def recovered() -> bool:
-            for w in self.worlds[f.world - 1:]:          # in the order they ran
+            for w in self.worlds[f.world - 1 :]:  # in the order they ran
                 tail = self.tails[w.index]
                 tail.poll()
                 s = first_driven_after([r for r in tail.records if r["kind"] == "step"], since)
@@ -555,6 +682,7 @@ class Soak:
                     f.recovered, f.served = s["wall"], tail.records[0]["wall"]
                     return True
             return False
+
         self.wait(limit, recovered)
 
     # -------------------------------------------------------- main
@@ -568,7 +696,7 @@ class Soak:
         end = time.monotonic() + self.cfg.duration
         hard_end = end + 60.0
         try:
-            self.wait(120.0, self.mid_episode)      # first start: imports, compilation
+            self.wait(120.0, self.mid_episode)  # first start: imports, compilation
             self.start_planner(standby=True)
             while time.monotonic() < end:
                 self.wait(min(self.rng.uniform(*self.cfg.gap), max(0.0, end - time.monotonic())))
@@ -586,8 +714,9 @@ class Soak:
                 # last command, and the world that holds still was never seen (no step left to
                 # log between the time-out and the episode's end)
                 within = 1.0 if kind == "pause" else None
-                if not self.wait(min(30.0, hard_end - time.monotonic()),
-                                 lambda: self.mid_episode(within)):
+                if not self.wait(
+                    min(30.0, hard_end - time.monotonic()), lambda: self.mid_episode(within)
+                ):
                     break
                 f = self.inject(kind)
                 print(f"{time.time() - started:7.1f} s  {kind:8s} world {f.world}", flush=True)
@@ -595,15 +724,17 @@ class Soak:
                 if self.spare is None:
                     self.start_planner(standby=True)
             self.closing = True
-            self.wait(min(40.0, max(0.0, hard_end - time.monotonic())),
-                      lambda: self.world.popen.poll() is not None)   # let the last episode end
+            self.wait(
+                min(40.0, max(0.0, hard_end - time.monotonic())),
+                lambda: self.world.popen.poll() is not None,
+            )  # let the last episode end
         finally:
             self.closing = True
             procs = [self.world, self.planner] + ([self.spare] if self.spare else [])
             for p in procs:
                 if p.popen.poll() is None:
                     p.stopped_on_purpose = True
-            stop_processes([p.popen for p in procs])    # SIGTERM: the world writes its summary
+            stop_processes([p.popen for p in procs])  # SIGTERM: the world writes its summary
             if self.spare is not None:
                 self.spare.returncode = self.spare.popen.returncode
                 self.planners.append(self.spare)
@@ -615,20 +746,33 @@ class Soak:
 
     def results(self, started: float) -> dict:
         worlds = [world_record(w) for w in self.worlds]
-        planners = [{"role": "planner", "index": p.index, "returncode": p.returncode,
-                     "stopped_on_purpose": p.stopped_on_purpose,
-                     "rss_first_mib": p.rss[0][1] / _MIB if p.rss else None,
-                     "rss_last_mib": p.rss[-1][1] / _MIB if p.rss else None,
-                     "lived_s": (p.rss[-1][0] - p.started) if p.rss else 0.0,
-                     "rss_growth": rss_growth(p.rss, p.driving_from)} for p in self.planners]
+        planners = [
+            {
+                "role": "planner",
+                "index": p.index,
+                "returncode": p.returncode,
+                "stopped_on_purpose": p.stopped_on_purpose,
+                "rss_first_mib": p.rss[0][1] / _MIB if p.rss else None,
+                "rss_last_mib": p.rss[-1][1] / _MIB if p.rss else None,
+                "lived_s": (p.rss[-1][0] - p.started) if p.rss else 0.0,
+                "rss_growth": rss_growth(p.rss, p.driving_from),
+            }
+            for p in self.planners
+        ]
         checks = evaluate(self.cfg, self.faults, worlds, planners, self.floods)
         statuses: dict[str, int] = {}
         for w in worlds:
             statuses[str(w["status"])] = statuses.get(str(w["status"]), 0) + 1
-        counts = {k: {"injected": sum(f.kind == k for f in self.faults),
-                      "survived": sum(f.kind == k and f.recovery is not None
-                                      and f.recovery <= self.cfg.takeover for f in self.faults)}
-                  for k in FAULTS}
+        counts = {
+            k: {
+                "injected": sum(f.kind == k for f in self.faults),
+                "survived": sum(
+                    f.kind == k and f.recovery is not None and f.recovery <= self.cfg.takeover
+                    for f in self.faults
+                ),
+            }
+            for k in FAULTS
+        }
         return {
             "config": {**asdict(self.cfg), "gap": list(self.cfg.gap)},
             "command": "python scripts/soak.py " + " ".join(sys.argv[1:]),
@@ -648,6 +792,7 @@ class Soak:
 
 # ---------------------------------------------------------------- reporting
 
+
 def markdown(results: dict, source: str) -> str:
     """The reliability table of docs/reliability.md, from a results file."""
     lines = ["| check | holds | measured |", "|---|:---:|---|"]
@@ -656,33 +801,45 @@ def markdown(results: dict, source: str) -> str:
     faults = ", ".join(f"{k} {v['survived']}/{v['injected']}" for k, v in results["faults"].items())
     episodes = ", ".join(f"{n} {s}" for s, n in sorted(results["episodes"].items()))
     cfg = results["config"]
-    lines += ["", f"Faults survived/injected: {faults}. Episodes ({cfg['scenario']}, real time, "
-              f"{len(results['worlds'])} world processes, {results['steps']} steps): {episodes} "
-              f"(`stopped`: the deliberate world restarts and the end of the run). "
-              f"`{results['command']}`, {results['date']}, {results['wall_s']:.0f} s of wall "
-              f"time on {results['machine']} (seed {cfg['seed']}); from `{source}`."]
+    lines += [
+        "",
+        f"Faults survived/injected: {faults}. Episodes ({cfg['scenario']}, real time, "
+        f"{len(results['worlds'])} world processes, {results['steps']} steps): {episodes} "
+        f"(`stopped`: the deliberate world restarts and the end of the run). "
+        f"`{results['command']}`, {results['date']}, {results['wall_s']:.0f} s of wall "
+        f"time on {results['machine']} (seed {cfg['seed']}); from `{source}`.",
+    ]
     return "\n".join(lines)
 
 
 def update(text: str, base: Path) -> str:
     """``text`` with every ``<!-- soak PATH -->`` block regenerated from its results file."""
-    new, n = regenerate(text, "soak", "soak", lambda path: markdown(
-        json.loads((base / path).read_text()), path) + "\n")
+    new, n = regenerate(
+        text,
+        "soak",
+        "soak",
+        lambda path: markdown(json.loads((base / path).read_text()), path) + "\n",
+    )
     if not n:
-        raise typer.BadParameter("no '<!-- soak PATH -->' ... '<!-- end of soak -->' block found",
-                                 param_hint="--update")
+        raise typer.BadParameter(
+            "no '<!-- soak PATH -->' ... '<!-- end of soak -->' block found", param_hint="--update"
+        )
     return new
 
 
 def print_table(results: dict) -> None:
     from rich.console import Console
     from rich.table import Table
+
     table = Table("check", "holds", "measured", title="soak: " + results["command"])
     for c in results["checks"]:
         table.add_row(c["name"], "yes" if c["ok"] else "NO", c["detail"])
     console = Console(width=160)
     console.print(table)
-    console.print("faults survived/injected: " + ", ".join(
-        f"{k} {v['survived']}/{v['injected']}" for k, v in results["faults"].items()))
-    console.print(f"episodes: {results['episodes']}; {results['steps']} steps; "
-                  f"{results['wall_s']:.0f} s")
+    console.print(
+        "faults survived/injected: "
+        + ", ".join(f"{k} {v['survived']}/{v['injected']}" for k, v in results["faults"].items())
+    )
+    console.print(
+        f"episodes: {results['episodes']}; {results['steps']} steps; {results['wall_s']:.0f} s"
+    )

@@ -33,6 +33,7 @@ OVERRIDES = "overrides"
 @dataclass(frozen=True)
 class Sweep:
     """Swept keys in order, each with its values; empty: no sweep."""
+
     keys: tuple[tuple[str, tuple[Any, ...]], ...] = ()
 
     def variants(self) -> list[dict[str, Any]]:
@@ -78,8 +79,9 @@ def parse_set(items: Iterable[str], source: str = "--set") -> Sweep:
         key, sep, values = item.partition("=")
         key = key.strip()
         if not sep or not key or not values.strip():
-            raise ConfigError(source, "", "not KEY=VALUE[,VALUE...]", item,
-                              "e.g. planner.samples=50,100,200")
+            raise ConfigError(
+                source, "", "not KEY=VALUE[,VALUE...]", item, "e.g. planner.samples=50,100,200"
+            )
         parsed = []
         for v in split_values(values):
             try:
@@ -93,13 +95,19 @@ def parse_set(items: Iterable[str], source: str = "--set") -> Sweep:
 def parse_sweep_section(data: Any, source: str) -> Sweep:
     """A bench file's ``sweep: {KEY: [V1, V2, ...], ...}``."""
     if not isinstance(data, Mapping) or not data:
-        raise ConfigError(source, "sweep", "a mapping of scenario keys to lists of values", data,
-                          "e.g. {planner.samples: [50, 100, 200]}")
+        raise ConfigError(
+            source,
+            "sweep",
+            "a mapping of scenario keys to lists of values",
+            data,
+            "e.g. {planner.samples: [50, 100, 200]}",
+        )
     keys = []
     for key, values in data.items():
         if not isinstance(key, str) or not isinstance(values, list) or not values:
-            raise ConfigError(source, f"sweep.{key}", "a non-empty list of values", values,
-                              "e.g. [50, 100, 200]")
+            raise ConfigError(
+                source, f"sweep.{key}", "a non-empty list of values", values, "e.g. [50, 100, 200]"
+            )
         keys.append((key, tuple(_unique(values))))
     return Sweep(tuple(keys))
 
@@ -124,8 +132,13 @@ def apply_overrides(raw: dict, overrides: Mapping[str, Any]) -> dict:
             if child is None:
                 child = node[part] = {}
             if not isinstance(child, dict):
-                raise ConfigError("--set", key, f"{'.'.join(parts[:i + 1])} is not a mapping",
-                                  child, "a key path through mappings")
+                raise ConfigError(
+                    "--set",
+                    key,
+                    f"{'.'.join(parts[: i + 1])} is not a mapping",
+                    child,
+                    "a key path through mappings",
+                )
             node = child
         node[parts[-1]] = copy.deepcopy(value)
     return out
@@ -164,16 +177,18 @@ def variant_case(row: Mapping[str, str]) -> str:
 
 # ------------------------------------------------------------------------------------- summary
 
+
 @dataclass(frozen=True)
 class SweepPoint:
     """One (case, value of one key) cell of a sweep table, over the other keys' values."""
+
     case: str
     value: Any
     trials: int
     successes: int
-    time: tuple[float, float] | None      # mean, std over the successful trials
+    time: tuple[float, float] | None  # mean, std over the successful trials
     planner_hz: float | None
-    collisions: float | None = None       # mean over the trials that ended by themselves
+    collisions: float | None = None  # mean over the trials that ended by themselves
 
 
 def swept_keys(rows: list[dict[str, str]]) -> list[str]:
@@ -213,9 +228,17 @@ def sweep_points(rows: list[dict[str, str]], key: str) -> list[SweepPoint]:
             if times:
                 mean = sum(times) / len(times)
                 time = (mean, math.sqrt(sum((t - mean) ** 2 for t in times) / len(times)))
-            out.append(SweepPoint(case, values[v], len(mine), len(won), time,
-                                  sum(hz) / len(hz) if hz else None,
-                                  sum(hits) / len(hits) if hits else None))
+            out.append(
+                SweepPoint(
+                    case,
+                    values[v],
+                    len(mine),
+                    len(won),
+                    time,
+                    sum(hz) / len(hz) if hz else None,
+                    sum(hits) / len(hits) if hits else None,
+                )
+            )
     return out
 
 
@@ -223,13 +246,21 @@ def _is_number(v: Any) -> bool:
     return isinstance(v, (int, float)) and not isinstance(v, bool)
 
 
-SWEEP_HEADERS = ("case", "value", "trials", "success (95 % interval)", "time [s]", "collisions",
-                 "planner Hz")
+SWEEP_HEADERS = (
+    "case",
+    "value",
+    "trials",
+    "success (95 % interval)",
+    "time [s]",
+    "collisions",
+    "planner Hz",
+)
 
 
 def sweep_table(points: list[SweepPoint], key: str) -> str:
     """Markdown table of one key's points."""
     from shared.tools.bench_report import wilson
+
     head = ("case", key, *SWEEP_HEADERS[2:])
     lines = ["| " + " | ".join(head) + " |", "|---|" + "---:|" * (len(head) - 1)]
     for p in points:
@@ -237,17 +268,21 @@ def sweep_table(points: list[SweepPoint], key: str) -> str:
         time = f"{p.time[0]:.2f} ({p.time[1]:.2f})" if p.time else "—"
         hz = f"{p.planner_hz:.1f}" if p.planner_hz is not None else "—"
         hits = f"{p.collisions:.2f}" if p.collisions is not None else "—"
-        lines.append(f"| {p.case} | {_show(p.value)} | {p.trials} | {p.successes}/{p.trials} "
-                     f"({100 * lo:.0f}-{100 * hi:.0f} %) | {time} | {hits} | {hz} |")
+        lines.append(
+            f"| {p.case} | {_show(p.value)} | {p.trials} | {p.successes}/{p.trials} "
+            f"({100 * lo:.0f}-{100 * hi:.0f} %) | {time} | {hits} | {hz} |"
+        )
     return "\n".join(lines)
 
 
-SWEEP_LEGEND = ("Per case and value of the swept key, over the seeds (and the other swept keys' "
-                "values): success with its 95 % Wilson interval; time: mean (std) simulated "
-                "seconds to success, over the successful trials; collisions: mean contacts per trial "
-                "with what the scenario's metric counts (the moving obstacle), over the trials "
-                "that ended by themselves (— : not measured); planner Hz: mean planner "
-                "iterations per wall-clock second.")
+SWEEP_LEGEND = (
+    "Per case and value of the swept key, over the seeds (and the other swept keys' "
+    "values): success with its 95 % Wilson interval; time: mean (std) simulated "
+    "seconds to success, over the successful trials; collisions: mean contacts per trial "
+    "with what the scenario's metric counts (the moving obstacle), over the trials "
+    "that ended by themselves (— : not measured); planner Hz: mean planner "
+    "iterations per wall-clock second."
+)
 
 
 def sweep_report(rows: list[dict[str, str]]) -> str:
@@ -262,7 +297,8 @@ def plot_sweep(rows: list[dict[str, str]], folder: Path) -> list[Path]:
     """One PNG per swept key in ``folder`` (``sweep-KEY.png``): success rate and time to
     success against the value, one line per case. Needs matplotlib (``m3p2i[plots]``)."""
     import matplotlib
-    matplotlib.use("Agg")      # files only; no display needed
+
+    matplotlib.use("Agg")  # files only; no display needed
     import matplotlib.pyplot as plt
 
     written = []
@@ -277,12 +313,18 @@ def plot_sweep(rows: list[dict[str, str]], folder: Path) -> list[Path]:
             ax_s.plot(xs, [100 * p.successes / p.trials for p in mine], "o-", label=case)
             timed = [(x, p.time) for x, p in zip(xs, mine) if p.time]
             if timed:
-                ax_t.errorbar([x for x, _ in timed], [t[0] for _, t in timed],
-                              yerr=[t[1] for _, t in timed], fmt="o-", capsize=3, label=case)
+                ax_t.errorbar(
+                    [x for x, _ in timed],
+                    [t[0] for _, t in timed],
+                    yerr=[t[1] for _, t in timed],
+                    fmt="o-",
+                    capsize=3,
+                    label=case,
+                )
         positive = numeric and all(p.value > 0 for p in points)
         for ax in (ax_s, ax_t):
             if positive and max(p.value for p in points) / min(p.value for p in points) >= 8:
-                ax.set_xscale("log")     # samples 25..800: equal steps for doublings
+                ax.set_xscale("log")  # samples 25..800: equal steps for doublings
                 ax.set_xticks(sorted({p.value for p in points}))
                 ax.set_xticklabels([_show(v) for v in sorted({p.value for p in points})])
                 ax.minorticks_off()

@@ -18,25 +18,26 @@ import sys
 import threading
 from itertools import pairwise
 from pathlib import Path
-from typing import Optional
 
 import mujoco
 import numpy as np
 import typer
 import zmq
 
-from shared.evaluation import episode
 from shared import protocol as P
 from shared.config import ConfigError
 from shared.endpoints import Endpoints, socket
+from shared.evaluation import episode
 from shared.security import PlannerKeys, curve_client
 
 GL_BACKENDS = ("egl", "osmesa")
 DIAGNOSTICS_FILE = "diagnostics.jsonl"
 TOP_RGBA = np.array([0.1, 0.85, 0.2, 0.9], dtype=np.float32)
 
-_PROBE = ("import mujoco; m = mujoco.MjModel.from_xml_string('<mujoco/>'); "
-          "mujoco.Renderer(m, 8, 8).render()")
+_PROBE = (
+    "import mujoco; m = mujoco.MjModel.from_xml_string('<mujoco/>'); "
+    "mujoco.Renderer(m, 8, 8).render()"
+)
 
 
 class NoGLError(RuntimeError):
@@ -48,16 +49,24 @@ def gl_backend() -> str:
     candidates = [os.environ["MUJOCO_GL"]] if os.environ.get("MUJOCO_GL") else list(GL_BACKENDS)
     errors = []
     for backend in candidates:
-        probe = subprocess.run([sys.executable, "-c", _PROBE], capture_output=True, text=True,
-                               env={**os.environ, "MUJOCO_GL": backend}, timeout=120, check=False)
+        probe = subprocess.run(
+            [sys.executable, "-c", _PROBE],
+            capture_output=True,
+            text=True,
+            env={**os.environ, "MUJOCO_GL": backend},
+            timeout=120,
+            check=False,
+        )
         if probe.returncode == 0:
             return backend
         last = (probe.stderr.strip().splitlines() or ["(no output)"])[-1]
         errors.append(f"MUJOCO_GL={backend}: {last}")
-    raise NoGLError("no headless OpenGL for MuJoCo's renderer (" + "; ".join(errors) + "). "
-                    "Install EGL (GPU driver, or Mesa: apt-get install libegl1 libgl1-mesa-dri) "
-                    "or OSMesa (apt-get install libosmesa6), or set MUJOCO_GL to a backend "
-                    "that works here")
+    raise NoGLError(
+        "no headless OpenGL for MuJoCo's renderer (" + "; ".join(errors) + "). "
+        "Install EGL (GPU driver, or Mesa: apt-get install libegl1 libgl1-mesa-dri) "
+        "or OSMesa (apt-get install libosmesa6), or set MUJOCO_GL to a backend "
+        "that works here"
+    )
 
 
 class DiagnosticsRecorder:
@@ -65,14 +74,15 @@ class DiagnosticsRecorder:
     thread, until :meth:`close`. Start it before the planner: PUB/SUB drops what is sent before
     the subscription is in place."""
 
-    def __init__(self, port: int, path: Path, host: str = "127.0.0.1",
-                 keys: PlannerKeys | None = None):
+    def __init__(
+        self, port: int, path: Path, host: str = "127.0.0.1", keys: PlannerKeys | None = None
+    ):
         self.path = path
         self._stop = threading.Event()
         self._ctx = zmq.Context()
-        self._sub = socket(self._ctx, zmq.SUB)      # the project's size limit and no linger
+        self._sub = socket(self._ctx, zmq.SUB)  # the project's size limit and no linger
         self._sub.setsockopt(zmq.SUBSCRIBE, b"")
-        if keys is not None:   # a tool beside the planner: its key pair, the planner as server
+        if keys is not None:  # a tool beside the planner: its key pair, the planner as server
             curve_client(self._sub, keys.own, keys.own.public)
         self._sub.connect(Endpoints(host, port).diagnostics)
         self._thread = threading.Thread(target=self._run, daemon=True)
@@ -86,9 +96,13 @@ class DiagnosticsRecorder:
                 try:
                     msg = P.decode(self._sub.recv(), expect="diagnostics")
                 except P.ProtocolError:
-                    continue   # a viewer-side recorder ignores what it cannot read
-                f.write(json.dumps({"seq": msg.seq, "action": msg.action,
-                                    "top": np.round(msg.top, 4).tolist()}) + "\n")
+                    continue  # a viewer-side recorder ignores what it cannot read
+                f.write(
+                    json.dumps(
+                        {"seq": msg.seq, "action": msg.action, "top": np.round(msg.top, 4).tolist()}
+                    )
+                    + "\n"
+                )
 
     def close(self) -> None:
         self._stop.set()
@@ -105,6 +119,7 @@ def read_tops(path: Path) -> dict[int, np.ndarray]:
 
 
 # ------------------------------------------------------------------------------ rendering (child)
+
 
 def frame_steps(times: np.ndarray, fps: float, speed: float) -> list[int]:
     """Indices of the logged steps to show: one per ``speed / fps`` simulated seconds, last
@@ -145,14 +160,16 @@ def _draw_paths(scene: mujoco.MjvScene, paths: np.ndarray, radius: float) -> Non
             if scene.ngeom >= scene.maxgeom:
                 return
             g = scene.geoms[scene.ngeom]
-            mujoco.mjv_initGeom(g, mujoco.mjtGeom.mjGEOM_CAPSULE, np.zeros(3), np.zeros(3),
-                                np.eye(3).ravel(), rgba)
+            mujoco.mjv_initGeom(
+                g, mujoco.mjtGeom.mjGEOM_CAPSULE, np.zeros(3), np.zeros(3), np.eye(3).ravel(), rgba
+            )
             mujoco.mjv_connector(g, mujoco.mjtGeom.mjGEOM_CAPSULE, radius, a, b)
             scene.ngeom += 1
 
 
-def render_frames(log: Path, scenario: Optional[str], width: int, height: int, fps: float,
-                  speed: float) -> list[np.ndarray]:
+def render_frames(
+    log: Path, scenario: str | None, width: int, height: int, fps: float, speed: float
+) -> list[np.ndarray]:
     """RGB frames of a logged episode, with the trajectories of ``diagnostics.jsonl`` beside it."""
     from shared.evaluation.replay import load_step, resolve_frame
     from shared.scene import compile_model
@@ -171,11 +188,13 @@ def render_frames(log: Path, scenario: Optional[str], width: int, height: int, f
     model.vis.global_.offheight = max(model.vis.global_.offheight, height)
     data = mujoco.MjData(model)
     load_step(model, data, steps[0])
-    names = ["robot"] + ([sc.metrics.position.a, sc.metrics.position.b] if sc.metrics.position else [])
+    names = ["robot"] + (
+        [sc.metrics.position.a, sc.metrics.position.b] if sc.metrics.position else []
+    )
     focus = np.array([resolve_frame(sc, model, n, "metrics.position").pos(data) for n in names])
     arena = sc.world.arena.half_size if sc.world.arena else None
     cam = _camera(model, arena, focus)
-    radius = 0.02 if arena else 0.002     # about 2 pixels across at 480 x 360
+    radius = 0.02 if arena else 0.002  # about 2 pixels across at 480 x 360
     frames = []
     with mujoco.Renderer(model, height, width, max_geom=model.ngeom + 2000) as renderer:
         for i in frame_steps(np.array([s["time"] for s in steps]), fps, speed):
@@ -194,12 +213,19 @@ def write_video(frames: list[np.ndarray], out: Path, fps: float) -> Path:
     out.parent.mkdir(parents=True, exist_ok=True)
     if out.suffix.lower() == ".gif":
         from PIL import Image
+
         # octree keeps small saturated objects (a robot, the green paths) that Pillow's default
         # median cut merges into the floor's greys
-        images = [Image.fromarray(f).quantize(256, method=Image.Quantize.FASTOCTREE)
-                  for f in frames]
-        images[0].save(out, save_all=True, append_images=images[1:], loop=0,
-                       duration=max(20, round(1000 / fps)))
+        images = [
+            Image.fromarray(f).quantize(256, method=Image.Quantize.FASTOCTREE) for f in frames
+        ]
+        images[0].save(
+            out,
+            save_all=True,
+            append_images=images[1:],
+            loop=0,
+            duration=max(20, round(1000 / fps)),
+        )
         return out
     if out.suffix.lower() != ".mp4":
         raise ValueError(f"{out}: unknown video format (expected .gif or .mp4)")
@@ -207,13 +233,35 @@ def write_video(frames: list[np.ndarray], out: Path, fps: float) -> Path:
     if exe is None:
         try:
             import imageio_ffmpeg
+
             exe = imageio_ffmpeg.get_ffmpeg_exe()
         except ImportError:
-            raise RuntimeError("MP4 needs ffmpeg: apt-get install ffmpeg, or "
-                               "pip install imageio-ffmpeg; or write a .gif") from None
+            raise RuntimeError(
+                "MP4 needs ffmpeg: apt-get install ffmpeg, or "
+                "pip install imageio-ffmpeg; or write a .gif"
+            ) from None
     h, w = frames[0].shape[:2]
-    cmd = [exe, "-y", "-loglevel", "error", "-f", "rawvideo", "-pix_fmt", "rgb24", "-s", f"{w}x{h}",
-           "-r", f"{fps}", "-i", "-", "-pix_fmt", "yuv420p", "-vcodec", "libx264", str(out)]
+    cmd = [
+        exe,
+        "-y",
+        "-loglevel",
+        "error",
+        "-f",
+        "rawvideo",
+        "-pix_fmt",
+        "rgb24",
+        "-s",
+        f"{w}x{h}",
+        "-r",
+        f"{fps}",
+        "-i",
+        "-",
+        "-pix_fmt",
+        "yuv420p",
+        "-vcodec",
+        "libx264",
+        str(out),
+    ]
     subprocess.run(cmd, input=b"".join(f.tobytes() for f in frames), check=True)
     return out
 
@@ -221,9 +269,11 @@ def write_video(frames: list[np.ndarray], out: Path, fps: float) -> Path:
 def main(
     log: Path = typer.Argument(..., help="Episode log or its run folder."),
     out: Path = typer.Argument(..., help="Video file: .gif or .mp4."),
-    scenario: Optional[str] = typer.Option(None, help="Scenario (default: the log's)."),
-    width: int = typer.Option(480), height: int = typer.Option(360),
-    fps: float = typer.Option(20.0), speed: float = typer.Option(1.0),
+    scenario: str | None = typer.Option(None, help="Scenario (default: the log's)."),
+    width: int = typer.Option(480),
+    height: int = typer.Option(360),
+    fps: float = typer.Option(20.0),
+    speed: float = typer.Option(1.0),
 ) -> None:
     """Render an episode log to a video (run with MUJOCO_GL set; ``m3p2i record`` does that)."""
     try:
@@ -234,13 +284,28 @@ def main(
         raise typer.Exit(2) from None
 
 
-def render_in_child(backend: str, log: Path, out: Path, width: int, height: int, fps: float,
-                    speed: float) -> None:
+def render_in_child(
+    backend: str, log: Path, out: Path, width: int, height: int, fps: float, speed: float
+) -> None:
     """Run :func:`main` in a child process with ``MUJOCO_GL=backend``; raises on failure."""
-    cmd = [sys.executable, "-m", "shared.tools.video", str(log), str(out), "--width", str(width),
-           "--height", str(height), "--fps", str(fps), "--speed", str(speed)]
-    done = subprocess.run(cmd, env={**os.environ, "MUJOCO_GL": backend}, capture_output=True,
-                          text=True, check=False)
+    cmd = [
+        sys.executable,
+        "-m",
+        "shared.tools.video",
+        str(log),
+        str(out),
+        "--width",
+        str(width),
+        "--height",
+        str(height),
+        "--fps",
+        str(fps),
+        "--speed",
+        str(speed),
+    ]
+    done = subprocess.run(
+        cmd, env={**os.environ, "MUJOCO_GL": backend}, capture_output=True, text=True, check=False
+    )
     if done.returncode != 0:
         raise RuntimeError(f"rendering failed (MUJOCO_GL={backend}):\n{done.stderr.strip()}")
 

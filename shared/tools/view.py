@@ -36,13 +36,21 @@ from shared.tools.view_scene import GeomShape, camera_for, geom_poses, scene_bou
 
 log = logging.getLogger("m3p2i.view")
 
-MODE_COLOURS = [(31, 119, 180), (255, 127, 14), (44, 160, 44), (214, 39, 40), (148, 103, 189),
-                (140, 86, 75), (227, 119, 194), (23, 190, 207)]
+MODE_COLOURS = [
+    (31, 119, 180),
+    (255, 127, 14),
+    (44, 160, 44),
+    (214, 39, 40),
+    (148, 103, 189),
+    (140, 86, 75),
+    (227, 119, 194),
+    (23, 190, 207),
+]
 """Colour of mode i's sampled trajectories (matplotlib's tab10, which the plots use too)."""
 PATH_COLOUR = (20, 20, 20)
-_PANEL_HZ = 10.0          # text panel refreshes per second: readable, and cheap for the browser
-_SCENE_HZ = 30.0          # pose updates per second sent to the browser at most
-_PATH_STEP = 0.005        # m: executed-path points closer than this to the last one are skipped
+_PANEL_HZ = 10.0  # text panel refreshes per second: readable, and cheap for the browser
+_SCENE_HZ = 30.0  # pose updates per second sent to the browser at most
+_PATH_STEP = 0.005  # m: executed-path points closer than this to the last one are skipped
 
 
 def import_viser():
@@ -50,8 +58,9 @@ def import_viser():
     try:
         import viser
     except ImportError as exc:
-        raise ImportError("the browser view needs viser: pip install 'm3p2i[view]' "
-                          "(or pip install viser)") from exc
+        raise ImportError(
+            "the browser view needs viser: pip install 'm3p2i[view]' (or pip install viser)"
+        ) from exc
     return viser
 
 
@@ -73,12 +82,14 @@ _LOOPBACK_NAMES = frozenset({"127.0.0.1", "localhost", "::1"})
 @dataclass(frozen=True)
 class OriginPolicy:
     """Which pages may open the view's websocket; :meth:`refusal` says why one may not."""
+
     public: bool = False
-    names: frozenset[str] = frozenset()     # with ``public``: this machine's names
+    names: frozenset[str] = frozenset()  # with ``public``: this machine's names
 
     @classmethod
     def for_bind(cls, bind: str) -> OriginPolicy:
         import socket as _socket
+
         if bind in ("127.0.0.1", "localhost", "::1"):
             return cls()
         names = {_socket.gethostname(), _socket.getfqdn(), bind}
@@ -95,12 +106,14 @@ class OriginPolicy:
             return None
         if self.public and (name in self.names or _is_ip(name)):
             return None
-        return (f"host {name!r} is not loopback" + ("" if not self.public else
-                                                     ", an IP address or this machine's name"))
+        return f"host {name!r} is not loopback" + (
+            "" if not self.public else ", an IP address or this machine's name"
+        )
 
 
 def _is_ip(name: str) -> bool:
     import ipaddress
+
     try:
         ipaddress.ip_address(name)
     except ValueError:
@@ -109,7 +122,7 @@ def _is_ip(name: str) -> bool:
 
 
 _guard_lock = threading.Lock()
-_guard_next: OriginPolicy | None = None     # the policy of the ViserServer being constructed
+_guard_next: OriginPolicy | None = None  # the policy of the ViserServer being constructed
 _guard_applied = False
 
 
@@ -128,11 +141,13 @@ def _install_origin_guard() -> None:
     replaced by a proxy) so that the server it starts checks :data:`_guard_next`'s policy in
     ``process_request``, ahead of viser's own (which serves the page's files)."""
     import http
+
     try:
         from viser.infra import _infra
+
         real = _infra.websockets
         serve = real.asyncio.server.serve
-    except (ImportError, AttributeError):     # another viser: viser_server says so
+    except (ImportError, AttributeError):  # another viser: viser_server says so
         return
     if isinstance(real, _Proxy):
         return
@@ -146,17 +161,22 @@ def _install_origin_guard() -> None:
         def check(connection, request):
             if request.headers.get("Upgrade", "").lower() == "websocket":
                 origins, hosts = (request.headers.get_all(h) for h in ("Origin", "Host"))
-                why = ("several Origin or Host headers" if len(origins) > 1 or len(hosts) != 1
-                       else policy.refusal(origins[0] if origins else None, hosts[0]))
+                why = (
+                    "several Origin or Host headers"
+                    if len(origins) > 1 or len(hosts) != 1
+                    else policy.refusal(origins[0] if origins else None, hosts[0])
+                )
                 if why is not None:
                     log.warning("refused a websocket from %s: %s", connection.remote_address, why)
                     return connection.respond(http.HTTPStatus.FORBIDDEN, f"refused: {why}\n")
             return None if process_request is None else process_request(connection, request)
+
         _guard_applied = True
         return serve(*args, process_request=check, **kwargs)
 
-    _infra.websockets = _Proxy(real, asyncio=_Proxy(real.asyncio, server=_Proxy(
-        real.asyncio.server, serve=guarded_serve)))
+    _infra.websockets = _Proxy(
+        real, asyncio=_Proxy(real.asyncio, server=_Proxy(real.asyncio.server, serve=guarded_serve))
+    )
 
 
 def viser_server(host: str, port: int, label: str):
@@ -173,9 +193,11 @@ def viser_server(host: str, port: int, label: str):
             _guard_next, applied = None, _guard_applied
     if not applied:
         server.stop()
-        raise ImportError(f"viser {getattr(viser, '__version__', '?')} starts its web server in "
-                          f"a way m3p2i cannot guard (the websocket's Origin check): use the "
-                          f"viser version of m3p2i[view]")
+        raise ImportError(
+            f"viser {getattr(viser, '__version__', '?')} starts its web server in "
+            f"a way m3p2i cannot guard (the websocket's Origin check): use the "
+            f"viser version of m3p2i[view]"
+        )
     return server
 
 
@@ -183,7 +205,9 @@ def rgb255(rgba) -> tuple[int, int, int]:
     return tuple(int(round(255 * min(max(c, 0.0), 1.0))) for c in rgba[:3])
 
 
-def trajectory_segments(top: np.ndarray, top_modes: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
+def trajectory_segments(
+    top: np.ndarray, top_modes: np.ndarray | None
+) -> tuple[np.ndarray, np.ndarray]:
     """Line segments ``[S, 2, 3]`` and their colours ``[S, 2, 3]`` (uint8) of the sampled
     trajectories ``top [M, T, 3]``, each coloured by its mode (``top_modes [M]``; mode 0 when
     the planner did not say)."""
@@ -215,6 +239,7 @@ def weight_bar(weight: float, width: int = 20) -> str:
 @dataclass
 class PanelInfo:
     """What the side panel shows, from the newest state and diagnostics."""
+
     scenario: str = ""
     status: str = "waiting for the world"
     time: float = 0.0
@@ -236,11 +261,16 @@ class PanelInfo:
             lines += ["", "**mode weights**", ""]
             for i, (name, w) in enumerate(zip(self.mode_names, self.mode_weights)):
                 r, g, b = MODE_COLOURS[i % len(MODE_COLOURS)]
-                lines.append(f"<span style='color:rgb({r},{g},{b})'>{weight_bar(w)}</span> "
-                             f"{w:.2f} `{name}`  ")
+                lines.append(
+                    f"<span style='color:rgb({r},{g},{b})'>{weight_bar(w)}</span> "
+                    f"{w:.2f} `{name}`  "
+                )
         if self.planner_hz is not None:
-            lines += ["", f"**planner**: {self.planner_hz:.1f} Hz"
-                      + (f", {self.plan_ms:.0f} ms per plan" if self.plan_ms is not None else "")]
+            lines += [
+                "",
+                f"**planner**: {self.planner_hz:.1f} Hz"
+                + (f", {self.plan_ms:.0f} ms per plan" if self.plan_ms is not None else ""),
+            ]
         for k, v in self.extras.items():
             lines.append(f"**{k}**: {v:.1f}")
         if self.note:
@@ -261,10 +291,16 @@ class SceneDrawing:
         pos, quat = geom_poses(model, data)
         for s in self.shapes:
             self.handles[s.geom_id] = server.scene.add_mesh_simple(
-                f"/world/{s.name}", s.vertices, s.faces, color=rgb255(s.rgba),
+                f"/world/{s.name}",
+                s.vertices,
+                s.faces,
+                color=rgb255(s.rgba),
                 opacity=None if s.rgba[3] >= 1 else float(s.rgba[3]),
-                side="double" if s.kind == "plane" else "front", flat_shading=s.kind == "box",
-                wxyz=quat[s.geom_id], position=pos[s.geom_id])
+                side="double" if s.kind == "plane" else "front",
+                flat_shading=s.kind == "box",
+                wxyz=quat[s.geom_id],
+                position=pos[s.geom_id],
+            )
         self.moving = [s.geom_id for s in self.shapes if s.movable]
         self._top = None
         self._path = None
@@ -275,7 +311,6 @@ class SceneDrawing:
         server.initial_camera.look_at = tuple(look_at)
         self.scale = float(np.linalg.norm(hi - lo))
         self._line = max(0.002, 0.0025 * self.scale)
-
 
     def set_poses(self, data: mujoco.MjData) -> None:
         pos, quat = geom_poses(self.model, data)
@@ -292,7 +327,8 @@ class SceneDrawing:
             self._top = None
         if len(segs):
             self._top = self.server.scene.add_line_segments(
-                "/planner/top", segs.astype(np.float32), cols, thickness=self._line)
+                "/planner/top", segs.astype(np.float32), cols, thickness=self._line
+            )
 
     def set_path(self, points: np.ndarray) -> None:
         segs = path_segments(points)
@@ -301,8 +337,11 @@ class SceneDrawing:
             self._path = None
         if len(segs):
             self._path = self.server.scene.add_line_segments(
-                "/world/executed_path", segs.astype(np.float32), PATH_COLOUR,
-                thickness=self._line * 1.5)
+                "/world/executed_path",
+                segs.astype(np.float32),
+                PATH_COLOUR,
+                thickness=self._line * 1.5,
+            )
 
 
 def robot_frame(scenario: Scenario, model: mujoco.MjModel):
@@ -312,12 +351,18 @@ def robot_frame(scenario: Scenario, model: mujoco.MjModel):
 
 # ------------------------------------------------------------------------------ live
 
+
 class ControlClient:
     """Sends ``control`` ops to the world's control socket, a fresh REQ each time (so a world
     that restarted or does not answer never wedges the view); returns the reply's text."""
 
-    def __init__(self, ctx: zmq.Context, endpoints: Endpoints, timeout: float = 2.0,
-                 keys: PlannerKeys | None = None):
+    def __init__(
+        self,
+        ctx: zmq.Context,
+        endpoints: Endpoints,
+        timeout: float = 2.0,
+        keys: PlannerKeys | None = None,
+    ):
         self.ctx, self.endpoints, self.timeout, self.keys = ctx, endpoints, timeout, keys
         self._lock = threading.Lock()
 
@@ -325,7 +370,7 @@ class ControlClient:
         """(accepted, what happened)."""
         with self._lock:
             req = socket(self.ctx, zmq.REQ)
-            if self.keys is not None:     # CURVE: the planner's pair, checking the world's key
+            if self.keys is not None:  # CURVE: the planner's pair, checking the world's key
                 curve_client(req, self.keys.own, self.keys.world)
             try:
                 req.connect(self.endpoints.control)
@@ -366,10 +411,15 @@ class DiagnosticsLog:
 
 def diagnostics_record(msg: P.Diagnostics) -> dict:
     """A diagnostics message as a JSON-able record (what ``diagnostics.jsonl`` holds)."""
-    rec = {"seq": msg.seq, "action": msg.action, "alternatives": list(msg.alternatives),
-           "mode_names": list(msg.mode_names),
-           "mode_weights": np.round(np.asarray(msg.mode_weights, float), 4).tolist(),
-           "top": np.round(np.asarray(msg.top, float), 4).tolist(), "plan_time": msg.plan_time}
+    rec = {
+        "seq": msg.seq,
+        "action": msg.action,
+        "alternatives": list(msg.alternatives),
+        "mode_names": list(msg.mode_names),
+        "mode_weights": np.round(np.asarray(msg.mode_weights, float), 4).tolist(),
+        "top": np.round(np.asarray(msg.top, float), 4).tolist(),
+        "plan_time": msg.plan_time,
+    }
     if msg.top_modes is not None:
         rec["top_modes"] = np.asarray(msg.top_modes, int).tolist()
     return rec
@@ -378,14 +428,21 @@ def diagnostics_record(msg: P.Diagnostics) -> dict:
 class LiveView:
     """Draws the running world and planner; serves until :meth:`close` (or ``stop`` is set)."""
 
-    def __init__(self, scenario: Scenario, endpoints: Endpoints, host: str, port: int,
-                 record: Path | None = None, keys: PlannerKeys | None = None,
-                 controls: bool = True):
+    def __init__(
+        self,
+        scenario: Scenario,
+        endpoints: Endpoints,
+        host: str,
+        port: int,
+        record: Path | None = None,
+        keys: PlannerKeys | None = None,
+        controls: bool = True,
+    ):
         self.scenario = scenario
         self.model = compile_model(scenario)
         self.data = initial_data(scenario, self.model)
         self.robot = robot_frame(scenario, self.model)
-        self.controls = controls      # False: the page only shows (pause, reset, move: none)
+        self.controls = controls  # False: the page only shows (pause, reset, move: none)
         self.server = viser_server(host, port, f"m3p2i {scenario.name}")
         self.drawing = SceneDrawing(self.server, self.model, self.data)
         self.info = PanelInfo(scenario=scenario.name)
@@ -429,16 +486,26 @@ class LiveView:
         resume.on_click(lambda _: self._send(P.Control(op="resume")))
         reset.on_click(lambda _: self._reset())
         self.buttons = {"Pause": pause, "Resume": resume, "Reset": reset}
-        movable = gui.add_checkbox("move objects", False, hint="Show a handle on each object: "
-                                   "drag it to move the object; the world logs a disturbance.")
+        movable = gui.add_checkbox(
+            "move objects",
+            False,
+            hint="Show a handle on each object: "
+            "drag it to move the object; the world logs a disturbance.",
+        )
         mj_data = self.data
         for obj in self.scenario.world.objects:
             body = self.model.body(obj.name)
             # big enough to grab on a 5 cm cube, small enough not to hide a table
             size = float(np.clip(np.max(obj.size) * 3.0, 0.08, 0.5))
             g = self.server.scene.add_transform_controls(
-                f"/drag/{obj.name}", scale=size, disable_sliders=True, depth_test=False,
-                position=mj_data.xpos[body.id], wxyz=mj_data.xquat[body.id], visible=False)
+                f"/drag/{obj.name}",
+                scale=size,
+                disable_sliders=True,
+                depth_test=False,
+                position=mj_data.xpos[body.id],
+                wxyz=mj_data.xquat[body.id],
+                visible=False,
+            )
             g.dragging = False
             g.on_drag_start(lambda _, g=g: setattr(g, "dragging", True))
             g.on_drag_end(lambda _, name=obj.name, g=g: self._moved(name, g))
@@ -447,6 +514,7 @@ class LiveView:
         def show_handles(_) -> None:
             for _, g in self.gizmos.values():
                 g.visible = movable.value
+
         movable.on_update(show_handles)
 
     def _send(self, msg: P.Control) -> bool:
@@ -465,8 +533,14 @@ class LiveView:
 
     def _moved(self, name: str, gizmo) -> None:
         gizmo.dragging = False
-        self._send(P.Control(op="move", object=name, pos=np.asarray(gizmo.position, float),
-                             quat=np.asarray(gizmo.wxyz, float)))
+        self._send(
+            P.Control(
+                op="move",
+                object=name,
+                pos=np.asarray(gizmo.position, float),
+                quat=np.asarray(gizmo.wxyz, float),
+            )
+        )
 
     def serve(self, duration: float | None = None) -> None:
         """Receive and draw until ``stop`` is set (or ``duration`` seconds passed)."""
@@ -508,12 +582,14 @@ class LiveView:
         try:
             set_state(self.model, self.data, vars(state))
         except ValueError as exc:
-            self.info.note = (f"**the world's state does not fit {self.scenario.name}'s model** "
-                              f"({exc}): is the view attached to the right scenario?")
+            self.info.note = (
+                f"**the world's state does not fit {self.scenario.name}'s model** "
+                f"({exc}): is the view attached to the right scenario?"
+            )
             return
         mujoco.mj_kinematics(self.model, self.data)
         if state.session != self._session or (self._path and state.time < self._last_time):
-            self._path.clear()          # a new world, or a reset: a new path
+            self._path.clear()  # a new world, or a reset: a new path
         self._session, self._last_time = state.session, state.time
         p = self.robot.pos(self.data).copy()
         if not self._path or np.linalg.norm(p - self._path[-1]) > _PATH_STEP:
@@ -556,10 +632,12 @@ class LiveView:
 
 # ------------------------------------------------------------------------------ replay
 
+
 @dataclass
 class Replay:
     """An episode log ready to draw: its step records, action changes, metrics and, when
     recorded, the planner's diagnostics by state seq."""
+
     scenario: Scenario
     steps: list[dict]
     actions: list[tuple[float, str]]
@@ -592,9 +670,14 @@ def load_replay(log_path: Path, scenario: str | None = None) -> Replay:
     if not steps:
         raise ValueError(f"{path}: no step records to replay (the episode never started)")
     summary = episode.summary(records)
-    actions = [(float(r["time"]), r["action"]) for r in records
-               if r.get("kind") == "event" and r.get("what") == "action"]
-    disturbances = [r for r in records if r.get("kind") == "event" and r.get("what") == "disturbance"]
+    actions = [
+        (float(r["time"]), r["action"])
+        for r in records
+        if r.get("kind") == "event" and r.get("what") == "action"
+    ]
+    disturbances = [
+        r for r in records if r.get("kind") == "event" and r.get("what") == "disturbance"
+    ]
     diag_path = path.parent / "diagnostics.jsonl"
     diags = {int(r["seq"]): r for r in episode.read_log(diag_path)} if diag_path.is_file() else {}
     return Replay(sc, steps, actions, summary, diags, disturbances)
@@ -616,9 +699,13 @@ def metrics_text(summary: dict | None) -> str:
     if summary is None:
         return "**no summary**: the log ends before the episode did"
     parts = [f"**outcome**: {summary.get('status')} at {summary.get('time', 0):.2f} s"]
-    metrics = {k: v for k, v in (summary.get("metrics") or {}).items()
-               if isinstance(v, (int, float)) and not isinstance(v, bool)
-               and k not in ("time", "wall_time", "planner_hz", "steps")}
+    metrics = {
+        k: v
+        for k, v in (summary.get("metrics") or {}).items()
+        if isinstance(v, (int, float))
+        and not isinstance(v, bool)
+        and k not in ("time", "wall_time", "planner_hz", "steps")
+    }
     for k, v in (metrics or summary.get("measures") or {}).items():
         parts.append(f"{k.replace('_', ' ')}: {v:.4g}")
     if summary.get("planner_hz"):
@@ -647,8 +734,13 @@ class ReplayView:
         self.stop = threading.Event()
         gui = self.server.gui
         self.panel = gui.add_markdown("")
-        self.slider = gui.add_slider("time [s]", min=float(times[0]), max=float(times[-1]),
-                                     step=float(self.model.opt.timestep), initial_value=float(times[-1]))
+        self.slider = gui.add_slider(
+            "time [s]",
+            min=float(times[0]),
+            max=float(times[-1]),
+            step=float(self.model.opt.timestep),
+            initial_value=float(times[-1]),
+        )
         self.play = gui.add_checkbox("play", False)
         self.speed = gui.add_slider("speed", min=0.1, max=4.0, step=0.1, initial_value=1.0)
         gui.add_markdown("**actions**")
@@ -672,8 +764,13 @@ class ReplayView:
         return out
 
     def index_at(self, t: float) -> int:
-        return max(0, min(int(np.searchsorted(self.replay.times, t + 1e-9, side="right")) - 1,
-                          len(self.replay.steps) - 1))
+        return max(
+            0,
+            min(
+                int(np.searchsorted(self.replay.times, t + 1e-9, side="right")) - 1,
+                len(self.replay.steps) - 1,
+            ),
+        )
 
     def show(self, t: float) -> None:
         """Draw the logged state at time ``t``: poses, path so far, trajectories, panel."""
@@ -681,13 +778,19 @@ class ReplayView:
         step = self.replay.steps[i]
         _load(self.model, self.data, step)
         self.drawing.set_poses(self.data)
-        self.drawing.set_path(self.path[:i + 1])
+        self.drawing.set_path(self.path[: i + 1])
         d = self.replay.diagnostics_at(int(step["seq"]))
-        self.drawing.set_top(None if d is None else np.asarray(d["top"]),
-                             None if d is None or "top_modes" not in d else np.asarray(d["top_modes"]))
-        info = PanelInfo(scenario=self.replay.scenario.name, time=float(step["time"]),
-                         status=f"replay, step {i + 1} of {len(self.replay.steps)}",
-                         action=step.get("action", ""), extras=step.get("extras") or {})
+        self.drawing.set_top(
+            None if d is None else np.asarray(d["top"]),
+            None if d is None or "top_modes" not in d else np.asarray(d["top_modes"]),
+        )
+        info = PanelInfo(
+            scenario=self.replay.scenario.name,
+            time=float(step["time"]),
+            status=f"replay, step {i + 1} of {len(self.replay.steps)}",
+            action=step.get("action", ""),
+            extras=step.get("extras") or {},
+        )
         if d is not None:
             total = float(np.sum(d["mode_weights"])) or 1.0
             info.alternatives = d.get("alternatives", [])
@@ -710,8 +813,8 @@ class ReplayView:
             if self.play.value:
                 t = self.slider.value + (now - last) * self.speed.value
                 if t >= self.slider.max:
-                    t = self.slider.min          # loop
-                self.slider.value = t            # on_update draws it
+                    t = self.slider.min  # loop
+                self.slider.value = t  # on_update draws it
             last = now
 
     def close(self) -> None:
@@ -721,4 +824,5 @@ class ReplayView:
 
 def _load(model: mujoco.MjModel, data: mujoco.MjData, step: dict) -> None:
     from shared.evaluation.replay import load_step
+
     load_step(model, data, step)

@@ -17,8 +17,8 @@ import numpy as np
 _T = mujoco.mjtGeom
 VISIBLE_GROUPS = (0, 1, 2)
 """Geom groups drawn, as MuJoCo's own viewer does by default (3-5 hold collision-only shapes)."""
-_DEFAULT_RGBA = (0.5, 0.5, 0.5, 1.0)   # MuJoCo's geom rgba when none is given: take the material's
-_SEGMENTS = 24                          # around a cylinder, capsule or sphere: smooth enough at 1 m
+_DEFAULT_RGBA = (0.5, 0.5, 0.5, 1.0)  # MuJoCo's geom rgba when none is given: take the material's
+_SEGMENTS = 24  # around a cylinder, capsule or sphere: smooth enough at 1 m
 
 
 @dataclass(frozen=True)
@@ -26,9 +26,10 @@ class GeomShape:
     """One geom as a mesh in its own frame: ``vertices [V, 3]`` (float32, metres),
     ``faces [F, 3]`` (uint32, counter-clockwise seen from outside), ``rgba`` in 0-1, and
     whether its pose can change during an episode (a body with joints, or a mocap body)."""
+
     geom_id: int
     name: str
-    kind: str                    # box | sphere | capsule | cylinder | ellipsoid | plane | mesh
+    kind: str  # box | sphere | capsule | cylinder | ellipsoid | plane | mesh
     vertices: np.ndarray
     faces: np.ndarray
     rgba: tuple[float, float, float, float]
@@ -38,9 +39,22 @@ class GeomShape:
 def box_mesh(half: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """A box of half-sizes ``half [3]`` centred at the origin."""
     corners = np.array([[x, y, z] for x in (-1, 1) for y in (-1, 1) for z in (-1, 1)], float)
-    faces = np.array([[0, 1, 3], [0, 3, 2], [4, 6, 7], [4, 7, 5],      # -x, +x
-                      [0, 4, 5], [0, 5, 1], [2, 3, 7], [2, 7, 6],      # -y, +y
-                      [0, 2, 6], [0, 6, 4], [1, 5, 7], [1, 7, 3]])     # -z, +z
+    faces = np.array(
+        [
+            [0, 1, 3],
+            [0, 3, 2],
+            [4, 6, 7],
+            [4, 7, 5],  # -x, +x
+            [0, 4, 5],
+            [0, 5, 1],
+            [2, 3, 7],
+            [2, 7, 6],  # -y, +y
+            [0, 2, 6],
+            [0, 6, 4],
+            [1, 5, 7],
+            [1, 7, 3],
+        ]
+    )  # -z, +z
     return corners * np.asarray(half, float), faces
 
 
@@ -121,7 +135,7 @@ def geom_mesh(model: mujoco.MjModel, g: int) -> tuple[str, np.ndarray, np.ndarra
         f0, nf = int(model.mesh_faceadr[m]), int(model.mesh_facenum[m])
         # the compiled mesh is already in the geom's frame (MuJoCo moved it to its inertial frame
         # and set geom_pos/quat accordingly)
-        return "mesh", model.mesh_vert[v0:v0 + nv].copy(), model.mesh_face[f0:f0 + nf].copy()
+        return "mesh", model.mesh_vert[v0 : v0 + nv].copy(), model.mesh_face[f0 : f0 + nf].copy()
     name = mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_GEOM, g) or f"#{g}"
     raise ValueError(f"geom {name!r}: type {_T(kind).name} cannot be drawn in the view")
 
@@ -140,7 +154,7 @@ def _movable_bodies(model: mujoco.MjModel) -> np.ndarray:
     moving = np.zeros(model.nbody, bool)
     for b in range(1, model.nbody):
         parent = int(model.body_parentid[b])
-        moving[b] = (moving[parent] or model.body_jntnum[b] > 0 or model.body_mocapid[b] >= 0)
+        moving[b] = moving[parent] or model.body_jntnum[b] > 0 or model.body_mocapid[b] >= 0
     return moving
 
 
@@ -154,10 +168,17 @@ def scene_shapes(model: mujoco.MjModel) -> list[GeomShape]:
             continue
         kind, verts, faces = geom_mesh(model, g)
         name = mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_GEOM, g) or f"geom{g}"
-        shapes.append(GeomShape(geom_id=g, name=name, kind=kind,
-                                vertices=np.asarray(verts, np.float32),
-                                faces=np.asarray(faces, np.uint32), rgba=rgba,
-                                movable=bool(moving[int(model.geom_bodyid[g])])))
+        shapes.append(
+            GeomShape(
+                geom_id=g,
+                name=name,
+                kind=kind,
+                vertices=np.asarray(verts, np.float32),
+                faces=np.asarray(faces, np.uint32),
+                rgba=rgba,
+                movable=bool(moving[int(model.geom_bodyid[g])]),
+            )
+        )
     return shapes
 
 
@@ -170,7 +191,9 @@ def geom_poses(model: mujoco.MjModel, data: mujoco.MjData) -> tuple[np.ndarray, 
     return data.geom_xpos.copy(), quats
 
 
-def scene_bounds(model: mujoco.MjModel, data: mujoco.MjData, shapes: list[GeomShape]) -> tuple[np.ndarray, np.ndarray]:
+def scene_bounds(
+    model: mujoco.MjModel, data: mujoco.MjData, shapes: list[GeomShape]
+) -> tuple[np.ndarray, np.ndarray]:
     """Lower and upper corners ``[3]`` of what is worth framing: every drawn geom but the
     ground (a plane facing up: a floor would frame 10 m of nothing around a table); an arena's
     walls count."""

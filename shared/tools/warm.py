@@ -28,10 +28,15 @@ import zmq
 from shared import protocol as P
 from shared.endpoints import DEFAULT_HOST, Endpoints, socket
 from shared.evaluation.episode import episode_log_path, has_summary
-from shared.tools.launch import EpisodeLaunch, EpisodeRun, free_port_block, read_summary, \
-    stop_processes
+from shared.tools.launch import (
+    EpisodeLaunch,
+    EpisodeRun,
+    free_port_block,
+    read_summary,
+    stop_processes,
+)
 
-_CONTROL_TIMEOUT = 10.0   # s for the world to answer a reset (it may be finishing a step)
+_CONTROL_TIMEOUT = 10.0  # s for the world to answer a reset (it may be finishing a step)
 
 
 class WarmPair:
@@ -70,13 +75,17 @@ class WarmPair:
             reason = self._wait(log_path, started, timeout, stop)
         except KeyboardInterrupt:
             reason = "interrupted"
-        except RuntimeError as exc:      # the world refused or ignored the reset
+        except RuntimeError as exc:  # the world refused or ignored the reset
             reason = str(exc)
         if reason:
-            self.close()                 # its logs are complete once the processes are gone
+            self.close()  # its logs are complete once the processes are gone
         self._copy_logs(marks, log_path.parent)
-        return EpisodeRun(log_path=log_path, summary=read_summary(log_path), reason=reason,
-                          wall_time=time.monotonic() - started)
+        return EpisodeRun(
+            log_path=log_path,
+            summary=read_summary(log_path),
+            reason=reason,
+            wall_time=time.monotonic() - started,
+        )
 
     def close(self) -> None:
         """Stop both processes (the world writes the running episode's summary on SIGTERM)."""
@@ -105,8 +114,10 @@ class WarmPair:
             req.connect(Endpoints(DEFAULT_HOST, self._port).control)
             req.send(P.encode(P.Control(op="reset", seed=seed)))
             if not req.poll(int(_CONTROL_TIMEOUT * 1000)):
-                raise RuntimeError(f"the world did not answer the reset to seed {seed} "
-                                   f"within {_CONTROL_TIMEOUT:.0f} s")
+                raise RuntimeError(
+                    f"the world did not answer the reset to seed {seed} "
+                    f"within {_CONTROL_TIMEOUT:.0f} s"
+                )
             reply = P.decode(req.recv(), expect=("control", "error"))
         except P.ProtocolError as exc:
             raise RuntimeError(f"the world's answer to the reset is invalid: {exc}") from None
@@ -115,8 +126,9 @@ class WarmPair:
         if isinstance(reply, P.Error):
             raise RuntimeError(f"the world refused the reset to seed {seed}: {reply.reason}")
 
-    def _wait(self, log_path: Path, started: float, timeout: float,
-              stop: threading.Event | None) -> str:
+    def _wait(
+        self, log_path: Path, started: float, timeout: float, stop: threading.Event | None
+    ) -> str:
         """'' once the episode's summary is written; else why not (as run_episode says it)."""
         while not has_summary(log_path):
             server, planner = self.procs["server"].poll(), self.procs["planner"].poll()
