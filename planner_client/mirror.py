@@ -39,10 +39,10 @@ class MocapState:
 class Mirror:
     """The planner's MjData, overwritten by each received state (full physics state).
 
-    It also estimates the velocity of every mocap body (objects the world moves: scripted or
-    dynamic obstacles) from the last two states, for the constant-velocity prediction of paper Eq. 22.
-    A jump faster than ``max_speed`` is a teleport (a disturbance), not motion: velocity 0.
-    With ``estimate`` (``planner.estimate``), the free bodies' and the mocap bodies' poses are
+    It also estimates the velocity of every mocap body (objects the world moves: scripted or dynamic
+    obstacles) from the last two states, for the constant-velocity prediction of paper Eq. 22. A
+    jump faster than ``max_speed`` is a teleport (a disturbance), not motion: velocity 0. With
+    ``estimate`` (``planner.estimate``), the free bodies' and the mocap bodies' poses are
     filtered and their velocities estimated from them (:mod:`planner_client.estimate`). The free
     objects named in ``planar`` (``planner.model.objects.<name>.planar``) are laid flat
     (:func:`flatten`).
@@ -127,7 +127,7 @@ class Mirror:
         return self.refresh()
 
     def refresh(self) -> np.ndarray:
-        """Recompute kinematics after ``data`` changed; return the rollout initial state [nstate]."""
+        """Recompute kinematics after ``data`` changed; return the rollout start state [nstate]."""
         mujoco.mj_forward(self.model, self.data)
         return get_full_state(self.model, self.data, self.x0)
 

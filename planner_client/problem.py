@@ -1,8 +1,8 @@
 """The planner's model of the scenario: compiled MuJoCo model with sensors, objectives, mirror.
 
-Built once at start-up from the same YAML as the server's world: objectives are validated
-against the term registry and the model, every sensor they need is added to the spec, and the
-result is compiled. :class:`~planner_client.mirror.Mirror` copies each received state into this model.
+Built once at start-up from the same YAML as the server's world: objectives are validated against
+the term registry and the model, every sensor they need is added to the spec, and the result is
+compiled. :class:`~planner_client.mirror.Mirror` copies each received state into this model.
 """
 
 from __future__ import annotations

@@ -8,6 +8,7 @@ one array ``[S, T, nsensordata]``, so costs are pure tensor maths with no per-sa
 
 from __future__ import annotations
 
+import itertools
 from typing import NamedTuple
 
 import mujoco
@@ -126,7 +127,7 @@ class SensorColumns:
         self, reqs: tuple[SensorRequest, ...], device: torch.device
     ) -> slice | torch.Tensor:
         spans = [self.spans[r] for r in reqs]
-        if all(a.stop == b.start for a, b in zip(spans, spans[1:])):
+        if all(a.stop == b.start for a, b in itertools.pairwise(spans)):
             return slice(spans[0].start, spans[-1].stop)
         return torch.tensor(
             [i for span in spans for i in range(span.start, span.stop)],

@@ -5,12 +5,12 @@ Closed loop on two analytic systems, same K, T, λ, σ, bounds and cost for ever
 * pendulum swing-up (pytorch_mppi's own example: K=100, T=15, σ=10, λ=1, |u| ≤ 2, dt=0.05),
 * a 2-D double integrator driven to a goal (K=200, T=15, σ=1.5, λ=1, |u| ≤ 3, dt=0.05).
 
-Rows: ``pytorch_mppi``; ``MPPI (thesis Alg. 2)`` with Gaussian noise and the control cost on, i.e. the
-same algorithm as pytorch_mppi; ``M3P2I (1 mode)`` with this package's defaults plus
-η ∈ [3, 10] and a Savitzky-Golay window of 9 (the thesis settings). Columns: true-system cost
-summed over the episode and at its last step (mean ± std over seeds), wall time per control step
-(rollout included; both libraries roll out with the same Python loop over T), and for this
-package the planner's own time (sample + update, rollout excluded).
+Rows: ``pytorch_mppi``; ``MPPI (thesis Alg. 2)`` with Gaussian noise and the control cost on, i.e.
+the same algorithm as pytorch_mppi; ``M3P2I (1 mode)`` with this package's defaults plus η ∈ [3, 10]
+and a Savitzky-Golay window of 9 (the thesis settings). Columns: true-system cost summed over the
+episode and at its last step (mean ± std over seeds), wall time per control step (rollout included;
+both libraries roll out with the same Python loop over T), and for this package the planner's own
+time (sample + update, rollout excluded).
 
 A second table compares the Halton-set choices of ``sampling.py`` (fixed set as in the paper,
 rotated set, Gaussian) on the double integrator.
@@ -138,7 +138,8 @@ def config(task: Task, seed: int, **kw) -> MPPIConfig:
 
 
 def ours(planner_of: Callable[[Task, int], object]):
-    """Controller factory for this package's planners: ``(task, seed) -> step(x) -> (u, planner_s)``."""
+    """Controller factory for this package's planners:
+    ``(task, seed) -> step(x) -> (u, planner_s)``."""
 
     def make(task: Task, seed: int):
         planner = planner_of(task, seed)

@@ -153,7 +153,7 @@ class World(ABC):
         when commands go stale or a plan runs out."""
         return self.robot.safe_stop(self.ctrl)
 
-    def stop(self) -> None:
+    def stop(self) -> None:  # noqa: B027  optional hook: the default does nothing
         """Hold the robot still now: the episode ended, the world was paused or interrupted.
         A simulated world does nothing (its time stands still between steps)."""
 
@@ -163,7 +163,7 @@ class World(ABC):
         tool with it). By default a world cannot: real objects are not moved by a message."""
         raise ValueError(f"this world ({type(self).__name__}) cannot move objects")
 
-    def close(self) -> None:
+    def close(self) -> None:  # noqa: B027  optional hook: the default does nothing
         """Release what the world holds (a robot's connection); nothing by default."""
 
     def clip(self, ctrl: np.ndarray) -> np.ndarray:

@@ -174,8 +174,8 @@ class ExtraAtLeast(Predicate):
 @dataclass(frozen=True)
 class AtPose(Predicate):
     """Frame ``a`` at ``b`` shifted by ``offset`` (world frame, metres), in position and in
-    orientation (paper Eqs. 25-26): |x_a - (x_b + offset)| < ``within`` and, when ``orientation``
-    is given, φ(Σ_a, Σ_b) < ``orientation`` with φ the symmetric-object metric of paper Eq. 33 (any of
+    orientation (paper Eqs. 25-26): |x_a - (x_b + offset)| < ``within`` and, when ``orientation`` is
+    given, φ(Σ_a, Σ_b) < ``orientation`` with φ the symmetric-object metric of paper Eq. 33 (any of
     a cube's 24 symmetries counts as aligned). The offset places a goal relative to a movable
     object, e.g. "on top of cube B" is ``offset: [0, 0, 0.05]`` for 5 cm cubes."""
 

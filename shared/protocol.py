@@ -20,8 +20,8 @@ import msgpack
 import numpy as np
 
 PROTOCOL_VERSION = 2
-"""2 added the time-indexed plan of a command (``plan_*``), ``state.lag`` and the diagnostics' timing;
-a peer of another version is refused with both versions named (docs/protocol.md)."""
+"""2 added the time-indexed plan of a command (``plan_*``), ``state.lag`` and the diagnostics'
+timing; a peer of another version is refused with both versions named (docs/protocol.md)."""
 VERSIONS = (1, 2)
 """The versions this code speaks. The planner's ``hello`` offers them (``versions``), the world
 answers in the highest both speak, and each side then encodes with that one (docs/protocol.md,

@@ -174,8 +174,8 @@ class CollisionMetricConfig:
 
 @dataclass(frozen=True)
 class MetricsConfig:
-    """What ``shared.evaluation.metrics`` measures per episode (``metrics:``; docs/evaluation.md). A metric
-    left as None is not measured."""
+    """What ``shared.evaluation.metrics`` measures per episode (``metrics:``; docs/evaluation.md). A
+    metric left as None is not measured."""
 
     position: FramePairConfig | None = None
     orientation: FramePairConfig | None = None
@@ -1352,7 +1352,7 @@ def _includes(top: Section, errors: ErrorLog) -> tuple[dict[str, ObjectiveConfig
         s = Section(raw, str(path))
         errors.call(s.opt, "description", "", str)
         defined = errors.call(
-            lambda: _objectives(s.section("objectives"), errors, library), default={}
+            lambda s=s: _objectives(s.section("objectives"), errors, library), default={}
         )
         errors.call(s.done)
         for key in defined:

@@ -1,4 +1,4 @@
-"""User world classes for ``m3p2i-server --world tests.bridge_worlds:Class`` (tests/test_bridge_world.py).
+"""User world classes for ``m3p2i-server --world tests.bridge_worlds:Class`` (test_bridge_world.py).
 
 :class:`KinematicBase` is a bridge as a user writes one (docs/bridge.md), with a kinematic
 stand-in for the robot: a holonomic base that moves exactly at the commanded velocity, where a

@@ -49,7 +49,7 @@ def _roll(model, data, ctrl, steps=20):
 
 
 def test_a_held_cube_moves_with_the_hand_and_a_released_one_falls(held):
-    sc, model, data, att = held
+    _sc, model, data, att = held
     hand, cube = model.body("panda_hand").id, model.body("cube_a").id
     before = relative_pose(data, cube, hand)
     ctrl = np.array([0.5, -0.4, 0.3, 0.5, 0.0, 0.0, 0.0, 0.08])  # swing the arm
@@ -70,7 +70,7 @@ def test_a_held_cube_moves_with_the_hand_and_a_released_one_falls(held):
 
 
 def test_an_attached_cube_meets_the_table_but_not_the_robot(held):
-    sc, model, data, att = held
+    _sc, model, data, att = held
     robot = model.body("panda_hand").rootid
     table, cube = model.geom("table").id, model.body("cube_a").id
     geoms = att.welds[0].geoms
@@ -236,7 +236,7 @@ def test_a_carried_cube_is_measured_as_received_not_where_the_pose_filter_trails
 
 
 def test_without_a_held_filter_nothing_is_tracked():
-    model, data, att = _tracked(held_filter=1.0)
+    _model, data, att = _tracked(held_filter=1.0)
     before = data.qpos.copy()
     assert not att.track(data) and np.array_equal(data.qpos, before)
 

@@ -4,6 +4,7 @@ refused with a reason (or played safely), never an exception that ends a process
 from __future__ import annotations
 
 import math
+from typing import ClassVar
 
 import msgpack
 import numpy as np
@@ -169,7 +170,7 @@ def _ws_open(port: int, origin: str | None, host: str | None = None) -> str:
         status = int(reply.split(b" ", 2)[1])
         if status != 101:
             return f"refused {status}"
-        head, _, rest = reply.partition(b"\r\n\r\n")
+        _head, _, rest = reply.partition(b"\r\n\r\n")
         if not rest:
             rest = sock.recv(65536)  # the scene's first websocket frame
         return "accepted" if rest else "accepted, nothing sent"
@@ -232,7 +233,7 @@ def test_a_public_view_accepts_its_machines_names_and_addresses_only():
 class _FakeView:
     """Stands in for LiveView in the command line's tests: what it was given."""
 
-    made: list[dict] = []
+    made: ClassVar[list[dict]] = []
 
     def __init__(self, *args, **kwargs):
         _FakeView.made.append({"args": args, **kwargs})

@@ -4,6 +4,8 @@ time plus one active-inference period. Deterministic (a seeded noise stream, no 
 
 from __future__ import annotations
 
+import itertools
+
 import numpy as np
 import pytest
 import yaml
@@ -44,7 +46,7 @@ def _switches(confirm, seconds=10.0) -> tuple[int, list[str]]:
     actions = [
         task.decide(data, {"battery": level + n}, i * PERIOD).action for i, n in enumerate(noise)
     ]
-    return sum(a != b for a, b in zip(actions, actions[1:])), actions
+    return sum(a != b for a, b in itertools.pairwise(actions)), actions
 
 
 def test_a_flickering_observer_switches_the_action_every_few_ticks_without_confirm():

@@ -154,7 +154,7 @@ def sensed(model: mujoco.MjModel, ctx: TermContext, term, setup, steps: int = 0)
     return RolloutBatch(sd, ctrl, SensorColumns.of_model(m, term.sensors()), m.opt.timestep)
 
 
-# --- distance, velocity (paper Eq. 14) -----------------------------------------------------------------
+# --- distance, velocity (paper Eq. 14) ------------------------------------------------------------
 
 
 def test_distance_in_3d_and_in_the_plane(ctx):
@@ -203,7 +203,7 @@ def test_velocity_is_the_speed_of_the_frame(ctx):
     close(make(ctx, "velocity", a="box", axes="xy")(b), [[5.0], [0.0]])
 
 
-# --- collision, contact_force (thesis Eq. 4.7) ----------------------------------------------------------
+# --- collision, contact_force (thesis Eq. 4.7) ----------------------------------------------------
 
 
 def test_collision_is_zero_outside_the_margin_one_at_touching_and_sums_obstacles(ctx):
@@ -286,7 +286,7 @@ def test_control_effort_over_all_or_named_channels(ctx):
         make(ctx, "control_effort", actuators=["uz"])
 
 
-# --- orientation (paper Eqs. 15, 33) -------------------------------------------------------------------
+# --- orientation (paper Eqs. 15, 33) --------------------------------------------------------------
 
 
 def _yaw(deg: float) -> tuple[float, float, float, float]:
@@ -315,7 +315,7 @@ def test_orientation_reads_the_real_frames(model, ctx):
     torch.testing.assert_close(term(b), torch.tensor([[2.0 - math.sqrt(2.0)]], dtype=F64))
 
 
-# --- push_align, pull_align (paper Eqs. 16-18, 20) -----------------------------------------------------
+# --- push_align, pull_align (paper Eqs. 16-18, 20) ------------------------------------------------
 
 # object at the origin, goal 2 m ahead on x; robots: behind, between, beside, diagonally in
 # front, diagonally behind, on the object
@@ -364,7 +364,7 @@ def test_align_with_the_object_on_the_goal_costs_nothing(ctx):
         close(make(ctx, name, a="robot", obj="box", goal="goal")(b), [[0.0]])
 
 
-# --- pull_direction (paper Eq. 21) ---------------------------------------------------------------------
+# --- pull_direction (paper Eq. 21) ----------------------------------------------------------------
 
 
 def test_pull_direction_penalises_controls_towards_the_object(ctx):
@@ -404,7 +404,7 @@ def test_pull_direction_needs_one_actuator_per_axis(ctx):
         make(ctx, "pull_direction", a="robot", obj="box", actuators=["ux", "vel_y"])
 
 
-# --- dynamic_obstacle (paper Eq. 22) -------------------------------------------------------------------
+# --- dynamic_obstacle (paper Eq. 22) --------------------------------------------------------------
 
 
 def test_dynamic_obstacle_uses_the_rollouts_obstacle_position_at_each_step(ctx):
@@ -442,7 +442,7 @@ def test_dynamic_obstacle_prediction_matches_a_real_rollout(model, ctx):
     torch.testing.assert_close(term(b), torch.tensor([[math.exp(-g) for g in gap]], dtype=F64))
 
 
-# --- reach (paper Eq. 27) ------------------------------------------------------------------------------
+# --- reach (paper Eq. 27) -------------------------------------------------------------------------
 
 
 def _reach_batch(term, z_ee: list) -> RolloutBatch:
@@ -566,7 +566,7 @@ def test_reach_theta_must_be_a_cosine(ctx):
         make(ctx, "reach", ee="hand", obj="box")
 
 
-# --- gripper_width (paper Eqs. 28, 30) -----------------------------------------------------------------
+# --- gripper_width (paper Eqs. 28, 30) ------------------------------------------------------------
 
 
 def test_gripper_width_closed_open_and_value(ctx):
@@ -791,16 +791,19 @@ def test_one_norm_term_beside_others_is_evaluated_on_its_own(ctx):
     [
         (
             {"term": "push_allign", "a": "robot"},
-            r"test\.yaml: objectives\.push\.terms\[1\]\.term: unknown cost term \(got 'push_allign'; "
+            r"test\.yaml: objectives\.push\.terms\[1\]\.term: "
+            r"unknown cost term \(got 'push_allign'; "
             r"expected one of: .*push_align",
         ),
         (
             {"term": "push_align", "a": "robot", "obj": "box", "goal": "goal", "gaol": "goal"},
-            r"test\.yaml: objectives\.push\.terms\[1\]\.gaol: unknown key \(expected one of: .*goal",
+            r"test\.yaml: objectives\.push\.terms\[1\]\.gaol: "
+            r"unknown key \(expected one of: .*goal",
         ),
         (
             {"term": "push_align", "a": "robot", "obj": "crate", "goal": "goal"},
-            r"test\.yaml: objectives\.push\.terms\[1\]\.obj: no body named 'crate'.*expected one of: "
+            r"test\.yaml: objectives\.push\.terms\[1\]\.obj: "
+            r"no body named 'crate'.*expected one of: "
             r"robot, base, bumper, hand, wall, .*site:left",
         ),
         (
@@ -809,7 +812,8 @@ def test_one_norm_term_beside_others_is_evaluated_on_its_own(ctx):
         ),
         (
             {"term": "distance", "a": "robot", "b": "goal", "when": "final"},
-            r"test\.yaml: objectives\.push\.terms\[1\]\.when: must be one of: all, running, terminal "
+            r"test\.yaml: objectives\.push\.terms\[1\]\.when: "
+            r"must be one of: all, running, terminal "
             r"\(got 'final'\)",
         ),
         (

@@ -91,13 +91,13 @@ def test_filtered_poses_are_closer_to_the_truth_than_the_measured_ones(push):
 
 
 def test_received_velocities_pass_through_by_default(push):
-    model, _, _, va = push
+    model, _, _, _va = push
     assert Mirror(model).estimator is None
     assert all(np.all(v == 0) for _, v, _ in _run(push, EstimateConfig(), seconds=0.5))
 
 
 def test_a_teleport_restarts_the_filters(push):
-    model, data, qa, va = push
+    model, _data, qa, va = push
     mirror = Mirror(
         model,
         estimate=EstimateConfig(

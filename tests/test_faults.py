@@ -93,7 +93,7 @@ def test_bad_values_name_file_key_value_and_what_was_expected(value, key, expect
 
 
 def test_an_unknown_profile_or_file_is_refused():
-    with pytest.raises(ConfigError, match="neither a profile nor a file.*nominal, lab, harsh"):
+    with pytest.raises(ConfigError, match=r"neither a profile nor a file.*nominal, lab, harsh"):
         load_faults("no_such_profile")
 
 
@@ -162,11 +162,11 @@ def test_both_names_at_once_are_an_error_naming_the_file_and_both_keys(tmp_path)
         and "hardware:" in str(err.value)
     ), err.value
     (tmp_path / "mine.yaml").write_text("base: push\nname: mine\nfaults: lab\nhardware: lab\n")
-    with pytest.raises(ConfigError, match="mine.yaml: hardware: both faults: and hardware:"):
+    with pytest.raises(ConfigError, match=r"mine\.yaml: hardware: both faults: and hardware:"):
         load_scenario(tmp_path / "mine.yaml")
     f = tmp_path / "both.yaml"
     f.write_text("faults: lab\nhardware: lab\n")
-    with pytest.raises(ConfigError, match="both.yaml: hardware: both faults: and hardware:"):
+    with pytest.raises(ConfigError, match=r"both\.yaml: hardware: both faults: and hardware:"):
         load_faults(str(f))
     bench = tmp_path / "bench.yaml"
     bench.write_text(

@@ -36,7 +36,7 @@ def cube_symmetries() -> list[np.ndarray]:
     return out
 
 
-# ---------------------------------------------------------------- phi (paper Eq. 33) -----------------
+# ---------------------------------------------------------------- phi (paper Eq. 33) --------------
 
 
 def test_identical_frames_give_zero():

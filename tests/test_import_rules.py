@@ -146,7 +146,10 @@ def test_the_world_server_starts_without_torch():
     import subprocess
     import sys
 
-    code = "import sys, server.cli; print(sorted(m for m in sys.modules if m.split('.')[0] == 'torch')[:3])"
+    code = (
+        "import sys, server.cli; "
+        "print(sorted(m for m in sys.modules if m.split('.')[0] == 'torch')[:3])"
+    )
     out = subprocess.run(
         [sys.executable, "-c", code], cwd=ROOT, capture_output=True, text=True, check=True
     ).stdout.strip()

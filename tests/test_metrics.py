@@ -148,8 +148,8 @@ def test_default_position_metric_is_the_first_near_success_predicate(scenario):
 
 
 def test_at_pose_success_gives_position_with_offset_and_orientation(tmp_path):
-    """Pick-and-place judges success on at_pose (goal = b + offset, paper Eq. 26): the metrics default
-    to the same frames, offset included."""
+    """Pick-and-place judges success on at_pose (goal = b + offset, paper Eq. 26): the metrics
+    default to the same frames, offset included."""
     raw = {
         **SCENARIO,
         "metrics": {"collisions": {"a": "robot", "with": ["obstacle"]}},

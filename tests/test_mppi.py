@@ -93,7 +93,7 @@ def test_double_integrator_reaches_goal(planner):
     mpc = MPPI(cfg, 150) if planner == "mppi-gaussian" else M3P2I(cfg, [ModeSpec("go", 150)])
     x = torch.zeros(4, dtype=F64)
     for _ in range(120):
-        u = mpc.command(lambda v: double_integrator_costs(x, v, goal)).u0
+        u = mpc.command(lambda v, x=x: double_integrator_costs(x, v, goal)).u0
         assert torch.all(u.abs() <= 3.0)
         x = x.clone()
         x[2:] += 0.05 * u
@@ -127,7 +127,7 @@ def with_terminal(c: torch.Tensor, p: torch.Tensor) -> torch.Tensor:
 def drive(planner, evaluate_at, steps: int = 80):
     x, path, dominant = torch.zeros(2, dtype=F64), [], []
     for _ in range(steps):
-        result = planner.command(lambda v: evaluate_at(x, v))
+        result = planner.command(lambda v, x=x: evaluate_at(x, v))
         x = x + DT * result.u0
         path.append(x)
         dominant.append(int(result.mode_weights.argmax()))
@@ -178,7 +178,7 @@ def test_hopeless_mode_gets_vanishing_fused_weight():
     planner = M3P2I(cfg, [ModeSpec("go", 100), ModeSpec("stuck", 100, fixed={0: 0.0})])
     x, weights = torch.zeros(2, dtype=F64), []
     for _ in range(30):
-        result = planner.command(lambda v: (single_integrator(x, v) - goal).norm(dim=-1))
+        result = planner.command(lambda v, x=x: (single_integrator(x, v) - goal).norm(dim=-1))
         x = x + DT * result.u0
         weights.append(result.mode_weights)
     w = torch.stack(weights)
@@ -289,7 +289,7 @@ def test_diverged_rollouts_get_zero_weight():
     assert math.isclose(float(result.weights.sum()), 1.0, rel_tol=1e-12)
 
 
-# --- temperature adaptation (paper Alg. 3) ------------------------------------------------------------
+# --- temperature adaptation (paper Alg. 3) --------------------------------------------------------
 
 
 @pytest.mark.parametrize("bounds", [(3.0, 10.0), (10.0, 30.0), (1.5, 2.0)])
@@ -601,7 +601,7 @@ def test_minus_inf_cost_gets_no_weight():
 def test_mode_without_a_finite_cost_keeps_its_mean():
     cfg = cfg_of(eta_bounds=(3.0, 10.0), savgol_window=5, seed=7)
     planner = M3P2I(cfg, [ModeSpec("ok", 30), ModeSpec("broken", 30)])
-    ok, broken = planner.mode_slices
+    _ok, broken = planner.mode_slices
     planner.update(wiggly_costs(planner.sample()))
     mu = planner.means.clone()
     c = wiggly_costs(planner.sample())

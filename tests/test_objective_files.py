@@ -79,7 +79,7 @@ def test_a_name_defined_in_two_included_files_is_an_error(tmp_path):
     raw = yaml.safe_load(path.read_text())
     raw["include"] = [str(lib), str(lib)]
     path.write_text(yaml.safe_dump(raw))
-    with pytest.raises(ConfigError, match="objectives.go: defined in two included files"):
+    with pytest.raises(ConfigError, match=r"objectives\.go: defined in two included files"):
         load_scenario(path)
 
 

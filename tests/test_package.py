@@ -153,7 +153,8 @@ def test_bench_files_are_looked_up_like_scenarios(user):
     assert out[:2] == ["./configs/bench (current folder):", "  mine"]
     with pytest.raises(
         ConfigError,
-        match=r"no such bench file or name .*one of: mine, paper, planning-model, realtime, robustness, samples;",
+        match=r"no such bench file or name .*"
+        r"one of: mine, paper, planning-model, realtime, robustness, samples;",
     ):
         load_bench("nope")
 

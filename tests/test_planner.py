@@ -63,7 +63,7 @@ def test_mirror_copies_state_and_estimates_mocap_velocity(nav):
 def test_mismatched_state_is_refused(nav):
     planner = build_motion_planner(nav, threads=1)
     mirror = Mirror(planner.problem.model)
-    with pytest.raises(ValueError, match="state.qpos has 3 values"):
+    with pytest.raises(ValueError, match=r"state\.qpos has 3 values"):
         mirror.apply(_state(planner.problem.model, 0.0, [0.0, 0.0, 0.0]))
     planner.close()
 

@@ -146,12 +146,12 @@ def test_a_planar_object_is_laid_flat_in_the_planners_state():
 
 
 def test_the_shipped_planning_model_moves_the_box_about_as_the_world_does():
-    """push_pull_fast's planning model (no floor contact: weight compensated, floor friction as joint
-    damping; 0.1 s steps) against the world's (0.05 s steps), over 0.8 s (the horizon) of 40
-    seeded pushes and pulls of the box from a side, each control held 0.1 s: the box's end
-    position agrees to within 10 cm on average (pushes) and 13 cm (pulls), while it moves about
-    25 cm in the world; its yaw to within 0.2 rad on average. Measured 2026-12-01: 7.6 and
-    11.4 cm, 0.10 rad (with 0.05 s steps over 0.75 s, before: 6-7 and 9-10 cm, 0.12-0.15 rad)."""
+    """push_pull_fast's planning model (no floor contact: weight compensated, floor friction as
+    joint damping; 0.1 s steps) against the world's (0.05 s steps), over 0.8 s (the horizon) of 40
+    seeded pushes and pulls of the box from a side, each control held 0.1 s: the box's end position
+    agrees to within 10 cm on average (pushes) and 13 cm (pulls), while it moves about 25 cm in the
+    world; its yaw to within 0.2 rad on average. Measured 2026-12-01: 7.6 and 11.4 cm, 0.10 rad
+    (with 0.05 s steps over 0.75 s, before: 6-7 and 9-10 cm, 0.12-0.15 rad)."""
     sc = load_scenario("push_pull_fast")
     planner, world = build_problem(sc).model, compile_model(sc)
     assert planner.nexclude and not world.nexclude  # the shipped file has the model

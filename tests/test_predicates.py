@@ -16,8 +16,12 @@ from shared.predicates import WorldView, check_frames, parse_predicate
 MJCF = """
 <mujoco>
   <worldbody>
-    <body name="cube_a" pos="0 0 1.075"><freejoint/><geom type="box" size="0.025 0.025 0.025"/></body>
-    <body name="cube_b" pos="0 0 1.025"><freejoint/><geom type="box" size="0.025 0.025 0.025"/></body>
+    <body name="cube_a" pos="0 0 1.075">
+      <freejoint/><geom type="box" size="0.025 0.025 0.025"/>
+    </body>
+    <body name="cube_b" pos="0 0 1.025">
+      <freejoint/><geom type="box" size="0.025 0.025 0.025"/>
+    </body>
     <body name="hand" pos="0 0 1.3">
       <site name="left" pos="0 0.03 0"/>
       <site name="right" pos="0 -0.03 0"/>

@@ -337,5 +337,5 @@ def test_a_welcome_with_an_impossible_world_is_refused(frame, reason):
 @pytest.mark.parametrize("value", [float("nan"), float("inf"), -float("inf")])
 def test_a_state_extra_that_is_not_a_finite_number_is_refused(value):
     # found by tests/test_fuzz.py: extras {'battery': nan} were accepted
-    with pytest.raises(P.ProtocolError, match="state.extras"):
+    with pytest.raises(P.ProtocolError, match=r"state\.extras"):
         P.decode(_state_raw(extras={"battery": value}))

@@ -335,11 +335,11 @@ def test_a_realtime_pick_place_succeeds_with_a_planner_under_a_third_of_the_worl
     at most 15 plans a wall second (``--max-rate``): the ratio is then the cap's, not the
     machine's, as long as the machine makes 15 plans a second (this 2-core one makes 40; a
     full-speed world against a 30/s cap, near this machine's own speed, failed on CI's machine:
-    25/s succeeded 13-17 of 20 here). Success is a rate: 18 of 20 seeds succeeded so (``pick_place_rt_half`` in
-    docs/bench/realtime), so one of two must (both failing: well under 1 %);
-    in both the world must really have played each plan for more than 3 steps on average. A
-    success chains the template's actions and stacks within Eq. 26's 1 cm and φ 0.01 (the
-    suite's one end-to-end run of the plain pick_place.yaml)."""
+    25/s succeeded 13-17 of 20 here). Success is a rate: 18 of 20 seeds succeeded so
+    (``pick_place_rt_half`` in docs/bench/realtime), so one of two must (both failing: well under
+    1 %); in both the world must really have played each plan for more than 3 steps on average. A
+    success chains the template's actions and stacks within Eq. 26's 1 cm and φ 0.01 (the suite's
+    one end-to-end run of the plain pick_place.yaml)."""
     from shared.config_files import shipped
     from shared.tools.launch import EpisodeLaunch, run_episode
 

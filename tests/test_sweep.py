@@ -83,7 +83,7 @@ def test_sweep_variants_have_their_own_hash_file_and_overrides(tmp_path):
         again = load_scenario(rc.scenario.source)
         assert again.hash == rc.scenario.hash and again.name == "navigation"
         assert again.planner.samples == rc.overrides["planner.samples"]
-    planned, todo = plan_trials(ready, cfg, BenchOptions(tmp_path, 1, 1.0), set())
+    planned, _todo = plan_trials(ready, cfg, BenchOptions(tmp_path, 1, 1.0), set())
     assert [(t.seed, t.overrides["planner.samples"]) for t in planned] == [
         (0, 50),
         (0, 100),

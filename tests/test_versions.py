@@ -7,6 +7,7 @@ from __future__ import annotations
 import logging
 import threading
 import time
+from typing import ClassVar
 
 import msgpack
 import numpy as np
@@ -165,8 +166,8 @@ class FakeWorld:
     ``version`` 1 reads exactly what version 1 read (anything else is refused with its error,
     as that world did), publishes version-1 states and takes only version-1 commands."""
 
-    V1_HELLO = {"type", "v", "scenario", "scenario_hash", "client"}
-    V1_COMMAND = {"type", "v", "session", "seq", "ctrl", "plan_time", "action"}
+    V1_HELLO: ClassVar[set[str]] = {"type", "v", "scenario", "scenario_hash", "client"}
+    V1_COMMAND: ClassVar[set[str]] = {"type", "v", "session", "seq", "ctrl", "plan_time", "action"}
 
     def __init__(self, nav, version: int, answer: str = "welcome"):
         self.nav, self.version, self.answer = nav, version, answer

@@ -77,7 +77,8 @@ def test_a_geom_drawn_at_its_pose_is_where_mujoco_has_it():
     xml = """<mujoco><worldbody>
       <body name="arm" pos="0.3 -0.2 0.5" euler="10 20 30"><joint type="hinge" axis="0 1 0"/>
         <geom name="link" type="capsule" fromto="0 0 0 0.4 0 0.1" size="0.03"/>
-        <geom name="plate" type="box" size="0.1 0.05 0.02" pos="0 0.2 0" euler="0 0 45" rgba="1 0 0 1"/>
+        <geom name="plate" type="box" size="0.1 0.05 0.02" pos="0 0.2 0" euler="0 0 45"
+              rgba="1 0 0 1"/>
       </body></worldbody></mujoco>"""
     model = mujoco.MjModel.from_xml_string(xml)
     data = mujoco.MjData(model)

@@ -109,6 +109,6 @@ class FactorAgent:
         return Policies(G, maths.policy_posterior(perception.F, G, log_E))
 
     def learn(self, perception: Perception, q: np.ndarray) -> None:
-        """D ← norm(D + κ_d s̄_0) with s̄_0 the model average of thesis Eq. 2.17; call once per tick."""
+        """D ← norm(D + κ_d s̄_0), s̄_0 the model average (thesis Eq. 2.17); call once per tick."""
         s0 = maths.model_average(perception.posterior.s0, q)
         self._D = maths.update_prior(self._D, s0, self.model.kappa_d, BELIEF_FLOOR)

@@ -46,7 +46,7 @@ def normalise_columns(x: np.ndarray) -> np.ndarray:
 
 
 class StatePosterior(NamedTuple):
-    """Policy-conditioned beliefs of thesis Eq. 2.14, each ``[n_states, n_policies]`` unless noted."""
+    """Beliefs per policy (thesis Eq. 2.14), each ``[n_states, n_policies]`` unless noted."""
 
     s0: np.ndarray  # s_0^π, the current state
     s1: np.ndarray  # s_1^π, the next state

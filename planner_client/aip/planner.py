@@ -1,13 +1,13 @@
 """The multi-factor active-inference task planner, called once per AIP tick.
 
 Each tick (paper Alg. 1, line 7): every factor perceives its observation (thesis Eqs. 2.13-2.14) and
-updates its belief D once (thesis Eq. 2.17); if every goal is observed the task is a success. Otherwise
-the planner runs *adaptive action selection with precondition back-chaining* (thesis [45]) and,
-with ``alternatives=True``, keeps searching for *alternative plans* (paper Alg. 2):
+updates its belief D once (thesis Eq. 2.17); if every goal is observed the task is a success.
+Otherwise the planner runs *adaptive action selection with precondition back-chaining* (thesis [45])
+and, with ``alternatives=True``, keeps searching for *alternative plans* (paper Alg. 2):
 
 1. Preferences C are the goals (linear preference 1) and habits E the template's.
-2. Each factor picks its most probable policy, q = σ(ln E − F − G) (thesis Eqs. 2.15-2.16); the first
-   factor in template order whose pick is not idle proposes its action.
+2. Each factor picks its most probable policy, q = σ(ln E − F − G) (thesis Eqs. 2.15-2.16); the
+   first factor in template order whose pick is not idle proposes its action.
 3. The proposed action is inhibited (E = 0) so the next pass looks further. If its
    preconditions hold in the current observation it is admissible: it is returned (adaptive) or
    recorded (alternatives). Otherwise each unmet precondition becomes a preference of 2 on its

@@ -36,16 +36,16 @@ def warp_limits(model: mujoco.MjModel) -> list[str]:
     # supported MuJoCo values (put_model checks against the same ones)
     from mujoco_warp._src import types as T
 
-    O = mujoco.mjtObj
+    Obj = mujoco.mjtObj
     problems: list[str] = []
     per_object = (
-        (model.geom_type, T.GeomType, mujoco.mjtGeom, O.mjOBJ_GEOM, "geom", "type"),
-        (model.sensor_type, T.SensorType, mujoco.mjtSensor, O.mjOBJ_SENSOR, "sensor", "type"),
+        (model.geom_type, T.GeomType, mujoco.mjtGeom, Obj.mjOBJ_GEOM, "geom", "type"),
+        (model.sensor_type, T.SensorType, mujoco.mjtSensor, Obj.mjOBJ_SENSOR, "sensor", "type"),
         (
             model.actuator_trntype,
             T.TrnType,
             mujoco.mjtTrn,
-            O.mjOBJ_ACTUATOR,
+            Obj.mjOBJ_ACTUATOR,
             "actuator",
             "transmission",
         ),
@@ -53,13 +53,27 @@ def warp_limits(model: mujoco.MjModel) -> list[str]:
             model.actuator_dyntype,
             T.DynType,
             mujoco.mjtDyn,
-            O.mjOBJ_ACTUATOR,
+            Obj.mjOBJ_ACTUATOR,
             "actuator",
             "dynamics",
         ),
-        (model.actuator_gaintype, T.GainType, mujoco.mjtGain, O.mjOBJ_ACTUATOR, "actuator", "gain"),
-        (model.actuator_biastype, T.BiasType, mujoco.mjtBias, O.mjOBJ_ACTUATOR, "actuator", "bias"),
-        (model.eq_type, T.EqType, mujoco.mjtEq, O.mjOBJ_EQUALITY, "equality", "type"),
+        (
+            model.actuator_gaintype,
+            T.GainType,
+            mujoco.mjtGain,
+            Obj.mjOBJ_ACTUATOR,
+            "actuator",
+            "gain",
+        ),
+        (
+            model.actuator_biastype,
+            T.BiasType,
+            mujoco.mjtBias,
+            Obj.mjOBJ_ACTUATOR,
+            "actuator",
+            "bias",
+        ),
+        (model.eq_type, T.EqType, mujoco.mjtEq, Obj.mjOBJ_EQUALITY, "equality", "type"),
     )
     for values, supported, enum, objtype, kind, what in per_object:
         ok = {int(v) for v in supported}
@@ -88,9 +102,9 @@ def warp_limits(model: mujoco.MjModel) -> list[str]:
                 problems.append(f"option {what} {enum(bit).name}")
             bit <<= 1
     for values, objtype, kind in (
-        (model.body_plugin, O.mjOBJ_BODY, "body"),
-        (model.actuator_plugin, O.mjOBJ_ACTUATOR, "actuator"),
-        (model.sensor_plugin, O.mjOBJ_SENSOR, "sensor"),
+        (model.body_plugin, Obj.mjOBJ_BODY, "body"),
+        (model.actuator_plugin, Obj.mjOBJ_ACTUATOR, "actuator"),
+        (model.sensor_plugin, Obj.mjOBJ_SENSOR, "sensor"),
     ):
         for i in np.flatnonzero(np.asarray(values) != -1):
             problems.append(f"{_name(model, objtype, int(i), kind)} uses a plugin")
@@ -122,13 +136,13 @@ def _adhesion_with_distance_sensors(model: mujoco.MjModel) -> list[str]:
     the distance sensors agrees within 5e-3 m with the suction on (measured 2026-11-30), which
     locates the difference there.
     """
-    O, S = mujoco.mjtObj, mujoco.mjtSensor
+    Obj, S = mujoco.mjtObj, mujoco.mjtSensor
     dist_types = {int(S.mjSENS_GEOMDIST), int(S.mjSENS_GEOMNORMAL), int(S.mjSENS_GEOMFROMTO)}
 
     def bodies(objtype: int, objid: int) -> set[int]:
-        if objtype == int(O.mjOBJ_BODY):
+        if objtype == int(Obj.mjOBJ_BODY):
             return {objid}
-        if objtype == int(O.mjOBJ_GEOM):
+        if objtype == int(Obj.mjOBJ_GEOM):
             return {int(model.geom_bodyid[objid])}
         return set()
 
@@ -136,7 +150,7 @@ def _adhesion_with_distance_sensors(model: mujoco.MjModel) -> list[str]:
     for a in np.flatnonzero(model.actuator_trntype == int(mujoco.mjtTrn.mjTRN_BODY)):
         body = int(model.actuator_trnid[a, 0])
         sensors = [
-            _name(model, O.mjOBJ_SENSOR, int(s), "sensor")
+            _name(model, Obj.mjOBJ_SENSOR, int(s), "sensor")
             for s in range(model.nsensor)
             if int(model.sensor_type[s]) in dist_types
             and body
@@ -145,7 +159,7 @@ def _adhesion_with_distance_sensors(model: mujoco.MjModel) -> list[str]:
         ]
         if sensors:
             problems.append(
-                f"{_name(model, O.mjOBJ_ACTUATOR, int(a), 'actuator')} (adhesion on body "
+                f"{_name(model, Obj.mjOBJ_ACTUATOR, int(a), 'actuator')} (adhesion on body "
                 f"{model.body(body).name!r}) with distance sensors of that body "
                 f"({', '.join(sensors)}): MJWarp counts the sensors' distance-only contacts in "
                 "the adhesion's average and weakens it (measured on push_pull: 11 N instead of "

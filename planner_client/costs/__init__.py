@@ -1,7 +1,8 @@
 """Cost terms (a registry YAML names them by) and objectives (weighted sums of terms).
 
 Terms live by concept: ``geometry`` (distances, orientation, approach), ``contact`` (obstacles),
-``push_pull``, ``gripper``, ``control``, ``joints`` (limits, posture); what several of them use is public in ``helpers``.
+``push_pull``, ``gripper``, ``control``, ``joints`` (limits, posture); what several of them use is
+public in ``helpers``.
 """
 
 # importing the term modules registers their terms

@@ -130,8 +130,8 @@ class DynamicObstacle(CostTerm):
     x_D_pred(t) is the obstacle's position at rollout step t. The planner moves world-driven
     obstacles (fixed objects are mocap bodies that the world, or a person, moves) inside its
     rollouts at the velocity estimated from the last two states: the constant-velocity model of
-    paper Eq. 22 (``planner_client/motion.py``). A jointed obstacle moves under its own dynamics in the
-    rollout. Either way the prediction is the rollout's, so contact sensors and collision terms
+    paper Eq. 22 (``planner_client/motion.py``). A jointed obstacle moves under its own dynamics in
+    the rollout. Either way the prediction is the rollout's, so contact sensors and collision terms
     see the same predicted obstacle as this term.
 
     Parameters: ``a`` robot frame, ``obstacle`` frame, ``axes`` xyz (default) or xy. The value

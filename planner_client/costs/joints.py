@@ -45,7 +45,7 @@ def _positions(batch, requests) -> torch.Tensor:
 @register("joint_limits")
 @dataclass
 class JointLimits(CostTerm):
-    """Keep joints away from their limits: Σ_j [relu(m − (q_j − lo_j)) + relu(m − (hi_j − q_j))] / m.
+    """Keep joints off their limits: Σ_j [relu(m − (q_j − lo_j)) + relu(m − (hi_j − q_j))] / m.
 
     0 while every joint is more than the margin ``m`` inside its range, 1 per joint at a limit,
     growing beyond it (MuJoCo's soft limits let a joint pass a little). ``joints`` defaults to

@@ -133,7 +133,8 @@ class MPPIConfig:
                 self.savgol_window % 2 == 1
                 and 0 <= self.savgol_order < self.savgol_window <= self.horizon,
                 f"savgol_window must be odd, > savgol_order and <= horizon "
-                f"(got window {self.savgol_window}, order {self.savgol_order}, horizon {self.horizon})",
+                f"(got window {self.savgol_window}, order {self.savgol_order}, "
+                f"horizon {self.horizon})",
             )
         need(self.control_cost >= 0.0, f"control_cost must be >= 0, got {self.control_cost}")
 

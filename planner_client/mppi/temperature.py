@@ -43,7 +43,8 @@ def finite_costs(costs: np.ndarray) -> np.ndarray:
 def softmin_weights(costs: np.ndarray, lam) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Exponentiated-cost weights with the min-cost shift.
 
-    ω_k = exp(-(S_k - β)/λ) / η,  η = Σ_k exp(-(S_k - β)/λ),  β = min_k S_k   (paper Eqs. 5-7 / 9-11).
+    ω_k = exp(-(S_k - β)/λ) / η,  η = Σ_k exp(-(S_k - β)/λ),  β = min_k S_k
+    (paper Eqs. 5-7 / 9-11).
 
     Args:
         costs: ``[..., K]`` total costs S_k; ``+inf`` entries get zero weight (padding, diverged
@@ -175,14 +176,15 @@ def adapt_temperature(
 ) -> np.ndarray:
     """Re-tune λ per row until η(λ) = Σ_k exp(-d_k/λ) lies in ``[η_l, η_u]`` (paper Alg. 3).
 
-    paper Alg. 3 multiplies λ by 0.9 or 1.2 until η is in the window, which needs tens to hundreds of steps
-    when the cost scale changes by orders of magnitude and never ends when the window is unreachable.
-    Here a row whose current λ already gives η in the window keeps it (temporal consistency);
-    otherwise a safeguarded Newton iteration on log η(log λ) aims at the window's geometric centre
-    inside a bracket derived from the gaps (Newton steps that leave the bracket become bisection
-    steps). The start is clamped into the bracket, so the step count does not depend on how far
-    the old λ was off: 1-5 steps for cost spreads from 1e-3 to 1e6 and windows (1.5, 2) to
-    (10, 30), where the 0.9/1.2 rule needs ~80 from λ = 1 to λ = 1e6. ``max_iters`` caps it.
+    paper Alg. 3 multiplies λ by 0.9 or 1.2 until η is in the window, which needs tens to hundreds
+    of steps when the cost scale changes by orders of magnitude and never ends when the window is
+    unreachable. Here a row whose current λ already gives η in the window keeps it (temporal
+    consistency); otherwise a safeguarded Newton iteration on log η(log λ) aims at the window's
+    geometric centre inside a bracket derived from the gaps (Newton steps that leave the bracket
+    become bisection steps). The start is clamped into the bracket, so the step count does not
+    depend on how far the old λ was off: 1-5 steps for cost spreads from 1e-3 to 1e6 and windows
+    (1.5, 2) to (10, 30), where the 0.9/1.2 rule needs ~80 from λ = 1 to λ = 1e6. ``max_iters`` caps
+    it.
     A window outside the reachable range (η runs from the number of tied minima to the number of
     finite samples) gives the bracket end closest to it. λ stays a finite, normal float whatever
     the gaps: the bracket is capped where exp overflows or underflows (gaps near the float

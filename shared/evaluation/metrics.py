@@ -4,8 +4,8 @@ Success, final position error and orientation error (paper Eq. 33) between two f
 collisions (contact onsets), completion time (simulated seconds), wall time and mean planner rate.
 Which frames is the scenario's ``metrics:`` section (:class:`shared.scenario.MetricsConfig`).
 Kinematics are recomputed by replaying logged states into the scenario's model
-(:mod:`shared.evaluation.replay`), so the same function serves the server's summary, ``m3p2i bench`` and any
-log on disk. The maths are the small pure functions at the top.
+(:mod:`shared.evaluation.replay`), so the same function serves the server's summary, ``m3p2i bench``
+and any log on disk. The maths are the small pure functions at the top.
 """
 
 from __future__ import annotations
@@ -56,7 +56,7 @@ def position_error(pos_a: np.ndarray, pos_b: np.ndarray, axes: str = "xyz") -> f
 
 
 def orientation_error(rot_a: np.ndarray, rot_b: np.ndarray) -> float:
-    """paper Eq. 33's phi between two rotation matrices (symmetric-object metric, 0 = equivalent)."""
+    """paper Eq. 33's phi between rotation matrices (symmetric-object metric, 0 = equivalent)."""
     return float(
         symmetric_orientation_error(np.asarray(rot_a, dtype=float), np.asarray(rot_b, dtype=float))
     )

@@ -1,9 +1,9 @@
 """Replaying logged states into a MuJoCo model: the kinematics behind metrics, plots and videos.
 
 A ``step`` record of the episode log holds ``qpos``, ``qvel``, ``act``, ``mocap_pos`` and
-``mocap_quat`` after that world step; copying them into an ``MjData`` of the scenario's compiled model and calling
-``mj_forward`` gives back every frame pose and contact the world had at that moment, without
-re-simulating anything.
+``mocap_quat`` after that world step; copying them into an ``MjData`` of the scenario's compiled
+model and calling ``mj_forward`` gives back every frame pose and contact the world had at that
+moment, without re-simulating anything.
 """
 
 from __future__ import annotations

@@ -1,16 +1,17 @@
 """``m3p2i bench``: seeded trials of the paper's cases, in parallel, resumable, with a hard
 time-out per trial.
 
-A bench file (``bench/NAME.yaml`` in the user's folders or shipped: :mod:`shared.config_files`) lists cases ``{case, variant, scenario, trials}``. Trial
-``i`` of a case runs one lock-step episode with seed ``seed + i`` for both the world's randomised
-start and the planner's sampling, on a server + planner process pair on its own free ports. Each
-worker keeps its pair across the trials of a case, beginning each with a seeded reset
-(:mod:`shared.tools.warm`: same results as a fresh pair, without its start-up); ``fresh``
-starts two new processes per trial (:mod:`shared.tools.launch`). Each finished trial appends one row to ``results.csv`` in the output folder
-(flushed and synced before the next row), its episode log stays in ``logs/CASE/seed-NNN/``; a
-rerun skips every (case, seed) already in the file for the same scenario content (hash), so an
-interrupted bench resumes where it stopped. A trial past its time-out is killed and recorded as a
-failure with reason ``timeout``.
+A bench file (``bench/NAME.yaml`` in the user's folders or shipped: :mod:`shared.config_files`)
+lists cases ``{case, variant, scenario, trials}``. Trial ``i`` of a case runs one lock-step episode
+with seed ``seed + i`` for both the world's randomised start and the planner's sampling, on a
+server + planner process pair on its own free ports. Each worker keeps its pair across the trials of
+a case, beginning each with a seeded reset (:mod:`shared.tools.warm`: same results as a fresh pair,
+without its start-up); ``fresh`` starts two new processes per trial (:mod:`shared.tools.launch`).
+Each finished trial appends one row to ``results.csv`` in the output folder (flushed and synced
+before the next row), its episode log stays in ``logs/CASE/seed-NNN/``; a rerun skips every (case,
+seed) already in the file for the same scenario content (hash), so an interrupted bench resumes
+where it stopped. A trial past its time-out is killed and recorded as a failure with reason
+``timeout``.
 """
 
 from __future__ import annotations
@@ -130,7 +131,8 @@ class BenchConfig:
     cases: tuple[BenchCase, ...]
     timeout: float = 600.0  # wall-clock seconds per trial
     quick_trials: int = 2  # trials per case with --quick
-    sweep: Sweep = Sweep()  # every case runs once per combination of these values
+    # every case runs once per combination of these values
+    sweep: Sweep = field(default_factory=Sweep)
 
 
 def _with_faults(case: BenchCase, c: Section, bench: Path) -> BenchCase:
@@ -576,10 +578,11 @@ def run_trials(
     results: ResultsFile,
     on_done: Callable[[dict], None] = lambda row: None,
 ) -> bool:
-    """Run ``todo`` on ``opts.workers`` threads, each driving one process pair (kept across
-    the trials of a case unless ``opts.fresh``); rows are appended as trials finish. Real-time trials come last, one at a time on every core: a world
-    that does not wait measures the planner's speed, which other trials would steal. Returns
-    False when interrupted (Ctrl-C): running trials are stopped and left out of the file."""
+    """Run ``todo`` on ``opts.workers`` threads, each driving one process pair (kept across the
+    trials of a case unless ``opts.fresh``); rows are appended as trials finish. Real-time trials
+    come last, one at a time on every core: a world that does not wait measures the planner's speed,
+    which other trials would steal. Returns False when interrupted (Ctrl-C): running trials are
+    stopped and left out of the file."""
     waiting = [t for t in todo if t.case.mode != "realtime"]
     realtime = [t for t in todo if t.case.mode == "realtime"]
     return _run_pool(waiting, opts.workers, opts, results, on_done) and _run_pool(

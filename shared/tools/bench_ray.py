@@ -216,7 +216,7 @@ def _run(
                 on_done(row)
                 cancelled.pop(ref, None)
             now = time.monotonic()
-            for ref, (trial, started) in running.items():
+            for ref, (_trial, started) in running.items():
                 if ref not in cancelled and now - started > opts.timeout + GRACE:
                     ray.cancel(ref)  # KeyboardInterrupt: the trial stops its processes
                     cancelled[ref] = (

@@ -306,7 +306,10 @@ def _failure_line(r: dict[str, str], notes: dict[tuple[str, int], str]) -> str:
     error = _number(r["position_error"])
     where = f", {error:.3f} m from the goal" if error is not None else ""
     note = notes.get((r["case"], int(r["seed"])), "not explained yet")
-    return f"- `{r['case']}` seed {r['seed']}: {what} at {_number(r['time']) or 0:.1f} s{where}. {note}"
+    return (
+        f"- `{r['case']}` seed {r['seed']}: {what} at {_number(r['time']) or 0:.1f} s{where}. "
+        f"{note}"
+    )
 
 
 def results_report(results: list[Results], paper: dict[str, PaperRow]) -> str:

@@ -524,7 +524,8 @@ def plot(
         None, help="Scenario to replay the log into (default: the file named in the log's header)."
     ),
 ) -> None:
-    """Plot one episode like thesis Figs. A.3-A.5: trajectories, distances, robot-object-goal angle."""
+    """Plot one episode like thesis Figs. A.3-A.5: trajectories, distances,
+    robot-object-goal angle."""
     from shared.evaluation import episode
     from shared.tools.plots import episode_series, plot_episode
 

@@ -1,8 +1,8 @@
 """Plots of one episode like the thesis' Figs. A.3-A.5: object and robot trajectories (xy),
 robot-object and object-goal distances over time, and the cosine of the robot-object-goal angle
-(paper Eq. 16) over time. The object and the goal are the scenario's ``metrics.position`` frames; when
-the "object" is the robot itself (navigation) the plot shows the robot, its distance to the goal,
-and no angle.
+(paper Eq. 16) over time. The object and the goal are the scenario's ``metrics.position`` frames;
+when the "object" is the robot itself (navigation) the plot shows the robot, its distance to the
+goal, and no angle.
 
 Drawn with matplotlib's object API on the Agg canvas (no display, no pyplot state).
 """

@@ -715,7 +715,8 @@ class Soak:
                 # log between the time-out and the episode's end)
                 within = 1.0 if kind == "pause" else None
                 if not self.wait(
-                    min(30.0, hard_end - time.monotonic()), lambda: self.mid_episode(within)
+                    min(30.0, hard_end - time.monotonic()),
+                    lambda within=within: self.mid_episode(within),
                 ):
                     break
                 f = self.inject(kind)

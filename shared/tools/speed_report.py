@@ -34,7 +34,7 @@ def markdown(results: dict, source: str) -> str:
         "|---|---|---:|---:|---:|---:|---:|",
     ]
     for (name, samples, horizon), rows in cases.items():
-        col = lambda key: [r[key] for r in rows]  # noqa: E731 - one table's columns
+        col = lambda key, rows=rows: [r[key] for r in rows]  # noqa: E731 - one table's columns
         lines.append(
             f"| `{name}` | {samples} × {horizon} × {rows[0]['planning_step']:g} s | "
             f"{spread(col('hz'), 1)} | {spread(col('iteration_ms'), 2)} | "

@@ -4,8 +4,8 @@ as GIF (Pillow) or MP4 (an ``ffmpeg`` executable).
 
 Rendering needs an OpenGL context without a display: EGL (GPU drivers or Mesa, ``libegl1``) or
 OSMesa (software, ``libosmesa6``). MuJoCo picks the backend from ``MUJOCO_GL`` when it is first
-imported, so rendering runs in a child process, ``python -m shared.tools.video``, started with the first
-backend that works (:func:`gl_backend`). ``m3p2i record`` drives all of it.
+imported, so rendering runs in a child process, ``python -m shared.tools.video``, started with the
+first backend that works (:func:`gl_backend`). ``m3p2i record`` drives all of it.
 """
 
 from __future__ import annotations

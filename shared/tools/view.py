@@ -202,7 +202,7 @@ def viser_server(host: str, port: int, label: str):
 
 
 def rgb255(rgba) -> tuple[int, int, int]:
-    return tuple(int(round(255 * min(max(c, 0.0), 1.0))) for c in rgba[:3])
+    return tuple(round(255 * min(max(c, 0.0), 1.0)) for c in rgba[:3])
 
 
 def trajectory_segments(
@@ -232,7 +232,7 @@ def path_segments(points: np.ndarray) -> np.ndarray:
 def weight_bar(weight: float, width: int = 20) -> str:
     """A text bar for a mode weight in 0-1 (the panel's bar chart)."""
     w = min(max(float(weight), 0.0), 1.0)
-    full = int(round(w * width))
+    full = round(w * width)
     return "█" * full + "░" * (width - full)
 
 
