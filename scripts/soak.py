@@ -4,20 +4,27 @@
     nice -n 10 python scripts/soak.py --duration 600 --results docs/soak/soak-600s.json
     python scripts/soak.py --report docs/soak/soak-600s.json --update docs/reliability.md
 
-Loopback only, bounded in time (duration + a minute at most) and in faults and episodes.
+Loopback, or with --netns two network namespaces joined by a veth pair; bounded in time
+(duration + a minute at most) and in faults and episodes.
 """
 
 from __future__ import annotations
 
 import json
+import signal
 import time
 from pathlib import Path
 
 import typer
 
+from shared.tools.netns import Unavailable, unavailable
 from shared.tools.soak import Soak, SoakConfig, print_table, update
 
 app = typer.Typer(add_completion=False)
+
+
+def _interrupt(signum, frame) -> None:
+    raise KeyboardInterrupt(f"signal {signum}")
 
 
 @app.command()
@@ -48,6 +55,20 @@ def main(
     ),
     gap_min: float = typer.Option(4.0, help="Least seconds between two faults."),
     gap_max: float = typer.Option(10.0, help="Most seconds between two faults."),
+    netns: bool = typer.Option(
+        False,
+        "--netns",
+        help="Two hosts on one machine: the worlds in one network "
+        "namespace, the planners in another, joined by a veth pair made for the run and "
+        "removed at its end; CURVE on (keys made into OUT/keys). Adds the `cut` fault (the "
+        "link down for --cut s mid-episode). Needs root and iproute2's `ip` (else exit 2).",
+    ),
+    cut: float = typer.Option(2.0, help="Seconds the link is down in a `cut` (--netns)."),
+    faults: str | None = typer.Option(
+        None,
+        help="Comma-separated fault kinds to inject, of kill, restart, flood, pause and cut "
+        "(default: all; cut only with --netns).",
+    ),
     out: Path | None = typer.Option(
         None, help="Folder for the episode logs and process outputs (default runs/soak-<time>)."
     ),
@@ -86,10 +107,24 @@ def main(
         takeover=takeover,
         rss_bound=rss_bound,
         gap=(gap_min, gap_max),
+        netns=netns,
+        cut_s=cut,
+        faults=None if faults is None else tuple(k.strip() for k in faults.split(",") if k.strip()),
     )
     cfg.check()
+    if netns:
+        reason = unavailable()
+        if reason:
+            typer.echo(f"--netns: {reason}", err=True)
+            raise typer.Exit(2)
+        # a SIGTERM ends the run as Ctrl-C does: processes stopped, namespaces removed
+        signal.signal(signal.SIGTERM, _interrupt)
     out = out or Path("runs") / f"soak-{time.strftime('%Y%m%d-%H%M%S')}"
-    res = Soak(cfg, out).run()
+    try:
+        res = Soak(cfg, out).run()
+    except Unavailable as exc:
+        typer.echo(f"--netns: {exc}", err=True)
+        raise typer.Exit(2) from None
     path = results or out / "soak.json"
     path.parent.mkdir(parents=True, exist_ok=True)
     path.write_text(json.dumps(res, indent=1) + "\n")

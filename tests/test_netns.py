@@ -10,16 +10,14 @@ where namespaces are not permitted."""
 from __future__ import annotations
 
 import json
-import os
-import shutil
 import subprocess
 import sys
 import time
-from dataclasses import dataclass
 from pathlib import Path
 
 import pytest
 
+from shared.tools import netns
 from tests.helpers import ENV
 
 pytestmark = pytest.mark.slow
@@ -30,67 +28,18 @@ CUT = 2.0  # s the link is down
 RESUME = 1.0  # s after the link's return within which a planned step must come
 
 
-def _ip(*args: str, check: bool = True) -> subprocess.CompletedProcess:
-    done = subprocess.run(["ip", *args], capture_output=True, text=True, timeout=20)
-    if check and done.returncode != 0:
-        raise RuntimeError(f"ip {' '.join(args)}: {done.stderr.strip()}")
-    return done
-
-
-@dataclass
-class Hosts:
-    world_ns: str
-    planner_ns: str
-    world_if: str  # the world's end of the veth pair (cut and restored)
-    world_ip: str
-    planner_ip: str
-
-    def cut(self, up: bool) -> float:
-        _ip("-n", self.world_ns, "link", "set", self.world_if, "up" if up else "down")
-        return time.time()
-
-
 @pytest.fixture
 def hosts():
     """Two namespaces, ``world`` (10.a.b.1) and ``planner`` (10.a.b.2), one veth pair between
-    them, loopback up in each; deleted at the end (which deletes the pair too)."""
-    if shutil.which("ip") is None:
-        pytest.skip("network namespaces need iproute2's `ip` command, which is not installed")
-    if os.geteuid() != 0:
-        pytest.skip(
-            "network namespaces need root (CAP_SYS_ADMIN and CAP_NET_ADMIN); "
-            f"this runs as uid {os.geteuid()}"
-        )
-    tag = f"m3n{os.getpid() % 100000}"  # interface names: 15 bytes at most
-    world_ns, planner_ns = f"{tag}w", f"{tag}p"
-    subnet = f"10.{200 + os.getpid() % 50}.{os.getpid() % 250}"
-    made: list[str] = []
+    them, loopback up in each (:func:`shared.tools.netns.two_hosts`, which the soak's
+    ``--netns`` uses too); deleted at the end (which deletes the pair too)."""
     try:
-        done = _ip("netns", "add", world_ns, check=False)
-        if done.returncode != 0:
-            reason = done.stderr.strip()
-            if "not permitted" in reason.lower() or "permission denied" in reason.lower():
-                pytest.skip(
-                    f"network namespaces are not permitted here: `ip netns add` said {reason!r}"
-                )
-            raise RuntimeError(f"ip netns add {world_ns}: {reason}")
-        made.append(world_ns)
-        _ip("netns", "add", planner_ns)
-        made.append(planner_ns)
-        _ip("link", "add", f"{tag}a", "type", "veth", "peer", "name", f"{tag}b")
-        _ip("link", "set", f"{tag}a", "netns", world_ns)
-        _ip("link", "set", f"{tag}b", "netns", planner_ns)
-        for ns, dev, host in ((world_ns, f"{tag}a", 1), (planner_ns, f"{tag}b", 2)):
-            _ip("-n", ns, "addr", "add", f"{subnet}.{host}/24", "dev", dev)
-            _ip("-n", ns, "link", "set", "lo", "up")
-            _ip("-n", ns, "link", "set", dev, "up")
-        yield Hosts(world_ns, planner_ns, f"{tag}a", f"{subnet}.1", f"{subnet}.2")
-    finally:
-        for ns in made:
-            _ip("netns", "del", ns, check=False)  # takes its end of the pair with it
-        _ip("link", "del", f"{tag}a", check=False)  # a pair never moved: gone too
-        leftover = _ip("netns", "list", check=False).stdout
-        assert world_ns not in leftover and planner_ns not in leftover, leftover
+        with netns.two_hosts() as made:
+            yield made
+    except netns.Unavailable as exc:
+        pytest.skip(str(exc))
+    leftover = netns.namespaces()
+    assert made.world_ns not in leftover and made.planner_ns not in leftover, leftover
 
 
 def _records(path: Path) -> list[dict]:
@@ -191,9 +140,7 @@ def test_a_two_second_link_cut_between_two_hosts_holds_the_robot_and_planning_re
         # planning runs (the planner's start-up is not part of the episode: the world waits)
         _wait(lambda: len(driven()) >= 3, 180, "the first planned steps", procs)
         time.sleep(1.0)
-        down = hosts.cut(up=False)
-        time.sleep(CUT)
-        up = hosts.cut(up=True)
+        down, up = hosts.cut(CUT)
         procs["world"].wait(120)  # the episode's end (TimeoutExpired past it)
         procs["planner"].wait(30)
     finally:

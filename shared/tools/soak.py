@@ -40,6 +40,7 @@ from __future__ import annotations
 import json
 import os
 import random
+import shutil
 import signal
 import subprocess
 import sys
@@ -53,14 +54,18 @@ import typer
 import zmq
 
 from shared import protocol as P
-from shared.endpoints import Endpoints, socket
+from shared.endpoints import Endpoints
 from shared.evaluation import episode
 from shared.scenario import find_scenario
+from shared.tools import netns
 from shared.tools.bench import machine
 from shared.tools.blocks import regenerate
 from shared.tools.launch import free_port_block, stop_processes
+from shared.tools.push_frames import push
 
-FAULTS = ("kill", "restart", "flood", "pause")
+FAULTS = ("kill", "restart", "flood", "pause", "cut")
+LOOPBACK_FAULTS = FAULTS[:4]  # ``cut`` needs a link: --netns only
+NETNS_PORT = 5555  # the world's namespace is its own: no port is taken there
 _MIB = 1024 * 1024
 # a wrong-session command carries this control, so that the log proves it was never applied
 FORGED_CTRL = (0.123456, -0.654321)
@@ -83,6 +88,16 @@ class SoakConfig:
     gap: tuple[float, float] = (4.0, 10.0)  # s between faults (uniform)
     flood_frames: int = 50  # frames of each garbage kind per flood
     max_episodes: int = 2000
+    netns: bool = False  # world(s) and planner(s) in two network namespaces, CURVE on
+    cut_s: float = 2.0  # s the link is down in a ``cut``
+    faults: tuple[str, ...] | None = None  # the kinds injected (None: all that apply)
+
+    @property
+    def kinds(self) -> tuple[str, ...]:
+        """The fault kinds injected, in FAULTS' order."""
+        if self.faults is not None:
+            return tuple(k for k in FAULTS if k in self.faults)
+        return FAULTS if self.netns else LOOPBACK_FAULTS
 
     def check(self) -> None:
         problems = []
@@ -94,6 +109,14 @@ class SoakConfig:
             problems.append(f"--gap must be 0 < MIN <= MAX, got {self.gap}")
         if self.takeover <= 0 or self.slack < 0 or self.rss_bound <= 0 or self.flood_frames < 1:
             problems.append("--takeover, --rss-bound and --flood-frames must be > 0, --slack >= 0")
+        if self.faults is not None:
+            unknown = [k for k in self.faults if k not in FAULTS]
+            if unknown or not self.faults:
+                problems.append(f"--faults must name some of {', '.join(FAULTS)}, got {unknown}")
+        if "cut" in self.kinds and not self.netns:
+            problems.append("the `cut` fault needs a link to cut: use it with --netns")
+        if not 0 < self.cut_s < 30:
+            problems.append(f"--cut must be in (0, 30) s, got {self.cut_s}")
         if problems:
             raise typer.BadParameter("; ".join(problems))
 
@@ -187,6 +210,21 @@ def first_driven_after(steps: list[dict], since: float) -> dict | None:
     return None
 
 
+def _after_cuts(faults: list[Fault], driven: list[dict], window: float = 5.0) -> str:
+    """For the cut row: how old the states were that the plans driving the robot in the
+    ``window`` s after each link's return were made from (the step record's ``age``). Measured,
+    not checked: a TCP stream that held states through the cut can deliver them that late
+    (the world times a command from its arrival, so ``cmd_age`` does not show it)."""
+    back = [f.resumed for f in faults if f.kind == "cut" and f.resumed is not None]
+    ages = [s.get("age") or 0.0 for s in driven if any(b <= s["wall"] < b + window for b in back)]
+    if not ages:
+        return ""
+    return (
+        f"; in the {window:g} s after the link's return the driving plans came from states "
+        f"{np.median(ages):.2f} s old (median, max {max(ages):.2f} s)"
+    )
+
+
 def is_forged(ctrl: list[float]) -> bool:
     """Whether a step's control is the one only wrong-session commands carried."""
     n = min(len(ctrl), len(FORGED_CTRL))
@@ -252,12 +290,15 @@ def evaluate(
         )
     )
 
-    for kind, label in (
-        ("kill", "killed planner replaced"),
-        ("restart", "planner found the restarted world"),
-        ("pause", "paused planner resumed"),
-        ("flood", "planner drove on after a flood"),
-    ):
+    labels = {
+        "kill": "killed planner replaced",
+        "restart": "planner found the restarted world",
+        "pause": "paused planner resumed",
+        "flood": "planner drove on after a flood",
+        "cut": "planner drove again after a link cut",
+    }
+    for kind in sorted(cfg.kinds, key=("kill", "restart", "pause", "flood", "cut").index):
+        label = labels[kind]
         mine = [f for f in faults if f.kind == kind]
         times = [f.recovery for f in mine if f.recovery is not None]
         late = [f for f in mine if f.recovery is None or f.recovery > cfg.takeover]
@@ -266,13 +307,13 @@ def evaluate(
             Check(
                 f"{label} within {cfg.takeover:g} s",
                 not late,
-                f"{len(mine) - len(late)}/{len(mine)} ({worst_s})",
+                f"{len(mine) - len(late)}/{len(mine)} ({worst_s})" + _after_cuts(mine, driven),
             )
         )
 
     cold = [w["serving_after_s"] for w in worlds if w.get("serving_after_s") is not None]
-    if cold:  # the world's own start-up, which the planner's recovery times leave out
-        restart = next(c for c in checks if c.name.startswith("planner found the restarted"))
+    restart = next((c for c in checks if c.name.startswith("planner found the restarted")), None)
+    if cold and restart is not None:  # the world's own start-up, which recovery leaves out
         restart.detail += (
             f" from its serving; a new world serves {np.median(cold):.2f} s "
             f"(median, max {max(cold):.2f} s) after its start"
@@ -398,7 +439,7 @@ class Soak:
         self.cfg, self.out = cfg, out
         self.rng = random.Random(cfg.seed)
         self.scenario = str(find_scenario(cfg.scenario))
-        self.port = free_port_block()
+        self.port = NETNS_PORT if cfg.netns else free_port_block()
         self.env = {**os.environ, "PYTHONUNBUFFERED": "1"}
         self.worlds: list[Proc] = []
         self.planners: list[Proc] = []
@@ -408,6 +449,16 @@ class Soak:
         self.faults: list[Fault] = []
         self.floods = {"floods": 0, "frames": 0, "rejectable": 0, "wrong_session": 0}
         self.ctx = zmq.Context()
+        self.hosts: netns.Hosts | None = None  # --netns: set by run()
+        self.keys: Path | None = None
+        self.pusher: subprocess.Popen | None = None  # --netns: the flood's sender
+
+    @property
+    def network(self) -> list[str]:
+        """The world's address (and the keys) as both processes are told them."""
+        if self.hosts is None:
+            return ["--port", str(self.port)]
+        return ["--host", self.hosts.world_ip, "--port", str(self.port), "--keys", str(self.keys)]
 
     # -------------------------------------------------------- processes
 
@@ -420,8 +471,7 @@ class Soak:
             "server",
             "--scenario",
             self.scenario,
-            "--port",
-            str(self.port),
+            *self.network,
             "--mode",
             "realtime",
             "--command-timeout",
@@ -431,6 +481,8 @@ class Soak:
             "--log",
             str(log),
         ]
+        if self.hosts is not None:
+            cmd = self.hosts.exec("world", cmd)
         with (self.out / f"world-{i:04d}.out").open("w") as out:
             p = Proc(
                 "world",
@@ -454,12 +506,15 @@ class Soak:
             "planner_client",
             "--scenario",
             self.scenario,
-            "--port",
-            str(self.port),
+            *self.network,
             "--keep-running",
             "--seed",
             str(self.cfg.seed + i),
         ]
+        if self.hosts is not None:
+            # silence above the cut: the planner keeps its connection through it, and a new
+            # world still shows at once (its states carry a new session)
+            cmd = self.hosts.exec("planner", [*cmd, "--server-timeout", str(self.cfg.cut_s + 3)])
         path = self.out / f"planner-{i:03d}.out"
         with path.open("w") as out:
             p = Proc(
@@ -607,6 +662,9 @@ class Soak:
         elif kind == "flood":
             f.detail.update(self.flood())
             f.resumed = time.time()
+        elif kind == "cut":
+            f.outage, f.resumed = self.hosts.cut(self.cfg.cut_s, wait=self.wait)
+            f.detail["cut_s"] = round(f.resumed - f.outage, 3)
         self.faults.append(f)
         return f
 
@@ -627,16 +685,16 @@ class Soak:
             P.encode(P.Command(session=bad_session, seq=0, ctrl=np.array(FORGED_CTRL[:nu])))
             for _ in range(n)
         ]
-        push = socket(self.ctx, zmq.PUSH)
-        push.connect(Endpoints(port=self.port).command)
-        try:
-            for fr in frames + forged:
-                if not push.poll(2000, zmq.POLLOUT):
-                    raise RuntimeError("the world's command socket accepts no frames")
-                push.send(fr, zmq.NOBLOCK)
-        finally:
-            time.sleep(0.2)  # let the frames leave before the socket closes
-            push.close(0)
+        if self.hosts is None:
+            push(self.ctx, Endpoints(port=self.port).command, frames + forged)
+        else:  # from the planner's namespace, with its keys (shared.tools.push_frames)
+            path = self.out / f"flood-{self.floods['floods'] + 1:03d}.msgpack"
+            path.write_bytes(msgpack.packb(frames + forged))
+            self.pusher.stdin.write(f"{path}\n")
+            self.pusher.stdin.flush()
+            said = self.pusher.stdout.readline().strip()
+            if not said.startswith("sent"):
+                raise RuntimeError(f"the flood from the planner's namespace: {said or 'no answer'}")
         self.floods["floods"] += 1
         self.floods["frames"] += len(frames) + len(forged)
         self.floods["rejectable"] += len(frames)
@@ -680,6 +738,7 @@ class Soak:
                 s = first_driven_after([r for r in tail.records if r["kind"] == "step"], since)
                 if s is not None:
                     f.recovered, f.served = s["wall"], tail.records[0]["wall"]
+                    f.detail["plan_age"] = round(s.get("age", 0.0), 3)  # of its state
                     return True
             return False
 
@@ -688,7 +747,44 @@ class Soak:
     # -------------------------------------------------------- main
 
     def run(self) -> dict:
+        """The soak; with ``--netns`` inside two namespaces made for it and always removed
+        (:func:`shared.tools.netns.two_hosts`; :class:`netns.Unavailable` where not permitted)
+        and with CURVE keys made once into ``OUT/keys``."""
         self.out.mkdir(parents=True, exist_ok=True)
+        if not self.cfg.netns:
+            return self._run()
+        self.keys = self.out / "keys"
+        if self.keys.exists():
+            shutil.rmtree(self.keys)  # this soak's own, from an earlier run into the same OUT
+        subprocess.run(
+            [sys.executable, "-m", "shared.tools", "keys", str(self.keys)],
+            check=True,
+            capture_output=True,
+            env=self.env,
+            timeout=60,
+        )
+        with netns.two_hosts() as hosts:
+            self.hosts = hosts
+            endpoint = Endpoints(hosts.world_ip, self.port).command
+            cmd = [sys.executable, "-m", "shared.tools.push_frames", endpoint, str(self.keys)]
+            self.pusher = subprocess.Popen(
+                hosts.exec("planner", cmd),
+                stdin=subprocess.PIPE,
+                stdout=subprocess.PIPE,
+                text=True,
+                env=self.env,
+            )
+            try:
+                if self.pusher.stdout.readline().strip() != "ready":
+                    raise RuntimeError(
+                        "the flood's sender in the planner's namespace did not start"
+                    )
+                return self._run()
+            finally:
+                stop_processes([self.pusher])
+                self.hosts = None
+
+    def _run(self) -> dict:
         started = time.time()
         self.start_world()
         self.start_planner()
@@ -703,17 +799,17 @@ class Soak:
                 if time.monotonic() >= end:
                     break
                 if not order:
-                    order = list(FAULTS)
+                    order = list(self.cfg.kinds)
                     self.rng.shuffle(order)
                 kind = order.pop()
                 if kind == "kill" and not self.wait(120.0, self.spare_ready):
                     print("the spare planner never became ready", file=sys.stderr)
                     break
                 # "at a random moment" of an episode: the planner must be driving the robot. A
-                # pause early in it: one near its end let the robot coast into the goal on its
-                # last command, and the world that holds still was never seen (no step left to
-                # log between the time-out and the episode's end)
-                within = 1.0 if kind == "pause" else None
+                # pause (and a cut) early in it: one near its end let the robot coast into the
+                # goal on its last command, and the world that holds still was never seen (no
+                # step left to log between the time-out and the episode's end)
+                within = 1.0 if kind in ("pause", "cut") else None
                 if not self.wait(
                     min(30.0, hard_end - time.monotonic()),
                     lambda within=within: self.mid_episode(within),
@@ -772,7 +868,7 @@ class Soak:
                     for f in self.faults
                 ),
             }
-            for k in FAULTS
+            for k in self.cfg.kinds
         }
         return {
             "config": {**asdict(self.cfg), "gap": list(self.cfg.gap)},
