@@ -266,7 +266,7 @@ class WorldServer:
         cmd = self._next_command(lambda c: True)
         next_tick = time.monotonic()
         while self._running():
-            if cmd is not None:
+            if cmd is not None and not self._outdated(cmd):
                 latest_at = time.monotonic()
                 self.player.receive(self.episode.receive(cmd))
             now = time.monotonic()
@@ -307,6 +307,17 @@ class WorldServer:
                 if now - next_tick > 10 * period:  # fell far behind (debugger, load): resync
                     next_tick = now
             cmd = self._poll(max(0.0, next_tick - time.monotonic()))
+
+    def _outdated(self, cmd: P.Command) -> bool:
+        """Whether ``cmd`` answers a state older than the command time-out (in world seconds):
+        a command held up by the link (a cut, a queue) is dropped and logged, never played, and
+        its lag is not published, or the planner would date every later plan that far ahead."""
+        age = self.episode.state_age(cmd.seq)
+        if age is None or age <= self.opt.command_timeout * self.opt.realtime_factor:
+            return False
+        log.warning("dropped a command answering state %d, %.2f s old", cmd.seq, age)
+        self.log.event("stale_command", seq=cmd.seq, age=age, time=self.world.time)
+        return True
 
     def _playing(self) -> tuple[np.ndarray | None, int]:
         """The control for the world's time and the state ``seq`` it was planned from;

@@ -175,6 +175,11 @@ class Episode:
                 break
         self.note_action(cmd.action)
 
+    def state_age(self, seq: int) -> float | None:
+        """World seconds since state ``seq`` was measured (None: not a recent state)."""
+        sent = self._state_times.get(seq)
+        return None if sent is None else self.world.time - sent
+
     def receive(self, cmd: P.Command) -> TimedPlan:
         """Real time: a command's lag (published as ``state.lag``), planning time and action;
         returns its plan as the world plays it (a command without a plan holds its ``ctrl``

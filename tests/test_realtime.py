@@ -366,3 +366,56 @@ def test_a_realtime_pick_place_succeeds_with_a_planner_under_a_third_of_the_worl
             assert measures["position error cube_a-cube_b"] < 0.01
             assert measures["orientation error cube_a-cube_b"] < 0.01
     assert "success" in outcomes, outcomes
+
+
+def test_a_command_answering_a_state_older_than_the_timeout_is_dropped(tmp_path):
+    """A command held up by the link (sent before a cut, delivered after it) answers a state
+    long gone: played, its lag (published as ``state.lag``) would make the planner date every
+    later plan that far ahead. The world drops it and logs why."""
+    port = free_port_block()
+    log = tmp_path / "episode.jsonl"
+    server = start_server("navigation", port, log, "--mode", "realtime", "--command-timeout", "0.3")
+    ctx, req, sub, push, _ = _connect(port, "navigation")
+
+    def command(state: P.State, seq: int) -> bytes:
+        knots = np.zeros((40, 2))
+        return P.encode(
+            P.Command(
+                session=state.session,
+                seq=seq,
+                ctrl=knots[0],
+                plan_ctrl=knots,
+                plan_t0=state.time,
+                plan_dt=0.05,
+            )
+        )
+
+    try:
+        assert sub.poll(20000)
+        first = P.decode(sub.recv())
+        push.send(command(first, first.seq))  # starts the world's clock
+        lags = []
+        while True:
+            assert sub.poll(20000)
+            state = P.decode(sub.recv())
+            if state.time >= 0.6:
+                break
+        push.send(command(state, 1))  # answers state 1 (t = 0.05 s), 0.55 s ago
+        push.send(command(state, state.seq))  # and a fresh one keeps the robot driven
+        for _ in range(6):
+            assert sub.poll(20000)
+            lags.append(P.decode(sub.recv()).lag)
+        req.send(P.encode(P.Control(op="shutdown")))
+        assert req.poll(10000)
+        req.recv()
+        server.wait(20)
+    finally:
+        for s in (req, sub, push):
+            s.close(0)
+        ctx.term()
+        stop(server)
+    records = read_log(log)
+    dropped = [r for r in records if r.get("what") == "stale_command"]
+    assert [r["seq"] for r in dropped] == [1] and dropped[0]["age"] > 0.3
+    assert not any(r["kind"] == "step" and r["plan_seq"] == 1 for r in records)
+    assert max(lags) < 0.3, lags
