@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import dataclasses
 from collections.abc import Callable
+from pathlib import Path
 
 import torch
 
@@ -17,7 +18,7 @@ from planner_client.problem import build_problem, mppi_config
 from planner_client.task import ActiveInferenceTask, FixedModes, TaskLayer
 from shared.endpoints import Endpoints
 from shared.predicates import check_frames
-from shared.scenario import Scenario
+from shared.scenario import Scenario, load_scenario
 
 
 def build_motion_planner(
@@ -75,15 +76,19 @@ def build_task(scenario: Scenario, planner: MotionPlanner) -> TaskLayer:
 
 
 def build_controller(
-    scenario: Scenario,
+    scenario: Scenario | str | Path,
     threads: int = 0,
     seed: int | None = None,
     backend: str | None = None,
     device: str | None = None,
 ) -> Controller:
-    """The control loop of ``scenario`` (thesis Alg. 1): its motion planner and task layer,
-    sampling with ``seed`` (None: ``planner.mppi.seed``); a new episode with a seed rebuilds
-    both, sampling with that seed."""
+    """The control loop of ``scenario`` (a loaded scenario, a name or a YAML path; thesis
+    Alg. 1): its motion planner and task layer as ``m3p2i-planner`` builds them, without
+    sockets, sampling with ``seed`` (None: ``planner.mppi.seed``); a new episode with a seed
+    rebuilds both, sampling with that seed. Call :meth:`Controller.begin` before the first
+    step."""
+    if not isinstance(scenario, Scenario):
+        scenario = load_scenario(scenario)
 
     def renew(episode_seed: int | None):
         planner = build_motion_planner(

@@ -16,7 +16,7 @@ delay estimates, the task layer, the motion planner (M3P2I) and the plans alread
    iteration has no finite cost.
 
 :class:`planner_client.loop.PlannerClient` feeds it states from a world over ZeroMQ;
-:mod:`shared.tools.inprocess` feeds it a world in the same process.
+:mod:`server.inprocess` feeds it a world in the same process.
 """
 
 from __future__ import annotations

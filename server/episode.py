@@ -7,7 +7,7 @@ commands into logged world steps: when each state was published (for the age of 
 answering it), the planning time of each command, the task-level action.
 
 :class:`server.app.WorldServer` serves an episode over ZeroMQ (lock-step or real time);
-:mod:`shared.tools.inprocess` drives one from a planner in the same process. Both call the same
+:mod:`server.inprocess` drives one from a planner in the same process. Both call the same
 methods in the same order, so a lock-step episode is the same step for step.
 """
 

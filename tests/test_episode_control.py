@@ -5,16 +5,19 @@ steps."""
 
 from __future__ import annotations
 
+from functools import partial
+
 import numpy as np
 import pytest
 
+from planner_client.build import build_controller
 from planner_client.cli import with_delays
 from server.app import ServerOptions, WorldServer
+from server.inprocess import build_episode, run_episode
 from shared import protocol as P
 from shared.endpoints import Endpoints
 from shared.evaluation.episode import read_log
 from shared.scenario import load_scenario
-from shared.tools.inprocess import build_episode, run_episode
 from tests.helpers import (
     StateWatcher,
     free_port_block,
@@ -139,7 +142,8 @@ def test_lockstep_with_a_planner_declaring_a_state_delay_moves_the_robot(tmp_pat
     nav = load_scenario("navigation")
     ahead = 3
     sc = with_delays(nav, None, ahead * nav.world.timestep * 1000)
-    result = run_episode(sc, seed=0, log_path=tmp_path / "e.jsonl", max_steps=30, threads=1)
+    one_thread = partial(build_controller, threads=1)
+    result = run_episode(sc, one_thread, seed=0, log_path=tmp_path / "e.jsonl", max_steps=30)
     steps = _steps(read_log(result.log_path))
     assert len(steps) == 30
     assert all(s["safe"] for s in steps[:ahead])  # before the first plan's date

@@ -1,9 +1,8 @@
 """The package layout's import rules (docs/architecture.md).
 
-``server`` and ``planner_client`` meet only over the wire: neither imports the other. ``shared``
-imports neither, except ``shared.tools``: the composition layer (the ``m3p2i`` command, which
-starts the two as processes, and what only it uses, such as ``shared.tools.inprocess``, which
-runs both in one process) may import both. Inside ``shared``, the contract (the top-level
+``server`` and ``planner_client`` meet only over the wire (or in one process, where the caller
+hands the world a planner: ``server.inprocess``): neither imports the other. ``shared`` imports
+neither. Inside ``shared``, the contract (the top-level
 modules and ``shared.robots``) imports neither ``shared.evaluation`` nor ``shared.tools``, and
 ``shared.evaluation`` does not import ``shared.tools``; the two processes never import
 ``shared.tools`` either. Every ``import`` in every module counts, including those inside
@@ -30,10 +29,6 @@ FORBIDDEN = (
     ("shared.evaluation", "shared.tools"),
 )
 CONTRACT_MAY_NOT = ("shared.evaluation", "shared.tools")
-# importer prefixes a rule above does not bind, with the rules they are free of: the
-# composition layer puts world and planner together (nothing it holds is imported back: the
-# rules on shared.tools' importers still stand)
-COMPOSITION = {"shared.tools": (("shared", "server"), ("shared", "planner_client"))}
 
 
 def module_name(path: Path, root: Path) -> str:
@@ -79,10 +74,7 @@ def violations(root: Path) -> list[str]:
         for path in sorted((root / package).rglob("*.py")):
             importer = module_name(path, root)
             for imported in sorted(imports(path, root)):
-                free = [r for p, rs in COMPOSITION.items() if _within(importer, p) for r in rs]
-                rules = [
-                    (a, b) for a, b in FORBIDDEN if _within(importer, a) and (a, b) not in free
-                ]
+                rules = [(a, b) for a, b in FORBIDDEN if _within(importer, a)]
                 if is_contract(importer):
                     rules += [(importer, p) for p in CONTRACT_MAY_NOT]
                 for _, forbidden in rules:
@@ -122,11 +114,7 @@ def test_the_checker_finds_each_kind_of_violation(tmp_path):
         "shared/tools/cli.py",
         "from shared.evaluation import episode\nfrom shared.scenario import load_scenario\n",
     )
-    _write(
-        tmp_path,
-        "shared/tools/inprocess.py",
-        "from server.episode import Episode\nfrom planner_client.controller import C\n",
-    )
+    _write(tmp_path, "shared/tools/inprocess.py", "from server.episode import Episode\n")
     _write(tmp_path, "shared/evaluation/episode.py", "from server.app import WorldServer\n")
     _write(tmp_path, "shared/protocol.py", "import planner_client.controller\n")
     found = "\n".join(violations(tmp_path))
@@ -136,8 +124,8 @@ def test_the_checker_finds_each_kind_of_violation(tmp_path):
     assert "shared.scene imports shared.evaluation.metrics" in found
     assert "shared.evaluation.metrics imports shared.tools.launch" in found
     assert "shared.tools.cli" not in found  # the tools may import everything in shared ...
-    assert "shared.tools.inprocess" not in found  # ... and both processes' packages
-    assert "shared.evaluation.episode imports server.app" in found  # no one else in shared
+    assert "shared.tools.inprocess imports server.episode" in found  # ... but no process
+    assert "shared.evaluation.episode imports server.app" in found
     assert "shared.protocol imports planner_client.controller" in found
 
 

@@ -1,20 +1,22 @@
 """The control loop without the network: :class:`planner_client.controller.Controller` on single
-states, and :mod:`shared.tools.inprocess` running whole episodes in one process, step for step
+states, and :mod:`server.inprocess` running whole episodes in one process, step for step
 and bit for bit the episodes two processes run in lock-step."""
 
 from __future__ import annotations
 
 import dataclasses
+from functools import partial
 
 import numpy as np
 import pytest
 
+from planner_client.build import build_controller
 from planner_client.controller import LayoutMismatch
 from planner_client.task import TaskDecision
+from server.inprocess import run_episode
 from shared import protocol as P
 from shared.evaluation.episode import read_log, steps, summary
 from shared.scenario import load_scenario
-from shared.tools.inprocess import build_controller, run_episode
 from tests.helpers import free_port_block, start_planner, start_server, stop, wait_episode
 
 
@@ -87,9 +89,9 @@ def test_an_episode_in_process_stops_after_max_steps(tmp_path):
     seen = []
     result = run_episode(
         "navigation",
+        partial(build_controller, threads=1),
         log_path=tmp_path / "e.jsonl",
         max_steps=3,
-        threads=1,
         on_step=lambda state, cmd: seen.append((state.seq, cmd.seq)),
     )
     assert result.status == "stopped" and result.summary["steps"] == 3
@@ -106,7 +108,9 @@ def test_an_episode_in_process_is_the_two_process_lockstep_episode(scenario, tmp
     server = start_server(scenario, port, two, "--seed", "0")
     planner = start_planner(scenario, port, "--seed", "0")
     try:  # both run beside the in-process episode: lock-step does not depend on load
-        one = run_episode(scenario, seed=0, log_path=tmp_path / "in-process.jsonl")
+        one = run_episode(
+            scenario, build_controller, seed=0, log_path=tmp_path / "in-process.jsonl"
+        )
         out = wait_episode(server, planner, timeout=600)
         planner.communicate(timeout=30)
     finally:

@@ -60,9 +60,10 @@ class Hosts:
     world_ip: str
     planner_ip: str
 
-    def exec(self, side: str, cmd: list[str]) -> list[str]:
-        """``cmd`` run in the ``world`` or ``planner`` namespace (``ip netns exec`` execs the
-        command: the process id is the command's, signals reach it directly)."""
+    def in_namespace(self, side: str, cmd: list[str]) -> list[str]:
+        """The command line that runs ``cmd`` in the ``world`` or ``planner`` namespace (``ip
+        netns exec`` replaces itself with the command: the process id is the command's, so
+        signals reach it directly)."""
         ns = {"world": self.world_ns, "planner": self.planner_ns}[side]
         return ["ip", "netns", "exec", ns, *cmd]
 

@@ -482,7 +482,7 @@ class Soak:
             str(log),
         ]
         if self.hosts is not None:
-            cmd = self.hosts.exec("world", cmd)
+            cmd = self.hosts.in_namespace("world", cmd)
         with (self.out / f"world-{i:04d}.out").open("w") as out:
             p = Proc(
                 "world",
@@ -514,7 +514,9 @@ class Soak:
         if self.hosts is not None:
             # silence above the cut: the planner keeps its connection through it, and a new
             # world still shows at once (its states carry a new session)
-            cmd = self.hosts.exec("planner", [*cmd, "--server-timeout", str(self.cfg.cut_s + 3)])
+            cmd = self.hosts.in_namespace(
+                "planner", [*cmd, "--server-timeout", str(self.cfg.cut_s + 3)]
+            )
         path = self.out / f"planner-{i:03d}.out"
         with path.open("w") as out:
             p = Proc(
@@ -768,7 +770,7 @@ class Soak:
             endpoint = Endpoints(hosts.world_ip, self.port).command
             cmd = [sys.executable, "-m", "shared.tools.push_frames", endpoint, str(self.keys)]
             self.pusher = subprocess.Popen(
-                hosts.exec("planner", cmd),
+                hosts.in_namespace("planner", cmd),
                 stdin=subprocess.PIPE,
                 stdout=subprocess.PIPE,
                 text=True,

@@ -1,22 +1,26 @@
-"""Run a whole episode in one process: the world and the controller, no ZeroMQ.
+"""Run a whole episode in one process: the world and a planner, no ZeroMQ.
 
 What ``m3p2i run NAME --seed S`` does in lock-step with two processes, done with function calls:
-the world publishes state ``seq``, the controller answers it (thesis Alg. 1), the world plays
-the command's plan for ``plan_every`` steps (its knot for each step's world time, the safe
-control past its end), and publishes the next state. The episode, its log and its summary are
-the two-process run's step for step, bit for bit (tests/test_inprocess.py checks it); only the
-session id, the wall-clock times and the planning times differ.
+the world publishes state ``seq``, the planner's control loop answers it (thesis Alg. 1), the
+world plays the command's plan for ``plan_every`` steps (its knot for each step's world time,
+the safe control past its end), and publishes the next state. The episode, its log and its
+summary are the two-process run's step for step, bit for bit (tests/test_inprocess.py checks
+it); only the session id, the wall-clock times and the planning times differ.
 
-One call for a whole episode::
+The world never imports the planner (docs/architecture.md, import rules): the caller hands it
+the planner's factory, :func:`planner_client.build.build_controller`. One call for a whole
+episode::
 
-    from shared.tools.inprocess import run_episode
+    from planner_client.build import build_controller
+    from server.inprocess import run_episode
 
-    result = run_episode("navigation", seed=0)
+    result = run_episode("navigation", build_controller, seed=0)
     result.status, result.summary["time"], result.log_path
 
 The building blocks, for a notebook, a learning pipeline or a robot's own loop::
 
-    from shared.tools.inprocess import build_controller, build_episode
+    from planner_client.build import build_controller
+    from server.inprocess import build_episode
 
     controller = build_controller("navigation", seed=0)      # planner_client.controller
     episode = build_episode("navigation", seed=0)             # server.episode
@@ -29,9 +33,6 @@ The building blocks, for a notebook, a learning pipeline or a robot's own loop::
     outcome = episode.finish()
     controller.close()
     episode.close()
-
-This module composes both processes' packages, so only the composition layer (``shared.tools``)
-may import it: never the contract, ``shared.evaluation``, ``server`` or ``planner_client``.
 """
 
 from __future__ import annotations
@@ -40,9 +41,8 @@ import tempfile
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any, Protocol
 
-from planner_client.build import build_controller as _build_controller
-from planner_client.controller import Controller, LoopStats
 from server.episode import Episode
 from server.interface import Outcome, World
 from server.world import SimWorld
@@ -51,15 +51,30 @@ from shared.evaluation.episode import read_log, summary
 from shared.faults import FaultConfig, load_faults
 from shared.scenario import Scenario, load_scenario
 
-__all__ = [
-    "Controller",
-    "Episode",
-    "EpisodeResult",
-    "build_controller",
-    "build_episode",
-    "drive",
-    "run_episode",
-]
+__all__ = ["EpisodeResult", "Planner", "build_episode", "drive", "run_episode"]
+
+
+class Planner(Protocol):
+    """What the world asks of a planner in one process: the methods of
+    :class:`planner_client.controller.Controller` that :func:`drive` calls."""
+
+    stats: Any
+
+    def begin(self, mode: str, dt: float) -> None: ...
+
+    def check_layout(self, state: P.State) -> None: ...
+
+    def over(self, state: P.State) -> bool: ...
+
+    def step(self, state: P.State) -> P.Command | None: ...
+
+    def close(self) -> None: ...
+
+
+PlannerFactory = Callable[..., Planner]
+"""Builds the planner of a scenario, called as ``factory(scenario, seed=seed)``:
+:func:`planner_client.build.build_controller`, or a ``functools.partial`` of it with
+``threads``, ``backend`` or ``device`` set."""
 
 OnStep = Callable[[P.State, P.Command], None]
 """Called with each state and the command answering it, once the world has played it."""
@@ -73,7 +88,7 @@ class EpisodeResult:
     outcome: Outcome
     summary: dict
     log_path: Path
-    stats: LoopStats
+    stats: Any  # the planner's own statistics (a Controller's LoopStats)
 
     @property
     def status(self) -> str:
@@ -87,20 +102,6 @@ class EpisodeResult:
 
 def _scenario(scenario: str | Path | Scenario) -> Scenario:
     return scenario if isinstance(scenario, Scenario) else load_scenario(scenario)
-
-
-def build_controller(
-    scenario: str | Path | Scenario,
-    seed: int | None = 0,
-    threads: int = 0,
-    backend: str | None = None,
-    device: str | None = None,
-) -> Controller:
-    """The planner of ``scenario`` (a name, a YAML path or a loaded scenario) as
-    ``m3p2i-planner --seed seed`` builds it, without sockets: sampling with ``seed`` (None:
-    the scenario's ``planner.mppi.seed``); ``threads``, ``backend`` and ``device`` as the
-    planner's options of those names. Call :meth:`Controller.begin` before the first step."""
-    return _build_controller(_scenario(scenario), threads, seed, backend, device)
 
 
 def build_episode(
@@ -131,7 +132,7 @@ def _published(episode: Episode) -> P.State:
 
 def drive(
     episode: Episode,
-    controller: Controller,
+    controller: Planner,
     plan_every: int = 1,
     max_steps: int | None = None,
     on_step: OnStep | None = None,
@@ -163,20 +164,21 @@ def drive(
 
 def run_episode(
     scenario: str | Path | Scenario,
+    planner: PlannerFactory,
     seed: int = 0,
     log_path: str | Path | None = None,
     plan_every: int = 1,
     faults: FaultConfig | str | None = None,
     max_steps: int | None = None,
     on_step: OnStep | None = None,
-    threads: int = 0,
 ) -> EpisodeResult:
     """One lock-step episode of ``scenario`` in this process: the same steps, log and summary
     as ``m3p2i run SCENARIO --seed seed --plan-every plan_every [--faults ...]`` (world
-    and planner seeded with ``seed``). ``max_steps`` stops the episode after that many world
-    steps; ``on_step`` sees each state and the command answering it."""
+    and planner seeded with ``seed``; ``planner(scenario, seed=seed)`` builds the planner, e.g.
+    :func:`planner_client.build.build_controller`). ``max_steps`` stops the episode after that
+    many world steps; ``on_step`` sees each state and the command answering it."""
     sc = _scenario(scenario)
-    controller = build_controller(sc, seed, threads)
+    controller = planner(sc, seed=seed)
     try:
         episode = build_episode(sc, seed, log_path, faults)
         try:
