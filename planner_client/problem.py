@@ -19,7 +19,7 @@ from planner_client.mppi import MPPIConfig
 from planner_client.sensors import SensorColumns, SensorRequest, add_sensors
 from shared.config import ConfigError, ErrorLog, Section
 from shared.frames import FrameResolver
-from shared.robots import RobotSpec, get_robot
+from shared.robots import RobotSpec
 from shared.scenario import PlanningModel, Scenario
 from shared.scene import build_spec, compile_model, free_joint, initial_data, obstacle_names
 
@@ -55,7 +55,7 @@ def robot_joints(scenario: Scenario, model: mujoco.MjModel) -> dict[str, JointIn
 
 
 def build_problem(scenario: Scenario, extra_sensors: list[SensorRequest] = ()) -> PlanningProblem:
-    robot = get_robot(scenario.robot.model)
+    robot = scenario.robot.spec
     spec = build_spec(scenario)
     # planner.timestep: the rollouts step (and hold each control) this long; the world's
     # physics is unchanged, and the world plays the plan at its own rate

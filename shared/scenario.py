@@ -35,7 +35,7 @@ from shared.config_files import find, shipped
 from shared.faults import NOMINAL, OLD_NAME, FaultConfig, parse_faults, read_old_name
 from shared.geometry import AXES
 from shared.predicates import Predicate, parse_predicate
-from shared.robots import ROBOTS, get_robot
+from shared.robots import ROBOT_KEYS, ROBOTS, RobotSpec, get_robot, load_robot, parse_robot
 from shared.task_template import FactorTemplate, TaskTemplate, parse_task
 
 SCENARIO_DIR = shipped("scenarios")  # the scenarios shipped with m3p2i
@@ -46,8 +46,16 @@ _SIZE_LEN = {"box": 3, "cylinder": 2, "sphere": 1}
 
 @dataclass(frozen=True)
 class RobotConfig:
-    model: str
+    """``robot:``: the robot (its name, and what its robot file says) and its start."""
+
+    model: str  # the robot's name: a robot file's stem, or the MJCF's for a robot declared inline
     qpos: tuple[float, ...] | None = None  # initial joint positions; None = the model's default
+    # what the robot file says (frame, controls, safe control); by default, get_robot(model)
+    spec: RobotSpec = None  # type: ignore[assignment]
+
+    def __post_init__(self) -> None:
+        if self.spec is None:
+            object.__setattr__(self, "spec", get_robot(self.model))
 
 
 @dataclass(frozen=True)
@@ -517,18 +525,23 @@ def find_objectives(name_or_path: str | os.PathLike) -> Path:
     return find(name_or_path, "objectives")
 
 
-def scenario_hash(raw: dict, included: Sequence[dict] = ()) -> str:
-    """Hash of the scenario's content, of the objective files it includes and of the robot
-    model file it names. ``faults:`` is hashed under its old name, ``hardware:``: a scenario
-    keeps its hash (bench results, logs, an older peer's) whichever name it uses."""
+def scenario_hash(
+    raw: dict, included: Sequence[dict] = (), robot: RobotSpec | None = None, source: str = ""
+) -> str:
+    """Hash of the scenario's content, of the objective files it includes, of its robot's MJCF
+    file and of a robot file of the user's (the shipped ones are part of the package, and a
+    shipped scenario keeps the hash it had before robots were files). ``faults:`` is hashed under
+    its old name, ``hardware:``: a scenario keeps its hash (bench results, logs, an older peer's)
+    whichever name it uses."""
     if "faults" in raw:
         raw = {(OLD_NAME if k == "faults" else k): v for k, v in raw.items()}
     h = hashlib.sha256(json.dumps(raw, sort_keys=True, default=str).encode())
     for inc in included:
         h.update(json.dumps(inc, sort_keys=True, default=str).encode())
-    robot = raw.get("robot", {}).get("model") if isinstance(raw.get("robot"), dict) else None
-    if robot in ROBOTS:
-        h.update(ROBOTS[robot].path.read_bytes())
+    if robot is not None:
+        h.update(robot.path.read_bytes())
+        if robot.source and robot.source != source and not robot.shipped:
+            h.update(Path(robot.source).read_bytes())
     return h.hexdigest()[:16]
 
 
@@ -687,7 +700,7 @@ def _read(raw: dict, source: str, errors: ErrorLog) -> ScenarioReading:
         name=name,
         description=description,
         source=source,
-        hash=scenario_hash(raw, included),
+        hash=scenario_hash(raw, included, robot.spec, source),
         robot=robot,
         world=world,
         episode=episode or EpisodeConfig(max_time=0.0, success=()),
@@ -811,13 +824,55 @@ def _action_objectives(s: Section, task: TaskTemplate, objectives: dict) -> dict
 
 
 def _robot(s: Section) -> RobotConfig:
-    model = s.req("model", str)
-    if model not in ROBOTS:
-        raise s.error("model", "unknown robot", model, f"one of: {', '.join(sorted(ROBOTS))}")
+    """``robot:``: ``model:`` a robot's name (``m3p2i list robots``) or the path of a robot file
+    (relative to the scenario's folder), or the keys of a robot file themselves (``mjcf``,
+    ``frame``, ``controls``, ...; the MJCF relative to the scenario's folder); ``qpos``: the
+    initial joint positions."""
+    folder = Path(s.source).parent
+    inline = [k for k in ROBOT_KEYS if s.has(k)]
+    if inline and s.has("model"):
+        raise s.error(
+            inline[0],
+            "a robot is either named (model:) or declared here, not both",
+            expected="model: NAME, or the keys of a robot file (mjcf, frame, controls, ...)",
+        )
+    if inline:
+        mjcf = s.data.get("mjcf")
+        spec = parse_robot(s, Path(mjcf).stem if isinstance(mjcf, str) else "robot", folder)
+        model = spec.name
+    else:
+        model = s.req(
+            "model", str, "a robot's name, a robot file, or the robot's own keys (mjcf, ...)"
+        )
+        spec = _named_robot(s, model, folder)
     qpos = s.opt("qpos", None, vector(), "a list of numbers")
     s.done()
-    get_robot(model)
-    return RobotConfig(model=model, qpos=qpos)
+    return RobotConfig(model=model, qpos=qpos, spec=spec)
+
+
+def _named_robot(s: Section, model: str, folder: Path) -> RobotSpec:
+    """``robot.model``: a robot file's path (relative to the scenario's folder first),
+    ``NAME.yaml`` in the ``robots`` folder beside the scenario's folder, then a robot by name
+    (:func:`shared.robots.get_robot`: the user's robot folders, the shipped robots). A faulty
+    robot file raises its own error (its file, key and value)."""
+    if model.endswith((".yaml", ".yml")) or "/" in model or os.sep in model:
+        for path in (folder / model, Path(model)):
+            if path.is_file():
+                return load_robot(path)
+        raise s.error("model", "no such robot file", model, f"a file; looked in {folder}")
+    beside = folder.parent / "robots" / f"{model}.yaml"
+    if beside.is_file():
+        return load_robot(beside)
+    try:
+        return get_robot(model)
+    except KeyError:
+        raise s.error(
+            "model",
+            "unknown robot",
+            model,
+            f"one of: {', '.join(sorted(ROBOTS))}, or a robot file (a path relative to the "
+            "scenario)",
+        ) from None
 
 
 def _world(s: Section, errors: ErrorLog) -> WorldConfig | None:

@@ -38,6 +38,7 @@ from shared.cli_common import (
 )
 from shared.config import ConfigError, load_yaml
 from shared.config_files import ENV_VAR, KINDS, Entry, entries, search_folders, shown
+from shared.robots import load_robot, registered
 from shared.endpoints import DEFAULT_HOST, DEFAULT_PORT
 from shared.evaluation.timing import describe_timing
 from shared.scenario import find_scenario, load_scenario
@@ -803,10 +804,13 @@ def keys_command(
 
 @app.command("list")
 def list_files(
-    kind: str = typer.Argument("scenarios", help="What to list: scenarios, objectives or bench."),
+    kind: str = typer.Argument(
+        "scenarios", help="What to list: scenarios, objectives, bench or robots."
+    ),
 ) -> None:
-    """List the scenarios (or objective or bench files) folder by folder in lookup order: the
-    folders of M3P2I_SCENARIOS, ./configs/scenarios, then the shipped ones. Where two folders
+    """List the scenarios (or objective, bench or robot files) folder by folder in lookup order:
+    the folders of M3P2I_SCENARIOS, ./configs/scenarios, then the shipped ones (robots: the
+    robots folders beside them, then the shipped robots). Where two folders
     have a file of the same name, the earlier one is used, and both lines say so."""
     if kind not in KINDS:
         typer.echo(f"error: cannot list {kind!r}; one of: {', '.join(KINDS)}", err=True)
@@ -835,13 +839,19 @@ def list_files(
                     else f"[shadows {shown(other.path)}] "
                 )
             typer.echo(f"  {e.name:24s} {note}{_description(e, kind)}".rstrip())
+    if kind == "robots" and registered():
+        typer.echo("registered in Python:")
+        for name, spec in sorted(registered().items()):
+            typer.echo(f"  {name:24s} {spec.description}".rstrip())
 
 
 def _description(entry: Entry, kind: str) -> str:
-    """A file's one-line description; for a scenario, whether it loads."""
+    """A file's one-line description; for a scenario or a robot, whether it loads."""
     try:
         if kind == "scenarios":
             return load_scenario(entry.path).description
+        if kind == "robots":
+            return load_robot(entry.path).description
         return str(load_yaml(entry.path).get("description", ""))
     except ConfigError as exc:
         return f"(invalid: {exc})"
