@@ -406,6 +406,9 @@ class Scenario:
     metrics: MetricsConfig = field(default_factory=MetricsConfig)
     # the world server's simulated faults (docs/faults.md); the planner keeps the nominal model
     faults: FaultConfig = NOMINAL
+    # the user's modules of cost terms, imported by the planner (planner_client.plugins):
+    # NAME.py in the scenario's folder, else a module name; the world never imports them
+    plugins: tuple[str, ...] = ()
     raw: dict = field(repr=False, default_factory=dict)
 
 
@@ -589,6 +592,14 @@ def _read(raw: dict, source: str, errors: ErrorLog) -> ScenarioReading:
     faults = NOMINAL
     if top.has("faults"):  # a profile's name or a mapping
         faults = errors.call(parse_faults, top.opt("faults", None), source, default=NOMINAL)
+    plugins = errors.call(
+        top.opt,
+        "plugins",
+        (),
+        string_list,
+        "a list of Python modules: NAME.py beside the scenario, or importable module names",
+        default=(),
+    )
     library, included = _includes(top, errors)
     objectives = errors.call(
         lambda: _objectives(top.section("objectives"), errors, library), default={}
@@ -712,6 +723,7 @@ def _read(raw: dict, source: str, errors: ErrorLog) -> ScenarioReading:
         action_objectives=action_objectives,
         metrics=metrics,
         faults=faults,
+        plugins=plugins,
         raw=raw,
     )
     return ScenarioReading(scenario, errors.errors, model_ok)
