@@ -72,7 +72,8 @@ class RobotSpec:
 
     @property
     def path(self) -> Path:
-        return self.folder / self.mjcf
+        """The MJCF file (``..`` resolved, links kept)."""
+        return Path(os.path.normpath(self.folder / self.mjcf))
 
     @property
     def shipped(self) -> bool:
@@ -147,7 +148,10 @@ def _load_robot(path: str, mtime_ns: int, size: int) -> RobotSpec:
     key = (path, mtime_ns, size)
     if key not in _CACHE:
         p = Path(path)
-        _CACHE[key] = parse_robot(Section(load_yaml(p), path), p.stem, p.parent)
+        section = Section(load_yaml(p), path)
+        spec = parse_robot(section, p.stem, p.parent)
+        section.done()
+        _CACHE[key] = spec
     return _CACHE[key]
 
 
