@@ -96,7 +96,7 @@ def test_only_the_planner_imports_the_plugins(tmp_path):
 
 
 def test_a_scenario_without_its_plugin_names_the_unknown_term_and_the_way(tmp_path):
-    with pytest.raises(ConfigError, match="unknown cost term.*plugins: names"):
+    with pytest.raises(ConfigError, match=r"unknown cost term.*plugins: names"):
         build_problem(load_scenario(lab(tmp_path, "not_imported")))
 
 
@@ -147,7 +147,7 @@ def test_a_term_registered_twice_names_both(tmp_path):
 
 def test_plugins_are_names(tmp_path):
     assert load_scenario(lab(tmp_path, plugins="my_terms")).plugins == ("my_terms",)
-    with pytest.raises(ConfigError, match="plugins: wrong type .*a list of Python modules"):
+    with pytest.raises(ConfigError, match=r"plugins: wrong type .*a list of Python modules"):
         load_scenario(lab(tmp_path, plugins=[3]))
 
 
