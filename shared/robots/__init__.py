@@ -135,24 +135,25 @@ def get_robot(name_or_path: str | os.PathLike) -> RobotSpec:
 
 
 def load_robot(path: str | os.PathLike) -> RobotSpec:
-    """The robot of a robot file, validated against its MJCF (read once per file version)."""
+    """The robot of a robot file, validated against its MJCF; read again only when the robot
+    file or the MJCF changed."""
     path = Path(path).absolute()
-    stat = path.stat()
-    return _load_robot(str(path), stat.st_mtime_ns, stat.st_size)
+    cached = _CACHE.get(path)
+    if cached is not None and cached[1] == _version(path, cached[0].path):
+        return cached[0]
+    section = Section(load_yaml(path), str(path))
+    spec = parse_robot(section, path.stem, path.parent)
+    section.done()
+    _CACHE[path] = (spec, _version(path, spec.path))
+    return spec
 
 
-_CACHE: dict[tuple[str, int, int], RobotSpec] = {}
+# a robot file -> its robot, and the (mtime, size) of the robot file and of its MJCF then
+_CACHE: dict[Path, tuple[RobotSpec, tuple]] = {}
 
 
-def _load_robot(path: str, mtime_ns: int, size: int) -> RobotSpec:
-    key = (path, mtime_ns, size)
-    if key not in _CACHE:
-        p = Path(path)
-        section = Section(load_yaml(p), path)
-        spec = parse_robot(section, p.stem, p.parent)
-        section.done()
-        _CACHE[key] = spec
-    return _CACHE[key]
+def _version(*paths: Path) -> tuple:
+    return tuple((p.stat().st_mtime_ns, p.stat().st_size) if p.is_file() else None for p in paths)
 
 
 def parse_robot(s: Section, name: str, folder: Path) -> RobotSpec:
