@@ -96,7 +96,9 @@ def test_only_the_planner_imports_the_plugins(tmp_path):
 
 
 def test_a_scenario_without_its_plugin_names_the_unknown_term_and_the_way(tmp_path):
-    with pytest.raises(ConfigError, match=r"unknown cost term.*plugins: names"):
+    with pytest.raises(
+        ConfigError, match=r"unknown cost term.*plugins: or the planner's --plugins"
+    ):
         build_problem(load_scenario(lab(tmp_path, "not_imported")))
 
 

@@ -141,8 +141,8 @@ def _weighted_term(tc: TermConfig, ctx: TermContext) -> WeightedTerm:
             "term",
             "unknown cost term",
             tc.term,
-            f"one of: {', '.join(sorted(TERMS))}; or a term of your own, registered by a module "
-            "the scenario's plugins: names",
+            f"one of: {', '.join(sorted(TERMS))}; or a term of your own, from a module named by "
+            "the scenario's plugins: or the planner's --plugins",
         )
     when = s.opt("when", "all", one_of(_WHEN))
     term = TERMS[tc.term].from_params(s, ctx)
