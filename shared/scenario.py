@@ -620,7 +620,8 @@ def _read(raw: dict, source: str, errors: ErrorLog) -> ScenarioReading:
         )
         if task is not None:
             observers = errors.call(
-                lambda: _observers(top.section("observers"), task, errors), default={}
+                lambda: _observers(top.section("observers"), task, errors, bool(plugins)),
+                default={},
             )
             action_objectives = errors.call(
                 lambda: _action_objectives(top.section("plan"), task, objectives), default={}
@@ -776,20 +777,23 @@ def _check_attach(
         )
 
 
-def _observers(s: Section, task: TaskTemplate, errors: ErrorLog) -> dict[str, ObserverConfig]:
+def _observers(
+    s: Section, task: TaskTemplate, errors: ErrorLog, plugins: bool = False
+) -> dict[str, ObserverConfig]:
     """``factor: {predicate: {...}}`` (true -> first state, false -> second), or
     ``factor: [{state: s, when: {predicate: {...}}}, ..., {default: s}]``. Each factor's
-    faults are collected in ``errors``."""
+    faults are collected in ``errors``. ``plugins``: the scenario names plugins, whose
+    predicates the planner resolves once it imported them (``PluginPredicate``)."""
     out = {}
     for factor in task.factors:
-        observer = errors.call(_observer, s, factor)
+        observer = errors.call(_observer, s, factor, plugins)
         if observer is not None:
             out[factor.name] = observer
     s.done()
     return out
 
 
-def _observer(s: Section, factor: FactorTemplate) -> ObserverConfig:
+def _observer(s: Section, factor: FactorTemplate, plugins: bool = False) -> ObserverConfig:
     """One task factor's observer (see :func:`_observers`)."""
     if not s.has(factor.name):
         raise s.error(
@@ -807,7 +811,8 @@ def _observer(s: Section, factor: FactorTemplate) -> ObserverConfig:
                 list(states),
                 "a list of {state, when} rules",
             )
-        return ObserverConfig(((states[0], parse_predicate(s.section(factor.name))),), states[1])
+        pred = parse_predicate(s.section(factor.name), plugins)
+        return ObserverConfig(((states[0], pred),), states[1])
     rules, default = [], None
     for i, rule in enumerate(s.items(factor.name, required=True)):
         if rule.has("default"):
@@ -817,7 +822,7 @@ def _observer(s: Section, factor: FactorTemplate) -> ObserverConfig:
                 raise rule.error("default", "must be the last rule")
             continue
         state = rule.req("state", one_of(states))
-        rules.append((state, parse_predicate(rule.section("when"))))
+        rules.append((state, parse_predicate(rule.section("when"), plugins)))
         rule.done()
     if default is None:
         raise s.error(factor.name, "the rule list needs a final {default: state}")

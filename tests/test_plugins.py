@@ -8,17 +8,21 @@ from __future__ import annotations
 import functools
 import sys
 
+import mujoco
 import pytest
 import yaml
 from typer.testing import CliRunner
 
+from planner_client import planner_check
 from planner_client import plugins as P
 from planner_client.build import build_controller
 from planner_client.cli import app as planner_app
 from planner_client.costs import TERMS
+from planner_client.observers import SymbolicObserver
 from planner_client.problem import build_problem
 from server.inprocess import run_episode
 from shared.config import ConfigError
+from shared.predicates import PREDICATES, PluginPredicate
 from shared.scenario import SCENARIO_DIR, load_scenario
 from tests.user_folder import reach, user_folder
 
@@ -49,13 +53,43 @@ class SquaredDistance(CostTerm):
 """
 
 
+# an observer of the user's: the tip within a radius of a frame
+MY_PREDICATES = """
+from dataclasses import dataclass
+from typing import ClassVar
+
+import numpy as np
+
+from shared.predicates import Predicate, register
+
+
+@register("tip_within")
+@dataclass(frozen=True)
+class TipWithin(Predicate):
+    a: str
+    b: str
+    radius: float
+    frame_keys: ClassVar[tuple[str, ...]] = ("a", "b")
+
+    @classmethod
+    def from_section(cls, s):
+        return cls(a=s.req("a", str), b=s.req("b", str), radius=s.req("radius", float))
+
+    def holds(self, view, frames):
+        d = frames["a"].pos(view.data) - frames["b"].pos(view.data)
+        return float(np.linalg.norm(d)) <= self.radius
+"""
+
+
 @pytest.fixture(autouse=True)
 def fresh_registry():
-    """Each test's plugins leave the term registry and the module cache as they were."""
-    terms, files, modules = dict(TERMS), dict(P._BY_FILE), set(sys.modules)
+    """Each test's plugins leave the registries and the module cache as they were."""
+    terms, preds, files, modules = dict(TERMS), dict(PREDICATES), dict(P._BY_FILE), set(sys.modules)
     yield
     TERMS.clear()
     TERMS.update(terms)
+    PREDICATES.clear()
+    PREDICATES.update(preds)
     P._BY_FILE.clear()
     P._BY_FILE.update(files)
     for name in set(sys.modules) - modules:
@@ -175,3 +209,67 @@ def test_a_ray_node_refuses_a_received_scenario_that_names_plugins(tmp_path):
     row, files = BR.remote_trial(task)
     assert row["status"] == "failure" and "a node imports no module" in row["reason"]
     assert files == {} and not any(n.startswith("m3p2i_plugin_") for n in sys.modules)
+
+
+def observed(tmp_path, observer: dict, **extra):
+    """The reaching scenario as a task whose one factor an observer of the user's watches."""
+    task = {
+        "task": {
+            "factors": {
+                "tip": {
+                    "states": ["at_target", "away"],
+                    "actions": {"reach_target": {"effect": {"set": "at_target"}}},
+                }
+            },
+            "goals": {"tip": "at_target"},
+        },
+        "observers": {"tip": observer},
+        "plan": {"reach_target": "reach"},
+        "modes": None,
+    }
+    path = user_folder(tmp_path, scenario={**reach(**extra), **task})
+    raw = yaml.safe_load(path.read_text())
+    path.write_text(yaml.safe_dump({k: v for k, v in raw.items() if v is not None}))
+    (path.parent / "my_predicates.py").write_text(MY_PREDICATES)
+    return path
+
+
+TIP = {"tip_within": {"a": "robot", "b": "target", "radius": 0.03}}
+
+
+def test_an_observer_of_the_users_module_watches_the_task(tmp_path):
+    path = observed(tmp_path, TIP, plugins=["my_predicates"])
+    sc = load_scenario(path)  # as the world reads it: nothing imported, nothing evaluated
+    (rule,) = sc.observers["tip"].rules
+    assert isinstance(rule[1], PluginPredicate) and "tip_within" not in PREDICATES
+    problem = build_problem(sc)  # the planner imports the scenario's plugins
+    observer = SymbolicObserver(sc.observers, problem.resolve)
+    data = mujoco.MjData(problem.model)
+    data.qpos[:2] = sc.robot.qpos
+    mujoco.mj_forward(problem.model, data)
+    assert observer(data, {}) == {"tip": "away"}
+    data.mocap_pos[0] = data.site("tip").xpos  # the target where the tip is
+    mujoco.mj_forward(problem.model, data)
+    assert observer(data, {}) == {"tip": "at_target"}
+    result = run_episode(path, functools.partial(build_controller, threads=1), seed=0)
+    assert result.status == "success", result.summary
+
+
+def test_an_unknown_observer_is_refused_by_the_planner_naming_plugins(tmp_path):
+    typo = {"tip_withn": TIP["tip_within"]}
+    path = observed(tmp_path, typo, plugins=["my_predicates"])
+    errors = "\n".join(str(e) for e in planner_check.scenario_errors(path))
+    assert "observers.tip.tip_withn: unknown predicate" in errors and "plugins:" in errors
+    # without plugins: the scenario names no module, so the name is wrong at load, as before
+    with pytest.raises(ConfigError, match=r"observers\.tip\.tip_withn: unknown predicate"):
+        load_scenario(observed(tmp_path / "none", typo))
+
+
+def test_the_success_test_keeps_the_packages_predicates(tmp_path):
+    # the world judges success and imports no plugin
+    path = observed(tmp_path, TIP, plugins=["my_predicates"])
+    raw = yaml.safe_load(path.read_text())
+    raw["episode"]["success"] = [TIP]
+    path.write_text(yaml.safe_dump(raw))
+    with pytest.raises(ConfigError, match=r"episode\.success.*unknown predicate"):
+        load_scenario(path)
