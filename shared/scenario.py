@@ -406,8 +406,8 @@ class Scenario:
     metrics: MetricsConfig = field(default_factory=MetricsConfig)
     # the world server's simulated faults (docs/faults.md); the planner keeps the nominal model
     faults: FaultConfig = NOMINAL
-    # the user's modules of cost terms, imported by the planner (planner_client.plugins):
-    # NAME.py in the scenario's folder, else a module name; the world never imports them
+    # the user's modules of cost terms and observer predicates, imported by the planner
+    # (planner_client.plugins): NAME.py beside the scenario, else a module name; never the world
     plugins: tuple[str, ...] = ()
     raw: dict = field(repr=False, default_factory=dict)
 
