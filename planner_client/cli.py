@@ -14,13 +14,14 @@ from shared.cli_common import (
     Host,
     Insecure,
     Keys,
+    Plugins,
     Port,
     ScenarioOption,
     Verbose,
     print_errors,
     setup_logging,
 )
-from shared.config import ConfigError
+from shared.config import ConfigError, ConfigErrors
 from shared.endpoints import DEFAULT_HOST, DEFAULT_PORT, Endpoints
 from shared.scenario import load_scenario
 from shared.security import ExposureError, keys_for_cli, load_planner_keys
@@ -105,6 +106,7 @@ def main(
         "published), overriding planner.delays.state_ms.",
     ),
     estimate_delays: EstimateDelays = False,
+    plugins: Plugins = None,
     max_rate: float = typer.Option(
         0.0,
         min=0.0,
@@ -122,7 +124,13 @@ def main(
             {"--host": host, "--diagnostics-host": diagnostics_host}, keys, insecure
         )
     from planner_client.planner_check import scenario_errors
+    from planner_client.plugins import import_plugins
 
+    try:  # the operator's own modules, before the scenario's terms are looked up
+        import_plugins(plugins or [], Path.cwd(), "m3p2i-planner", "--plugins")
+    except ConfigError as exc:
+        print_errors(exc.errors if isinstance(exc, ConfigErrors) else [exc], err=not check)
+        raise typer.Exit(2) from None
     errors = scenario_errors(scenario)  # every error of the file, before anything starts
     print_errors(errors, err=not check)
     if errors or check:

@@ -10,16 +10,18 @@ from __future__ import annotations
 import dataclasses
 import math
 from dataclasses import dataclass
+from pathlib import Path
 
 import mujoco
 
 from planner_client.attach import add_attach_welds
 from planner_client.costs import JointInfo, Objective, TermContext, build_objective
 from planner_client.mppi import MPPIConfig
+from planner_client.plugins import import_plugins
 from planner_client.sensors import SensorColumns, SensorRequest, add_sensors
 from shared.config import ConfigError, ErrorLog, Section
 from shared.frames import FrameResolver
-from shared.robots import RobotSpec, get_robot
+from shared.robots import RobotSpec
 from shared.scenario import PlanningModel, Scenario
 from shared.scene import build_spec, compile_model, free_joint, initial_data, obstacle_names
 
@@ -55,7 +57,7 @@ def robot_joints(scenario: Scenario, model: mujoco.MjModel) -> dict[str, JointIn
 
 
 def build_problem(scenario: Scenario, extra_sensors: list[SensorRequest] = ()) -> PlanningProblem:
-    robot = get_robot(scenario.robot.model)
+    robot = scenario.robot.spec
     spec = build_spec(scenario)
     # planner.timestep: the rollouts step (and hold each control) this long; the world's
     # physics is unchanged, and the world plays the plan at its own rate
@@ -197,8 +199,10 @@ def actuator_names(model: mujoco.MjModel) -> list[str]:
 def build_objectives(
     scenario: Scenario, resolve: FrameResolver, actuators: list[str]
 ) -> dict[str, Objective]:
-    """Every objective of the scenario, checked against the term registry and the model; the
-    errors of all objectives are raised together."""
+    """Every objective of the scenario, checked against the term registry (the scenario's
+    ``plugins:`` imported first) and the model; the errors of all objectives are raised
+    together."""
+    import_plugins(scenario.plugins, Path(scenario.source).parent, scenario.source)
     ctx = TermContext(
         scenario.source,
         resolve,

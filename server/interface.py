@@ -40,7 +40,6 @@ from dataclasses import dataclass
 import mujoco
 import numpy as np
 
-from shared.robots import get_robot
 from shared.scenario import Scenario
 from shared.scene import compile_model
 
@@ -97,7 +96,7 @@ class World(ABC):
         self.scenario = scenario
         self.seed = seed
         self.model = compile_model(scenario)
-        self.robot = get_robot(scenario.robot.model)
+        self.robot = scenario.robot.spec
         self.status = "running"
         self.extras: dict[str, float] = {}
         self.events: list[dict] = []

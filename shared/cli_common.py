@@ -144,6 +144,15 @@ RunDir = Annotated[
 Timeout = Annotated[
     float, typer.Option("--timeout", help="Wall-clock seconds before the run is abandoned.")
 ]
+Plugins = Annotated[
+    list[str] | None,
+    typer.Option(
+        "--plugins",
+        help="A Python module of your own cost terms for the planner to import (repeatable): "
+        "a .py file or an importable module name, besides the scenario's plugins: "
+        "(docs/cost_terms.md). Only the planner imports it.",
+    ),
+]
 
 
 # --- help text ------------------------------------------------------------------------------

@@ -3,9 +3,10 @@ shipped with m3p2i (docs/scenarios.md, "Where scenarios are looked up").
 
 A name (``navigation``) is looked up as ``NAME.yaml``; anything that is a file is taken as given.
 Scenario folders, in order: each folder of ``M3P2I_SCENARIOS`` (separated by ``os.pathsep``),
-``configs/scenarios`` of the current folder, then the shipped scenarios. Objective and bench files
-are looked up in the ``objectives`` and ``bench`` folders beside each of those user folders (a
-user's ``configs/`` is laid out like the shipped one), then in the shipped ones. The first folder
+``configs/scenarios`` of the current folder, then the shipped scenarios. Objective, bench and
+robot files are looked up in the ``objectives``, ``bench`` and ``robots`` folders beside each of
+those user folders (a user's ``configs/`` is laid out like the shipped one), then in the shipped
+ones (the shipped robots are ``shared/robots``). The first folder
 that has the name wins, so a user's file shadows a shipped file of the same name.
 
 The shipped files are the repository's top-level ``configs/``: a wheel carries it as the data
@@ -23,7 +24,12 @@ from pathlib import Path
 from shared.config import ConfigError
 
 ENV_VAR = "M3P2I_SCENARIOS"
-KINDS = {"scenarios": "scenario", "objectives": "objectives", "bench": "bench"}  # folder: what
+KINDS = {
+    "scenarios": "scenario",
+    "objectives": "objectives",
+    "bench": "bench",
+    "robots": "robot",
+}  # folder: what
 
 
 def shipped_configs() -> Path:
@@ -37,7 +43,10 @@ def shipped_configs() -> Path:
 
 
 def shipped(*parts: str) -> Path:
-    """A path inside the shipped ``configs/``, e.g. ``shipped("scenarios")``."""
+    """A path inside the shipped ``configs/``, e.g. ``shipped("scenarios")``; the shipped robot
+    files live beside their MJCF in ``shared/robots``, so ``shipped("robots")`` is that folder."""
+    if parts and parts[0] == "robots":
+        return Path(__file__).resolve().parent.joinpath(*parts)
     return shipped_configs().joinpath(*parts)
 
 

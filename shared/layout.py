@@ -19,7 +19,6 @@ from typing import Any
 import mujoco
 import numpy as np
 
-from shared.robots import get_robot
 from shared.scenario import Scenario
 from shared.scene import WALL_NAMES, compile_model
 
@@ -176,7 +175,7 @@ def bridge_layout(scenario: Scenario, model: mujoco.MjModel | None = None) -> Br
     """The layout of ``scenario``'s state and command, from its compiled world model (compiled
     here unless given)."""
     model = model if model is not None else compile_model(scenario)
-    robot = get_robot(scenario.robot.model)
+    robot = scenario.robot.spec
     objects = {o.name for o in scenario.world.objects}
     qpos, qvel = [], []
     for j in range(model.njnt):
@@ -257,7 +256,7 @@ def frame_names(scenario: Scenario, model: mujoco.MjModel | None = None) -> tupl
     """Every frame name ``scenario``'s YAML may use, ``robot`` first, then the bodies and the
     sites in the model's order (compiled here unless given)."""
     model = model if model is not None else compile_model(scenario)
-    robot = get_robot(scenario.robot.model)
+    robot = scenario.robot.spec
     objects = {o.name for o in scenario.world.objects}
     if robot.frame.startswith("site:"):
         own = int(model.site_bodyid[model.site(robot.frame[5:]).id])

@@ -6,7 +6,8 @@ truth into a discrete observation for active inference. Each predicate is a smal
 dataclass built from its YAML parameters, validated at scenario load; frame names are checked
 against the compiled model by :meth:`Predicate.bind`.
 
-Add one with ``@register("name")`` on a class with ``from_section`` and ``holds``.
+Add one with ``@register("name")`` on a class with ``from_section`` and ``holds``; a module of
+the user's may too, for the planner's observers (:class:`PluginPredicate`, docs/cost_terms.md).
 """
 
 from __future__ import annotations
@@ -27,7 +28,16 @@ PREDICATES: dict[str, type[Predicate]] = {}
 
 
 def register(name: str) -> Callable[[type], type]:
+    """Class decorator: make a predicate available to YAML as ``name: {...}``, once (a second
+    predicate of the same name is refused, naming both classes)."""
+
     def wrap(cls: type) -> type:
+        if name in PREDICATES and PREDICATES[name] is not cls:
+            old = PREDICATES[name]
+            raise ValueError(
+                f"predicate {name!r} registered twice: by {old.__module__}.{old.__qualname__} "
+                f"and by {cls.__module__}.{cls.__qualname__}; give the new one another name"
+            )
         cls.kind = name
         PREDICATES[name] = cls
         return cls
@@ -284,8 +294,50 @@ class All(Predicate):
         return out
 
 
-def parse_predicate(s: Section) -> Predicate:
-    """``{near: {a: robot, b: goal, within: 0.1}}`` -> a Predicate (one key: the predicate name)."""
+@dataclass(frozen=True, eq=False)  # its parameters are a mapping, not hashable
+class PluginPredicate(Predicate):
+    """A predicate that no module had registered when the scenario was read, in an observer of a
+    scenario that names plugins: the planner imports them before it builds its observers
+    (``planner_client.plugins``) and resolves it then (:meth:`resolved`); the world imports no
+    plugin and never evaluates an observer. Its parameters are checked when it is resolved."""
+
+    name: str
+    params: Any
+    source: str
+    path: str
+
+    kind: ClassVar[str] = "plugin"
+
+    @classmethod
+    def from_section(cls, s: Section) -> PluginPredicate:
+        raise NotImplementedError("made by parse_predicate")
+
+    def resolved(self) -> Predicate:
+        """The registered predicate of this name built from the parameters, or the error of an
+        unknown name (or of its parameters)."""
+        if self.name not in PREDICATES:
+            raise ConfigError(
+                self.source,
+                self.path,
+                "unknown predicate",
+                self.name,
+                f"one of: {', '.join(sorted(PREDICATES))}; or a predicate of your own, from a "
+                "module named by the scenario's plugins: or the planner's --plugins",
+            )
+        s = Section({self.name: self.params}, self.source, self.path.rpartition(".")[0])
+        return parse_predicate(s)
+
+    def bind(self, resolve: FrameResolver) -> BoundPredicate:
+        return self.resolved().bind(resolve)
+
+    def holds(self, view, frames):
+        raise RuntimeError(f"predicate {self.name!r} was never resolved (plugins not imported)")
+
+
+def parse_predicate(s: Section, plugins: bool = False) -> Predicate:
+    """``{near: {a: robot, b: goal, within: 0.1}}`` -> a Predicate (one key: the predicate name).
+    ``plugins``: the scenario names plugins and this is a planner-side predicate (an observer),
+    so an unknown name is a :class:`PluginPredicate`, resolved once the planner imported them."""
     if len(s.data) != 1:
         raise ConfigError(
             s.source,
@@ -295,6 +347,10 @@ def parse_predicate(s: Section) -> Predicate:
             f"one of: {', '.join(sorted(PREDICATES))}",
         )
     (name,) = s.data
+    if name not in PREDICATES and plugins:
+        s.section(name, required=False)  # its parameters are checked once resolved
+        s.done()
+        return PluginPredicate(name, s.data[name], s.source, s.key_path(name))
     if name not in PREDICATES:
         raise s.error(name, "unknown predicate", name, f"one of: {', '.join(sorted(PREDICATES))}")
     if name == "all":
@@ -318,6 +374,10 @@ def check_frames(pred: Predicate, resolve: FrameResolver, source: str, path: str
 def _check_frames(
     pred: Predicate, resolve: FrameResolver, source: str, path: str, errors: ErrorLog
 ) -> None:
+    if isinstance(pred, PluginPredicate):
+        pred = errors.call(pred.resolved)
+        if pred is None:
+            return
     if isinstance(pred, All):
         for i, part in enumerate(pred.parts):
             _check_frames(part, resolve, source, f"{path}.all[{i}]", errors)

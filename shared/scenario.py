@@ -35,7 +35,7 @@ from shared.config_files import find, shipped
 from shared.faults import NOMINAL, OLD_NAME, FaultConfig, parse_faults, read_old_name
 from shared.geometry import AXES
 from shared.predicates import Predicate, parse_predicate
-from shared.robots import ROBOTS, get_robot
+from shared.robots import ROBOT_KEYS, ROBOTS, RobotSpec, get_robot, load_robot, parse_robot
 from shared.task_template import FactorTemplate, TaskTemplate, parse_task
 
 SCENARIO_DIR = shipped("scenarios")  # the scenarios shipped with m3p2i
@@ -46,8 +46,16 @@ _SIZE_LEN = {"box": 3, "cylinder": 2, "sphere": 1}
 
 @dataclass(frozen=True)
 class RobotConfig:
-    model: str
+    """``robot:``: the robot (its name, and what its robot file says) and its start."""
+
+    model: str  # the robot's name: a robot file's stem, or the MJCF's for a robot declared inline
     qpos: tuple[float, ...] | None = None  # initial joint positions; None = the model's default
+    # what the robot file says (frame, controls, safe control); by default, get_robot(model)
+    spec: RobotSpec = None  # type: ignore[assignment]
+
+    def __post_init__(self) -> None:
+        if self.spec is None:
+            object.__setattr__(self, "spec", get_robot(self.model))
 
 
 @dataclass(frozen=True)
@@ -398,6 +406,9 @@ class Scenario:
     metrics: MetricsConfig = field(default_factory=MetricsConfig)
     # the world server's simulated faults (docs/faults.md); the planner keeps the nominal model
     faults: FaultConfig = NOMINAL
+    # the user's modules of cost terms and observer predicates, imported by the planner
+    # (planner_client.plugins): NAME.py beside the scenario, else a module name; never the world
+    plugins: tuple[str, ...] = ()
     raw: dict = field(repr=False, default_factory=dict)
 
 
@@ -517,18 +528,23 @@ def find_objectives(name_or_path: str | os.PathLike) -> Path:
     return find(name_or_path, "objectives")
 
 
-def scenario_hash(raw: dict, included: Sequence[dict] = ()) -> str:
-    """Hash of the scenario's content, of the objective files it includes and of the robot
-    model file it names. ``faults:`` is hashed under its old name, ``hardware:``: a scenario
-    keeps its hash (bench results, logs, an older peer's) whichever name it uses."""
+def scenario_hash(
+    raw: dict, included: Sequence[dict] = (), robot: RobotSpec | None = None, source: str = ""
+) -> str:
+    """Hash of the scenario's content, of the objective files it includes, of its robot's MJCF
+    file and of a robot file of the user's (the shipped ones are part of the package, and a
+    shipped scenario keeps the hash it had before robots were files). ``faults:`` is hashed under
+    its old name, ``hardware:``: a scenario keeps its hash (bench results, logs, an older peer's)
+    whichever name it uses."""
     if "faults" in raw:
         raw = {(OLD_NAME if k == "faults" else k): v for k, v in raw.items()}
     h = hashlib.sha256(json.dumps(raw, sort_keys=True, default=str).encode())
     for inc in included:
         h.update(json.dumps(inc, sort_keys=True, default=str).encode())
-    robot = raw.get("robot", {}).get("model") if isinstance(raw.get("robot"), dict) else None
-    if robot in ROBOTS:
-        h.update(ROBOTS[robot].path.read_bytes())
+    if robot is not None:
+        h.update(robot.path.read_bytes())
+        if robot.source and robot.source != source and not robot.shipped:
+            h.update(Path(robot.source).read_bytes())
     return h.hexdigest()[:16]
 
 
@@ -576,6 +592,14 @@ def _read(raw: dict, source: str, errors: ErrorLog) -> ScenarioReading:
     faults = NOMINAL
     if top.has("faults"):  # a profile's name or a mapping
         faults = errors.call(parse_faults, top.opt("faults", None), source, default=NOMINAL)
+    plugins = errors.call(
+        top.opt,
+        "plugins",
+        (),
+        string_list,
+        "a list of Python modules: NAME.py beside the scenario, or importable module names",
+        default=(),
+    )
     library, included = _includes(top, errors)
     objectives = errors.call(
         lambda: _objectives(top.section("objectives"), errors, library), default={}
@@ -596,7 +620,8 @@ def _read(raw: dict, source: str, errors: ErrorLog) -> ScenarioReading:
         )
         if task is not None:
             observers = errors.call(
-                lambda: _observers(top.section("observers"), task, errors), default={}
+                lambda: _observers(top.section("observers"), task, errors, bool(plugins)),
+                default={},
             )
             action_objectives = errors.call(
                 lambda: _action_objectives(top.section("plan"), task, objectives), default={}
@@ -687,7 +712,7 @@ def _read(raw: dict, source: str, errors: ErrorLog) -> ScenarioReading:
         name=name,
         description=description,
         source=source,
-        hash=scenario_hash(raw, included),
+        hash=scenario_hash(raw, included, robot.spec, source),
         robot=robot,
         world=world,
         episode=episode or EpisodeConfig(max_time=0.0, success=()),
@@ -699,6 +724,7 @@ def _read(raw: dict, source: str, errors: ErrorLog) -> ScenarioReading:
         action_objectives=action_objectives,
         metrics=metrics,
         faults=faults,
+        plugins=plugins,
         raw=raw,
     )
     return ScenarioReading(scenario, errors.errors, model_ok)
@@ -751,20 +777,23 @@ def _check_attach(
         )
 
 
-def _observers(s: Section, task: TaskTemplate, errors: ErrorLog) -> dict[str, ObserverConfig]:
+def _observers(
+    s: Section, task: TaskTemplate, errors: ErrorLog, plugins: bool = False
+) -> dict[str, ObserverConfig]:
     """``factor: {predicate: {...}}`` (true -> first state, false -> second), or
     ``factor: [{state: s, when: {predicate: {...}}}, ..., {default: s}]``. Each factor's
-    faults are collected in ``errors``."""
+    faults are collected in ``errors``. ``plugins``: the scenario names plugins, whose
+    predicates the planner resolves once it imported them (``PluginPredicate``)."""
     out = {}
     for factor in task.factors:
-        observer = errors.call(_observer, s, factor)
+        observer = errors.call(_observer, s, factor, plugins)
         if observer is not None:
             out[factor.name] = observer
     s.done()
     return out
 
 
-def _observer(s: Section, factor: FactorTemplate) -> ObserverConfig:
+def _observer(s: Section, factor: FactorTemplate, plugins: bool = False) -> ObserverConfig:
     """One task factor's observer (see :func:`_observers`)."""
     if not s.has(factor.name):
         raise s.error(
@@ -782,7 +811,8 @@ def _observer(s: Section, factor: FactorTemplate) -> ObserverConfig:
                 list(states),
                 "a list of {state, when} rules",
             )
-        return ObserverConfig(((states[0], parse_predicate(s.section(factor.name))),), states[1])
+        pred = parse_predicate(s.section(factor.name), plugins)
+        return ObserverConfig(((states[0], pred),), states[1])
     rules, default = [], None
     for i, rule in enumerate(s.items(factor.name, required=True)):
         if rule.has("default"):
@@ -792,7 +822,7 @@ def _observer(s: Section, factor: FactorTemplate) -> ObserverConfig:
                 raise rule.error("default", "must be the last rule")
             continue
         state = rule.req("state", one_of(states))
-        rules.append((state, parse_predicate(rule.section("when"))))
+        rules.append((state, parse_predicate(rule.section("when"), plugins)))
         rule.done()
     if default is None:
         raise s.error(factor.name, "the rule list needs a final {default: state}")
@@ -811,13 +841,55 @@ def _action_objectives(s: Section, task: TaskTemplate, objectives: dict) -> dict
 
 
 def _robot(s: Section) -> RobotConfig:
-    model = s.req("model", str)
-    if model not in ROBOTS:
-        raise s.error("model", "unknown robot", model, f"one of: {', '.join(sorted(ROBOTS))}")
+    """``robot:``: ``model:`` a robot's name (``m3p2i list robots``) or the path of a robot file
+    (relative to the scenario's folder), or the keys of a robot file themselves (``mjcf``,
+    ``frame``, ``controls``, ...; the MJCF relative to the scenario's folder); ``qpos``: the
+    initial joint positions."""
+    folder = Path(s.source).parent
+    inline = [k for k in ROBOT_KEYS if s.has(k)]
+    if inline and s.has("model"):
+        raise s.error(
+            inline[0],
+            "a robot is either named (model:) or declared here, not both",
+            expected="model: NAME, or the keys of a robot file (mjcf, frame, controls, ...)",
+        )
+    if inline:
+        mjcf = s.data.get("mjcf")
+        spec = parse_robot(s, Path(mjcf).stem if isinstance(mjcf, str) else "robot", folder)
+        model = spec.name
+    else:
+        model = s.req(
+            "model", str, "a robot's name, a robot file, or the robot's own keys (mjcf, ...)"
+        )
+        spec = _named_robot(s, model, folder)
     qpos = s.opt("qpos", None, vector(), "a list of numbers")
     s.done()
-    get_robot(model)
-    return RobotConfig(model=model, qpos=qpos)
+    return RobotConfig(model=model, qpos=qpos, spec=spec)
+
+
+def _named_robot(s: Section, model: str, folder: Path) -> RobotSpec:
+    """``robot.model``: a robot file's path (relative to the scenario's folder first),
+    ``NAME.yaml`` in the ``robots`` folder beside the scenario's folder, then a robot by name
+    (:func:`shared.robots.get_robot`: the user's robot folders, the shipped robots). A faulty
+    robot file raises its own error (its file, key and value)."""
+    if model.endswith((".yaml", ".yml")) or "/" in model or os.sep in model:
+        for path in (folder / model, Path(model)):
+            if path.is_file():
+                return load_robot(path)
+        raise s.error("model", "no such robot file", model, f"a file; looked in {folder}")
+    beside = folder.parent / "robots" / f"{model}.yaml"
+    if beside.is_file():
+        return load_robot(beside)
+    try:
+        return get_robot(model)
+    except KeyError:
+        raise s.error(
+            "model",
+            "unknown robot",
+            model,
+            f"one of: {', '.join(sorted(ROBOTS))}, or a robot file (a path relative to the "
+            "scenario)",
+        ) from None
 
 
 def _world(s: Section, errors: ErrorLog) -> WorldConfig | None:

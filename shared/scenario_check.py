@@ -18,7 +18,6 @@ import mujoco
 
 from shared.config import ConfigError, ErrorLog
 from shared.frames import FrameResolver
-from shared.robots import get_robot
 from shared.scenario import Scenario, read_scenario
 from shared.scene import build_spec, compile_model
 
@@ -60,4 +59,4 @@ def scenario_errors(
 
 
 def _resolver(scenario: Scenario, model: mujoco.MjModel) -> FrameResolver:
-    return FrameResolver(model, get_robot(scenario.robot.model).frame)
+    return FrameResolver(model, scenario.robot.spec.frame)

@@ -14,7 +14,6 @@ from typing import Any
 import mujoco
 import numpy as np
 
-from shared.robots import get_robot
 from shared.scenario import ObjectConfig, Scenario
 
 _GEOM = {
@@ -27,7 +26,7 @@ WALL_NAMES = ("wall_north", "wall_south", "wall_east", "wall_west")
 
 def build_spec(scenario: Scenario) -> mujoco.MjSpec:
     """The scenario's world as an uncompiled spec: robot model + floor + arena + objects."""
-    robot = get_robot(scenario.robot.model)
+    robot = scenario.robot.spec
     spec = mujoco.MjSpec.from_file(str(robot.path))
     spec.modelname = scenario.name
     spec.option.timestep = scenario.world.timestep

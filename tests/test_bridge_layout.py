@@ -42,7 +42,7 @@ def _covers(rows, size):
 
 
 def _ctrl_matches_model(layout, scenario, model):
-    robot = get_robot(scenario.robot.model)
+    robot = scenario.robot.spec
     assert [c.actuator for c in layout.ctrl] == [model.actuator(a).name for a in range(model.nu)]
     assert [c.actuator for c in layout.ctrl] == list(robot.ctrl_names)
     np.testing.assert_array_equal([c.range for c in layout.ctrl], model.actuator_ctrlrange)
@@ -257,7 +257,7 @@ def test_layout_command_lists_the_frames_a_scenario_may_name():
 def test_the_frames_listed_are_the_names_the_processes_resolve(name):
     sc = load_scenario(name)
     model = compile_model(sc)
-    resolve = FrameResolver(model, get_robot(sc.robot.model).frame)
+    resolve = FrameResolver(model, sc.robot.spec.frame)
     listed = [f.name for f in frame_names(sc, model)]
     assert listed == resolve.names()
     parts = {f.name: f.part for f in frame_names(sc, model)}

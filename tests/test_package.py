@@ -265,7 +265,11 @@ def test_the_wheel_installs_and_runs_from_an_empty_folder(tmp_path):
         f"shared/configs/{p.relative_to(ROOT / 'configs').as_posix()}"
         for p in (ROOT / "configs").rglob("*.yaml")
     }
-    robots = {f"shared/robots/{p.name}" for p in (ROOT / "shared" / "robots").glob("*.xml")}
+    robots = {
+        f"shared/robots/{p.name}"
+        for p in (ROOT / "shared" / "robots").iterdir()
+        if p.suffix in (".xml", ".yaml")
+    }
     assert configs | robots <= carried
 
     # a fresh venv with the wheel alone; the test environment's packages (torch, mujoco, ...)

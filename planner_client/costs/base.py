@@ -23,9 +23,17 @@ TERMS: dict[str, type[CostTerm]] = {}
 
 
 def register(name: str) -> Callable[[type], type]:
-    """Class decorator: make a term available to YAML as ``term: name``."""
+    """Class decorator: make a term available to YAML as ``term: name``. A name is registered
+    once: a second term of the same name (a plugin's, docs/cost_terms.md) is refused, naming
+    both classes."""
 
     def wrap(cls: type) -> type:
+        if name in TERMS and TERMS[name] is not cls:
+            old = TERMS[name]
+            raise ValueError(
+                f"cost term {name!r} registered twice: by {old.__module__}.{old.__qualname__} "
+                f"and by {cls.__module__}.{cls.__qualname__}; give the new term another name"
+            )
         cls.name = name
         TERMS[name] = cls
         return cls

@@ -137,7 +137,13 @@ def _weighted_term(tc: TermConfig, ctx: TermContext) -> WeightedTerm:
     s.req("term", str)
     s.opt("weight", 1.0)
     if tc.term not in TERMS:
-        raise s.error("term", "unknown cost term", tc.term, f"one of: {', '.join(sorted(TERMS))}")
+        raise s.error(
+            "term",
+            "unknown cost term",
+            tc.term,
+            f"one of: {', '.join(sorted(TERMS))}; or a term of your own, from a module named by "
+            "the scenario's plugins: or the planner's --plugins",
+        )
     when = s.opt("when", "all", one_of(_WHEN))
     term = TERMS[tc.term].from_params(s, ctx)
     s.done()

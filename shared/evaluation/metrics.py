@@ -21,7 +21,6 @@ from shared.evaluation import episode
 from shared.evaluation.replay import load_step, replay, resolve_frame
 from shared.frames import Frame
 from shared.geometry import select_axes, symmetric_orientation_error
-from shared.robots import get_robot
 from shared.scenario import Scenario
 from shared.scene import compile_model
 
@@ -168,7 +167,7 @@ class MetricsEvaluator:
         """Boolean mask over geoms of the named bodies' subtrees (``robot``: the whole robot)."""
         m = self.model
         mask = np.zeros(m.ngeom, dtype=bool)
-        robot_frame = get_robot(self.scenario.robot.model).frame
+        robot_frame = self.scenario.robot.spec.frame
         for i, name in enumerate(names):
             frame = resolve_frame(self.scenario, m, name, f"{key}[{i}]")
             body = (

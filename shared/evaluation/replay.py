@@ -14,7 +14,6 @@ import mujoco
 import numpy as np
 
 from shared.frames import Frame, FrameResolver
-from shared.robots import get_robot
 from shared.scenario import Scenario
 from shared.scene import STATE_FIELDS, set_state
 
@@ -46,9 +45,7 @@ def replay(model: mujoco.MjModel, steps: Iterable[dict]) -> Iterator[mujoco.MjDa
 
 def resolve_frame(scenario: Scenario, model: mujoco.MjModel, name: str, key: str) -> Frame:
     """A YAML frame name of the scenario, or a ConfigError naming ``key`` and the valid names."""
-    return FrameResolver(model, get_robot(scenario.robot.model).frame).checked(
-        name, scenario.source, key
-    )
+    return FrameResolver(model, scenario.robot.spec.frame).checked(name, scenario.source, key)
 
 
 def frame_tracks(

@@ -457,6 +457,7 @@ class BenchOptions:
     quick: bool = False
     seed: int = 0  # seed of trial 0; trial i uses seed + i
     fresh: bool = False  # two new processes per trial instead of warm pairs
+    plugins: tuple[str, ...] = ()  # the planners' --plugins (modules of the operator's)
 
 
 def plan_trials(
@@ -507,6 +508,7 @@ def run_trial(
         estimate_delays=trial.case.estimate_delays,
         max_rate=trial.case.max_rate,
         realtime_factor=trial.case.realtime_factor,
+        plugins=opts.plugins,
     )
     if slot is not None:
         case_dir = opts.out_dir / trial.case_dir

@@ -117,6 +117,13 @@ def remote_trial(task: TrialTask) -> tuple[dict, dict[str, bytes]]:
         path.write_text(task.scenario_text)
         scenario = load_scenario(path)
         trial = Trial(task.case, scenario, MetricsEvaluator(scenario), task.seed, task.overrides)
+        if scenario.plugins:
+            # the planner imports a scenario's plugins: never the ones a text received names
+            return failure_row(
+                trial,
+                f"the scenario names plugins ({', '.join(scenario.plugins)}): a node imports "
+                "no module that a scenario sent to it names; run it on the driver's pool",
+            ), {}
         if scenario.hash != task.scenario_hash:
             # another m3p2i version or other included objective files on this node
             return failure_row(

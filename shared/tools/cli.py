@@ -7,6 +7,7 @@ over the wire.
 
 from __future__ import annotations
 
+import functools
 import os
 import signal
 import sys
@@ -23,6 +24,7 @@ from shared.cli_common import (
     Keys,
     Mode,
     PlanEvery,
+    Plugins,
     Port,
     RealtimeFactor,
     RunDir,
@@ -40,6 +42,7 @@ from shared.config import ConfigError, load_yaml
 from shared.config_files import ENV_VAR, KINDS, Entry, entries, search_folders, shown
 from shared.endpoints import DEFAULT_HOST, DEFAULT_PORT
 from shared.evaluation.timing import describe_timing
+from shared.robots import load_robot, registered
 from shared.scenario import find_scenario, load_scenario
 from shared.tools.launch import EpisodeLaunch, free_port_block, mode_conflicts, run_episode
 from shared.tools.new import new_scenario
@@ -60,15 +63,16 @@ app = typer.Typer(
 )
 
 
-def _load_or_exit(scenario: str):
-    """The scenario, checked by both processes before either starts; or exit 2 printing every
-    error of the file (file, key path, value, expected)."""
+def _load_or_exit(scenario: str, plugins: tuple[str, ...] = ()):
+    """The scenario, checked by both processes before either starts (the planner with its
+    ``--plugins``); or exit 2 printing every error of the file (file, key path, value,
+    expected)."""
     try:
         path = find_scenario(scenario)
     except ConfigError as exc:
         typer.echo(f"error: {exc}", err=True)
         raise typer.Exit(2) from None
-    errors = scenario_errors(path)
+    errors = scenario_errors(path, plugins)
     for message in errors:
         typer.echo(f"error: {message}", err=True)
     if errors:
@@ -77,11 +81,17 @@ def _load_or_exit(scenario: str):
     return load_scenario(path)
 
 
+def _plugin_args(plugins: list[str] | None) -> tuple[str, ...]:
+    """``--plugins`` for the planner processes: a file as an absolute path (they may run in
+    another folder), a module name as given."""
+    return tuple(str(Path(p).absolute()) if Path(p).is_file() else p for p in plugins or ())
+
+
 @app.command("check")
-def check(scenario: ScenarioArgument) -> None:
+def check(scenario: ScenarioArgument, plugins: Plugins = None) -> None:
     """Check SCENARIO as both processes would, without starting them: every error of the file
     at once (frames, actuators, cost terms, observers included); exit 0 when sound, 2 if not."""
-    sc = _load_or_exit(scenario)
+    sc = _load_or_exit(scenario, _plugin_args(plugins))
     typer.echo(f"{sc.source}: ok")
 
 
@@ -143,6 +153,7 @@ def run(
         "from the state predicted for when its plan acts.",
     ),
     estimate_delays: EstimateDelays = False,
+    plugins: Plugins = None,
     planner_max_rate: float = typer.Option(
         0.0,
         min=0.0,
@@ -193,7 +204,7 @@ def run(
         raise typer.Exit(2)
     if faults is not None:  # first: a mistyped profile is refused at once
         faults = _faults_or_exit(faults)
-    sc = _load_or_exit(scenario)
+    sc = _load_or_exit(scenario, _plugin_args(plugins))
     _keys_or_exit(keys)
     delays = _declared_delays_or_exit(sc, faults) if compensate else None
     run_dir = run_dir or default_run_dir(sc.name)
@@ -232,6 +243,7 @@ def run(
                 estimate_delays=estimate_delays,
                 max_rate=planner_max_rate,
                 realtime_factor=realtime_factor,
+                plugins=_plugin_args(plugins),
             ),
             on_view=lambda url: typer.echo(f"view: {url}"),
             on_kept=kept,
@@ -328,6 +340,7 @@ def bench(
     cpus_per_trial: int = typer.Option(
         1, min=1, help="With Ray: CPUs each trial declares, and the planner's rollout threads."
     ),
+    plugins: Plugins = None,
 ) -> None:
     """Run seeded trials of every case (Tables I-III), resumable; print and write the summary.
 
@@ -364,7 +377,11 @@ def bench(
         # the loader checked each variant's keys and values; what only the processes resolve
         # (planner.mppi keys, cost-term parameters) is checked by them now, not trial by trial
         console.print(f"checking {len(ready)} scenario variants (both processes' --check)")
-        problems = B.check_variants(ready, workers or os.cpu_count() or 1, scenario_errors)
+        problems = B.check_variants(
+            ready,
+            workers or os.cpu_count() or 1,
+            functools.partial(scenario_errors, plugins=_plugin_args(plugins)),
+        )
         if problems:
             for message in problems:
                 typer.echo(f"error: {message}", err=True)
@@ -377,7 +394,15 @@ def bench(
         quick=quick,
         seed=seed,
         fresh=fresh,
+        plugins=_plugin_args(plugins),
     )
+    if (ray or ray_address) and opts.plugins:
+        typer.echo(
+            "error: --plugins: a Ray node imports no module the driver names (the planner's "
+            "plugins are the node operator's choice); run the bench on this machine's pool",
+            err=True,
+        )
+        raise typer.Exit(2)
     results = B.ResultsFile(out_dir / "results.csv")
     done = {B.trial_key(r["case"], r["seed"], r["scenario_hash"]) for r in results.rows()}
     planned, todo = B.plan_trials(ready, cfg, opts, done)
@@ -803,10 +828,13 @@ def keys_command(
 
 @app.command("list")
 def list_files(
-    kind: str = typer.Argument("scenarios", help="What to list: scenarios, objectives or bench."),
+    kind: str = typer.Argument(
+        "scenarios", help="What to list: scenarios, objectives, bench or robots."
+    ),
 ) -> None:
-    """List the scenarios (or objective or bench files) folder by folder in lookup order: the
-    folders of M3P2I_SCENARIOS, ./configs/scenarios, then the shipped ones. Where two folders
+    """List the scenarios (or objective, bench or robot files) folder by folder in lookup order:
+    the folders of M3P2I_SCENARIOS, ./configs/scenarios, then the shipped ones (robots: the
+    robots folders beside them, then the shipped robots). Where two folders
     have a file of the same name, the earlier one is used, and both lines say so."""
     if kind not in KINDS:
         typer.echo(f"error: cannot list {kind!r}; one of: {', '.join(KINDS)}", err=True)
@@ -835,13 +863,19 @@ def list_files(
                     else f"[shadows {shown(other.path)}] "
                 )
             typer.echo(f"  {e.name:24s} {note}{_description(e, kind)}".rstrip())
+    if kind == "robots" and registered():
+        typer.echo("registered in Python:")
+        for name, spec in sorted(registered().items()):
+            typer.echo(f"  {name:24s} {spec.description}".rstrip())
 
 
 def _description(entry: Entry, kind: str) -> str:
-    """A file's one-line description; for a scenario, whether it loads."""
+    """A file's one-line description; for a scenario or a robot, whether it loads."""
     try:
         if kind == "scenarios":
             return load_scenario(entry.path).description
+        if kind == "robots":
+            return load_robot(entry.path).description
         return str(load_yaml(entry.path).get("description", ""))
     except ConfigError as exc:
         return f"(invalid: {exc})"

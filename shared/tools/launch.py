@@ -154,6 +154,7 @@ class EpisodeLaunch:
     view_keep: bool = False  # after the episode, the view replays it until interrupted
     keys: Path | None = None  # CURVE key folder (m3p2i keys): both processes use it
     keep_serving: bool = False  # a warm pair (shared.tools.warm): episodes until shut down,
+    plugins: tuple[str, ...] = ()  # planner only: --plugins modules of the operator's
     log: str = ""  # each logged to this template ('{seed}' in it)
 
     def commands(self, port: int) -> dict[str, list[str]]:
@@ -196,6 +197,8 @@ class EpisodeLaunch:
             ]
         if self.estimate_delays:
             planner.append("--estimate-delays")
+        for plugin in self.plugins:
+            planner += ["--plugins", plugin]
         return {"server": server, "planner": planner}
 
     def view_command(self, port: int, view_port: int) -> list[str]:

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import subprocess
 import sys
+from collections.abc import Sequence
 from pathlib import Path
 
 from shared.cli_common import error_blocks
@@ -18,12 +19,13 @@ from shared.cli_common import error_blocks
 CHECK_TIMEOUT = 300.0  # seconds; a check compiles the model once per process
 
 
-def scenario_errors(path: str | Path) -> list[str]:
+def scenario_errors(path: str | Path, plugins: Sequence[str] = ()) -> list[str]:
     """The messages of every error the world and the planner find in the scenario at
-    ``path``; empty when both accept it."""
+    ``path`` (the planner with its ``--plugins``); empty when both accept it."""
+    extra = {"server": [], "planner_client": [a for p in plugins for a in ("--plugins", p)]}
     procs = {
         name: subprocess.Popen(
-            [sys.executable, "-m", name, "--scenario", str(path), "--check"],
+            [sys.executable, "-m", name, "--scenario", str(path), "--check", *extra[name]],
             stdout=subprocess.PIPE,
             stderr=subprocess.PIPE,
             text=True,

@@ -28,7 +28,6 @@ from shared import protocol as P
 from shared.endpoints import Endpoints, socket
 from shared.evaluation import episode
 from shared.frames import FrameResolver
-from shared.robots import get_robot
 from shared.scenario import Scenario
 from shared.scene import compile_model, initial_data, set_state
 from shared.security import PlannerKeys, curve_client
@@ -346,7 +345,7 @@ class SceneDrawing:
 
 def robot_frame(scenario: Scenario, model: mujoco.MjModel):
     """The frame the planner's trajectories are positions of (the robot's ``frame``)."""
-    return FrameResolver(model, get_robot(scenario.robot.model).frame)("robot")
+    return FrameResolver(model, scenario.robot.spec.frame)("robot")
 
 
 # ------------------------------------------------------------------------------ live
