@@ -596,7 +596,15 @@ def storage_url(out: Path) -> str:
     return f"sqlite:///{(out / 'study.db').resolve()}"
 
 
-def open_study(target: Target, space: Space, opts: TuneOptions):
+def open_storage(out: Path):
+    """``OUT/study.db``; one object per run, since opening one checks the schema (a second)."""
+    import optuna
+
+    out.mkdir(parents=True, exist_ok=True)
+    return optuna.storages.RDBStorage(storage_url(out))
+
+
+def open_study(target: Target, space: Space, opts: TuneOptions, storage=None):
     """The study in ``OUT/study.db``, new or resumed; a study of another target, space or
     training seeds there is refused. Trials left running by an interrupted run are marked
     failed (they are proposed again)."""
@@ -604,8 +612,7 @@ def open_study(target: Target, space: Space, opts: TuneOptions):
     from optuna.trial import TrialState
 
     optuna.logging.set_verbosity(optuna.logging.WARNING)
-    opts.out.mkdir(parents=True, exist_ok=True)
-    storage = storage_url(opts.out)
+    storage = storage or open_storage(opts.out)
     study = optuna.create_study(
         study_name=STUDY,
         storage=storage,
@@ -702,14 +709,15 @@ def run_study(
     from optuna.trial import TrialState
 
     events = events or Events()
-    study = open_study(target, space, opts)
+    storage = open_storage(opts.out)
+    study = open_study(target, space, opts, storage)
     results = B.ResultsFile(opts.out / "results.csv")
     first = baseline(target, space)
     max_time = target.scenario.episode.max_time
     while (done := len(_finished(study))) < opts.trials:
         study = optuna.load_study(
             study_name=STUDY,
-            storage=storage_url(opts.out),
+            storage=storage,
             sampler=_sampler(opts.sampler_seed, done, space.startup(opts.trials)),
         )
         waiting = study.get_trials(deepcopy=False, states=(TrialState.WAITING,))
@@ -772,31 +780,59 @@ def write_overlay(target: Target, space: Space, values: dict[str, Any], out: Pat
     return path
 
 
+@dataclass(frozen=True)
+class Held:
+    """The held-out comparison: the original's and the tuned overlay's scores on the same
+    seeds; ``complete``: every held-out seed ran for both (False: interrupted, a rerun
+    finishes it)."""
+
+    original: Score
+    tuned: Score
+    complete: bool
+
+
 def holdout(
     target: Target, overlay_path: Path, opts: TuneOptions, runner: Runner, events: Events
-) -> tuple[Score, Score] | None:
-    """The original and the tuned overlay on the held-out seeds; None when interrupted."""
+) -> Held:
+    """The original and the tuned overlay on the held-out seeds, both on a seed (``workers``
+    seeds at once) before the next, so that an interrupted comparison is still one on the same
+    seeds."""
     tuned = load_scenario(overlay_path)
-    pairs = [
+    sides = [
         (target.case, target.scenario),
         (dataclasses.replace(target.case, case=f"{target.case.case}_tuned"), tuned),
     ]
     results = B.ResultsFile(opts.out / "results.csv")
-    todo, keys = [], []
-    for case, scenario in pairs:
-        k = {B.trial_key(case.case, s, scenario.hash) for s in opts.holdout}
-        keys.append(k)
-        have = {int(r["seed"]) for r in B.latest_rows(results.rows(), k)}
+    keys = [{B.trial_key(c.case, s, sc.hash) for s in opts.holdout} for c, sc in sides]
+    have = [{int(r["seed"]) for r in B.latest_rows(results.rows(), k)} for k in keys]
+    for k in keys:
         for r in B.latest_rows(results.rows(), k):
             events.row(r)
-        evaluator = MetricsEvaluator(scenario)
-        todo += [B.Trial(case, scenario, evaluator, s) for s in opts.holdout if s not in have]
-    if todo and not runner(todo, results, events.row):
-        return None
+    evaluators = [MetricsEvaluator(sc) for _, sc in sides]
+    todo = [
+        [
+            B.Trial(c, sc, ev, s)
+            for (c, sc), ev, done in zip(sides, evaluators, have)
+            if s not in done
+        ]
+        for s in opts.holdout
+    ]
+    todo = [t for t in todo if t]
+    complete = True
+    for i in range(0, len(todo), max(1, opts.workers)):
+        chunk = [t for seed in todo[i : i + max(1, opts.workers)] for t in seed]
+        if not runner(chunk, results, events.row):
+            complete = False
+            break
     rows = results.rows()
-    return tuple(  # type: ignore[return-value]
+    scores = [
         Score(tuple(sorted(B.latest_rows(rows, k), key=lambda r: int(r["seed"])))) for k in keys
+    ]
+    common = {int(r["seed"]) for r in scores[0].rows} & {int(r["seed"]) for r in scores[1].rows}
+    original, tuned_score = (
+        Score(tuple(r for r in sc.rows if int(r["seed"]) in common)) for sc in scores
     )
+    return Held(original, tuned_score, complete and len(common) == len(opts.holdout))
 
 
 # -------------------------------------------------------------------------------------- seeds
@@ -844,7 +880,7 @@ def report(
     opts: TuneOptions,
     study,
     overlay_path: Path,
-    held: tuple[Score, Score] | None,
+    held: Held | None,
 ) -> str:
     """``report.md``: the study's history, importances, best trial per seed, held-out
     comparison."""
@@ -934,14 +970,26 @@ def report(
             "No held-out seeds (--holdout): the tuned set is judged on its own seeds only."
         )
     else:
+        ran = sorted(int(r["seed"]) for r in held.original.rows)
+        left = seed_ranges(sorted(set(opts.holdout) - set(ran)))
         lines += [
-            f"Seeds {seed_ranges(opts.holdout)}, none tuned on; {target.case.mode_label}.",
+            f"Seeds {seed_ranges(ran) if ran else 'none yet'}, none tuned on; "
+            f"{target.case.mode_label}."
+            + (
+                ""
+                if held.complete
+                else f" Interrupted before seeds {left}: rerun the same command to finish."
+            ),
             "",
             "| scenario | success (95 % Wilson interval) | time [s] | position error [m] | "
             "failed seeds | objective |",
             "|---|---:|---:|---:|---|---:|",
         ]
-        for name, s in zip((f"original ({target.base})", f"tuned (`{overlay_path}`)"), held):
+        for name, s in zip(
+            (f"original ({target.base})", f"tuned (`{overlay_path}`)"), (held.original, held.tuned)
+        ):
+            if not s.trials:
+                continue
             lo, hi = wilson(s.successes, s.trials)
             ts = s.time_stats()
             lines.append(
@@ -1094,20 +1142,20 @@ def run_tune(
             raise typer.Exit(130)
         best, values = best_values(study)
         path = write_overlay(target, space, values, out)
-        compared = None
-        if held:
-            compared = holdout(target, path, opts, runner, events)
-            if compared is None:
-                console.print("interrupted: run the same command to finish the held-out seeds")
-                raise typer.Exit(130)
+        compared = holdout(target, path, opts, runner, events) if held else None
     text = report(target, space, opts, study, path, compared)
     (out / "report.md").write_text(text)
     console.print(f"best: trial {best.number}: {values}")
     if compared is not None:
-        for name, s in zip(("original", "tuned"), compared):
+        for name, s in (("original", compared.original), ("tuned", compared.tuned)):
+            if not s.trials:
+                continue
             lo, hi = wilson(s.successes, s.trials)
             console.print(
                 f"held-out {name}: {s.successes}/{s.trials} ({100 * lo:.0f}-{100 * hi:.0f} %)"
             )
     console.print(f"overlay: {path} (m3p2i run {path}{_run_options(target.case)})")
     console.print(f"report: {out / 'report.md'}")
+    if compared is not None and not compared.complete:
+        console.print("interrupted: run the same command to finish the held-out seeds")
+        raise typer.Exit(130)
