@@ -285,3 +285,13 @@ def test_the_shipped_example_writes_an_overlay_that_m3p2i_run_runs(tmp_path):
     assert run.returncode == 0, run.stdout + run.stderr
     assert "success" in run.stdout
     assert B.ResultsFile(out / "results.csv").rows() == rows
+
+
+def test_without_optuna_the_error_says_what_to_install(tmp_path, monkeypatch):
+    monkeypatch.setitem(sys.modules, "optuna", None)  # import optuna raises ImportError
+    space = write_space(tmp_path, SPACE)
+    result = CliRunner().invoke(
+        app, ["tune", "navigation", "--space", str(space), "--out", str(tmp_path / "o")]
+    )
+    assert result.exit_code == 2
+    assert "m3p2i tune needs Optuna: pip install 'm3p2i[tune]'" in result.output
