@@ -773,7 +773,7 @@ def write_overlay(target: Target, space: Space, values: dict[str, Any], out: Pat
     path = out / "overlay.yaml"
     header = (
         f"# Written by m3p2i tune: {target.label}; space {space.source}.\n"
-        f"# Run it: m3p2i run {path}\n"
+        f"# Run it: m3p2i run {path}{_run_options(target.case)}\n"
     )
     path.write_text(header + yaml.safe_dump(overlay(target, space, values), sort_keys=False))
     load_scenario(path)  # what the user runs must load
@@ -1008,13 +1008,19 @@ def report(
 
 def _run_options(case: B.BenchCase) -> str:
     """The ``m3p2i run`` options that reproduce the case's conditions."""
-    opts = []
-    if case.mode != "lockstep":
-        opts.append(f"--mode {case.mode}")
+    opts = [f"--mode {case.mode}"] if case.mode != "lockstep" else []
     if case.plan_every > 1:
         opts.append(f"--plan-every {case.plan_every}")
+    if case.max_rate:
+        opts.append(f"--planner-max-rate {case.max_rate:g}")
+    if case.realtime_factor != 1.0:
+        opts.append(f"--realtime-factor {case.realtime_factor:g}")
     if case.faults:
         opts.append(f"--faults {case.faults}")
+    if case.estimate_delays:
+        opts.append("--estimate-delays")
+    elif case.delays is not None:
+        opts.append("--compensate")
     return (" " + " ".join(opts)) if opts else ""
 
 
