@@ -865,9 +865,15 @@ def _cell(v: Any) -> str:
 
 
 def importances(study) -> dict[str, float] | str:
-    """Optuna's parameter importances over the complete trials, or why there are none."""
+    """Optuna's parameter importances over the complete trials (pruned ones are not used), or
+    why there are none."""
     import optuna
+    from optuna.trial import TrialState
 
+    complete = study.get_trials(deepcopy=False, states=(TrialState.COMPLETE,))
+    if len({json.dumps(t.params, sort_keys=True) for t in complete}) < 2:
+        # the evaluator would share the importance out evenly: a number that says nothing
+        return f"{len(complete)} complete trial(s) of distinct values; it needs 2 or more"
     try:
         return optuna.importance.get_param_importances(study)
     except (RuntimeError, ValueError, ImportError) as exc:
@@ -906,7 +912,7 @@ def report(
         f"- {len(_finished(study))} trials finished; episodes' wall time {wall:.0f} s "
         f"(sum over {len(rows)} episodes in `results.csv`, on {B.machine()})",
         f"- best: trial {best.number}; overlay `{overlay_path}` "
-        f"(`m3p2i run {overlay_path}`{_run_options(target.case)})",
+        f"(`m3p2i run {overlay_path}{_run_options(target.case)}`)",
         "",
         "## Trials",
         "",
