@@ -239,10 +239,12 @@ def _run(
                 ):
                     ray.cancel(ref, force=True)
                     cancelled[ref] = (cancelled[ref][0], now, True)
-    except KeyboardInterrupt:
+    except BaseException as exc:  # Ctrl-C, or on_done stopping the run (m3p2i tune's pruning)
         for ref in running:
             ray.cancel(ref, force=True)
-        return False
+        if isinstance(exc, KeyboardInterrupt):
+            return False
+        raise
     return True
 
 

@@ -905,6 +905,60 @@ def new(
     typer.echo(f"edit it, then: m3p2i run {name}")
 
 
+@app.command("tune")
+def tune(
+    target: str = typer.Argument(
+        ...,
+        help="What to tune: a scenario (name or path; lock-step), a bench case name "
+        "(m3p2i list bench), or BENCH:CASE.",
+    ),
+    space: Path = typer.Option(
+        ..., "--space", help="Search space: a YAML file of scenario keys (docs/tune.md)."
+    ),
+    trials: int = typer.Option(
+        20, "--trials", min=1, help="Study trials in all (a rerun resumes to this count)."
+    ),
+    seeds: str = typer.Option("0-3", "--seeds", help="Training seeds of every trial: A-B."),
+    holdout: str | None = typer.Option(
+        None, "--holdout", help="Held-out seeds (C-D) for the tuned overlay against the original."
+    ),
+    out: Path = typer.Option(..., "--out", help="Output folder; rerun with it to resume."),
+    workers: int = typer.Option(
+        1, help="Seeds at once, each a server + planner pair (0: one per core)."
+    ),
+    sampler_seed: int = typer.Option(0, help="Seed of the TPE sampler: same seed, same study."),
+    timeout: float | None = typer.Option(
+        None, help="Wall-clock seconds per episode (default: the bench file's, else 600)."
+    ),
+    ray: bool = typer.Option(
+        False, "--ray", help="Run the episodes as Ray tasks on a local instance of --workers CPUs."
+    ),
+    ray_address: str | None = typer.Option(None, help="Run them on the Ray cluster there."),
+    cpus_per_trial: int = typer.Option(1, min=1, help="With Ray: CPUs each episode declares."),
+) -> None:
+    """Find a scenario's parameters: an Optuna study (TPE) over the keys of a space file, each
+    trial a bench run on the training seeds, hopeless trials pruned; resumable (OUT/study.db).
+    Writes OUT/overlay.yaml (base: the original plus the tuned keys, for m3p2i run) and
+    OUT/report.md (history, importances, the best trial per seed, and the held-out seeds'
+    success of the tuned overlay beside the original, with Wilson intervals)."""
+    from shared.tools.tune import run_tune
+
+    run_tune(
+        target,
+        space,
+        trials,
+        seeds,
+        holdout,
+        out,
+        workers,
+        sampler_seed,
+        timeout,
+        ray,
+        ray_address,
+        cpus_per_trial,
+    )
+
+
 flow_help(app)  # the docstrings above as paragraphs that rich rewraps to the terminal
 
 if __name__ == "__main__":
