@@ -1,7 +1,6 @@
 """The soak and fault test (shared.tools.soak, run by scripts/soak.py): its checks catch each
 fault they claim to, the world closes its log on SIGTERM (how the soak restarts it), and a 30 s
-soak of real-time episodes under every kind of fault passes every check (between two network
-namespaces where permitted)."""
+soak of real-time episodes under every kind of fault passes every check."""
 
 from __future__ import annotations
 
@@ -232,6 +231,46 @@ def test_a_signal_during_a_world_step_lands_once_the_step_is_logged(tmp_path):
     assert records[-1]["kind"] == "summary" and records[-1]["steps"] == 2
 
 
+@pytest.mark.slow
+def test_thirty_second_soak_passes_every_check(tmp_path):
+    """Real-time navigation episodes for 30 s under every kind of fault (planner SIGKILL and
+    its hot spare, world restart, command-socket garbage, planner SIGSTOP past the time-out),
+    2-4 s apart. The kinds come in turn, so the first four faults (by about 20 s) cover them
+    all; the rest repeat them (60 s and 3-5 s apart before 2026-12-01: 30 s more of the
+    suite)."""
+    results = tmp_path / "soak.json"
+    run = subprocess.run(
+        [
+            sys.executable,
+            str(ROOT / "scripts" / "soak.py"),
+            "--duration",
+            "30",
+            "--gap-min",
+            "2",
+            "--gap-max",
+            "4",
+            "--seed",
+            "1",
+            "--out",
+            str(tmp_path / "logs"),
+            "--results",
+            str(results),
+        ],
+        capture_output=True,
+        text=True,
+        timeout=400,
+        env=ENV,
+        cwd=ROOT,
+    )
+    assert run.returncode == 0, run.stdout[-6000:] + run.stderr[-3000:]
+    res = json.loads(results.read_text())
+    assert res["ok"] and all(c["ok"] for c in res["checks"]), res["checks"]
+    for kind, n in res["faults"].items():
+        assert n["injected"] >= 1 and n["survived"] == n["injected"], (kind, n)
+    assert res["episodes"].get("success", 0) >= 1, res["episodes"]
+    assert res["steps"] > 200
+
+
 def test_netns_config_needs_a_link_for_the_cut():
     """``cut`` is a fault of ``--netns`` only; ``--faults`` names known kinds; with ``--netns``
     every kind is injected by default, without it the four that need no link."""
@@ -260,45 +299,33 @@ def test_a_link_cut_is_checked_as_an_outage():
     assert not verdicts["planner drove again after a link cut within 3 s"]
 
 
-def _namespaces_permitted() -> bool:
-    """Whether two namespaces can be made here: root is not always enough (a container
-    without CAP_NET_ADMIN), so two are made and removed."""
-    if netns.unavailable():
-        return False
-    try:
-        with netns.two_hosts():
-            return True
-    except netns.Unavailable:
-        return False
-
-
 @pytest.mark.slow
-def test_a_soak_under_every_kind_of_fault_passes_every_check(tmp_path):
-    """Real-time navigation episodes for 30 s under every kind of fault (planner SIGKILL and
-    its hot spare, world restart, command-socket garbage, planner SIGSTOP past the time-out),
-    2-3 s apart, in turn, so that the first faults cover every kind; where network namespaces
-    are permitted (root), between two of them joined by a veth pair with CURVE on
-    (``scripts/soak.py --netns``), which adds the link cut (2 s) and sends the garbage from the
-    planner's namespace with the planner's keys. Every check holds, every kind is injected and
-    survived, and no namespace is left behind. One soak instead of a 30 s loopback soak and a
-    20 s one between namespaces (cut and flood only) before 2026-12-02: 30 s less of the suite,
-    the same checks, each kind of fault still in the run."""
-    between_namespaces = _namespaces_permitted()
+def test_a_soak_between_two_namespaces_survives_link_cuts_and_a_flood(tmp_path):
+    """``scripts/soak.py --netns``: worlds and planner in two network namespaces joined by a
+    veth pair, CURVE on; the link cut for 2 s mid-episode and garbage pushed at the world's
+    command socket from the planner's namespace with the planner's keys. Every check holds and
+    no namespace is left behind. Skipped, with the reason, where namespaces are not permitted
+    (the soak exits 2 then)."""
+    reason = netns.unavailable()
+    if reason:
+        pytest.skip(reason)
     results = tmp_path / "soak.json"
-    before = netns.namespaces() if between_namespaces else []
+    before = netns.namespaces()
     run = subprocess.run(
         [
             sys.executable,
             str(ROOT / "scripts" / "soak.py"),
-            *(["--netns"] if between_namespaces else []),
+            "--netns",
+            "--faults",
+            "cut,flood",
             "--duration",
-            "30",
+            "20",
             "--gap-min",
             "2",
             "--gap-max",
             "3",
             "--seed",
-            "1",
+            "2",
             "--out",
             str(tmp_path / "logs"),
             "--results",
@@ -306,24 +333,20 @@ def test_a_soak_under_every_kind_of_fault_passes_every_check(tmp_path):
         ],
         capture_output=True,
         text=True,
-        timeout=400,
+        timeout=300,
         env=ENV,
         cwd=ROOT,
     )
+    if run.returncode == 2 and "not permitted" in run.stderr:
+        pytest.skip(run.stderr.strip())
     assert run.returncode == 0, run.stdout[-6000:] + run.stderr[-3000:]
+    assert netns.namespaces() == before  # removed at the end
     res = json.loads(results.read_text())
-    assert res["ok"] and all(c["ok"] for c in res["checks"]), res["checks"]
-    kinds = soak.FAULTS if between_namespaces else soak.LOOPBACK_FAULTS
-    assert set(res["faults"]) == set(kinds), res["faults"]
+    assert res["config"]["netns"] and all(c["ok"] for c in res["checks"]), res["checks"]
+    assert set(res["faults"]) == {"cut", "flood"}, res["faults"]
     for kind, n in res["faults"].items():
         assert n["injected"] >= 1 and n["survived"] == n["injected"], (kind, n)
-    assert res["episodes"].get("success", 0) >= 1, res["episodes"]
-    assert res["steps"] > 200
-    if not between_namespaces:
-        return
-    assert netns.namespaces() == before  # removed at the end
-    assert res["config"]["netns"]
     header = json.loads((tmp_path / "logs" / "episode-0001.jsonl").read_text().splitlines()[0])
     assert header["curve"], header
-    for cut in (f for f in res["fault_log"] if f["kind"] == "cut"):
-        assert 1.9 <= cut["detail"]["cut_s"] <= 3.0, cut
+    cut = next(f for f in res["fault_log"] if f["kind"] == "cut")
+    assert 1.9 <= cut["detail"]["cut_s"] <= 3.0, cut
