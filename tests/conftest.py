@@ -1,7 +1,7 @@
 """Session fixtures.
 
-``lockstep_episodes``: the seeded lock-step episodes of every selected test module that declares
-``episode_specs(out)`` (tests/test_panda.py, tests/test_push_pull.py, tests/test_inprocess.py),
+``lockstep_episodes``: the seeded lock-step episodes of every module whose selected tests read
+them and that declares ``episode_specs(out)`` (tests/test_panda.py, tests/test_push_pull.py),
 run as ONE pool (tests/episodes.py) that starts with the session, in a child process at the
 lowest CPU priority, so that its minutes of episodes fill the cores the other tests leave idle.
 The tests that read the episodes run last, when the pool has had the whole suite's time; one
