@@ -1,28 +1,49 @@
 """Session fixtures.
 
-``lockstep_episodes``: the seeded lock-step episodes of every selected test module that declares
-``episode_specs(out)`` (tests/test_panda.py, tests/test_push_pull.py), run as ONE pool on the
-cores (tests/episodes.py). One pool instead of one per module, because a pool's last episode
-runs alone and leaves a core idle; the modules list their longest episodes first for the same
-reason. Lock-step episodes do not depend on what else runs, so sharing changes no result.
+``lockstep_episodes``: the seeded lock-step episodes of every module whose selected tests read
+them and that declares ``episode_specs(out)`` (tests/test_panda.py, tests/test_push_pull.py),
+run as ONE pool (tests/episodes.py) that starts with the session, in a child process at the
+lowest CPU priority, so that its minutes of episodes fill the cores the other tests leave idle.
+The tests that read the episodes run last, when the pool has had the whole suite's time; one
+pool instead of one per module, because a pool's last episode runs alone and leaves a core
+idle (the modules list their longest episodes first for the same reason). Lock-step episodes do
+not depend on what else runs, so sharing and running them beside other tests changes no result.
 """
 
 from __future__ import annotations
 
 import pytest
 
-from tests.episodes import run_episodes
+from tests.episodes import BackgroundEpisodes
+
+POOL = "lockstep_episodes"
+
+
+def pytest_collection_modifyitems(config, items):
+    """The tests reading the pool's episodes last (a stable sort: each group keeps its order)."""
+    items.sort(key=lambda item: POOL in getattr(item, "fixturenames", ()))
+
+
+@pytest.fixture(scope="session", autouse=True)
+def _lockstep_pool(request, tmp_path_factory):
+    """Starts the pool of the selected tests' episodes at once (none where no selected test
+    reads them) and stops it if the session ends first."""
+    modules = []
+    for item in request.session.items:
+        if POOL in getattr(item, "fixturenames", ()) and item.module not in modules:
+            modules.append(item.module)
+    if not modules:
+        yield None
+        return
+    out = tmp_path_factory.mktemp("episodes")
+    specs = [spec for module in modules for spec in module.episode_specs(out)]
+    labels = [(label, seed) for label, _, seed in specs]
+    assert len(set(labels)) == len(specs), "episode labels collide"
+    pool = BackgroundEpisodes(specs, out)
+    yield pool
+    pool.stop()
 
 
 @pytest.fixture(scope="session")
-def lockstep_episodes(request, tmp_path_factory):
-    modules = []
-    for item in request.session.items:
-        module = item.module
-        if hasattr(module, "episode_specs") and module not in modules:
-            modules.append(module)
-    out = tmp_path_factory.mktemp("episodes")
-    specs = [spec for module in modules for spec in module.episode_specs(out)]
-    labels = [label for label, _, _ in specs]
-    assert len(set(zip(labels, (s for _, _, s in specs)))) == len(specs), "episode labels collide"
-    return run_episodes(specs, out)
+def lockstep_episodes(_lockstep_pool):
+    return _lockstep_pool.result()
