@@ -259,6 +259,7 @@ class Controller:
             plan_ctrl=plan,
             plan_t0=None if plan is None else start,
             plan_dt=None if plan is None else self.planner.dt,
+            model=self.model_estimate(),
         )
         steps = state.seq - self._last_start[1] if self._last_start else 0
         self._last_start = (start, state.seq)
@@ -291,6 +292,7 @@ class Controller:
             lead=tick.start - tick.state.time,
             steps=tick.steps,
             top_modes=it.top_modes,
+            model=self.model_estimate(),
         )
 
     def _plan_start(
