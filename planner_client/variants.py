@@ -183,9 +183,7 @@ class VariantModels:
     (:func:`shared.scene.contact_friction`: scaling the object's own friction, 0.5 under the
     floor's 1.0, would change nothing)."""
 
-    def __init__(
-        self, model: mujoco.MjModel, objects: Sequence[ObjectConfig], cfg: VariantsConfig
-    ):
+    def __init__(self, model: mujoco.MjModel, objects: Sequence[ObjectConfig], cfg: VariantsConfig):
         self.base = model
         self.cfg = cfg
         self.params = variant_params(model, objects, cfg)

@@ -1,6 +1,6 @@
 """Simulated faults for a world: the ``faults:`` section of a scenario, the named fault
-profiles (``nominal``, ``lab``, ``harsh``, ``mismatch``) and ``--faults PROFILE|FILE`` (``hardware:`` and
-``--hardware`` are their old names, still accepted).
+profiles (``nominal``, ``lab``, ``harsh``, ``mismatch``) and ``--faults PROFILE|FILE``
+(``hardware:`` and ``--hardware`` are their old names, still accepted).
 
 Only the world server reads it (:mod:`server.faults` applies it); the planner keeps the
 nominal model and is never told, unless ``m3p2i run --compensate`` declares the delays to it as

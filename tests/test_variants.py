@@ -102,8 +102,18 @@ def test_resampling_keeps_the_heavy_variants_redraws_a_share_and_stays_in_the_pr
         ({"params": {"mass": 0.5}, "spread": "some"}, {}, "variants.spread", "all, split"),
         ({"params": {"mass": 0.5}, "count": 300}, {}, "variants.count", "count <= 200"),
         ({"params": {"mass": 0.5}}, {"backend": "warp"}, "variants", "backend: mujoco"),
-        ({"params": {"mass": 0.5}, "identify": {"forget": 0}}, {}, "variants.identify.forget", "(0, 1]"),
-        ({"params": {"mass": 0.5}, "identify": {"sigma": 1}}, {}, "variants.identify", "unknown key"),
+        (
+            {"params": {"mass": 0.5}, "identify": {"forget": 0}},
+            {},
+            "variants.identify.forget",
+            "(0, 1]",
+        ),
+        (
+            {"params": {"mass": 0.5}, "identify": {"sigma": 1}},
+            {},
+            "variants.identify",
+            "unknown key",
+        ),
     ],
 )
 def test_the_section_is_checked_naming_file_key_and_value(variants, planner, key, expected):
@@ -217,7 +227,7 @@ def test_the_mismatch_profile_is_model_error_alone():
 def test_exact_factors_are_checked(tmp_path):
     path = tmp_path / "f.yaml"
     path.write_text("mismatch: {factors: {weight: {box: 2}}}")
-    with pytest.raises(ConfigError, match="mismatch.factors"):
+    with pytest.raises(ConfigError, match=r"mismatch\.factors"):
         load_faults(str(path))
     path.write_text("mismatch: {factors: {mass: {crate: 2}}}")
     with pytest.raises(Exception, match="no such object to scale; one of: box"):
