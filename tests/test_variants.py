@@ -199,8 +199,13 @@ def test_a_non_finite_observation_leaves_the_estimate_unchanged():
         controller.begin("lockstep", episode.dt)
         state = episode.publish()
         for _ in range(5):
-            episode.play(controller.step(state))
+            command = controller.step(state)
+            episode.play(command)
             state = episode.publish()
+        # the estimate goes out with every command, and survives the wire
+        assert set(command.model) == {"mass.box", "friction.box"}
+        assert P.decode(P.encode(command)).model == pytest.approx(command.model)
+        assert episode.model == command.model  # what the world logs with each step
         identifier: Identifier = controller.identifier
         before = (controller.model_estimate(), identifier.log_w.copy(), identifier.observed)
         for field in ("qpos", "qvel"):
