@@ -16,6 +16,8 @@ from planner_client.motion import MotionPlanner
 from planner_client.observers import SymbolicObserver
 from planner_client.problem import build_problem, mppi_config
 from planner_client.task import ActiveInferenceTask, FixedModes, TaskLayer
+from planner_client.variants import VariantModels
+from shared.config import ConfigError
 from shared.endpoints import Endpoints
 from shared.predicates import check_frames
 from shared.scenario import Scenario, load_scenario
@@ -42,6 +44,17 @@ def build_motion_planner(
     pc = scenario.planner
     nthread = threads or pc.threads
     engine = None
+    variants = None
+    if pc.model.variants is not None:
+        if (backend or pc.backend) != "mujoco":
+            raise ConfigError(
+                scenario.source,
+                "planner.model.variants",
+                f"the {backend or pc.backend} backend rolls out one model for all samples",
+                expected="--backend mujoco (mujoco.rollout takes a model per rollout), "
+                "or a scenario without variants",
+            )
+        variants = VariantModels(problem.model, scenario.world.objects, pc.model.variants)
     if (backend or pc.backend) != "mujoco":
         # every mode rolls out planner.samples: the worlds are allocated for all of them now
         engine = make_backend(
@@ -55,7 +68,9 @@ def build_motion_planner(
             njmax=pc.njmax,
             source=scenario.source,
         )
-    return MotionPlanner(problem, cfg, pc.samples, modes, nthread=nthread, backend=engine)
+    return MotionPlanner(
+        problem, cfg, pc.samples, modes, nthread=nthread, backend=engine, variants=variants
+    )
 
 
 def build_task(scenario: Scenario, planner: MotionPlanner) -> TaskLayer:

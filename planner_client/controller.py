@@ -35,6 +35,7 @@ from planner_client.mirror import Mirror, MocapState
 from planner_client.motion import Iteration, MotionPlanner
 from planner_client.task import TaskDecision, TaskLayer
 from planner_client.timing import LeadEstimate, predict, steps_between
+from planner_client.variants import Identifier
 from shared import protocol as P
 from shared.evaluation.metrics import mean_hz
 from shared.faults import steps_of
@@ -130,6 +131,7 @@ class Controller:
         self._sent: deque[TimedPlan] = deque(maxlen=16)
         self._lead: LeadEstimate | None = None
         self._actuation: ActuationDelayEstimate | None = None  # planner.delays.estimate
+        self.identifier: Identifier | None = None  # planner.model.variants.identify
         self._acting_logged: int | None = None  # the delays last logged, in world steps
         self._ahead_logged = 0
         self._last_start: tuple[float, int] | None = None  # (t_eff, state seq) of the last plan
@@ -148,6 +150,10 @@ class Controller:
         # a lock-step world reports its state delay in state.lag too (0 without one)
         self._lead = LeadEstimate(dt) if mode == "realtime" or self.delays.estimate else None
         self._actuation = None
+        self.identifier = None
+        variants = self.planner.variants
+        if variants is not None and variants.cfg.identify is not None:
+            self.identifier = Identifier(variants, dt)
         if self.delays.estimate:
             self._actuation = ActuationDelayEstimate(
                 self.planner.problem.model, dt, steps_of(self.delays.max_ms, dt)
@@ -219,6 +225,14 @@ class Controller:
             self._actuation.observe(
                 self.mirror.data, list(self._sent), self.robot.safe_stop(self._last_ctrl)
             )
+        if self.identifier is not None:  # 2. the model variants reweighted by this transition
+            self.identifier.observe(
+                self.mirror.data,
+                self.mirror.received_qpos,
+                list(self._sent),
+                self.robot.safe_stop(self._last_ctrl),
+                self._acting_steps() * self.dt,
+            )
         decision = self.task.decide(self.mirror.data, state.extras, state.time)  # 3. task
         if self.attachments.welds:
             self.attachments.update(self.mirror.data, self.task.last_observation, state.time)
@@ -245,6 +259,7 @@ class Controller:
             plan_ctrl=plan,
             plan_t0=None if plan is None else start,
             plan_dt=None if plan is None else self.planner.dt,
+            model=self.model_estimate(),
         )
         steps = state.seq - self._last_start[1] if self._last_start else 0
         self._last_start = (start, state.seq)
@@ -277,6 +292,7 @@ class Controller:
             lead=tick.start - tick.state.time,
             steps=tick.steps,
             top_modes=it.top_modes,
+            model=self.model_estimate(),
         )
 
     def _plan_start(
@@ -309,11 +325,9 @@ class Controller:
             # in real time the lag runs from the state's measurement time, so the lead already
             # holds the state delay; in lock-step it is the declared one, or the lag measured
             ahead = max(ahead, steps_of(self.delays.state_ms, self.dt))
-        if self.delays.actuation_ms:
-            acting = steps_of(self.delays.actuation_ms, self.dt)
+        acting = self._acting_steps()
         estimated = self._actuation.steps() if self._actuation is not None else None
         if estimated is not None:
-            acting = estimated
             if estimated != self._acting_logged:
                 log.info(
                     "t=%.2f s: actuation delay estimated at %d world steps (%.0f ms)",
@@ -344,6 +358,22 @@ class Controller:
         if self._last_start is not None and start >= self._last_start[0] - _NEW_EPISODE:
             self.planner.advance(steps_between(self._last_start[0], start, self.planner.dt))
         return start, x0, mocap
+
+    def _acting_steps(self) -> int:
+        """World steps from the world playing a control to the actuators acting on it: the
+        estimate once it has one, else the declared delay."""
+        estimated = self._actuation.steps() if self._actuation is not None else None
+        if estimated is not None:
+            return estimated
+        return steps_of(self.delays.actuation_ms, self.dt) if self.delays.actuation_ms else 0
+
+    def model_estimate(self) -> dict[str, float] | None:
+        """The identified model factors, ``"kind.name" -> factor`` (``mass.box``), or None
+        without ``planner.model.variants.identify``."""
+        if self.identifier is None:
+            return None
+        est = self.identifier.estimate()
+        return {f"{kind}.{name}": f for kind, values in est.items() for name, f in values.items()}
 
     def _note_fault(self, it: Iteration, time: float) -> None:
         """Logs a run of iterations without a plan once, when it starts and when it ends."""

@@ -24,6 +24,7 @@ from planner_client.costs import CostTerm, RolloutBatch
 from planner_client.mirror import MocapState
 from planner_client.mppi import M3P2I, ModeSpec, MPPIConfig, PlanResult
 from planner_client.problem import PlanningProblem
+from planner_client.variants import AGGREGATES, VariantModels
 
 
 @dataclass
@@ -73,9 +74,12 @@ class MotionPlanner:
         nthread: int = 0,
         top_k: int = 5,
         backend: RolloutBackend | None = None,
+        variants: VariantModels | None = None,
     ):
         """``backend``: where rollouts run (default: ``mujoco.rollout``'s pool with ``nthread``
-        threads on ``problem.model``); the M3P2I state lives on its device."""
+        threads on ``problem.model``); the M3P2I state lives on its device. ``variants``: the
+        rollouts run in these copies of the model (``planner.model.variants``), which only the
+        ``mujoco`` backend can."""
         self.problem = problem
         self.cfg = cfg
         self.samples = samples
@@ -95,6 +99,8 @@ class MotionPlanner:
         # one inference-mode context for every iterate(): the decorator builds a new one per call
         self._inference = torch.inference_mode()
         self._last_V: torch.Tensor | None = None  # [S, T, nu] of the last iterate()
+        self.variants = variants
+        self._variant_rows = 0  # the samples the engine's per-rollout models were set for
 
     def _mode(self, name: str) -> ModeSpec:
         return ModeSpec(name=name, samples=self.samples, fixed=self.problem.objectives[name].fixed)
@@ -137,23 +143,11 @@ class MotionPlanner:
             if mocap.moving:
                 steps = np.arange(V.shape[1])[:, None, None] * self._dt
                 path = mocap.pos[None] + mocap.vel[None] * steps  # [T, nmocap, 3]
-        sd = self.engine.sensors(x0, V, path)  # [S, T, nsensordata]
-        columns, dt = self.problem.columns, self._dt
-        if len(self.modes) == 1:
-            self._step_costs = self.problem.objectives[self.modes[0]](
-                RolloutBatch(sd, V, columns, dt)
-            )  # [S, T]
+        if self.variants is None:
+            sd = self.engine.sensors(x0, V, path)  # [S, T, nsensordata]
+            self._step_costs = self._costs(sd, V)  # [S, T]
         else:
-            shared = {t.key: t(RolloutBatch(sd, V, columns, dt)) for t in self._shared}
-            self._step_costs = torch.cat(
-                [
-                    self.problem.objectives[name](
-                        RolloutBatch(sd[rows], V[rows], columns, dt),
-                        {k: v[rows] for k, v in shared.items()},
-                    )
-                    for name, rows in zip(self.modes, self.mppi.mode_slices)
-                ]
-            )
+            sd = self._variant_costs(x0, V, path)
         result = self.mppi.update(self._step_costs)
         self._generation += 1
         top_of = functools.partial(
@@ -183,6 +177,46 @@ class MotionPlanner:
             plan=self._resolve(result.U.numpy(), dominant),
             dominant=dominant,
         )
+
+    def _costs(self, sd: torch.Tensor, V: torch.Tensor) -> torch.Tensor:
+        """``[S, T]`` step costs of the modes' objectives on their rows of ``sd [S, T, ·]``
+        (the terms every mode shares evaluated once)."""
+        columns, dt = self.problem.columns, self._dt
+        if len(self.modes) == 1:
+            return self.problem.objectives[self.modes[0]](RolloutBatch(sd, V, columns, dt))
+        shared = {t.key: t(RolloutBatch(sd, V, columns, dt)) for t in self._shared}
+        return torch.cat(
+            [
+                self.problem.objectives[name](
+                    RolloutBatch(sd[rows], V[rows], columns, dt),
+                    {k: v[rows] for k, v in shared.items()},
+                )
+                for name, rows in zip(self.modes, self.mppi.mode_slices)
+            ]
+        )
+
+    def _variant_costs(
+        self, x0: np.ndarray, V: torch.Tensor, path: np.ndarray | None
+    ) -> torch.Tensor:
+        """The rollouts over the model variants (``planner.model.variants``): sets
+        :attr:`_step_costs` ``[S, T]`` and returns the sensordata ``[S, T, ·]`` the diagnostics
+        read (with ``spread: all``, the first variant's)."""
+        cfg, variants = self.variants.cfg, self.variants
+        S = V.shape[0]
+        variants.sync()  # the mocap poses just set, the welds of held objects
+        if self._variant_rows != S:
+            self.engine.set_models(variants.per_rollout(S, cfg.spread))
+            self._variant_rows = S
+        if cfg.spread == "split":
+            sd = self.engine.sensors(x0, V, path)
+            self._step_costs = self._costs(sd, V)
+            return sd
+        sd = self.engine.sensors(x0, V.repeat(cfg.count, 1, 1), path)  # [V·S, T, ·]
+        per_variant = torch.stack(
+            [self._costs(sd[v * S : (v + 1) * S], V) for v in range(cfg.count)]
+        )  # [V, S, T]
+        self._step_costs = AGGREGATES[cfg.aggregate](per_variant, cfg.cvar_alpha)
+        return sd[:S]
 
     @torch.inference_mode()
     def _top_samples(

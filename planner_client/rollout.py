@@ -35,6 +35,7 @@ class RolloutEngine:
         bodies = np.flatnonzero(model.body_mocapid >= 0)
         self._mocap_bodies = bodies[np.argsort(model.body_mocapid[bodies])]  # of mocap 0, 1, ...
         self._shape: tuple[int, int] | None = None
+        self._variants: list[mujoco.MjModel] | None = None  # set_models: a model per rollout
 
     def _buffers(self, samples: int, horizon: int) -> None:
         if self._shape == (samples, horizon):
@@ -47,6 +48,12 @@ class RolloutEngine:
         # ~10 chunks per thread balance the load without per-sample dispatch cost (mujoco's own
         # default; 25-sample chunks measured up to 1.6x slower on 2 cores)
         self._chunk = max(1, samples // (self.nthread * 10))
+
+    def set_models(self, models: list[mujoco.MjModel] | None) -> None:
+        """One model per rollout from now on (variants of the planner's model, the same sizes:
+        ``mujoco.rollout`` takes a sequence); its length is the number of rollouts a
+        :meth:`run` must have. None: the planner's model for every rollout."""
+        self._variants = None if models is None else list(models)
 
     def set_mocap(self, pos: np.ndarray, quat: np.ndarray) -> None:
         """Mocap poses [nmocap, 3], [nmocap, 4] to start every rollout from.
@@ -75,8 +82,15 @@ class RolloutEngine:
             self._full[..., :nu] = control
             self._full[..., nu:] = mocap_path.reshape(1, horizon, -1)
             control, spec = self._full, self.mocap_spec
+        models = self._models
+        if self._variants is not None:
+            if len(self._variants) != samples:
+                raise ValueError(
+                    f"{samples} rollouts for {len(self._variants)} models (set_models)"
+                )
+            models = self._variants
         self._pool.rollout(
-            self._models,
+            models,
             self._datas,
             self._x0,
             np.ascontiguousarray(control),

@@ -153,8 +153,16 @@ def measure(
         x0, ctrl = work[next(counter) % len(work)]
         pool.rollout(own, own_data, x0[None], ctrl, nstep=horizon)
 
+    # with planner.model.variants' spread: all, every sample rolls out in every variant
+    copies = (
+        planner.variants.cfg.count
+        if planner.variants is not None and planner.variants.cfg.spread == "all"
+        else 1
+    )
+
     def sensor_rollout():
         x0, ctrl = work[next(counter) % len(work)]
+        ctrl = np.tile(ctrl, (copies, 1, 1))
         planner.engine.sensors(x0, torch.from_numpy(ctrl).to(planner.device))
 
     try:

@@ -79,6 +79,7 @@ class Episode:
         self.lag = 0.0  # of the newest command, world seconds
         self.action = ""
         self.action_changes: list[tuple[float, str]] = []
+        self.model: dict[str, float] | None = None  # the planner's identified model (Command)
         self.dropped = 0  # states the simulated link lost
         self._plan_times: list[float] = []
         self._state_times: dict[int, float] = {}  # seq -> world time of recent states
@@ -174,6 +175,7 @@ class Episode:
             if not self.running:
                 break
         self.note_action(cmd.action)
+        self.model = cmd.model
 
     def state_age(self, seq: int) -> float | None:
         """World seconds since state ``seq`` was measured (None: not a recent state)."""
@@ -189,6 +191,7 @@ class Episode:
             self.lag = max(0.0, self.world.time - sent)
         self._count_plan(cmd)
         self.note_action(cmd.action)
+        self.model = cmd.model
         return (
             TimedPlan(cmd.plan_t0, cmd.plan_dt, cmd.plan_ctrl, cmd.seq)
             if cmd.has_plan
@@ -236,6 +239,8 @@ class Episode:
             self.seq += 1
             self.steps += 1
             s = self.world.true_state()
+            # the planner's identified model, when it identifies one (planner.model.variants)
+            identified = {} if self.model is None else {"model": self.model}
             self.log.write(
                 "step",
                 seq=self.seq,
@@ -253,6 +258,7 @@ class Episode:
                 plan_time=plan_time,
                 cmd_age=cmd_age,
                 extras=self.world.extras,
+                **identified,
             )
         finally:
             self.in_step = False

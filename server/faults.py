@@ -32,6 +32,7 @@ import numpy as np
 from server.interface import Outcome, World, WorldError, WorldState
 from server.world import SimWorld
 from shared.faults import FaultConfig, steps_of
+from shared.scene import contact_friction
 
 # independent generator streams per fault, so that turning one fault on leaves the others' draws
 _NOISE, _DROPS, _MISMATCH = 1, 2, 3
@@ -72,25 +73,51 @@ def draw_mismatch(
     m = config.mismatch
     rng = np.random.default_rng([seed, _MISMATCH])
     factors: dict[str, dict[str, float]] = {"mass": {}, "friction": {}, "gain": {}}
+    given = {kind: m.factors.get(kind, {}) for kind in factors}
+    # the frictions of the objects' contacts, before any object's is scaled
+    contacts = {
+        obj.name: contact_friction(model, model.body(obj.name).id)
+        for obj in world.scenario.world.objects
+        if m.friction_of == "contacts" and not obj.visual
+    }
     for obj in world.scenario.world.objects:
         body = model.body(obj.name).id
-        f_mass = 1.0 + m.mass * rng.uniform(-1.0, 1.0)
-        f_friction = 1.0 + m.friction * rng.uniform(-1.0, 1.0)
-        if m.mass and not obj.fixed:  # a fixed object's mass moves nothing
+        # drawn whether used or not: each object's draws stay the same as other faults change
+        f_mass = given["mass"].get(obj.name, 1.0 + m.mass * rng.uniform(-1.0, 1.0))
+        f_friction = given["friction"].get(obj.name, 1.0 + m.friction * rng.uniform(-1.0, 1.0))
+        if (m.mass or obj.name in given["mass"]) and not obj.fixed:  # a fixed one moves nothing
             model.body_mass[body] *= f_mass
             model.body_inertia[body] *= f_mass
             factors["mass"][obj.name] = float(f_mass)
-        if m.friction and not obj.visual:  # a visual geom touches nothing
-            model.geom_friction[model.geom_bodyid == body] *= f_friction
+        if (m.friction or obj.name in given["friction"]) and not obj.visual:  # visual: no contact
+            if obj.name in contacts:
+                geoms, friction, priority = contacts[obj.name]
+                model.geom_friction[geoms] = friction * f_friction
+                model.geom_priority[geoms] = priority
+            else:
+                model.geom_friction[model.geom_bodyid == body] *= f_friction
             factors["friction"][obj.name] = float(f_friction)
     for a in range(model.nu):
-        f_gain = 1.0 + m.gain * rng.uniform(-1.0, 1.0)
-        if m.gain:
+        name = model.actuator(a).name or str(a)
+        f_gain = given["gain"].get(name, 1.0 + m.gain * rng.uniform(-1.0, 1.0))
+        if m.gain or name in given["gain"]:
             # force = gain * ctrl + bias0 + bias1 * length + bias2 * velocity: scaling the gain
             # and the bias together scales a servo's kp and kv, a motor's gear
             model.actuator_gainprm[a, 0] *= f_gain
             model.actuator_biasprm[a, :3] *= f_gain
-            factors["gain"][model.actuator(a).name or str(a)] = float(f_gain)
+            factors["gain"][name] = float(f_gain)
+    known = {
+        "mass": [o.name for o in world.scenario.world.objects if not o.fixed],
+        "friction": [o.name for o in world.scenario.world.objects if not o.visual],
+        "gain": [model.actuator(a).name or str(a) for a in range(model.nu)],
+    }
+    for kind, named in given.items():
+        for name in set(named) - set(known[kind]):
+            raise WorldError(
+                f"faults.mismatch.factors.{kind}.{name}: no such "
+                f"{'actuator' if kind == 'gain' else 'object'} to scale; one of: "
+                + (", ".join(known[kind]) or "(none)")
+            )
     return factors
 
 

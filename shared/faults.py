@@ -1,6 +1,6 @@
 """Simulated faults for a world: the ``faults:`` section of a scenario, the named fault
-profiles (``nominal``, ``lab``, ``harsh``) and ``--faults PROFILE|FILE`` (``hardware:`` and
-``--hardware`` are their old names, still accepted).
+profiles (``nominal``, ``lab``, ``harsh``, ``mismatch``) and ``--faults PROFILE|FILE``
+(``hardware:`` and ``--hardware`` are their old names, still accepted).
 
 Only the world server reads it (:mod:`server.faults` applies it); the planner keeps the
 nominal model and is never told, unless ``m3p2i run --compensate`` declares the delays to it as
@@ -16,7 +16,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from shared.config import ConfigError, Section, flag, load_yaml, non_negative, one_of
+from shared.config import ConfigError, Section, flag, load_yaml, non_negative, one_of, positive
 
 GRIPPER_MODES = ("continuous", "binary")
 # the scenario key's and the option's name before they were ``faults`` (read as ``faults``)
@@ -34,10 +34,18 @@ class MismatchConfig:
     mass: float = 0.0
     friction: float = 0.0
     gain: float = 0.0
+    # exact factors instead of drawn ones: kind (mass, friction, gain) -> object or actuator ->
+    # factor (a world whose box is 1.5 times as heavy: {mass: {box: 1.5}})
+    factors: dict[str, dict[str, float]] = dataclasses.field(default_factory=dict)
+    # what a friction factor scales: "geoms", each of the object's geoms' own friction (MuJoCo
+    # takes the larger of two geoms', so a box's 0.5 under the floor's 1.0 decides nothing and
+    # neither does its factor); "contacts", the friction of the object's contacts
+    # (shared.scene.contact_friction)
+    friction_of: str = "geoms"
 
     @property
     def active(self) -> bool:
-        return bool(self.mass or self.friction or self.gain)
+        return bool(self.mass or self.friction or self.gain or self.factors)
 
 
 @dataclass(frozen=True)
@@ -106,6 +114,11 @@ PROFILES: dict[str, FaultConfig] = {
         gripper="binary",
         mismatch=MismatchConfig(mass=0.5, friction=0.5, gain=0.25),
     ),
+    # model error alone: harsh's masses, frictions (of the objects' contacts) and gains, and
+    # nothing else (no delay, noise or loss)
+    "mismatch": FaultConfig(
+        mismatch=MismatchConfig(mass=0.5, friction=0.5, gain=0.25, friction_of="contacts"),
+    ),
 }
 
 
@@ -164,10 +177,34 @@ def parse_faults(data: Any, source: str, path: str = "faults") -> FaultConfig:
         mass=m.opt("mass", base.mismatch.mass, _fraction, frac),
         friction=m.opt("friction", base.mismatch.friction, _fraction, frac),
         gain=m.opt("gain", base.mismatch.gain, _fraction, frac),
+        factors=m.opt(
+            "factors",
+            base.mismatch.factors,
+            _factors,
+            "{mass|friction|gain: {object or actuator: factor > 0}}",
+        ),
+        friction_of=m.opt(
+            "friction_of", base.mismatch.friction_of, one_of(FRICTION_OF), " or ".join(FRICTION_OF)
+        ),
     )
     m.done()
     s.done()
     return FaultConfig(**values)
+
+
+FRICTION_OF = ("geoms", "contacts")
+MISMATCH_KINDS = ("mass", "friction", "gain")
+
+
+def _factors(value: Any) -> dict[str, dict[str, float]]:
+    if not isinstance(value, dict) or not all(k in MISMATCH_KINDS for k in value):
+        raise ValueError(f"must map {', '.join(MISMATCH_KINDS)} to factors")
+    out = {}
+    for kind, named in value.items():
+        if not isinstance(named, dict) or not all(isinstance(n, str) for n in named):
+            raise ValueError(f"{kind}: must map names to factors")
+        out[kind] = {n: positive(f) for n, f in named.items()}
+    return out
 
 
 def _profile(name: str, source: str, path: str) -> FaultConfig:

@@ -162,6 +162,8 @@ class Command:
     plan_ctrl: np.ndarray | None = None
     plan_t0: float | None = None
     plan_dt: float | None = None
+    # the planner's identified model, "kind.name" -> factor (planner.model.variants.identify)
+    model: dict[str, float] | None = None
     type = "command"
 
     @property
@@ -187,6 +189,7 @@ class Diagnostics:
     lead: float = 0.0  # world s the plan was predicted ahead of the state (its expected lag)
     steps: int = 0  # world steps since the state the previous plan answered
     top_modes: np.ndarray | None = None
+    model: dict[str, float] | None = None  # as Command.model
     type = "diagnostics"
 
 
@@ -259,6 +262,7 @@ _SCHEMA: dict[str, dict[str, tuple[str, bool]]] = {
         "plan_ctrl": ("array", False),
         "plan_t0": ("float", False),
         "plan_dt": ("float", False),
+        "model": ("floatmap", False),
     },
     "diagnostics": {
         "seq": ("int", True),
@@ -271,6 +275,7 @@ _SCHEMA: dict[str, dict[str, tuple[str, bool]]] = {
         "lead": ("float", False),
         "steps": ("int", False),
         "top_modes": ("array", False),
+        "model": ("floatmap", False),
     },
     "error": {"reason": ("str", True), "versions": ("intlist", False)},
     "control": {
@@ -286,8 +291,8 @@ _SCHEMA: dict[str, dict[str, tuple[str, bool]]] = {
 _NOT_IN_V1 = {
     "welcome": {"seed"},
     "state": {"lag"},
-    "command": {"plan_ctrl", "plan_t0", "plan_dt"},
-    "diagnostics": {"lead", "steps", "top_modes"},
+    "command": {"plan_ctrl", "plan_t0", "plan_dt", "model"},
+    "diagnostics": {"lead", "steps", "top_modes", "model"},
     "control": {"object", "pos", "quat", "seed"},
 }
 _SCHEMAS = {

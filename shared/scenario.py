@@ -219,6 +219,60 @@ def rollout_device(value: Any) -> str:
     return value
 
 
+VARIANT_PARAMS = ("mass", "friction", "gain")
+VARIANT_AGGREGATES = ("mean", "cvar", "worst")
+VARIANT_SPREADS = ("split", "all")
+
+
+@dataclass(frozen=True)
+class IdentifyConfig:
+    """``planner.model.variants.identify``: the variants reweighted by how well each predicted
+    the last observed transition (planner_client.variants; docs/scenarios.md, "Model variants").
+    ``position_sigma`` and ``velocity_sigma``: the spread of a prediction's error that a right
+    model still makes (measurement noise, the mirror's estimates), for the free objects'
+    positions and the robot's velocities; ``forget``: the share of the past evidence each new
+    transition keeps (old evidence fades, so the ensemble widens again when the world changes);
+    ``floor``: the share of the variants redrawn from the prior at each resampling;
+    ``jitter``: each kept variant's factors moved by this fraction of the prior's half-width."""
+
+    position_sigma: float = 0.005
+    velocity_sigma: float = 0.02
+    forget: float = 0.9
+    floor: float = 0.1
+    jitter: float = 0.1
+
+    def as_dict(self) -> dict[str, Any]:
+        return dict(self.__dict__)
+
+
+@dataclass(frozen=True)
+class VariantsConfig:
+    """``planner.model.variants``: ``count`` copies of the planner's model whose parameters are
+    scaled by factors drawn (from ``seed``) uniformly in ``[1 - f, 1 + f]``, per scenario object
+    for ``mass`` (masses and inertias) and ``friction`` (its contacts' friction), per actuator
+    for ``gain`` (gain and bias). ``spread: split``: sample ``k`` rolls out in variant
+    ``k mod count`` (no extra rollouts); ``all``: every sample in every variant, its cost the
+    ``aggregate`` over them (``mean``, ``cvar``: the mean of the worst ``cvar_alpha`` share,
+    ``worst``). ``identify``: the variants reweighted and resampled online."""
+
+    count: int = 8
+    seed: int = 0
+    mass: float = 0.0
+    friction: float = 0.0
+    gain: float = 0.0
+    spread: str = "split"
+    aggregate: str = "mean"
+    cvar_alpha: float = 0.25
+    identify: IdentifyConfig | None = None
+
+    def as_dict(self) -> dict[str, Any]:
+        out = {k: v for k, v in self.__dict__.items() if k not in VARIANT_PARAMS + ("identify",)}
+        out["params"] = {k: getattr(self, k) for k in VARIANT_PARAMS if getattr(self, k)}
+        if self.identify is not None:
+            out["identify"] = self.identify.as_dict()
+        return out
+
+
 @dataclass(frozen=True)
 class PlanningModel:
     """``planner.model``: options of the planner's own copy of the model (its rollouts), never
@@ -237,13 +291,14 @@ class PlanningModel:
     attach: tuple[Attach, ...] = ()  # objects welded to the robot while a task state holds
     objects: dict[str, ObjectModel] = field(default_factory=dict)  # per free object, by name
     geoms: dict[str, GeomModel] = field(default_factory=dict)  # collision shapes, by geom name
+    variants: VariantsConfig | None = None  # rollouts over V drawn models (planner_client.variants)
 
     def as_dict(self) -> dict[str, Any]:
         """The keys set, as written in YAML (for logs and benchmark rows)."""
         out = {
             k: v
             for k, v in self.__dict__.items()
-            if v is not None and k not in ("exclude", "attach", "objects", "geoms")
+            if v is not None and k not in ("exclude", "attach", "objects", "geoms", "variants")
         }
         if self.exclude:
             out["exclude"] = [list(pair) for pair in self.exclude]
@@ -255,6 +310,8 @@ class PlanningModel:
             out["objects"] = {name: o.as_dict() for name, o in self.objects.items()}
         if self.geoms:
             out["geoms"] = {name: g.as_dict() for name, g in self.geoms.items()}
+        if self.variants is not None:
+            out["variants"] = self.variants.as_dict()
         return out
 
 
@@ -1219,7 +1276,31 @@ def _planner(s: Section) -> PlannerConfig:
         delays=_delays(s.section("delays", required=False)),
     )
     s.done()
+    _check_variants(s, cfg)
     return cfg
+
+
+def _check_variants(s: Section, cfg: PlannerConfig) -> None:
+    """``planner.model.variants`` against the rest of ``planner``: MJWarp rolls out one model
+    for all its worlds, and a split needs a sample per variant in every mode."""
+    v = cfg.model.variants
+    if v is None:
+        return
+    path = "model.variants"
+    if cfg.backend != "mujoco":
+        raise s.error(
+            path,
+            f"the {cfg.backend} backend rolls out one model for all samples",
+            v.as_dict(),
+            "backend: mujoco (mujoco.rollout takes a model per rollout), or no variants",
+        )
+    if v.spread == "split" and v.count > cfg.samples:
+        raise s.error(
+            f"{path}.count",
+            f"{v.count} variants split over planner.samples = {cfg.samples} per mode",
+            v.count,
+            f"count <= {cfg.samples} (or spread: all)",
+        )
 
 
 def _delays(s: Section) -> DelayConfig:
@@ -1247,6 +1328,60 @@ def _planning_model(s: Section) -> PlanningModel:
         attach=tuple(_attach(a) for a in s.items("attach")),
         objects=_object_models(s.section("objects", required=False)),
         geoms=_geom_models(s.section("geoms", required=False)),
+        variants=_variants(s.section("variants")) if s.has("variants") else None,
+    )
+    s.done()
+    return cfg
+
+
+def _fraction(value: Any) -> float:
+    v = non_negative(value)
+    if v >= 1:
+        raise ValueError("must be < 1")
+    return v
+
+
+_FRACTION = "a fraction in [0, 1) (0.3: factors within ±30 %)"
+
+
+def _variants(s: Section) -> VariantsConfig:
+    p = s.section("params")
+    params = {k: p.opt(k, 0.0, _fraction, _FRACTION) for k in VARIANT_PARAMS}
+    p.done()
+    if not any(params.values()):
+        raise s.error(
+            "params",
+            "no parameter varies",
+            dict(p.data),
+            "at least one of " + ", ".join(f"{k}: f" for k in VARIANT_PARAMS) + f" ({_FRACTION})",
+        )
+    cfg = VariantsConfig(
+        count=s.opt("count", 8, positive_int, "an integer >= 1 (models)"),
+        seed=s.opt("seed", 0, _count, "an integer >= 0"),
+        spread=s.opt("spread", "split", one_of(VARIANT_SPREADS)),
+        aggregate=s.opt("aggregate", "mean", one_of(VARIANT_AGGREGATES)),
+        cvar_alpha=s.opt("cvar_alpha", 0.25, _weight, "a share in (0, 1]"),
+        identify=_identify(s.section("identify")) if s.has("identify") else None,
+        **params,
+    )
+    if cfg.spread == "split" and s.has("aggregate"):
+        raise s.error(
+            "aggregate",
+            "an aggregate needs every sample rolled out in every variant",
+            cfg.aggregate,
+            "spread: all (with spread: split each sample meets one variant)",
+        )
+    s.done()
+    return cfg
+
+
+def _identify(s: Section) -> IdentifyConfig:
+    cfg = IdentifyConfig(
+        position_sigma=s.opt("position_sigma", 0.005, positive, "metres > 0"),
+        velocity_sigma=s.opt("velocity_sigma", 0.02, positive, "m/s (rad/s) > 0"),
+        forget=s.opt("forget", 0.9, _weight, "a share in (0, 1]"),
+        floor=s.opt("floor", 0.1, _fraction, "a share in [0, 1)"),
+        jitter=s.opt("jitter", 0.1, non_negative, "a fraction >= 0 of the prior's half-width"),
     )
     s.done()
     return cfg

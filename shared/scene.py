@@ -203,3 +203,19 @@ def get_full_state(
     out = np.empty(state_size(model)) if out is None else out
     mujoco.mj_getState(model, data, out, mujoco.mjtState.mjSTATE_FULLPHYSICS)
     return out
+
+
+def contact_friction(model: mujoco.MjModel, body: int) -> tuple[np.ndarray, np.ndarray, int]:
+    """Body ``body``'s geoms ``[G]``, the friction ``[G, 3]`` of their contacts and the priority
+    that makes it theirs: MuJoCo takes the larger of two geoms' frictions (at equal priority),
+    so an object's own friction (0.5) under the floor's (1.0) decides nothing. Given this
+    priority and the larger of their own and every other colliding geom's friction, its geoms
+    make the same contacts as before (exactly when the others share one friction), and scaling
+    that friction scales the object's contacts (a model's mismatch, its variants)."""
+    own = np.flatnonzero(model.geom_bodyid == body)
+    collides = (model.geom_contype != 0) | (model.geom_conaffinity != 0)
+    others = np.setdiff1d(np.flatnonzero(collides), own)
+    friction = model.geom_friction[own].copy()
+    if len(others):
+        friction = np.maximum(friction, model.geom_friction[others].max(0))
+    return own, friction, int(model.geom_priority.max()) + 1

@@ -1,0 +1,279 @@
+"""``planner.model.variants``: rollouts over model variants and the model identified online
+(planner_client/variants.py). The maths as pure functions, the section's checks, the rollouts
+in variants of the model, and the identification converging on a world whose box is heavier and
+slides more easily than the model's (the one episode test, slow)."""
+
+import math
+
+import mujoco
+import numpy as np
+import pytest
+import torch
+import yaml
+
+from planner_client.build import build_controller, build_motion_planner
+from planner_client.problem import build_problem
+from planner_client.variants import (
+    AGGREGATES,
+    Identifier,
+    VariantModels,
+    effective_size,
+    posterior_mean,
+    resample,
+    reweight,
+    transition_log_likelihood,
+)
+from server.inprocess import build_episode
+from shared import protocol as P
+from shared.config import ConfigError
+from shared.faults import PROFILES, load_faults
+from shared.scenario import SCENARIO_DIR, parse_scenario
+from shared.scene import get_full_state, initial_data
+
+VARIANTS = {"count": 4, "params": {"mass": 0.5, "friction": 0.5}, "identify": {}}
+
+
+def _push(variants=None, **planner) -> dict:
+    raw = yaml.safe_load((SCENARIO_DIR / "push.yaml").read_text())
+    if variants is not None:
+        raw["planner"].setdefault("model", {})["variants"] = variants
+    raw["planner"].update(planner)
+    return raw
+
+
+def _scenario(variants=VARIANTS, **planner):
+    return parse_scenario(_push(variants, **planner), str(SCENARIO_DIR / "push.yaml"))
+
+
+# ------------------------------------------------------------------ the maths
+
+
+def test_the_aggregates_take_the_mean_the_worst_and_the_worst_share():
+    # [V=4, S=2, T=2]: sample 0 costs 1..4 in the variants, sample 1 costs 4..1
+    totals = torch.tensor([[1.0, 4.0], [2.0, 3.0], [3.0, 2.0], [4.0, 1.0]])
+    costs = torch.stack([totals / 2, totals / 2], dim=-1)
+    assert AGGREGATES["mean"](costs, 0.25).sum(-1).tolist() == [2.5, 2.5]
+    assert AGGREGATES["worst"](costs, 0.25).sum(-1).tolist() == [4.0, 4.0]
+    assert AGGREGATES["cvar"](costs, 0.5).sum(-1).tolist() == [3.5, 3.5]
+    # a diverged variant is the worst: the sample gets no weight
+    costs[1, 0, 0] = math.nan
+    assert math.isnan(AGGREGATES["worst"](costs, 0.25)[0].sum())
+
+
+def test_bayes_with_forgetting_favours_the_variant_that_predicted_best():
+    predicted = np.array([[0.0, 0.0], [0.1, 0.0], [1.0, 1.0]])  # [V, D]
+    lik = transition_log_likelihood(predicted, np.zeros(2), np.full(2, 0.1))
+    assert lik.tolist() == [0.0, -0.5, -100.0]
+    log_w = reweight(np.full(3, -math.log(3)), lik, forget=0.9)
+    w = np.exp(log_w)
+    assert w.sum() == pytest.approx(1.0) and w[0] > w[1] > w[2]
+    assert 1.0 <= effective_size(log_w) < 3.0
+    # nothing finite to learn from: the weights stay
+    assert reweight(log_w, np.full(3, -np.inf), 0.9) is log_w
+    # diverged prediction: that variant, not the others, loses its weight
+    lik = transition_log_likelihood(np.array([[np.nan, 0.0], [0.0, 0.0]]), np.zeros(2), np.ones(2))
+    assert lik.tolist() == [-np.inf, 0.0]
+
+
+def test_resampling_keeps_the_heavy_variants_redraws_a_share_and_stays_in_the_prior():
+    rng = np.random.default_rng(0)
+    factors = np.array([[0.6], [1.0], [1.4], [1.2]] * 5)  # [V=20, P=1]
+    log_w = np.log(np.where(factors[:, 0] == 1.4, 1.0, 1e-9))
+    log_w -= np.log(np.exp(log_w).sum())
+    out = resample(rng, factors, log_w, np.array([0.5]), floor=0.1, jitter=0.0)
+    assert out.shape == factors.shape and ((out >= 0.5) & (out <= 1.5)).all()
+    # all but the floor's 2 redrawn ones are copies of the one that predicted
+    assert np.sum(out[:, 0] == 1.4) >= 18
+    assert posterior_mean(factors, log_w)[0] == pytest.approx(1.4)
+
+
+# ------------------------------------------------------------------ the section
+
+
+@pytest.mark.parametrize(
+    "variants, planner, key, expected",
+    [
+        ({"params": {"mass": 1.5}}, {}, "variants.params.mass", "a fraction in [0, 1)"),
+        ({"params": {"inertia": 0.2}}, {}, "variants.params", "unknown key"),
+        ({"params": {}}, {}, "variants.params", "at least one of"),
+        ({"params": {"mass": 0.5}, "count": 0}, {}, "variants.count", "an integer >= 1"),
+        ({"params": {"mass": 0.5}, "aggregate": "median"}, {}, "variants.aggregate", "one of"),
+        ({"params": {"mass": 0.5}, "aggregate": "cvar"}, {}, "variants.aggregate", "spread: all"),
+        ({"params": {"mass": 0.5}, "spread": "some"}, {}, "variants.spread", "all, split"),
+        ({"params": {"mass": 0.5}, "count": 300}, {}, "variants.count", "count <= 200"),
+        ({"params": {"mass": 0.5}}, {"backend": "warp"}, "variants", "backend: mujoco"),
+        (
+            {"params": {"mass": 0.5}, "identify": {"forget": 0}},
+            {},
+            "variants.identify.forget",
+            "(0, 1]",
+        ),
+        (
+            {"params": {"mass": 0.5}, "identify": {"sigma": 1}},
+            {},
+            "variants.identify",
+            "unknown key",
+        ),
+    ],
+)
+def test_the_section_is_checked_naming_file_key_and_value(variants, planner, key, expected):
+    with pytest.raises(ConfigError) as info:
+        parse_scenario(_push(variants, **planner), "push.yaml")
+    msg = str(info.value)
+    assert msg.startswith(f"push.yaml: planner.model.{key}") and expected in msg, msg
+
+
+def test_the_warp_backend_given_on_the_command_line_is_refused_too():
+    with pytest.raises(ConfigError, match="rolls out one model for all samples"):
+        build_motion_planner(_scenario(), threads=1, backend="warp")
+
+
+def test_without_the_section_nothing_changes():
+    sc = parse_scenario(_push(), str(SCENARIO_DIR / "push.yaml"))
+    assert sc.planner.model.variants is None and "variants" not in sc.planner.model.as_dict()
+    controller = build_controller(sc, threads=1)
+    try:
+        assert controller.planner.variants is None and controller.model_estimate() is None
+    finally:
+        controller.close()
+    # a command without a model estimate is the frame it always was
+    frame = P.encode(P.Command(session="s", seq=1, ctrl=np.zeros(3)))
+    assert b"model" not in frame
+
+
+# ------------------------------------------------------------------ the models
+
+
+def test_a_variant_at_the_nominal_factors_rolls_out_as_the_model():
+    sc = _scenario()
+    problem = build_problem(sc)
+    variants = VariantModels(problem.model, sc.world.objects, sc.planner.model.variants)
+    assert [p.kind + "." + p.name for p in variants.params] == ["mass.box", "friction.box"]
+    variants.factors[:] = 1.0
+    variants.apply()
+    x0 = get_full_state(problem.model, initial_data(sc, problem.model))
+    controls = np.tile([1.0, 1.0, 0.0], (3, 40, 1))  # straight at the box
+    outs = []
+    for model in (problem.model, variants.models[0]):
+        data = [mujoco.MjData(model)]
+        _, sensors = mujoco.rollout.rollout([model] * 3, data, np.tile(x0, (3, 1)), controls)
+        outs.append(sensors)
+    assert np.array_equal(outs[0], outs[1])
+    # a heavier box in one variant moves less under the same push
+    variants.factors[1] = [1.5, 1.0]
+    variants.apply()
+    heavy = _box_travel(variants.models[1], x0, controls[0])
+    assert heavy < _box_travel(variants.models[0], x0, controls[0]) - 0.01
+
+
+def _box_travel(model, x0, controls) -> float:
+    data = mujoco.MjData(model)
+    mujoco.mj_setState(model, data, x0, mujoco.mjtState.mjSTATE_FULLPHYSICS)
+    start = data.body("box").xpos.copy()
+    for u in controls:
+        data.ctrl[:] = u
+        mujoco.mj_step(model, data)
+    return float(np.linalg.norm(data.body("box").xpos - start))
+
+
+@pytest.mark.parametrize("spread, aggregate", [("split", None), ("all", "cvar")])
+def test_the_planner_plans_over_the_variants(spread, aggregate):
+    variants = {**VARIANTS, "spread": spread, **({"aggregate": aggregate} if aggregate else {})}
+    sc = _scenario(variants, samples=40, horizon=8)
+    planner = build_motion_planner(sc, threads=1, seed=0)
+    try:
+        x0 = get_full_state(planner.problem.model, initial_data(sc, planner.problem.model))
+        it = planner.iterate(x0)
+        assert it.fault is None and np.isfinite(it.plan).all()
+        assert planner._step_costs.shape == (40, 8)
+        assert it.top.shape[1] == 8
+    finally:
+        planner.close()
+
+
+def test_a_non_finite_observation_leaves_the_estimate_unchanged():
+    sc = _scenario()
+    controller = build_controller(sc, threads=1)
+    episode = build_episode(sc, seed=0)
+    try:
+        controller.begin("lockstep", episode.dt)
+        state = episode.publish()
+        for _ in range(5):
+            command = controller.step(state)
+            episode.play(command)
+            state = episode.publish()
+        # the estimate goes out with every command, and survives the wire
+        assert set(command.model) == {"mass.box", "friction.box"}
+        assert P.decode(P.encode(command)).model == pytest.approx(command.model)
+        assert episode.model == command.model  # what the world logs with each step
+        identifier: Identifier = controller.identifier
+        before = (controller.model_estimate(), identifier.log_w.copy(), identifier.observed)
+        for field in ("qpos", "qvel"):
+            bad = getattr(state, field).copy()
+            bad[-1] = np.nan
+            controller.step(P.State(**{**state.__dict__, field: bad}))
+        assert controller.model_estimate() == before[0]
+        assert np.array_equal(identifier.log_w, before[1]) and identifier.observed == before[2]
+    finally:
+        controller.close()
+        episode.close()
+
+
+# ------------------------------------------------------------------ faults
+
+
+def test_the_mismatch_profile_is_model_error_alone():
+    m = PROFILES["mismatch"]
+    assert (m.mismatch.mass, m.mismatch.friction, m.mismatch.gain) == (0.5, 0.5, 0.25)
+    assert m.delays is None and m.position_noise_m == 0 and m.drop_rate == 0
+    assert m.mismatch.friction_of == "contacts"
+
+
+def test_exact_factors_are_checked(tmp_path):
+    path = tmp_path / "f.yaml"
+    path.write_text("mismatch: {factors: {weight: {box: 2}}}")
+    with pytest.raises(ConfigError, match=r"mismatch\.factors"):
+        load_faults(str(path))
+    path.write_text("mismatch: {factors: {mass: {crate: 2}}}")
+    with pytest.raises(Exception, match="no such object to scale; one of: box"):
+        build_episode("push", seed=0, faults=load_faults(str(path)))
+
+
+# ------------------------------------------------------------------ identification
+
+
+def _identify(faults: str, seconds: float, tmp_path) -> tuple[dict, dict]:
+    """Push for ``seconds`` in a world with the faults file's text; the planner's estimate and
+    the world's factors."""
+    path = tmp_path / "faults.yaml"
+    path.write_text(faults)
+    sc = _scenario({"count": 16, "params": {"mass": 0.5, "friction": 0.5}, "identify": {}})
+    controller = build_controller(sc, threads=1, seed=0)
+    episode = build_episode(sc, seed=0, faults=load_faults(str(path)))
+    try:
+        controller.begin("lockstep", episode.dt)
+        state = episode.publish()
+        while state.time < seconds - 1e-9:
+            episode.play(controller.step(state))
+            state = episode.publish()
+        return controller.identifier.estimate(), episode.world.mismatch
+    finally:
+        controller.close()
+        episode.close()
+
+
+@pytest.mark.slow
+def test_the_planner_identifies_a_heavier_box_that_slides_more_easily(tmp_path):
+    """Box mass x1.5, the friction of its contacts x0.6: both estimated within 15 % after 3 s
+    of pushing; in the nominal world, both within 10 % of nominal."""
+    estimate, world = _identify(
+        "mismatch: {factors: {mass: {box: 1.5}, friction: {box: 0.6}}, friction_of: contacts}",
+        3.0,
+        tmp_path,
+    )
+    assert world == {"mass": {"box": 1.5}, "friction": {"box": 0.6}, "gain": {}}
+    assert estimate["mass"]["box"] == pytest.approx(1.5, rel=0.15)
+    assert estimate["friction"]["box"] == pytest.approx(0.6, rel=0.15)
+    estimate, _ = _identify("mismatch: {factors: {mass: {box: 1.0}}}", 3.0, tmp_path)
+    assert estimate["mass"]["box"] == pytest.approx(1.0, rel=0.10)
+    assert estimate["friction"]["box"] == pytest.approx(1.0, rel=0.10)
