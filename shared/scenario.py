@@ -34,6 +34,7 @@ from shared.config import (
 from shared.config_files import find, shipped
 from shared.faults import NOMINAL, OLD_NAME, FaultConfig, parse_faults, read_old_name
 from shared.geometry import AXES
+from shared.guide import GuideConfig, parse_guide
 from shared.predicates import Predicate, parse_predicate
 from shared.robots import ROBOTS, get_robot
 from shared.task_template import FactorTemplate, TaskTemplate, parse_task
@@ -399,6 +400,7 @@ class Scenario:
     # the world server's simulated faults (docs/faults.md); the planner keeps the nominal model
     faults: FaultConfig = NOMINAL
     raw: dict = field(repr=False, default_factory=dict)
+    guide: GuideConfig | None = None  # a global path the planner's terms follow (shared/guide.py)
 
 
 def find_scenario(name_or_path: str | os.PathLike) -> Path:
@@ -678,6 +680,26 @@ def _read(raw: dict, source: str, errors: ErrorLog) -> ScenarioReading:
                         f"one of: {', '.join(known)}",
                     )
                 )
+    guide = None
+    if top.has("guide") and world is not None:
+        guide = errors.call(
+            lambda: parse_guide(
+                top.section("guide"), {o.name: not o.fixed for o in world.objects if not o.visual}
+            )
+        )
+    elif top.has("guide"):  # the world's own errors are reported; the guide's would repeat them
+        top.section("guide", required=False)
+    if guide is not None and planner is not None and planner.backend != "mujoco":
+        errors.add(
+            ConfigError(
+                source,
+                "guide",
+                "moves its sub-goal in the planner's model between iterations, which the "
+                "warp backend copies once",
+                planner.backend,
+                "planner.backend: mujoco, or no guide",
+            )
+        )
     errors.call(top.done)
     if robot is None:
         return ScenarioReading(None, errors.errors, False)
@@ -700,6 +722,7 @@ def _read(raw: dict, source: str, errors: ErrorLog) -> ScenarioReading:
         metrics=metrics,
         faults=faults,
         raw=raw,
+        guide=guide,
     )
     return ScenarioReading(scenario, errors.errors, model_ok)
 
