@@ -73,7 +73,9 @@ class Grid:
             r = s.extent()
             if r is not None:
                 xy += [np.asarray(s.centre) - r, np.asarray(s.centre) + r]
-        lo, hi = np.min(xy, axis=0) - 1.0, np.max(xy, axis=0) + 1.0
+        # cell centres on multiples of the resolution: a goal at 3.75 m lies on one at 0.05 m
+        lo = np.floor((np.min(xy, axis=0) - 1.0) / resolution) * resolution
+        hi = np.max(xy, axis=0) + 1.0
         n = np.ceil((hi - lo) / resolution).astype(int) + 1
         return cls((float(lo[0]), float(lo[1])), resolution, (int(n[1]), int(n[0])))
 
@@ -202,11 +204,13 @@ class Room:
     """Where a robot of ``radius`` must stand beside a guided object that moves one grid step:
     ``behind`` it (a push), ahead of it or at its side (a pull, holding it by suction), or
     either (``any``); ``reach`` is how far from the object's centre the robot's centre stands
-    (object half-size + robot radius + a gap)."""
+    (touching: object half-size + robot radius), and there the robot must be ``gap`` m clear
+    of every obstacle."""
 
     mode: str  # push | pull | any
     radius: float
     reach: float
+    gap: float = 0.0
 
 
 def room_moves(grid: Grid, shapes: list[Shape], room: Room) -> np.ndarray:
@@ -217,7 +221,8 @@ def room_moves(grid: Grid, shapes: list[Shape], room: Room) -> np.ndarray:
     rows, cols = grid.shape
 
     def clear_at(offset: np.ndarray) -> np.ndarray:
-        return (signed_distance(shapes, centres + offset) > room.radius).reshape(rows, cols)
+        clear = signed_distance(shapes, centres + offset) > room.radius + room.gap
+        return clear.reshape(rows, cols)
 
     out = np.zeros((8, rows, cols), dtype=bool)
     for k, (di, dj) in enumerate(MOVES):
@@ -234,13 +239,55 @@ def room_moves(grid: Grid, shapes: list[Shape], room: Room) -> np.ndarray:
     return out
 
 
+def handles(cells_xy: np.ndarray, shapes: list[Shape], room: Room) -> np.ndarray:
+    """``[M, 2]``: where the robot's centre stands, relative to the object's, at each point of
+    a dense path ``cells_xy [M, 2]``, clear of ``shapes`` by the robot's radius: behind the
+    move for a push; for a pull ahead of it, or else at the side with more room. Chosen from the
+    goal backwards, keeping the place of the next point while it is still clear and still
+    behind (push) or not behind (pull) the move: a robot that must end beside a box pulled into
+    a corner holds it there all the way rather than going round it on the way. NaN where no
+    place is clear."""
+    moves = np.diff(cells_xy, axis=0)
+    moves = np.concatenate([moves, moves[-1:]]) if len(moves) else np.array([[1.0, 0.0]])
+    d = moves / np.maximum(np.linalg.norm(moves, axis=1, keepdims=True), 1e-12)
+    out = np.full(cells_xy.shape, np.nan)
+
+    def clear(p: np.ndarray) -> float:
+        return float(signed_distance(shapes, p[None])[0])
+
+    def allowed(offset: np.ndarray, dm: np.ndarray) -> bool:
+        c = float(offset @ dm) / room.reach
+        return {"push": c < -0.7, "pull": c > -1e-6, "any": True}[room.mode]
+
+    prev = None
+    for m in range(len(cells_xy) - 1, -1, -1):
+        p, dm = cells_xy[m], d[m]
+        need = room.radius + room.gap
+        if prev is not None and allowed(prev, dm) and clear(p + prev) > need:
+            out[m] = prev
+            continue
+        side = np.array([-dm[1], dm[0]])
+        first = {"push": [-dm], "pull": [dm], "any": [-dm, dm]}[room.mode]
+        options = [o * room.reach for o in first]
+        sides = [] if room.mode == "push" else [side * room.reach, -side * room.reach]
+        sides.sort(key=lambda o: -clear(p + o))
+        prev = next((o for o in options + sides if clear(p + o) > need), None)
+        if prev is not None:
+            out[m] = prev
+    return out
+
+
 @dataclass(frozen=True)
 class PathResult:
     """A path's corners ``[N, 2]`` (x, y; the first at the start, the last at the goal) or None
-    when the goal cannot be reached; ``reason`` says why."""
+    when the goal cannot be reached; ``reason`` says why. With room for a robot, also every
+    cell's centre on the way ``dense [M, 2]`` and where the robot stands there relative to the
+    object, ``handles [M, 2]`` (:func:`handles`)."""
 
     points: np.ndarray | None
     reason: str = ""
+    dense: np.ndarray | None = None
+    handles: np.ndarray | None = None
 
     @property
     def length(self) -> float:
@@ -272,9 +319,12 @@ def plan(
     cells = astar(free, s, g, move_ok)
     if cells is None:
         return PathResult(None, "the goal cannot be reached")
+    dense = hands = None
     if move_ok is None:
         cells = simplify(cells, lambda a, b: line_free(free, a, b))
     else:  # a straight line may cross cells without room: only runs of one move are merged
+        dense = np.array([grid.point(c) for c in cells])
+        hands = handles(dense, shapes, room)
         cells = corners(cells)
     points = [grid.point(c) for c in cells]
     # the path starts and ends at the exact points when their cells were free
@@ -282,4 +332,4 @@ def plan(
     points[-1] = goal if g == grid.cell(goal) else points[-1]
     if len(points) == 1:
         points.append(points[0])
-    return PathResult(np.array(points))
+    return PathResult(np.array(points), dense=dense, handles=hands)

@@ -54,7 +54,9 @@ def add_site(spec: mujoco.MjSpec) -> None:
 class PathTensors:
     """The path as the terms read it: segment starts ``a [M, 2]``, their vectors ``ab [M, 2]``
     and squared lengths ``ab2 [M]``, the arc length at each start ``s0 [M]`` and the path's
-    ``length``; or, without a path, the ``goal [2]`` alone (``a`` empty)."""
+    ``length``; or, without a path, the ``goal [2]`` alone (``a`` empty). A guide with room
+    for the robot also has the cells on the way ``dense [K, 2]`` and the robot's place beside
+    the object at each, ``handles [K, 2]`` (0 where there is none); else both are empty."""
 
     a: torch.Tensor
     ab: torch.Tensor
@@ -62,10 +64,19 @@ class PathTensors:
     s0: torch.Tensor
     length: float
     goal: torch.Tensor
+    dense: torch.Tensor
+    handles: torch.Tensor
+    dense_s: torch.Tensor  # [K] arc length along the path at each dense cell
 
     @classmethod
-    def of(cls, points: np.ndarray | None, goal: np.ndarray) -> PathTensors:
+    def of(cls, result: PathResult | None, goal: np.ndarray) -> PathTensors:
+        points = None if result is None else result.points
         pts = np.zeros((0, 2)) if points is None else points
+        dense = np.zeros((0, 2))
+        hands = np.zeros((0, 2))
+        if result is not None and result.dense is not None:
+            dense, hands = result.dense, np.nan_to_num(result.handles)
+        dsteps = np.linalg.norm(np.diff(dense, axis=0), axis=1)
         a, b = pts[:-1], pts[1:]
         seg = np.linalg.norm(b - a, axis=1)
         t = _tensor
@@ -76,6 +87,9 @@ class PathTensors:
             s0=t(np.concatenate([[0.0], np.cumsum(seg)[:-1]]) if len(seg) else seg),
             length=float(seg.sum()),
             goal=t(np.asarray(goal, float)[:2]),
+            dense=t(dense),
+            handles=t(hands),
+            dense_s=t(np.concatenate([[0.0], np.cumsum(dsteps)])[: len(dense)]),
         )
 
 
@@ -83,20 +97,40 @@ def _tensor(x: np.ndarray) -> torch.Tensor:
     return torch.as_tensor(np.ascontiguousarray(x), dtype=torch.float64)
 
 
+def _dot(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
+    """Σ over the last axis (x, y) of a · b, as a matrix product (torch's reduction over a
+    last axis of two is the slow way: planner_client.costs.helpers.last_sum)."""
+    return (a * b) @ _ONES2
+
+
+_ONES2 = torch.ones(2, dtype=torch.float64)
+
+
 def project(p: torch.Tensor, path: PathTensors) -> tuple[torch.Tensor, torch.Tensor]:
     """Distance of points ``p [..., 2]`` to the path and the path length left beyond their
     nearest point on it, both ``[...]``; without a path, 0 and the straight distance to the
     goal."""
     if path.a.shape[0] == 0:
-        return torch.zeros(p.shape[:-1], dtype=p.dtype), (p - path.goal).norm(dim=-1)
+        d = p - path.goal
+        return torch.zeros(p.shape[:-1], dtype=p.dtype), _dot(d, d).sqrt_()
     d = p[..., None, :] - path.a  # [..., M, 2]
-    t = ((d * path.ab).sum(-1) / path.ab2).clamp_(0.0, 1.0)  # [..., M]
+    t = (_dot(d, path.ab) / path.ab2).clamp_(0.0, 1.0)  # [..., M]
     off = d - t[..., None] * path.ab
-    dist2 = (off * off).sum(-1)
+    dist2 = _dot(off, off)
     best = dist2.argmin(-1, keepdim=True)
     dist = dist2.gather(-1, best).squeeze(-1).sqrt_()
     s = (path.s0 + t * path.ab2.sqrt()).gather(-1, best).squeeze(-1)
     return dist, path.length - s
+
+
+def handle_target(p: torch.Tensor, path: PathTensors) -> torch.Tensor:
+    """Where the robot should stand ``[..., 2]`` beside an object at ``p [..., 2]``: the handle
+    of the path cell at the object's nearest point on the path; ``p`` itself without one."""
+    if path.dense.shape[0] == 0:
+        return p
+    s = path.length - project(p, path)[1]
+    i = torch.searchsorted(path.dense_s, s).clamp_(max=path.dense.shape[0] - 1)
+    return p + path.handles[i]
 
 
 def point_at(points: np.ndarray, s: float) -> np.ndarray:
@@ -221,7 +255,7 @@ class Guide:
         )
         self.room = None
         if cfg.room != "none":
-            self.room = Room(cfg.room, robot_r, self.radius + robot_r + cfg.gap)
+            self.room = Room(cfg.room, robot_r, self.radius + robot_r, cfg.gap)
         self.plan_fn = METHODS[cfg.method]
         self._planned: Snapshot | None = None  # what the current (or pending) path is for
         self._pending: Snapshot | None = None
@@ -278,8 +312,9 @@ class Guide:
         last = self._planned
         if last is None or snap.moved(last, self.cfg.replan_move):
             return True
-        if self.state.points is None:  # blocked: again once the body has moved on
-            return float(np.linalg.norm(snap.start - last.start)) > self.cfg.replan_distance
+        if self.state.points is None:  # blocked: again once the body has moved two cells on
+            moved = float(np.linalg.norm(snap.start - last.start))
+            return moved > 2 * self.cfg.resolution
         off, _ = project(torch.as_tensor(snap.start, dtype=torch.float64), self.state.path)
         return float(off) > self.cfg.replan_distance
 
@@ -301,7 +336,7 @@ class Guide:
         st = self.state
         st.points = result.points
         st.exists = result.points is not None
-        st.path = PathTensors.of(result.points, snap.goal)
+        st.path = PathTensors.of(result, snap.goal)
         st.version += 1
         if result.points is None:
             log.info(

@@ -19,7 +19,7 @@ class GuideConfig:
     planned by ``method`` on a grid of ``resolution`` m around the obstacles, each grown by the
     body's footprint ``radius`` (None: from its geoms) plus ``inflate``. For an object, ``room``
     asks for room for the robot beside it at each step (``push``: behind, ``pull``: ahead or at
-    its side, ``any``: either), ``gap`` m from its surface. The sub-goal ``site:guide`` sits
+    its side, ``any``: either), touching it and ``gap`` m clear of the obstacles. The sub-goal ``site:guide`` sits
     ``lookahead`` m along the path beyond the body; the path is planned again when an obstacle
     moves more than ``replan_move`` m or the body is more than ``replan_distance`` m off it."""
 
@@ -30,7 +30,7 @@ class GuideConfig:
     inflate: float = 0.05
     radius: float | None = None
     room: str = "none"
-    gap: float = 0.05
+    gap: float = 0.02
     lookahead: float = 0.6
     replan_distance: float = 0.5
     replan_move: float = 0.05
@@ -51,7 +51,7 @@ def parse_guide(s: Section, objects: dict[str, bool]) -> GuideConfig:
         inflate=s.opt("inflate", 0.05, non_negative, "metres >= 0"),
         radius=s.opt("radius", None, positive, "metres > 0"),
         room=s.opt("room", "none", one_of(ROOM_MODES)),
-        gap=s.opt("gap", 0.05, non_negative, "metres >= 0"),
+        gap=s.opt("gap", 0.02, non_negative, "metres >= 0"),
         lookahead=s.opt("lookahead", 0.6, non_negative, "metres >= 0"),
         replan_distance=s.opt("replan_distance", 0.5, positive, "metres > 0"),
         replan_move=s.opt("replan_move", 0.05, positive, "metres > 0"),
