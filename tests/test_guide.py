@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import math
 
+import mujoco
 import numpy as np
 import pytest
 import torch
@@ -16,7 +17,9 @@ from planner_client.global_path import Room, Shape, astar, plan, signed_distance
 from planner_client.guide import PathTensors, project
 from planner_client.sensors import SensorColumns, SensorRequest
 from shared.config import ConfigError, Section
+from shared.frames import FrameResolver
 from shared.scenario import load_scenario, parse_scenario
+from tests.test_cost_terms import MJCF  # the cost-term tests' small model
 
 F64 = torch.float64
 
@@ -100,12 +103,6 @@ def test_progress_and_distance_along_a_path():
 
 
 def test_clearance_is_zero_beyond_the_margin_one_at_touching_and_steeper_inside():
-    from tests.test_cost_terms import MJCF  # the cost-term tests' small model
-
-    import mujoco
-
-    from shared.frames import FrameResolver
-
     model = mujoco.MjModel.from_xml_string(MJCF)
     ctx = TermContext("t.yaml", FrameResolver(model, "base"), ["wall"], ["ux", "uy"])
     s = Section({"a": "base", "margin": 0.2}, "t.yaml", "objectives.o.terms[0]")
