@@ -20,8 +20,9 @@ class GuideConfig:
     body's footprint ``radius`` (None: from its geoms) plus ``inflate``. For an object, ``room``
     asks for room for the robot beside it at each step (``push``: behind, ``pull``: ahead or at
     its side, ``any``: either), touching it and ``gap`` m clear of the obstacles. The sub-goal
-    ``site:guide`` sits ``lookahead`` m along the path beyond the body; the path is planned again when an obstacle
-    moves more than ``replan_move`` m or the body is more than ``replan_distance`` m off it."""
+    ``site:guide`` sits ``lookahead`` m along the path beyond the body; the path is planned
+    again when an obstacle moves more than ``replan_move`` m or the body is more than
+    ``replan_distance`` m off it."""
 
     for_: str
     goal: str
