@@ -290,6 +290,7 @@ class Controller:
             lead=tick.start - tick.state.time,
             steps=tick.steps,
             top_modes=it.top_modes,
+            guide=self.guide.corners() if self.guide is not None else None,
         )
 
     def _plan_start(

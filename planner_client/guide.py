@@ -133,6 +133,19 @@ def handle_target(p: torch.Tensor, path: PathTensors) -> torch.Tensor:
     return p + path.handles[i]
 
 
+def project_point(p: np.ndarray, points: np.ndarray) -> tuple[float, float]:
+    """Distance of one point ``p [2]`` from the polyline ``points [N, 2]`` and the arc length
+    at its nearest point on it (numpy: one point costs torch more than the maths)."""
+    a, ab = points[:-1], np.diff(points, axis=0)
+    ab2 = np.maximum((ab * ab).sum(1), 1e-18)
+    t = np.clip(((p - a) * ab).sum(1) / ab2, 0.0, 1.0)
+    off = p - (a + t[:, None] * ab)
+    dist = np.hypot(off[:, 0], off[:, 1])
+    i = int(np.argmin(dist))
+    seg = np.sqrt(ab2)
+    return float(dist[i]), float(seg[:i].sum() + t[i] * seg[i])
+
+
 def point_at(points: np.ndarray, s: float) -> np.ndarray:
     """The point ``s`` metres along the polyline ``points [N, 2]`` (clamped to its ends)."""
     seg = np.linalg.norm(np.diff(points, axis=0), axis=1)
@@ -161,21 +174,20 @@ class GuideState:
 
 @dataclass(frozen=True)
 class Snapshot:
-    """The scene as a guide plans on it: obstacle footprints, the body and the goal (x, y)."""
+    """The scene as a guide plans on it: the obstacle geoms' poses ``[G, 3]`` (x, y, yaw), the
+    guided body and the goal (x, y)."""
 
-    shapes: tuple[Shape, ...]
+    poses: np.ndarray
     start: np.ndarray
     goal: np.ndarray
 
-    def moved(self, other: Snapshot, tol: float) -> bool:
-        """Whether an obstacle or the goal moved by more than ``tol`` m between the two."""
-        if len(self.shapes) != len(other.shapes):
+    def moved(self, other: Snapshot, reach: np.ndarray, tol: float) -> bool:
+        """Whether an obstacle (a point ``reach [G]`` m from its centre, turning with it) or the
+        goal moved by more than ``tol`` m between the two."""
+        shift = np.hypot(*(self.poses[:, :2] - other.poses[:, :2]).T)
+        turn = np.abs(np.remainder(self.poses[:, 2] - other.poses[:, 2] + np.pi, 2 * np.pi) - np.pi)
+        if np.any(shift + turn * reach > tol):
             return True
-        for a, b in zip(self.shapes, other.shapes):
-            r = max(a.half[0], a.half[1], 0.0)
-            yaw = abs(math.remainder(a.yaw - b.yaw, 2 * math.pi)) * r
-            if math.dist(a.centre, b.centre) > tol or yaw > tol:
-                return True
         return float(np.linalg.norm(self.goal - other.goal)) > tol
 
 
@@ -200,31 +212,62 @@ def footprint(model: mujoco.MjModel, body: int, inscribed: bool) -> float:
     return r
 
 
-def shapes_of(model: mujoco.MjModel, data: mujoco.MjData, bodies: list[int]) -> list[Shape]:
-    """The footprints of the collision geoms of ``bodies`` at ``data``'s kinematics: a wall
+@dataclass(frozen=True)
+class ObstacleGeoms:
+    """The collision geoms of the obstacle bodies as the guide sees them from above: a wall
     plane as a half-plane, a box as a turned rectangle, any other geom as a disk of its radius
-    (a mesh: of its bounding sphere). Planes facing up (floors) are left out."""
-    out = []
-    for body in bodies:
-        start, n = model.body_geomadr[body], model.body_geomnum[body]
-        for g in range(start, start + n):
-            if not (model.geom_contype[g] or model.geom_conaffinity[g]):
-                continue
-            pos, mat, size = data.geom_xpos[g], data.geom_xmat[g].reshape(3, 3), model.geom_size[g]
-            t = int(model.geom_type[g])
-            if t == mujoco.mjtGeom.mjGEOM_PLANE:
-                normal = mat[:, 2]
-                if abs(normal[2]) > 0.7:
+    (a mesh: of its bounding sphere); planes facing up (floors) are left out. Their kinds and
+    sizes are the model's; their poses are read from each state (:meth:`poses`)."""
+
+    ids: np.ndarray  # [G] geom ids
+    kinds: tuple[str, ...]
+    halves: tuple[tuple[float, float], ...]
+
+    @classmethod
+    def of(cls, model: mujoco.MjModel, data: mujoco.MjData, bodies: list[int]) -> ObstacleGeoms:
+        """``data``: a state with the kinematics done (a plane's facing is read from it)."""
+        ids, kinds, halves = [], [], []
+        for body in bodies:
+            start, n = model.body_geomadr[body], model.body_geomnum[body]
+            for g in range(start, start + n):
+                if not (model.geom_contype[g] or model.geom_conaffinity[g]):
                     continue
-                yaw = math.atan2(normal[1], normal[0])
-                out.append(Shape("halfplane", (float(pos[0]), float(pos[1])), yaw=yaw))
-            elif t == mujoco.mjtGeom.mjGEOM_BOX:
-                yaw = math.atan2(mat[1, 0], mat[0, 0])
-                out.append(Shape("box", (float(pos[0]), float(pos[1])), (size[0], size[1]), yaw))
-            else:
-                r = float(model.geom_rbound[g]) if t == mujoco.mjtGeom.mjGEOM_MESH else size[0]
-                out.append(Shape("disk", (float(pos[0]), float(pos[1])), (float(r), 0.0)))
-    return out
+                t, size = int(model.geom_type[g]), model.geom_size[g]
+                if t == mujoco.mjtGeom.mjGEOM_PLANE:
+                    if abs(data.geom_xmat[g][8]) > 0.7:  # the plane's normal points up
+                        continue
+                    kind, half = "halfplane", (0.0, 0.0)
+                elif t == mujoco.mjtGeom.mjGEOM_BOX:
+                    kind, half = "box", (float(size[0]), float(size[1]))
+                elif t == mujoco.mjtGeom.mjGEOM_MESH:
+                    kind, half = "disk", (float(model.geom_rbound[g]), 0.0)
+                else:
+                    kind, half = "disk", (float(size[0]), 0.0)
+                ids.append(g)
+                kinds.append(kind)
+                halves.append(half)
+        return cls(np.array(ids, dtype=int), tuple(kinds), tuple(halves))
+
+    @property
+    def reach(self) -> np.ndarray:
+        """``[G]`` how far each shape reaches from its centre (0 for a half-plane)."""
+        return np.array([math.hypot(*h) for h in self.halves])
+
+    def poses(self, data: mujoco.MjData) -> np.ndarray:
+        """``[G, 3]`` each geom's x, y and heading: a box's yaw, a plane's normal's."""
+        xmat = data.geom_xmat[self.ids]
+        yaw = np.where(
+            [k == "halfplane" for k in self.kinds],
+            np.arctan2(xmat[:, 5], xmat[:, 2]),  # the normal: the geom's z axis
+            np.arctan2(xmat[:, 3], xmat[:, 0]),  # the x axis
+        )
+        return np.concatenate([data.geom_xpos[self.ids, :2], yaw[:, None]], axis=1)
+
+    def shapes(self, poses: np.ndarray) -> list[Shape]:
+        return [
+            Shape(k, (float(p[0]), float(p[1])), h, float(p[2]))
+            for k, h, p in zip(self.kinds, self.halves, poses)
+        ]
 
 
 class Guide:
@@ -237,7 +280,9 @@ class Guide:
         self.body = resolve(cfg.for_)
         self.goal = resolve(cfg.goal)
         self.site_body = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, SITE_BODY)
-        self.data = mujoco.MjData(model)  # the guide's own kinematics of the mirrored state
+        self.data = mujoco.MjData(
+            model
+        )  # the reference pose: which planes face up, the goal height
         names = cfg.obstacles
         if names is None:
             names = list(WALL_NAMES) if scenario.world.arena else []
@@ -246,7 +291,11 @@ class Guide:
                 for o in scenario.world.objects
                 if not o.visual and o.name != cfg.for_ and (o.obstacle or cfg.for_ != "robot")
             ]
-        self.obstacles = [resolve(n).id for n in names if n != cfg.for_]
+        bodies = [resolve(n).id for n in names if n != cfg.for_]
+        mujoco.mj_kinematics(model, self.data)
+        self.geoms = ObstacleGeoms.of(model, self.data, bodies)
+        self._reach = self.geoms.reach
+        self._goal_z = float(self.goal.pos(self.data)[2])
         robot_body = resolve("robot")
         robot_r = footprint(model, robot_body.id, inscribed=False)
         guided = cfg.for_ != "robot"
@@ -266,16 +315,9 @@ class Guide:
         self._thread.start()
 
     def snapshot(self, data: mujoco.MjData) -> Snapshot:
-        """The mirrored scene of ``data`` (qpos and mocap poses) as the guide plans on it."""
-        d = self.data
-        d.qpos[:] = data.qpos
-        d.mocap_pos[:] = data.mocap_pos
-        d.mocap_quat[:] = data.mocap_quat
-        mujoco.mj_kinematics(self.model, d)
+        """The scene in ``data`` (the mirror's, its kinematics done) as the guide plans on it."""
         return Snapshot(
-            tuple(shapes_of(self.model, d, self.obstacles)),
-            self.body.pos(d)[:2].copy(),
-            self.goal.pos(d)[:2].copy(),
+            self.geoms.poses(data), self.body.pos(data)[:2].copy(), self.goal.pos(data)[:2].copy()
         )
 
     def update(self, data: mujoco.MjData, wait: bool) -> None:
@@ -300,6 +342,15 @@ class Guide:
             "guide_length": st.path.length if st.exists else math.inf,
         }
 
+    def corners(self) -> np.ndarray | None:
+        """``[N, 3]`` the current path's corners at the goal's height, for viewers; None when
+        there is no path."""
+        points = self.state.points
+        if points is None:
+            return None
+        z = np.full((len(points), 1), self._goal_z)
+        return np.concatenate([points, z], axis=1)
+
     def close(self) -> None:
         with self._cv:
             self._closed = True
@@ -310,13 +361,13 @@ class Guide:
         if self._pending is not None:  # one at a time; the next update compares again
             return False
         last = self._planned
-        if last is None or snap.moved(last, self.cfg.replan_move):
+        if last is None or snap.moved(last, self._reach, self.cfg.replan_move):
             return True
         if self.state.points is None:  # blocked: again once the body has moved two cells on
             moved = float(np.linalg.norm(snap.start - last.start))
             return moved > 2 * self.cfg.resolution
-        off, _ = project(torch.as_tensor(snap.start, dtype=torch.float64), self.state.path)
-        return float(off) > self.cfg.replan_distance
+        off, _ = project_point(snap.start, self.state.points)
+        return off > self.cfg.replan_distance
 
     def _submit(self, snap: Snapshot) -> None:
         with self._cv:
@@ -359,7 +410,7 @@ class Guide:
                     return
                 snap = self._pending
             result = self.plan_fn(
-                list(snap.shapes),
+                self.geoms.shapes(snap.poses),
                 snap.start,
                 snap.goal,
                 self.cfg.resolution,
@@ -377,7 +428,6 @@ class Guide:
         if st.points is None:
             xy = snap.goal
         else:
-            _, left = project(torch.as_tensor(snap.start, dtype=torch.float64), st.path)
-            s = st.path.length - float(left) + self.cfg.lookahead
-            xy = point_at(st.points, s)
-        self.model.body_pos[self.site_body] = (xy[0], xy[1], self.goal.pos(self.data)[2])
+            _, s = project_point(snap.start, st.points)
+            xy = point_at(st.points, s + self.cfg.lookahead)
+        self.model.body_pos[self.site_body] = (xy[0], xy[1], self._goal_z)

@@ -174,7 +174,8 @@ class Diagnostics:
     """Planner -> viewers (PUB): what the planner is thinking, for viewers and recorders.
 
     ``top`` are the positions ([M, T, 3]) of the best sampled trajectories' robot frame;
-    ``top_modes`` ([M], optional) the index in ``mode_names`` of each one's mode.
+    ``top_modes`` ([M], optional) the index in ``mode_names`` of each one's mode; ``guide``
+    ([N, 3], optional) the corners of the scenario guide's path (docs/scenarios.md).
     """
 
     seq: int
@@ -187,6 +188,7 @@ class Diagnostics:
     lead: float = 0.0  # world s the plan was predicted ahead of the state (its expected lag)
     steps: int = 0  # world steps since the state the previous plan answered
     top_modes: np.ndarray | None = None
+    guide: np.ndarray | None = None
     type = "diagnostics"
 
 
@@ -271,6 +273,7 @@ _SCHEMA: dict[str, dict[str, tuple[str, bool]]] = {
         "lead": ("float", False),
         "steps": ("int", False),
         "top_modes": ("array", False),
+        "guide": ("array", False),
     },
     "error": {"reason": ("str", True), "versions": ("intlist", False)},
     "control": {
@@ -287,7 +290,7 @@ _NOT_IN_V1 = {
     "welcome": {"seed"},
     "state": {"lag"},
     "command": {"plan_ctrl", "plan_t0", "plan_dt"},
-    "diagnostics": {"lead", "steps", "top_modes"},
+    "diagnostics": {"lead", "steps", "top_modes", "guide"},
     "control": {"object", "pos", "quat", "seed"},
 }
 _SCHEMAS = {
@@ -494,6 +497,15 @@ def _check_values(msg: Any) -> None:
         raise ProtocolError(
             f"diagnostics.top_modes: expected shape [{msg.top.shape[0]}] (one "
             f"per trajectory of top), got {list(msg.top_modes.shape)}"
+        )
+    if (
+        isinstance(msg, Diagnostics)
+        and msg.guide is not None
+        and (msg.guide.ndim != 2 or msg.guide.shape[1] != 3)
+    ):
+        raise ProtocolError(
+            f"diagnostics.guide: expected shape [N, 3] (the path's corners), "
+            f"got {list(msg.guide.shape)}"
         )
     if isinstance(msg, State) and msg.lag < 0:
         raise ProtocolError("state.lag must be >= 0")
