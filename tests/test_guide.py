@@ -16,6 +16,7 @@ from planner_client.costs import TERMS, RolloutBatch, TermContext
 from planner_client.global_path import Room, Shape, astar, plan, signed_distance
 from planner_client.guide import PathTensors, project
 from planner_client.sensors import SensorColumns, SensorRequest
+from shared import protocol as P
 from shared.config import ConfigError, Section
 from shared.frames import FrameResolver
 from shared.scenario import load_scenario, parse_scenario
@@ -190,6 +191,9 @@ def test_the_path_is_recomputed_after_an_obstacle_is_moved_while_planning_goes_o
     assert all(c is not None and c.plan_ctrl is not None for c in commands)
     assert guide.state.version > before
     assert np.abs(guide.state.points[:, 0]).max() < 1.0  # straight up between the arms
+    # viewers get the path's corners with the diagnostics
+    diag = P.decode(P.encode(controller.diagnostics()), "diagnostics")
+    np.testing.assert_allclose(diag.guide[:, :2], guide.state.points)
     controller.close()
     episode.close()
 
