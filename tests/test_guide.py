@@ -236,3 +236,25 @@ def test_progress_term_reads_the_guides_path():
     torch.testing.assert_close(prog(batch), torch.tensor([[2.5, 1.0]], dtype=F64))
     dist = TERMS["guide_distance"].from_params(Section({}, "t.yaml", "o"), ctx)
     torch.testing.assert_close(dist(batch), torch.tensor([[0.0, 0.5]], dtype=F64))
+
+
+def test_a_walled_in_goal_says_blocked_to_the_observers_and_leaves_the_goal_as_sub_goal():
+    from planner_client.build import build_controller
+    from server.inprocess import build_episode
+
+    raw = load_scenario("navigation_trap_guided").raw
+    lid = {"name": "lid", "shape": "box", "size": [1.3, 0.1, 0.2], "pos": [0.0, -0.8, 0.2]}
+    raw["world"] = {**raw["world"], "objects": [*raw["world"]["objects"], lid], "randomize": []}
+    raw["world"]["objects"][3] = {**raw["world"]["objects"][3], "pos": [0.0, 0.1, 0.005]}
+    raw.pop("base", None)
+    sc = parse_scenario(raw, "walled.yaml")
+    controller = build_controller(sc, threads=1, seed=0)
+    episode = build_episode(sc, seed=0)
+    controller.begin("lockstep", episode.dt)
+    assert controller.step(episode.publish()) is not None
+    assert controller.guide.extras() == {"guide": 0.0, "guide_length": math.inf}
+    goal = controller.planner.problem.resolve("goal").pos(controller.mirror.data)
+    subgoal = controller.planner.problem.model.body_pos[controller.guide.site_body]
+    np.testing.assert_allclose(subgoal[:2], goal[:2])
+    controller.close()
+    episode.close()
