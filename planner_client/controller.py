@@ -31,6 +31,7 @@ import numpy as np
 
 from planner_client.attach import Attachments
 from planner_client.delay_estimate import ActuationDelayEstimate
+from planner_client.guide import Guide
 from planner_client.mirror import Mirror, MocapState
 from planner_client.motion import Iteration, MotionPlanner
 from planner_client.task import TaskDecision, TaskLayer
@@ -190,6 +191,14 @@ class Controller:
         self.attachments = Attachments(
             planner.problem.model, pc.model.attach, held_filter=pc.estimate.held_filter
         )
+        if getattr(self, "guide", None) is not None:  # the last episode's
+            self.guide.close()
+        problem = planner.problem
+        self.guide = (
+            Guide(problem.guide, problem.model, problem.resolve)
+            if problem.guide is not None
+            else None
+        )
 
     def check_layout(self, state: P.State) -> None:
         """Raise :class:`LayoutMismatch` when ``state``'s arrays have other sizes than the
@@ -233,7 +242,11 @@ class Controller:
                 self.robot.safe_stop(self._last_ctrl),
                 self._acting_steps() * self.dt,
             )
-        decision = self.task.decide(self.mirror.data, state.extras, state.time)  # 3. task
+        extras = state.extras
+        if self.guide is not None:  # the global path, recomputed beside the planner
+            self.guide.update(self.mirror.data, wait=self.mode != "realtime")
+            extras = {**extras, **self.guide.extras()}
+        decision = self.task.decide(self.mirror.data, extras, state.time)  # 3. task
         if self.attachments.welds:
             self.attachments.update(self.mirror.data, self.task.last_observation, state.time)
         self.planner.set_modes(decision.modes)  # 4. modes
@@ -293,6 +306,7 @@ class Controller:
             steps=tick.steps,
             top_modes=it.top_modes,
             model=self.model_estimate(),
+            guide=self.guide.corners() if self.guide is not None else None,
         )
 
     def _plan_start(
@@ -396,5 +410,7 @@ class Controller:
         self.stats.safe_fallbacks += 1
 
     def close(self) -> None:
-        """Release the motion planner's rollout workers."""
+        """Release the motion planner's rollout workers and the guide's thread."""
         self.planner.close()
+        if self.guide is not None:
+            self.guide.close()

@@ -13,6 +13,7 @@ import os
 
 import mujoco
 
+from planner_client.guide import GuideState, add_site
 from planner_client.problem import (
     actuator_names,
     apply_planning_model,
@@ -25,7 +26,7 @@ from shared.frames import FrameResolver
 from shared.predicates import check_frames
 from shared.scenario import Scenario
 from shared.scenario_check import scenario_errors as _scenario_errors
-from shared.scene import build_spec
+from shared.scene import build_spec, compile_model
 
 
 def name_checks(
@@ -33,7 +34,15 @@ def name_checks(
 ) -> None:
     """The names the planner looks up: its objectives' cost terms, frames and actuators, its
     observers' frames."""
-    errors.call(build_objectives, scenario, resolve, actuator_names(model))
+    guide = None
+    if scenario.guide is not None:  # site:guide is added to the planner's model, not the world's
+        spec = build_spec(scenario)
+        add_site(spec)
+        resolve = FrameResolver(compile_model(scenario, spec), resolve.robot_frame)
+        guide = GuideState(scenario.guide, scenario)
+        errors.call(resolve.checked, scenario.guide.for_, scenario.source, "guide.for")
+        errors.call(resolve.checked, scenario.guide.goal, scenario.source, "guide.goal")
+    errors.call(build_objectives, scenario, resolve, actuator_names(model), guide)
     for factor, cfg in scenario.observers.items():
         for _, pred in cfg.rules:
             errors.call(check_frames, pred, resolve, scenario.source, f"observers.{factor}")

@@ -16,6 +16,7 @@ import mujoco
 
 from planner_client.attach import add_attach_welds
 from planner_client.costs import JointInfo, Objective, TermContext, build_objective
+from planner_client.guide import GuideState, add_site
 from planner_client.mppi import MPPIConfig
 from planner_client.plugins import import_plugins
 from planner_client.sensors import SensorColumns, SensorRequest, add_sensors
@@ -36,6 +37,7 @@ class PlanningProblem:
     robot_pos: SensorRequest  # the robot frame's position, for diagnostics
     actuators: list[str]
     resolve: FrameResolver
+    guide: GuideState | None = None  # the scenario's guide: its path and sub-goal site
 
 
 def robot_joints(scenario: Scenario, model: mujoco.MjModel) -> dict[str, JointInfo]:
@@ -63,10 +65,17 @@ def build_problem(scenario: Scenario, extra_sensors: list[SensorRequest] = ()) -
     # physics is unchanged, and the world plays the plan at its own rate
     spec.option.timestep = scenario.planner.step(scenario.world)
     apply_planning_model(spec, scenario.planner.model, scenario.source)
+    guide = None
+    if scenario.guide is not None:
+        add_site(spec)
+        guide = GuideState(scenario.guide, scenario)
     base = compile_model(scenario, spec.copy())
     resolve = FrameResolver(base, robot.frame)
+    if guide is not None:
+        resolve.checked(guide.cfg.for_, scenario.source, "guide.for")
+        resolve.checked(guide.cfg.goal, scenario.source, "guide.goal")
     actuators = actuator_names(base)
-    objectives = build_objectives(scenario, resolve, actuators)
+    objectives = build_objectives(scenario, resolve, actuators, guide)
     robot_pos = SensorRequest("framepos", "robot")
     requests = [robot_pos, *extra_sensors] + [r for o in objectives.values() for r in o.sensors()]
     add_sensors(spec, requests, resolve)
@@ -81,6 +90,7 @@ def build_problem(scenario: Scenario, extra_sensors: list[SensorRequest] = ()) -
         robot_pos,
         actuators,
         FrameResolver(model, robot.frame),
+        guide,
     )
 
 
@@ -197,7 +207,10 @@ def actuator_names(model: mujoco.MjModel) -> list[str]:
 
 
 def build_objectives(
-    scenario: Scenario, resolve: FrameResolver, actuators: list[str]
+    scenario: Scenario,
+    resolve: FrameResolver,
+    actuators: list[str],
+    guide: GuideState | None = None,
 ) -> dict[str, Objective]:
     """Every objective of the scenario, checked against the term registry (the scenario's
     ``plugins:`` imported first) and the model; the errors of all objectives are raised
@@ -209,6 +222,7 @@ def build_objectives(
         obstacle_names(scenario),
         actuators,
         robot_joints(scenario, resolve.model),
+        guide=guide,
     )
     errors = ErrorLog()
     objectives = {

@@ -176,7 +176,8 @@ class Diagnostics:
     """Planner -> viewers (PUB): what the planner is thinking, for viewers and recorders.
 
     ``top`` are the positions ([M, T, 3]) of the best sampled trajectories' robot frame;
-    ``top_modes`` ([M], optional) the index in ``mode_names`` of each one's mode.
+    ``top_modes`` ([M], optional) the index in ``mode_names`` of each one's mode; ``guide``
+    ([N, 3], optional) the corners of the scenario guide's path (docs/scenarios.md).
     """
 
     seq: int
@@ -190,6 +191,7 @@ class Diagnostics:
     steps: int = 0  # world steps since the state the previous plan answered
     top_modes: np.ndarray | None = None
     model: dict[str, float] | None = None  # as Command.model
+    guide: np.ndarray | None = None
     type = "diagnostics"
 
 
@@ -276,6 +278,7 @@ _SCHEMA: dict[str, dict[str, tuple[str, bool]]] = {
         "steps": ("int", False),
         "top_modes": ("array", False),
         "model": ("floatmap", False),
+        "guide": ("array", False),
     },
     "error": {"reason": ("str", True), "versions": ("intlist", False)},
     "control": {
@@ -292,7 +295,7 @@ _NOT_IN_V1 = {
     "welcome": {"seed"},
     "state": {"lag"},
     "command": {"plan_ctrl", "plan_t0", "plan_dt", "model"},
-    "diagnostics": {"lead", "steps", "top_modes", "model"},
+    "diagnostics": {"lead", "steps", "top_modes", "model", "guide"},
     "control": {"object", "pos", "quat", "seed"},
 }
 _SCHEMAS = {
@@ -499,6 +502,15 @@ def _check_values(msg: Any) -> None:
         raise ProtocolError(
             f"diagnostics.top_modes: expected shape [{msg.top.shape[0]}] (one "
             f"per trajectory of top), got {list(msg.top_modes.shape)}"
+        )
+    if (
+        isinstance(msg, Diagnostics)
+        and msg.guide is not None
+        and (msg.guide.ndim != 2 or msg.guide.shape[1] != 3)
+    ):
+        raise ProtocolError(
+            f"diagnostics.guide: expected shape [N, 3] (the path's corners), "
+            f"got {list(msg.guide.shape)}"
         )
     if isinstance(msg, State) and msg.lag < 0:
         raise ProtocolError("state.lag must be >= 0")

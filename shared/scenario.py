@@ -34,6 +34,7 @@ from shared.config import (
 from shared.config_files import find, shipped
 from shared.faults import NOMINAL, OLD_NAME, FaultConfig, parse_faults, read_old_name
 from shared.geometry import AXES
+from shared.guide import GuideConfig, parse_guide
 from shared.predicates import Predicate, parse_predicate
 from shared.robots import ROBOT_KEYS, ROBOTS, RobotSpec, get_robot, load_robot, parse_robot
 from shared.task_template import FactorTemplate, TaskTemplate, parse_task
@@ -467,6 +468,7 @@ class Scenario:
     # (planner_client.plugins): NAME.py beside the scenario, else a module name; never the world
     plugins: tuple[str, ...] = ()
     raw: dict = field(repr=False, default_factory=dict)
+    guide: GuideConfig | None = None  # a global path the planner's terms follow (shared/guide.py)
 
 
 def find_scenario(name_or_path: str | os.PathLike) -> Path:
@@ -760,6 +762,26 @@ def _read(raw: dict, source: str, errors: ErrorLog) -> ScenarioReading:
                         f"one of: {', '.join(known)}",
                     )
                 )
+    guide = None
+    if top.has("guide") and world is not None:
+        guide = errors.call(
+            lambda: parse_guide(
+                top.section("guide"), {o.name: not o.fixed for o in world.objects if not o.visual}
+            )
+        )
+    elif top.has("guide"):  # the world's own errors are reported; the guide's would repeat them
+        top.section("guide", required=False)
+    if guide is not None and planner is not None and planner.backend != "mujoco":
+        errors.add(
+            ConfigError(
+                source,
+                "guide",
+                "moves its sub-goal in the planner's model between iterations, which the "
+                "warp backend copies once",
+                planner.backend,
+                "planner.backend: mujoco, or no guide",
+            )
+        )
     errors.call(top.done)
     if robot is None:
         return ScenarioReading(None, errors.errors, False)
@@ -783,6 +805,7 @@ def _read(raw: dict, source: str, errors: ErrorLog) -> ScenarioReading:
         faults=faults,
         plugins=plugins,
         raw=raw,
+        guide=guide,
     )
     return ScenarioReading(scenario, errors.errors, model_ok)
 

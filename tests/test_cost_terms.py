@@ -18,9 +18,11 @@ from mujoco import rollout as mj_rollout
 from planner_client.costs import TERMS, JointInfo, RolloutBatch, TermContext, build_objective
 from planner_client.costs.helpers import norm, sparse_norm
 from planner_client.costs.norms import fusable
+from planner_client.guide import GuideState
 from planner_client.sensors import SensorColumns, SensorRequest, add_sensors
 from shared.config import ConfigError, Section
 from shared.frames import FrameResolver
+from shared.guide import GuideConfig
 from shared.scenario import ObjectiveConfig, TermConfig
 
 F64 = torch.float64
@@ -80,6 +82,8 @@ def ctx(model) -> TermContext:
         obstacles=["wall", "pillar"],
         actuators=["ux", "uy"],
         joints=joints,
+        # a guide for the box, with no path yet (the guide's terms: tests/test_guide.py)
+        guide=GuideState(GuideConfig(for_="box", goal="goal", room="push"), scenario=None),
     )
 
 
@@ -657,6 +661,10 @@ EXAMPLES = {
     "contact_force": dict(a="robot"),
     "joint_limits": dict(joints=["y"]),
     "posture": dict(joints=["x", "y"]),
+    "clearance": dict(a="robot", margin=0.1),
+    "guide_progress": dict(),
+    "guide_distance": dict(),
+    "guide_handle": dict(a="robot"),
 }
 
 

@@ -6,7 +6,16 @@ public in ``helpers``.
 """
 
 # importing the term modules registers their terms
-from planner_client.costs import contact, control, geometry, gripper, joints, push_pull  # noqa: F401
+from planner_client.costs import (  # noqa: F401
+    clearance,
+    contact,
+    control,
+    geometry,
+    gripper,
+    guide,
+    joints,
+    push_pull,
+)
 from planner_client.costs.base import (
     TERMS,
     CostTerm,

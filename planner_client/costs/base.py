@@ -89,6 +89,7 @@ class TermContext:
     obstacles: list[str]
     actuators: list[str]
     joints: dict[str, JointInfo] = field(default_factory=dict)  # the robot's, in qpos order
+    guide: object | None = None  # the scenario's GuideState (planner_client.guide), if any
 
     def frame(self, s: Section, key: str, default: str | None = None) -> str:
         """A frame name parameter, checked to exist in the model."""

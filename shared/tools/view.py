@@ -303,6 +303,7 @@ class SceneDrawing:
         self.moving = [s.geom_id for s in self.shapes if s.movable]
         self._top = None
         self._path = None
+        self._guide = None
         lo, hi = scene_bounds(model, data, self.shapes)
         # every new page (and the client's "reset view") starts framing the scene
         position, look_at = camera_for(lo, hi)
@@ -327,6 +328,18 @@ class SceneDrawing:
         if len(segs):
             self._top = self.server.scene.add_line_segments(
                 "/planner/top", segs.astype(np.float32), cols, thickness=self._line
+            )
+
+    def set_guide(self, corners: np.ndarray | None) -> None:
+        """The scenario guide's path (its corners ``[N, 3]``), or none."""
+        segs = path_segments(corners if corners is not None else np.zeros((0, 3)))
+        if self._guide is not None:
+            self._guide.remove()
+            self._guide = None
+        if len(segs):
+            cols = np.tile(np.array([242, 191, 26], np.uint8), (len(segs), 2, 1))
+            self._guide = self.server.scene.add_line_segments(
+                "/planner/guide", segs.astype(np.float32), cols, thickness=2 * self._line
             )
 
     def set_path(self, points: np.ndarray) -> None:
@@ -421,6 +434,8 @@ def diagnostics_record(msg: P.Diagnostics) -> dict:
     }
     if msg.top_modes is not None:
         rec["top_modes"] = np.asarray(msg.top_modes, int).tolist()
+    if msg.guide is not None:
+        rec["guide"] = np.round(np.asarray(msg.guide, float), 4).tolist()
     return rec
 
 
@@ -563,6 +578,7 @@ class LiveView:
                 self._state(state)
                 if diag is not None:
                     self.drawing.set_top(diag.top, diag.top_modes)
+                    self.drawing.set_guide(diag.guide)
                     diag = None
                 state = None
                 last_scene = now
@@ -783,6 +799,7 @@ class ReplayView:
             None if d is None else np.asarray(d["top"]),
             None if d is None or "top_modes" not in d else np.asarray(d["top_modes"]),
         )
+        self.drawing.set_guide(None if d is None or "guide" not in d else np.asarray(d["guide"]))
         info = PanelInfo(
             scenario=self.replay.scenario.name,
             time=float(step["time"]),

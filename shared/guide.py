@@ -1,0 +1,68 @@
+"""The scenario's ``guide:`` key: a global path for the robot or for an object it moves, which
+the planner keeps up to date and its cost terms follow (planner_client/guide.py; docs/scenarios.md,
+"A global guide"). Parsed and checked here, once, at load."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from shared.config import Section, non_negative, one_of, positive, string_list
+
+# the planners a guide may use (planner_client.guide.METHODS implements each)
+GUIDE_METHODS = ("astar",)
+ROOM_MODES = ("none", "push", "pull", "any")
+
+
+@dataclass(frozen=True)
+class GuideConfig:
+    """``guide:``: a path for body ``for_`` (``robot`` or a free object) to frame ``goal``,
+    planned by ``method`` on a grid of ``resolution`` m around the obstacles, each grown by the
+    body's footprint ``radius`` (None: from its geoms) plus ``inflate``. For an object, ``room``
+    asks for room for the robot beside it at each step (``push``: behind, ``pull``: ahead or at
+    its side, ``any``: either), touching it and ``gap`` m clear of the obstacles. The sub-goal
+    ``site:guide`` sits ``lookahead`` m along the path beyond the body; the path is planned
+    again when an obstacle moves more than ``replan_move`` m or the body is more than
+    ``replan_distance`` m off it."""
+
+    for_: str
+    goal: str
+    method: str = "astar"
+    resolution: float = 0.1
+    inflate: float = 0.05
+    radius: float | None = None
+    room: str = "none"
+    gap: float = 0.02
+    lookahead: float = 0.6
+    replan_distance: float = 0.5
+    replan_move: float = 0.05
+    obstacles: tuple[str, ...] | None = None  # None: walls, obstacles and other free objects
+
+
+def parse_guide(s: Section, objects: dict[str, bool]) -> GuideConfig:
+    """``objects``: the world's non-visual objects by name, True for the free ones."""
+    for_ = s.req("for", str, "robot or a free object's name")
+    if for_ != "robot" and not objects.get(for_, False):
+        free = [n for n, f in objects.items() if f]
+        raise s.error("for", "not the robot or a free object", for_, "robot, " + ", ".join(free))
+    cfg = GuideConfig(
+        for_=for_,
+        goal=s.req("goal", str, "a frame name"),
+        method=s.opt("method", "astar", one_of(GUIDE_METHODS)),
+        resolution=s.opt("resolution", 0.1, positive, "metres > 0"),
+        inflate=s.opt("inflate", 0.05, non_negative, "metres >= 0"),
+        radius=s.opt("radius", None, positive, "metres > 0"),
+        room=s.opt("room", "none", one_of(ROOM_MODES)),
+        gap=s.opt("gap", 0.02, non_negative, "metres >= 0"),
+        lookahead=s.opt("lookahead", 0.6, non_negative, "metres >= 0"),
+        replan_distance=s.opt("replan_distance", 0.5, positive, "metres > 0"),
+        replan_move=s.opt("replan_move", 0.05, positive, "metres > 0"),
+        obstacles=s.opt("obstacles", None, string_list, "a list of body names"),
+    )
+    if cfg.room != "none" and for_ == "robot":
+        raise s.error("room", "is for an object the robot moves", cfg.room, "none for the robot")
+    if cfg.resolution > 1.0:
+        raise s.error(
+            "resolution", "too coarse for a path between obstacles", cfg.resolution, "metres <= 1"
+        )
+    s.done()
+    return cfg
