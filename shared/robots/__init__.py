@@ -132,3 +132,19 @@ register(
         hold_ctrl=("gripper",),
     )
 )
+
+register(
+    RobotSpec(
+        name="mobile_panda",
+        mjcf="mobile_panda.xml",
+        frame="site:grasp",
+        description="holonomic base (0.6 x 0.5 m) carrying the Panda: world-frame base velocities "
+        "base_vx, base_vy (m/s) and yaw rate base_wz (rad/s), the Panda's joint velocities j1..j7 "
+        "(rad/s) and gripper opening width (m, 0 closed .. 0.08 open)",
+        ctrl_names=("base_vx", "base_vy", "base_wz", "j1", "j2", "j3", "j4", "j5", "j6", "j7")
+        + ("gripper",),
+        ctrl_units=("m/s", "m/s", "rad/s") + ("rad/s",) * 7 + ("m",),
+        safe_ctrl=(0.0,) * 10 + (0.0,),
+        hold_ctrl=("gripper",),
+    )
+)
