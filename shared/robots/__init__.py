@@ -144,7 +144,7 @@ register(
         ctrl_names=("base_vx", "base_vy", "base_wz", "j1", "j2", "j3", "j4", "j5", "j6", "j7")
         + ("gripper",),
         ctrl_units=("m/s", "m/s", "rad/s") + ("rad/s",) * 7 + ("m",),
-        safe_ctrl=(0.0,) * 10 + (0.0,),
+        safe_ctrl=(0.0,) * 11,
         hold_ctrl=("gripper",),
     )
 )
