@@ -1,0 +1,94 @@
+"""The mobile manipulator (shared/robots/mobile_panda.xml, docs/mobile.md): the Panda it carries
+is panda.xml's, its base drives as its file says, and its scenario passes the checks and lays out
+base and arm for a bridge (both processes' checks of every shipped scenario, this one included:
+tests/test_check.py). The episodes themselves are measured by ``m3p2i bench mobile``
+(docs/mobile.md): one takes minutes of a core, too long for the suite."""
+
+from __future__ import annotations
+
+import mujoco
+import numpy as np
+import pytest
+from typer.testing import CliRunner
+
+from shared.layout import bridge_layout
+from shared.robots import get_robot
+from shared.scenario import load_scenario
+from shared.scene import compile_model, initial_data
+from shared.tools.cli import app as m3p2i
+
+ARM_BODIES = [f"panda_link{i}" for i in range(1, 8)] + [
+    "panda_hand",
+    "panda_leftfinger",
+    "panda_rightfinger",
+]
+ARM_JOINTS = [f"panda_joint{i}" for i in range(1, 8)] + [
+    "panda_finger_joint1",
+    "panda_finger_joint2",
+]
+ARM_ACTUATORS = [f"j{i}" for i in range(1, 8)] + ["gripper"]
+
+
+def _load(name: str) -> mujoco.MjModel:
+    return mujoco.MjModel.from_xml_path(str(get_robot(name).path))
+
+
+@pytest.fixture(scope="module")
+def models():
+    return _load("panda"), _load("mobile_panda")
+
+
+def test_the_arm_on_the_base_is_panda_xml_unchanged(models):
+    panda, mobile = models
+    for name in ARM_BODIES:
+        a, b = panda.body(name), mobile.body(name)
+        for field in ("pos", "quat", "mass", "inertia", "ipos", "iquat"):
+            np.testing.assert_allclose(getattr(a, field), getattr(b, field), err_msg=name)
+        assert panda.body_gravcomp[a.id] == mobile.body_gravcomp[b.id]
+        ga = [g for g in range(panda.ngeom) if panda.geom_bodyid[g] == a.id]
+        gb = [g for g in range(mobile.ngeom) if mobile.geom_bodyid[g] == b.id]
+        for field in ("geom_type", "geom_size", "geom_pos", "geom_quat", "geom_friction"):
+            np.testing.assert_array_equal(getattr(panda, field)[ga], getattr(mobile, field)[gb])
+    for name in ARM_JOINTS:
+        a, b = panda.joint(name), mobile.joint(name)
+        for field in ("range", "armature", "damping", "axis"):
+            np.testing.assert_array_equal(getattr(a, field), getattr(b, field), err_msg=name)
+    for name in ARM_ACTUATORS:
+        a, b = panda.actuator(name), mobile.actuator(name)
+        for field in ("gainprm", "biasprm", "ctrlrange", "forcerange"):
+            np.testing.assert_array_equal(getattr(a, field), getattr(b, field), err_msg=name)
+    np.testing.assert_array_equal(panda.eq_data, mobile.eq_data)
+    assert panda.opt.timestep == mobile.opt.timestep
+    # the arm stands on the base's top, as the Panda stands on its table
+    assert mobile.body("panda_link0").pos[2] == pytest.approx(0.845)
+
+
+def test_the_base_drives_at_its_commanded_world_velocity_and_the_arm_holds_its_pose():
+    sc = load_scenario("mobile_pick_place")
+    model = compile_model(sc)
+    data = initial_data(sc, model)
+    arm0 = data.qpos[3:10].copy()
+    data.ctrl[:] = get_robot("mobile_panda").safe_ctrl
+    data.ctrl[:3] = (0.5, -0.3, 0.4)  # base_vx, base_vy, base_wz
+    for _ in range(100):  # 1 s
+        mujoco.mj_step(model, data)
+    np.testing.assert_allclose(data.qvel[:3], (0.5, -0.3, 0.4), atol=0.01)
+    np.testing.assert_allclose(data.qpos[:3], (0.5, -0.3, 0.4), atol=0.03)
+    np.testing.assert_allclose(data.qpos[3:10], arm0, atol=0.02)
+    # the chassis floats over the floor: no wheel or floor contacts slow it
+    chassis = model.body("chassis").id
+    assert not any(model.geom_bodyid[c.geom[i]] == chassis for c in data.contact for i in (0, 1))
+
+
+def test_layout_lists_the_base_and_the_arm():
+    sc = load_scenario("mobile_pick_place")
+    layout = bridge_layout(sc, compile_model(sc))
+    joints = [r.joint for r in layout.qpos]
+    assert joints[:10] == ["base_x", "base_y", "base_yaw"] + ARM_JOINTS[:7]
+    ctrl = [(c.actuator, c.unit) for c in layout.ctrl]
+    assert ctrl[:3] == [("base_vx", "m/s"), ("base_vy", "m/s"), ("base_wz", "rad/s")]
+    assert ctrl[3:] == [(f"j{i}", "rad/s") for i in range(1, 8)] + [("gripper", "m")]
+    result = CliRunner().invoke(m3p2i, ["layout", "mobile_pick_place"])
+    assert result.exit_code == 0, result.output
+    for name in ("base_x", "base_yaw", "panda_joint7", "base_vx", "base_wz", "gripper"):
+        assert name in result.output
