@@ -8,10 +8,9 @@ summary are the two-process run's step for step, bit for bit (tests/test_inproce
 it); only the session id, the wall-clock times and the planning times differ.
 
 The world never imports the planner (docs/architecture.md, import rules): the caller hands it
-the planner's factory, :func:`planner_client.build.build_controller`. One call for a whole
-episode::
+the planner's factory, :func:`planner_client.build.build_controller` (``build_controller``
+below, imported from there by the caller). One call for a whole episode::
 
-    from planner_client.build import build_controller
     from server.inprocess import run_episode
 
     result = run_episode("navigation", build_controller, seed=0)
@@ -19,7 +18,6 @@ episode::
 
 The building blocks, for a notebook, a learning pipeline or a robot's own loop::
 
-    from planner_client.build import build_controller
     from server.inprocess import build_episode
 
     controller = build_controller("navigation", seed=0)      # planner_client.controller

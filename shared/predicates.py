@@ -310,7 +310,8 @@ class PluginPredicate(Predicate):
 
     @classmethod
     def from_section(cls, s: Section) -> PluginPredicate:
-        raise NotImplementedError("made by parse_predicate")
+        """From its parameters' section, whose key is the predicate's name."""
+        return cls(s.path.rsplit(".", 1)[-1], s.data, s.source, s.path)
 
     def resolved(self) -> Predicate:
         """The registered predicate of this name built from the parameters, or the error of an
@@ -348,9 +349,9 @@ def parse_predicate(s: Section, plugins: bool = False) -> Predicate:
         )
     (name,) = s.data
     if name not in PREDICATES and plugins:
-        s.section(name, required=False)  # its parameters are checked once resolved
+        params = s.section(name, required=False)  # its parameters are checked once resolved
         s.done()
-        return PluginPredicate(name, s.data[name], s.source, s.key_path(name))
+        return PluginPredicate.from_section(params)
     if name not in PREDICATES:
         raise s.error(name, "unknown predicate", name, f"one of: {', '.join(sorted(PREDICATES))}")
     if name == "all":
