@@ -265,6 +265,12 @@ def test_the_shipped_example_writes_an_overlay_that_m3p2i_run_runs(tmp_path):
     assert len(rows) == 2 + 2  # two trials on seed 0, original and tuned on seed 1
     assert all(r["success"] == "1" for r in rows), rows
     assert "## Held-out evaluation" in (out / "report.md").read_text()
+    with (out / "holdout.csv").open() as f:  # the held-out rows alone, for m3p2i report
+        held = list(csv.DictReader(f))
+    assert [(r["case"], r["seed"]) for r in held] == [
+        ("navigation", "1"),
+        ("navigation_tuned", "1"),
+    ]
     run = subprocess.run(
         [sys.executable, "-m", "shared.tools", "run", str(out / "overlay.yaml")],
         capture_output=True,

@@ -835,6 +835,18 @@ def holdout(
     return Held(original, tuned_score, complete and len(common) == len(opts.holdout))
 
 
+def write_holdout(held: Held, path: Path) -> None:
+    """``holdout.csv``: the held-out rows alone, the original's then the tuned overlay's, in
+    the bench's format, so that ``m3p2i report`` tabulates the comparison (docs/tune.md's
+    table is such a block). Written whole and then moved into place: never half a file."""
+    tmp = path.with_name(path.name + ".tmp")
+    tmp.unlink(missing_ok=True)
+    rows = B.ResultsFile(tmp)
+    for r in (*held.original.rows, *held.tuned.rows):
+        rows.append(r)
+    tmp.replace(path)
+
+
 # -------------------------------------------------------------------------------------- seeds
 
 
@@ -1157,6 +1169,8 @@ def run_tune(
         compared = holdout(target, path, opts, runner, events) if held else None
     text = report(target, space, opts, study, path, compared)
     (out / "report.md").write_text(text)
+    if compared is not None and compared.original.trials:
+        write_holdout(compared, out / "holdout.csv")
     console.print(f"best: trial {best.number}: {values}")
     if compared is not None:
         for name, s in (("original", compared.original), ("tuned", compared.tuned)):
