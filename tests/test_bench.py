@@ -513,3 +513,58 @@ def test_run_refuses_options_its_mode_would_ignore(args, message):
 
     result = CliRunner().invoke(app, ["run", "navigation", *args])
     assert result.exit_code == 2 and message in result.output, result.output
+
+
+def _children(pid: int) -> set[int]:
+    """The live child processes of ``pid`` (Linux /proc)."""
+    out = set()
+    for task in Path(f"/proc/{pid}/task").glob("*"):
+        children = (task / "children").read_text().split() if (task / "children").exists() else []
+        out |= {int(c) for c in children}
+    return out
+
+
+def _alive(pid: int) -> bool:
+    status = Path(f"/proc/{pid}/status")
+    try:  # a zombie has exited: only its parent has yet to read its code
+        return "\nState:\tZ" not in status.read_text()
+    except FileNotFoundError:
+        return False
+
+
+def test_sigterm_stops_the_episode_processes_as_ctrl_c_does(tmp_path):
+    """``kill`` (a scheduler, a CI time-out) on a bench must not leave a world and a planner
+    running: SIGTERM takes Ctrl-C's path, which stops them and keeps the finished rows."""
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    bench = write_bench(
+        tmp_path,
+        [{"case": "e", "scenario": unreachable_scenario(tmp_path, "endless", 600.0), "trials": 1}],
+    )
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "shared.tools", "bench", str(bench), "--out", str(tmp_path / "o")],
+        cwd=tmp_path,
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+    )
+    try:
+        deadline, kids = time.monotonic() + 120, set()
+        while time.monotonic() < deadline and proc.poll() is None:
+            kids = _children(proc.pid)
+            if len(kids) >= 2:  # world and planner started
+                break
+            time.sleep(0.2)
+        assert len(kids) >= 2, "the episode's processes never started"
+        time.sleep(3.0)  # into the episode
+        proc.send_signal(signal.SIGTERM)
+        proc.wait(timeout=60)
+        deadline = time.monotonic() + 30
+        while time.monotonic() < deadline and any(_alive(k) for k in kids):
+            time.sleep(0.2)
+        assert not any(_alive(k) for k in kids), "episode processes outlived SIGTERM"
+    finally:
+        if proc.poll() is None:
+            proc.kill()

@@ -347,6 +347,7 @@ def bench(
     With --set or a sweep: section, every case runs once per combination of the values; the
     summary adds one table and one plot (sweep-KEY.png) per swept key. With --ray or
     --ray-address the same trials run as Ray tasks; results and logs come back to OUT."""
+    _terminate_as_interrupt()
     from rich.console import Console
 
     from shared.tools import bench as B
@@ -746,6 +747,17 @@ def view(
         shown.close()
 
 
+def _terminate_as_interrupt() -> None:
+    """SIGTERM (``kill``, a job scheduler, a CI time-out) as Ctrl-C: Python's default would end
+    the process on the spot, leaving the episodes' server and planner processes running; as a
+    KeyboardInterrupt it takes the Ctrl-C path, which stops them and keeps the finished rows."""
+
+    def interrupt(signum, frame):
+        raise KeyboardInterrupt
+
+    signal.signal(signal.SIGTERM, interrupt)
+
+
 def _faults_or_exit(spec: str) -> str:
     """``--faults`` checked before either process starts; what the server is passed (a
     profile's name, or the file's absolute path: the server may run elsewhere than here)."""
@@ -941,6 +953,7 @@ def tune(
     Writes OUT/overlay.yaml (base: the original plus the tuned keys, for m3p2i run) and
     OUT/report.md (history, importances, the best trial per seed, and the held-out seeds'
     success of the tuned overlay beside the original, with Wilson intervals)."""
+    _terminate_as_interrupt()
     from shared.tools.tune import run_tune
 
     run_tune(
