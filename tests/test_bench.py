@@ -245,6 +245,32 @@ def test_report_counts_the_newest_scenario_version_and_explains_failures(tmp_pat
     assert "CPU X, 2 cores, 2026-11-30" in text
 
 
+def test_failures_without_their_own_note_share_one_line_per_case(tmp_path):
+    rows = [
+        {
+            "case": "trap",
+            "seed": s,
+            "scenario_hash": "h",
+            "success": False,
+            "status": "timeout",
+            "time": 30.0,
+            "position_error": 2.0 + s / 10,
+        }
+        for s in (0, 1, 2, 5)
+    ]
+    rows += [{"case": "nav", "seed": 0, "scenario_hash": "h", "success": False}]
+    notes = {"trap": {2: "Stuck on the left arm.", "default": "Stalls at the U's back."}}
+    text = results_report([read_results(_results(tmp_path / "a", rows, notes))], load_paper())
+    assert (
+        "- `trap` seed 2: timeout at 30.0 s, 2.200 m from the goal. Stuck on the left arm." in text
+    )
+    assert (
+        "- `trap` seeds 0-1, 5 (3 failures): timeout at 30.0 s, 2.000-2.500 m from the goal. "
+        "Stalls at the U's back." in text
+    )
+    assert "- `nav` seed 0: success at 3.0 s, 0.005 m from the goal. not explained yet" in text
+
+
 def test_report_blocks_are_regenerated_and_checked(tmp_path):
     _results(
         tmp_path / "r", [{"case": "pick_place", "seed": 0, "scenario_hash": "h", "success": False}]

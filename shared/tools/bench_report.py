@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import csv
 import math
+from collections import Counter
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -239,7 +240,8 @@ def markdown_report(rows: list[list[str]], skipped: list[tuple[str, str]], heade
 
 # ------------------------------------------------------------- reports from committed results
 
-NOTES_FILE = "failures.yaml"  # beside results.csv: {case: {seed: one sentence}}
+# beside results.csv: {case: {seed: one sentence, default: one sentence for its other failures}}
+NOTES_FILE = "failures.yaml"
 
 
 @dataclass(frozen=True)
@@ -249,7 +251,7 @@ class Results:
 
     path: Path
     rows: list[dict[str, str]]
-    notes: dict[tuple[str, int], str]
+    notes: dict[tuple[str, int | None], str]  # seed None: the case's default note
 
     @property
     def cases(self) -> list[str]:
@@ -284,32 +286,66 @@ def read_results(path: str | Path) -> Results:
         for r in rows
         if r["scenario_hash"] == newest[(r["case"], r.get("overrides") or "")]
     }
-    notes: dict[tuple[str, int], str] = {}
+    notes: dict[tuple[str, int | None], str] = {}
     notes_path = csv_path.parent / NOTES_FILE
     if notes_path.is_file():
         top = Section(load_yaml(notes_path), str(notes_path))
         for case in list(top.data):
             for seed, text in top.section(case).data.items():
-                if not isinstance(seed, int) or not isinstance(text, str):
+                if not (isinstance(seed, int) or seed == "default") or not isinstance(text, str):
                     raise ConfigError(
                         str(notes_path),
                         f"{case}.{seed}",
-                        "a failure note is `SEED: one sentence`",
+                        "a failure note is `SEED: one sentence` or `default: one sentence`",
                         text,
                     )
-                notes[(case, seed)] = text
+                notes[(case, None if seed == "default" else seed)] = text
     return Results(csv_path, list(latest.values()), notes)
 
 
-def _failure_line(r: dict[str, str], notes: dict[tuple[str, int], str]) -> str:
-    what = r["reason"] or r["status"]
-    error = _number(r["position_error"])
-    where = f", {error:.3f} m from the goal" if error is not None else ""
-    note = notes.get((r["case"], int(r["seed"])), "not explained yet")
-    return (
-        f"- `{r['case']}` seed {r['seed']}: {what} at {_number(r['time']) or 0:.1f} s{where}. "
-        f"{note}"
-    )
+def _failure_lines(rows: list[dict[str, str]], notes: dict[tuple[str, int | None], str]):
+    """Per case (in the results' order), one line per failure with its own note, then one
+    line for its other failures, which share the case's ``default`` note (or none), their
+    seeds as ranges."""
+    by_case: dict[str, list[dict[str, str]]] = {}
+    for r in rows:
+        if r["success"] != "1":
+            by_case.setdefault(r["case"], []).append(r)
+    lines = []
+    for case, failed in by_case.items():
+        failed.sort(key=lambda r: int(r["seed"]))
+        noted = [r for r in failed if (case, int(r["seed"])) in notes]
+        lines += [_failure_line([r], notes[(case, int(r["seed"]))]) for r in noted]
+        rest = [r for r in failed if (case, int(r["seed"])) not in notes]
+        if rest:
+            lines.append(_failure_line(rest, notes.get((case, None), "not explained yet")))
+    return lines
+
+
+def _failure_line(group: list[dict[str, str]], note: str) -> str:
+    """``- `case` seed 3: timeout at 20.0 s, 0.3 m from the goal. Note.``; for several
+    seeds their ranges, each reason with its count, and the range of times and distances."""
+    first = group[0]
+    if len(group) == 1:
+        error = _number(first["position_error"])
+        where = f", {error:.3f} m from the goal" if error is not None else ""
+        what = f"{first['reason'] or first['status']} at {_number(first['time']) or 0:.1f} s"
+        return f"- `{first['case']}` seed {first['seed']}: {what}{where}. {note}"
+    reasons = Counter(r["reason"] or r["status"] for r in group)
+    what = ", ".join(f"{k} ({n})" if len(reasons) > 1 else k for k, n in reasons.items())
+    times = [t for r in group if (t := _number(r["time"])) is not None]
+    errors = [e for r in group if (e := _number(r["position_error"])) is not None]
+    if times:
+        what += f" at {_span(times, '.1f')} s"
+    if errors:
+        what += f", {_span(errors, '.3f')} m from the goal"
+    seeds = seed_ranges(int(r["seed"]) for r in group)
+    return f"- `{first['case']}` seeds {seeds} ({len(group)} failures): {what}. {note}"
+
+
+def _span(values: list[float], fmt: str) -> str:
+    lo, hi = format(min(values), fmt), format(max(values), fmt)
+    return lo if lo == hi else f"{lo}-{hi}"
 
 
 def results_report(results: list[Results], paper: dict[str, PaperRow]) -> str:
@@ -323,7 +359,7 @@ def results_report(results: list[Results], paper: dict[str, PaperRow]) -> str:
         return sweep_report(swept) + _trials_ran_on(swept)
     for res in results:
         rows += table_rows(summarize(res.rows, res.cases), paper)
-        failures += [_failure_line(r, res.notes) for r in res.rows if r["success"] != "1"]
+        failures += _failure_lines(res.rows, res.notes)
         machines |= {r.get("machine") or "machine not recorded" for r in res.rows}
         dates |= {r.get("date") or "date not recorded" for r in res.rows}
     parts = [
