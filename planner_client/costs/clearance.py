@@ -3,14 +3,18 @@ that must not touch a block, a box pushed past a pillar). Returns ``[S, T]``."""
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+import dataclasses
+from dataclasses import dataclass, field
 
 import torch
 
 from planner_client.costs.base import register
 from planner_client.costs.contact import Collision
 from planner_client.costs.helpers import last_sum
-from shared.config import positive
+from planner_client.costs.planar import NotPlanar, PlanarObstacles, planar_obstacles
+from shared.config import one_of, positive
+
+METHODS = ("auto", "planar", "sensors")
 
 
 @register("clearance")
@@ -29,10 +33,47 @@ class Clearance(Collision):
     required (metres).
     """
 
+    method: str = "sensors"  # how d_i is computed: planar or sensors (auto resolved at build)
+    planar: PlanarObstacles | None = field(default=None, repr=False, compare=False)
+
     @classmethod
     def from_params(cls, s, ctx):
         s.req("margin", positive, "metres > 0")  # declared, never a default
-        return super().from_params(s, ctx)
+        term = super().from_params(s, ctx)
+        method = s.opt("method", "auto", one_of(METHODS))
+        if method == "sensors" or not term.obstacles:
+            return dataclasses.replace(term, method="sensors")
+        model = ctx.resolve.model
+        try:
+            planar = planar_obstacles(model, term.a, ctx.resolve(term.a).id, term.obstacles)
+        except NotPlanar as exc:
+            if method == "planar":
+                raise s.error(
+                    "method", f"not a planar problem: {exc}", method, "auto or sensors"
+                ) from None
+            return dataclasses.replace(term, method="sensors")
+        return dataclasses.replace(term, method="planar", planar=planar)
+
+    def sensors(self):
+        if self.planar is not None:
+            return self.planar.requests
+        return super().sensors()
+
+    def distances(self, batch) -> torch.Tensor:
+        """d_i ``[S, T, n_obstacles]``, in :attr:`obstacles`' order: the planar footprints'
+        exact signed distances, or the sensors' cut off at the margin (both give the cost)."""
+        if self.planar is None:
+            return batch.columns.take_all(batch.sensordata, self.requests)
+        p, *frames = self.requests
+        pos = xaxis = None
+        moving, turning = len(self.planar.moving), len(self.planar.turning)
+        if moving:
+            pos = batch.columns.take_all(batch.sensordata, frames[:moving])
+            pos = pos.unflatten(-1, (moving, 3))[..., :2]  # [S, T, Mm, 2]
+        if turning:
+            xaxis = batch.columns.take_all(batch.sensordata, frames[moving:])
+            xaxis = xaxis.unflatten(-1, (turning, 3))[..., :2]  # [S, T, Mt, 2]
+        return self.planar.distances(batch.get(p)[..., :2], pos, xaxis)
 
     def __call__(self, batch):
         if not self.obstacles:
@@ -41,6 +82,5 @@ class Clearance(Collision):
                 dtype=batch.sensordata.dtype,
                 device=batch.sensordata.device,
             )
-        d = batch.columns.take_all(batch.sensordata, self.requests)  # [S, T, n_obstacles]
-        x = torch.clamp(self.margin - d, min=0.0) / self.margin
+        x = torch.clamp(self.margin - self.distances(batch), min=0.0) / self.margin
         return last_sum(x * x)
