@@ -10,7 +10,7 @@ import torch
 
 from planner_client.costs.base import register
 from planner_client.costs.contact import Collision
-from planner_client.costs.helpers import last_sum
+from planner_client.costs.helpers import constant, last_sum
 from planner_client.costs.planar import NotPlanar, PlanarObstacles, planar_obstacles
 from shared.config import one_of, positive
 
@@ -61,19 +61,10 @@ class Clearance(Collision):
 
     def distances(self, batch) -> torch.Tensor:
         """d_i ``[S, T, n_obstacles]``, in :attr:`obstacles`' order: the planar footprints'
-        exact signed distances, or the sensors' cut off at the margin (both give the cost)."""
+        signed distances, or the sensors' cut off at the margin (both give the same cost)."""
         if self.planar is None:
             return batch.columns.take_all(batch.sensordata, self.requests)
-        p, *frames = self.requests
-        pos = xaxis = None
-        moving, turning = len(self.planar.moving), len(self.planar.turning)
-        if moving:
-            pos = batch.columns.take_all(batch.sensordata, frames[:moving])
-            pos = pos.unflatten(-1, (moving, 3))[..., :2]  # [S, T, Mm, 2]
-        if turning:
-            xaxis = batch.columns.take_all(batch.sensordata, frames[moving:])
-            xaxis = xaxis.unflatten(-1, (turning, 3))[..., :2]  # [S, T, Mt, 2]
-        return self.planar.distances(batch.get(p)[..., :2], pos, xaxis)
+        return self.planar.distances(batch)
 
     def __call__(self, batch):
         if not self.obstacles:
@@ -82,5 +73,9 @@ class Clearance(Collision):
                 dtype=batch.sensordata.dtype,
                 device=batch.sensordata.device,
             )
+        if self.planar is not None and self.planar.one_each:
+            x = self.planar.shortfall(batch, self.margin)  # [T, S, G], G = n_obstacles
+            scale = constant((self.margin**-2,) * x.shape[-1], x.dtype, x.device)
+            return (x.mul_(x) @ scale).T  # Σ_i (x_i / margin)², as last_sum does
         x = torch.clamp(self.margin - self.distances(batch), min=0.0) / self.margin
         return last_sum(x * x)

@@ -39,7 +39,6 @@ import mujoco
 import numpy as np
 import torch
 
-from planner_client.costs.helpers import norm
 from planner_client.guide import ObstacleGeoms
 from planner_client.sensors import SensorRequest
 
@@ -132,89 +131,130 @@ def footprint_radius(model: mujoco.MjModel, data: mujoco.MjData, body: int) -> f
 
 @dataclass
 class PlanarObstacles:
-    """Obstacle bodies ``names`` as footprints for a round body ``a`` of ``radius`` m, and
-    :meth:`distances` ``[S, T, n]`` from ``a``'s positions: fixed half-planes (``d = p · n − c``),
-    fixed boxes (turned into their own frame by one matrix product), fixed disks, and the geoms
-    of moving (mocap) bodies at their body's origin, placed at every step by the frame sensors
-    :attr:`requests` name. Built by :func:`planar_obstacles`; tensors are float64 on the CPU,
-    copied once to another device or dtype when a batch lives there."""
+    """Obstacle bodies ``names`` as footprints for a round body ``a`` of ``radius`` m.
+
+    Every footprint is a rounded rectangle, of half sides ``h`` about its centre c, turned by
+    its yaw, grown by a rounding radius ρ: a box (h its half sides, ρ = 0), a disk (h = 0,
+    ρ its radius), a wall's half-plane (a square of half side :data:`WALL_DEPTH` behind the
+    plane, ρ = 0). The signed distance of a point p to it is that of
+    :func:`planar_client.global_path.signed_distance` for a box, less ρ:
+
+        q = |R(−yaw) (p − c)| − h,  d = ‖max(q, 0)‖ + min(max(q_x, q_y), 0) − ρ,
+
+    and the distance between ``a`` and the footprint is d less ``a``'s radius, added to ρ. The
+    local coordinates R(−yaw) (p − c) of all G footprints are one affine map of p, ``[2, 2G]``
+    and ``[2G]``: constants for the geoms fixed to the world; a mocap body's geoms (at its
+    origin) take theirs from its position and, a box, its x axis at each rollout step, read by
+    the frame sensors :attr:`requests` names in the first sample: a mocap body moves alike in
+    every sample (the world moves it, not the robot). Built by :func:`planar_obstacles`; tensors
+    are float64 on the CPU, copied once to another device or dtype when a batch lives there."""
 
     a: str
     radius: float
     names: tuple[str, ...]
-    plane_n: torch.Tensor  # [H, 2] inward normals
-    plane_c: torch.Tensor  # [H] offsets: n · a point on the plane
-    box_w: torch.Tensor  # [2, 2 Bf] p @ box_w: each fixed box's local x, y (rows of its axes)
-    box_o: torch.Tensor  # [2 Bf] the centres in the same local coordinates
-    box_half: torch.Tensor  # [Bf + Bm, 2] half sides, the fixed boxes first
-    disk_c: torch.Tensor  # [Df, 2]
-    disk_r: torch.Tensor  # [Df + Dm] radii, the fixed disks first
-    moving: tuple[str, ...]  # mocap bodies, in the order of their position columns
+    fixed_w: torch.Tensor  # [2, 2F] the fixed geoms' R(−yaw) rows as columns
+    fixed_o: torch.Tensor  # [2F] −R(−yaw) c
+    half: torch.Tensor  # [G, 2] h, every geom's (fixed, then moving boxes, then moving disks)
+    grow: torch.Tensor  # [G] ρ + ``a``'s radius
+    moving: tuple[str, ...]  # mocap bodies, in the order of their position sensors
+    turning: tuple[str, ...]  # the moving bodies with a box: their x axes are read too
     box_of: torch.Tensor  # [Bm] index into ``moving`` of each moving box
     box_turn: torch.Tensor  # [Bm] index into ``turning`` of each moving box
     disk_of: torch.Tensor  # [Dm] index into ``moving`` of each moving disk
-    turning: tuple[str, ...]  # moving bodies with a box: their x axis read per step
-    order: torch.Tensor  # [G] body index of each geom column (planes, boxes, disks)
-    one_each: bool  # every body has one geom: ``order`` is a permutation
+    order: torch.Tensor  # [G] body index of each geom
+    one_each: bool  # every body has one geom: ``order`` is a permutation of the bodies
     _on: dict = field(default_factory=dict, repr=False)
 
     @property
     def requests(self) -> list[SensorRequest]:
-        """``a``'s position, then each moving body's, then the x axis of each moving box's body."""
+        """``a``'s position, each moving body's, and the x axis of each moving box's body."""
         return (
             [SensorRequest("framepos", self.a)]
             + [SensorRequest("framepos", n) for n in self.moving]
             + [SensorRequest("framexaxis", n) for n in self.turning]
         )
 
-    def _tensors(self, like: torch.Tensor) -> dict[str, torch.Tensor]:
+    def _tensors(self, like: torch.Tensor) -> dict:
+        """The constants on ``like``'s device and dtype, and what :meth:`_affine` keeps."""
         key = (like.device, like.dtype)
         if key not in self._on:
-            names = ("plane_n", "plane_c", "box_w", "box_o", "box_half", "disk_c", "disk_r")
-            t = {n: getattr(self, n).to(like.device, like.dtype) for n in names}
-            for n in ("box_of", "box_turn", "disk_of", "order"):
-                t[n] = getattr(self, n).to(like.device)
+            t = {n: getattr(self, n).to(like.device, like.dtype) for n in _FLOATS}
+            t.update({n: getattr(self, n).to(like.device) for n in _INDICES})
             self._on[key] = t
         return self._on[key]
 
-    def distances(
-        self, p: torch.Tensor, pos: torch.Tensor | None, xaxis: torch.Tensor | None
-    ) -> torch.Tensor:
-        """Signed distances ``[S, T, n]`` from body ``a`` to each obstacle body, in
-        :attr:`names`' order. ``p [S, T, 2]``: ``a``'s position; ``pos [S, T, Mm, 2]``: the
-        moving bodies' positions, ``xaxis [S, T, Mt, 2]``: the x axes of the moving bodies with
-        a box (None when there are none)."""
-        c = self._tensors(p)
-        parts = []
-        if c["plane_n"].shape[0]:
-            parts.append(p @ c["plane_n"].T - c["plane_c"])  # [S, T, H]
-        local = []  # [S, T, B, 2] every box's centre-to-p in its own frame
-        if c["box_o"].shape[0]:
-            local.append((p @ c["box_w"] - c["box_o"]).unflatten(-1, (-1, 2)))
-        if pos is not None and c["box_of"].shape[0]:
-            d = p[..., None, :] - pos.index_select(-2, c["box_of"])  # [S, T, Bm, 2]
-            axis = xaxis.index_select(-2, c["box_turn"])  # [S, T, Bm, 2]
-            cos, sin = axis[..., 0], axis[..., 1]
-            dx, dy = d[..., 0], d[..., 1]
-            local.append(torch.stack((dx * cos + dy * sin, dy * cos - dx * sin), -1))
-        if local:
-            q = torch.cat(local, -2).abs_() - c["box_half"]  # [S, T, B, 2]
-            out = q.clamp(min=0.0)
-            inside = torch.maximum(q[..., 0], q[..., 1]).clamp_(max=0.0)
-            parts.append(norm(out) + inside)
-        disks = []  # [S, T, D, 2] every disk's centre-to-p
-        if c["disk_c"].shape[0]:
-            disks.append(p[..., None, :] - c["disk_c"])
-        if pos is not None and c["disk_of"].shape[0]:
-            disks.append(p[..., None, :] - pos.index_select(-2, c["disk_of"]))
-        if disks:
-            d = torch.cat(disks, -2)
-            parts.append(norm(d) - c["disk_r"])
-        geoms = torch.cat(parts, -1) - self.radius  # [S, T, G]
+    def _affine(self, batch, c: dict) -> tuple[torch.Tensor, torch.Tensor]:
+        """The map's matrices ``[T, 2, 2G]`` and offsets ``[T, 1, 2G]``, one per rollout step:
+        the fixed geoms' constants, and the moving ones' from their frames in the first sample,
+        made again only when those changed (in most scenes the blocks stand still)."""
+        steps = batch.sensordata.shape[1]
+        if not self.moving:
+            if c.get("steps") != steps:
+                w, o = c["fixed_w"], c["fixed_o"]
+                c["steps"], c["map"] = steps, (w.expand(steps, 2, -1), o.expand(steps, 1, -1))
+            return c["map"]
+        frames = batch.columns.take_all(batch.sensordata[0], self.requests[1:])  # [T, ·]
+        seen = c.get("frames")
+        if seen is not None and seen.shape == frames.shape and torch.equal(seen, frames):
+            return c["map"]
+        m = len(self.moving)
+        pos = frames[:, : 3 * m].unflatten(-1, (m, 3))[..., :2]  # [T, Mm, 2]
+        ws = [c["fixed_w"].expand(steps, 2, -1)]
+        os = [c["fixed_o"].expand(steps, -1)]
+        if self.turning:
+            centre = pos.index_select(-2, c["box_of"])  # [T, Bm, 2]
+            axes = frames[:, 3 * m :].unflatten(-1, (len(self.turning), 3))[..., :2]
+            cos, sin = axes.index_select(-2, c["box_turn"]).unbind(-1)  # [T, Bm] each
+            rot = torch.stack((cos, sin, -sin, cos), -1).unflatten(-1, (2, 2))  # R(−yaw)
+            ws.append(rot.permute(0, 3, 1, 2).flatten(-2))  # [T, 2, 2 Bm]
+            os.append(-(rot @ centre[..., None]).flatten(-3))  # [T, 2 Bm]
+        if c["disk_of"].shape[0]:  # a disk's local frame need not turn: R = 1
+            centre = pos.index_select(-2, c["disk_of"])  # [T, Dm, 2]
+            eye = torch.eye(2, dtype=pos.dtype, device=pos.device)
+            ws.append(eye.repeat(1, centre.shape[1]).expand(steps, 2, -1))
+            os.append(-centre.flatten(-2))
+        c["frames"] = frames.clone()  # sensordata's buffer is the next rollout's
+        c["map"] = (torch.cat(ws, -1), torch.cat(os, -1)[:, None, :])
+        return c["map"]
+
+    def _excess(self, batch, c: dict) -> torch.Tensor:
+        """``q = |R(−yaw) (p − c)| − h`` of every geom, ``[T, S, G, 2]`` (steps first: one
+        matrix product per step)."""
+        p = batch.get(self.requests[0])[..., :2].transpose(0, 1)  # [T, S, 2]
+        w, o = self._affine(batch, c)
+        return torch.baddbmm(o, p, w).unflatten(-1, (-1, 2)).abs_().sub_(c["half"])
+
+    def distances(self, batch) -> torch.Tensor:
+        """Signed distances ``[S, T, n]`` between ``a`` and each obstacle body, in
+        :attr:`names`' order (a body's nearest geom)."""
+        c = self._tensors(batch.sensordata)
+        q = self._excess(batch, c)
+        inside = torch.maximum(q[..., 0], q[..., 1]).clamp_(max=0.0)
+        q = q.clamp_(min=0.0)
+        geoms = torch.hypot(q[..., 0], q[..., 1]).add_(inside).sub_(c["grow"]).transpose(0, 1)
         if self.one_each:
-            return geoms.index_select(-1, c["order"])
+            return torch.empty_like(geoms).index_copy_(-1, c["order"], geoms)
         out = geoms.new_full((*geoms.shape[:-1], len(self.names)), math.inf)
         return out.scatter_reduce_(-1, c["order"].expand_as(geoms), geoms, "amin")
+
+    def shortfall(self, batch, margin: float) -> torch.Tensor:
+        """``[T, S, G]`` (steps first) max(0, margin − d_g) of every geom g while ``a``'s
+        centre is outside its footprint: the ``clearance`` term's, summed over geoms (the same
+        as over bodies when each has one, :attr:`one_each`). With the centre inside (a
+        penetration deeper than ``a``'s radius) it stays at margin + ρ + radius, the way
+        MuJoCo's reading stops at −margin, and the few operations an iteration spends on it
+        are spared (after a rollout each costs tens of µs on the CPU, docs/speed.md)."""
+        c = self._tensors(batch.sensordata)
+        q = self._excess(batch, c).clamp_(min=0.0)
+        gap = (c["grow"] + margin) - torch.hypot(q[..., 0], q[..., 1])
+        return gap.clamp_(min=0.0)
+
+
+_FLOATS = ("fixed_w", "fixed_o", "half", "grow")
+_INDICES = ("box_of", "box_turn", "disk_of", "order")
+# how far behind its plane a wall's square reaches, and along it: past any robot's workspace,
+# and little enough that float32's rounding at this size (0.06 mm) stays far below a margin
+WALL_DEPTH = 1000.0
 
 
 def planar_obstacles(
@@ -282,44 +322,44 @@ def planar_obstacles(
 def _assemble(a, radius, names, planes, boxes, disks, moving, moving_boxes, moving_disks):
     """:class:`PlanarObstacles` from the geoms sorted by kind: fixed ``(body index, pose [3],
     half)`` and moving ``(body index, moving index, half)``."""
-
-    def t(x, shape, dtype=torch.float64):
-        return torch.tensor(np.asarray(x, dtype=float).reshape(shape), dtype=dtype)
-
-    n = [np.array([math.cos(p[2]), math.sin(p[2])]) for _, p, _ in planes]
-    plane_c = [float(v @ p[:2]) for v, (_, p, _) in zip(n, planes)]
-    # p @ box_w - box_o: each box's local x, y of p, the rows of R(-yaw) applied to p - centre
-    w, o = [], []
-    for _, p, _ in boxes:
-        cos, sin = math.cos(p[2]), math.sin(p[2])
-        w += [[cos, sin], [-sin, cos]]
-        o += [cos * p[0] + sin * p[1], -sin * p[0] + cos * p[1]]
+    fixed = []  # (R(−yaw) [2, 2], centre [2], h [2], ρ) of each fixed geom
+    for _, (x, y, yaw), _ in planes:  # behind the plane: its normal is the square's local x
+        n = np.array([math.cos(yaw), math.sin(yaw)])
+        rot = np.array([n, [-n[1], n[0]]])
+        fixed.append((rot, np.array([x, y]) - WALL_DEPTH * n, (WALL_DEPTH, WALL_DEPTH), 0.0))
+    for _, (x, y, yaw), half in boxes:
+        rot = np.array([[math.cos(yaw), math.sin(yaw)], [-math.sin(yaw), math.cos(yaw)]])
+        fixed.append((rot, np.array([x, y]), half, 0.0))
+    for _, (x, y, _), (r, _) in disks:
+        fixed.append((np.eye(2), np.array([x, y]), (0.0, 0.0), r))
+    w = np.concatenate([rot.T for rot, *_ in fixed], axis=1) if fixed else np.zeros((2, 0))
+    o = np.concatenate([-(rot @ c) for rot, c, *_ in fixed]) if fixed else np.zeros(0)
+    half = [h for _, _, h, _ in fixed] + [h for *_, h in moving_boxes]
+    half += [(0.0, 0.0)] * len(moving_disks)
+    grow = [rho for *_, rho in fixed] + [0.0] * len(moving_boxes)
+    grow += [r for *_, (r, _) in moving_disks]
     turning = list(dict.fromkeys(moving[m] for _, m, _ in moving_boxes))
-    order = (
-        [i for i, _, _ in planes]
-        + [i for i, _, _ in boxes]
-        + [i for i, _, _ in moving_boxes]
-        + [i for i, _, _ in disks]
-        + [i for i, _, _ in moving_disks]
-    )
+    order = [i for group in (planes, boxes, disks, moving_boxes, moving_disks) for i, *_ in group]
+
+    def f64(x, *shape):
+        return torch.tensor(np.asarray(x, dtype=float).reshape(shape), dtype=torch.float64)
+
+    def index(x):
+        return torch.tensor(x, dtype=torch.long)
+
     return PlanarObstacles(
         a=a,
         radius=radius,
         names=tuple(names),
-        plane_n=t(n, (-1, 2)),
-        plane_c=t(plane_c, (-1,)),
-        box_w=t(np.array(w).T if w else [], (2, -1)),
-        box_o=t(o, (-1,)),
-        box_half=t([h for _, _, h in boxes] + [h for _, _, h in moving_boxes], (-1, 2)),
-        disk_c=t([p[:2] for _, p, _ in disks], (-1, 2)),
-        disk_r=t([h[0] for _, _, h in disks] + [h[0] for _, _, h in moving_disks], (-1,)),
+        fixed_w=f64(w, 2, -1),
+        fixed_o=f64(o, -1),
+        half=f64(half, -1, 2),
+        grow=f64(grow, -1) + radius,
         moving=tuple(moving),
-        box_of=torch.tensor([m for _, m, _ in moving_boxes], dtype=torch.long),
-        box_turn=torch.tensor(
-            [turning.index(moving[m]) for _, m, _ in moving_boxes], dtype=torch.long
-        ),
-        disk_of=torch.tensor([m for _, m, _ in moving_disks], dtype=torch.long),
         turning=tuple(turning),
-        order=torch.tensor(order, dtype=torch.long),
+        box_of=index([m for _, m, _ in moving_boxes]),
+        box_turn=index([turning.index(moving[m]) for _, m, _ in moving_boxes]),
+        disk_of=index([m for _, m, _ in moving_disks]),
+        order=index(order),
         one_each=sorted(order) == list(range(len(names))),
     )
