@@ -23,14 +23,32 @@ class Clearance(Collision):
     """Σ_i (max(0, margin - d_i) / margin)²: 0 while body ``a`` is at least ``margin`` m from
     every obstacle i, 1 per obstacle at touching, growing quadratically with penetration.
 
-    d_i is the signed distance between the geoms of ``a`` and of obstacle i (MuJoCo GEOMDIST
-    sensors, cut off at the margin), in every rollout step: unlike ``contact_force`` (thesis
-    Eq. 4.7), which only scores a touch, it keeps the declared margin, and a world that does not
-    let a robot slide along a block (a bridge, a real base) is never touched. Unlike
-    ``collision`` (linear) it is flat near the margin and steep near contact, so a path along an
-    obstacle costs little and a touch a lot. ``a`` is a body (the robot, or a pushed or carried
-    object); ``obstacles`` defaults to the walls and every ``obstacle`` object; ``margin`` is
-    required (metres).
+    d_i is the signed distance between the geoms of ``a`` and of obstacle i in every rollout
+    step: unlike ``contact_force`` (thesis Eq. 4.7), which only scores a touch, it keeps the
+    declared margin, and a world that does not let a robot slide along a block (a bridge, a real
+    base) is never touched. Unlike ``collision`` (linear) it is flat near the margin and steep
+    near contact, so a path along an obstacle costs little and a touch a lot. ``a`` is a body
+    (the robot, or a pushed or carried object); ``obstacles`` defaults to the walls and every
+    ``obstacle`` object; ``margin`` is required (metres).
+
+    ``method`` says how d_i is computed:
+
+    - ``planar``: from ``a``'s position alone, in torch (:mod:`planner_client.costs.planar`):
+      ``a``'s collision geoms are spheres, cylinders or capsules on its vertical axis and its
+      joints keep it upright at its height (the point robots), and every obstacle is fixed to
+      the world (the walls) or a mocap body (the scenario's fixed objects: their positions and
+      headings are read by frame sensors, so a moved block is seen where it is), made of
+      upright boxes, cylinders, capsules, spheres and vertical planes. d_i is then MuJoCo's to
+      rounding wherever the two overlap in height, which is checked at build time (robot and
+      blocks standing on the floor do; a shelf above the robot does not). Inside an obstacle
+      the cost keeps growing until ``a``'s centre is inside its footprint. A drawn geom of
+      ``a`` (no contacts) does not count, as for contacts.
+    - ``sensors``: MuJoCo's GEOMDIST sensors, one per obstacle and rollout step, cut off at
+      the margin (their reading stops at −margin inside): any shapes, any motion (a free box,
+      an arm link), at a geom-pair distance query each; in navigation's scene they cost the
+      rollout several times what the planar method costs the term.
+    - ``auto`` (default): ``planar`` where it applies, else ``sensors``. Declaring ``planar``
+      where it does not apply is an error saying which body or geom keeps it from applying.
     """
 
     method: str = "sensors"  # how d_i is computed: planar or sensors (auto resolved at build)
