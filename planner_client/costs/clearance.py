@@ -45,8 +45,7 @@ class Clearance(Collision):
       ``a`` (no contacts) does not count, as for contacts.
     - ``sensors``: MuJoCo's GEOMDIST sensors, one per obstacle and rollout step, cut off at
       the margin (their reading stops at −margin inside): any shapes, any motion (a free box,
-      an arm link), at a geom-pair distance query each; in navigation's scene they cost the
-      rollout several times what the planar method costs the term.
+      an arm link), at a geom-pair distance query per obstacle and rollout step.
     - ``auto`` (default): ``planar`` where it applies, else ``sensors``. Declaring ``planar``
       where it does not apply is an error saying which body or geom keeps it from applying.
     """
