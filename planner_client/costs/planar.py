@@ -245,9 +245,11 @@ class PlanarObstacles:
         MuJoCo's reading stops at −margin, and the few operations an iteration spends on it
         are spared (after a rollout each costs tens of µs on the CPU, docs/speed.md)."""
         c = self._tensors(batch.sensordata)
+        reach = c.get(margin)  # [G] margin + ρ + radius, made once per margin
+        if reach is None:
+            reach = c[margin] = c["grow"] + margin
         q = self._excess(batch, c).clamp_(min=0.0)
-        gap = (c["grow"] + margin) - torch.hypot(q[..., 0], q[..., 1])
-        return gap.clamp_(min=0.0)
+        return (reach - torch.hypot(q[..., 0], q[..., 1])).clamp_(min=0.0)
 
 
 _FLOATS = ("fixed_w", "fixed_o", "half", "grow")
