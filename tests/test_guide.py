@@ -1,5 +1,5 @@
-"""The global guide (shared/guide.py, planner_client/guide.py, planner_client/global_path.py)
-and the clearance term: A* round a U and blocked when closed, room for a robot behind a box,
+"""The global guide (shared/guide.py, planner_client/guide.py, planner_client/global_path.py):
+A* round a U and blocked when closed, room for a robot behind a box,
 the path recomputed after an obstacle is moved while planning goes on, the terms' values, and
 the scenario errors of a faulty guide."""
 
@@ -7,7 +7,6 @@ from __future__ import annotations
 
 import math
 
-import mujoco
 import numpy as np
 import pytest
 import torch
@@ -18,9 +17,7 @@ from planner_client.guide import PathTensors, project
 from planner_client.sensors import SensorColumns, SensorRequest
 from shared import protocol as P
 from shared.config import ConfigError, Section
-from shared.frames import FrameResolver
 from shared.scenario import load_scenario, parse_scenario
-from tests.test_cost_terms import MJCF  # the cost-term tests' small model
 
 F64 = torch.float64
 
@@ -101,19 +98,6 @@ def test_progress_and_distance_along_a_path():
     dist, left = project(p, blocked)
     torch.testing.assert_close(left, torch.tensor([[math.hypot(1.5, 0.3), 0.5]], dtype=F64))
     assert not dist.any()
-
-
-def test_clearance_is_zero_beyond_the_margin_one_at_touching_and_steeper_inside():
-    model = mujoco.MjModel.from_xml_string(MJCF)
-    ctx = TermContext("t.yaml", FrameResolver(model, "base"), ["wall"], ["ux", "uy"])
-    s = Section({"a": "base", "margin": 0.2}, "t.yaml", "objectives.o.terms[0]")
-    term = TERMS["clearance"].from_params(s, ctx)
-    (req,) = term.requests
-    d = torch.tensor([[[0.3], [0.2], [0.1], [0.0], [-0.1]]], dtype=F64)  # [1, 5, 1] distances
-    batch = RolloutBatch(d, torch.zeros(1, 5, 2, dtype=F64), SensorColumns({req: slice(0, 1)}), 0.1)
-    torch.testing.assert_close(term(batch), torch.tensor([[0.0, 0.0, 0.25, 1.0, 2.25]], dtype=F64))
-    with pytest.raises(ConfigError, match="margin"):  # the margin is declared, never defaulted
-        TERMS["clearance"].from_params(Section({"a": "base"}, "t.yaml", "o"), ctx)
 
 
 def _with_guide(guide, **more) -> dict:
