@@ -13,7 +13,7 @@ import pytest
 import torch
 
 from planner_client.costs import TERMS, RolloutBatch, TermContext
-from planner_client.global_path import Room, Shape, astar, plan, signed_distance
+from planner_client.global_path import Room, Shape, astar, handles, plan, signed_distance
 from planner_client.guide import PathTensors, project
 from planner_client.sensors import SensorColumns, SensorRequest
 from shared import protocol as P
@@ -87,6 +87,23 @@ def test_a_box_in_a_corner_has_no_room_to_be_pushed_until_it_is_out():
     # a pull into the far corner ends with the robot beside the box, and holds it there
     pull = plan(WALLS, np.array([3.75, 3.75]), goal, 0.05, 0.2, Room("pull", 0.2, 0.4))
     np.testing.assert_allclose(pull.handles[[0, -1]], [[0.0, -0.4], [0.0, -0.4]], atol=1e-9)
+
+
+def test_a_pull_into_a_corner_keeps_one_side_all_the_way_and_pushes_where_no_side_is_clear():
+    # corner 1: the goal 0.25 m from two walls; no place ahead of the box there, and the path
+    # ends along the east wall with the robot west of the box
+    goal = np.array([3.75, 3.75])
+    pull = plan(WALLS, np.array([2.15, 1.75]), goal, 0.05, 0.2, Room("pull", 0.2, 0.4, 0.02))
+    assert pull.points is not None
+    np.testing.assert_allclose(pull.points[-1], goal)
+    # suction holds the box on every side: the robot holds it from the west from the start,
+    # behind-side while the box moves north-east, rather than going round it at the end
+    np.testing.assert_allclose(pull.handles, np.tile([-0.4, 0.0], (len(pull.handles), 1)))
+    # a last move diagonal into the corner: neither ahead nor at either side is clear, so
+    # behind it (a push of the box it holds), not NaN
+    diagonal = np.array([[3.65, 3.65], [3.7, 3.7], [3.75, 3.75]])
+    hands = handles(diagonal, WALLS, Room("pull", 0.2, 0.4, 0.02))
+    np.testing.assert_allclose(hands, np.tile([-0.4, -0.4], (3, 1)) / math.sqrt(2))
 
 
 def test_progress_and_distance_along_a_path():
@@ -236,6 +253,35 @@ def test_progress_term_reads_the_guides_path():
     torch.testing.assert_close(prog(batch), torch.tensor([[2.5, 1.0]], dtype=F64))
     dist = TERMS["guide_distance"].from_params(Section({}, "t.yaml", "o"), ctx)
     torch.testing.assert_close(dist(batch), torch.tensor([[0.0, 0.5]], dtype=F64))
+
+
+def test_handle_term_with_outward_asks_for_the_bearing_and_a_distance_band():
+    from planner_client.problem import build_problem
+
+    problem = build_problem(load_scenario("pull_corner1_guided"))
+    guide = problem.guide
+    ctx = TermContext("t.yaml", problem.resolve, [], problem.actuators, guide=guide)
+    room = Room("pull", 0.2, 0.4, 0.02)
+    # the box pulled east on the open floor: the robot's place is 0.4 m ahead of it
+    guide.path = PathTensors.of(
+        plan([], np.array([0.0, 0.0]), np.array([2.0, 0.0]), 0.05, 0.2, room),
+        np.array([2.0, 0.0]),
+    )
+    robot = [[1.45, 0.0], [1.6, 0.0], [1.3, 0.0], [1.45, 0.2]]
+    sd = torch.tensor([[[x, y, 0.1, 1.0, 0.0, 0.05] for x, y in robot]], dtype=F64)
+    cols = SensorColumns(
+        {
+            SensorRequest("framepos", "robot"): slice(0, 3),
+            SensorRequest("framepos", "box"): slice(3, 6),
+        }
+    )
+    batch = RolloutBatch(sd, torch.zeros(1, 4, 3, dtype=F64), cols, 0.05)
+    exact = TERMS["guide_handle"].from_params(Section({}, "t.yaml", "o"), ctx)
+    torch.testing.assert_close(
+        exact(batch), torch.tensor([[0.05, 0.2, 0.1, math.hypot(0.05, 0.2)]], dtype=F64)
+    )
+    band = TERMS["guide_handle"].from_params(Section({"outward": 0.1}, "t.yaml", "o"), ctx)
+    torch.testing.assert_close(band(batch), torch.tensor([[0.0, 0.1, 0.1, 0.2]], dtype=F64))
 
 
 def test_a_walled_in_goal_says_blocked_to_the_observers_and_leaves_the_goal_as_sub_goal():
