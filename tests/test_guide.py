@@ -255,35 +255,6 @@ def test_progress_term_reads_the_guides_path():
     torch.testing.assert_close(dist(batch), torch.tensor([[0.0, 0.5]], dtype=F64))
 
 
-def test_handle_term_with_outward_asks_for_the_bearing_and_a_distance_band():
-    from planner_client.problem import build_problem
-
-    problem = build_problem(load_scenario("pull_corner1_guided"))
-    guide = problem.guide
-    ctx = TermContext("t.yaml", problem.resolve, [], problem.actuators, guide=guide)
-    room = Room("pull", 0.2, 0.4, 0.02)
-    # the box pulled east on the open floor: the robot's place is 0.4 m ahead of it
-    guide.path = PathTensors.of(
-        plan([], np.array([0.0, 0.0]), np.array([2.0, 0.0]), 0.05, 0.2, room),
-        np.array([2.0, 0.0]),
-    )
-    robot = [[1.45, 0.0], [1.6, 0.0], [1.3, 0.0], [1.45, 0.2]]
-    sd = torch.tensor([[[x, y, 0.1, 1.0, 0.0, 0.05] for x, y in robot]], dtype=F64)
-    cols = SensorColumns(
-        {
-            SensorRequest("framepos", "robot"): slice(0, 3),
-            SensorRequest("framepos", "box"): slice(3, 6),
-        }
-    )
-    batch = RolloutBatch(sd, torch.zeros(1, 4, 3, dtype=F64), cols, 0.05)
-    exact = TERMS["guide_handle"].from_params(Section({}, "t.yaml", "o"), ctx)
-    torch.testing.assert_close(
-        exact(batch), torch.tensor([[0.05, 0.2, 0.1, math.hypot(0.05, 0.2)]], dtype=F64)
-    )
-    band = TERMS["guide_handle"].from_params(Section({"outward": 0.1}, "t.yaml", "o"), ctx)
-    torch.testing.assert_close(band(batch), torch.tensor([[0.0, 0.1, 0.1, 0.2]], dtype=F64))
-
-
 def test_a_walled_in_goal_says_blocked_to_the_observers_and_leaves_the_goal_as_sub_goal():
     from planner_client.build import build_controller
     from server.inprocess import build_episode

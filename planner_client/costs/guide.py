@@ -7,13 +7,10 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
-import torch
-
 from planner_client.costs.base import CostTerm, register
-from planner_client.costs.helpers import last_sum, norm
+from planner_client.costs.helpers import norm
 from planner_client.guide import GuideState, handle_target, project
 from planner_client.sensors import SensorRequest
-from shared.config import non_negative
 
 
 def _guide(s, ctx) -> GuideState:
@@ -68,19 +65,11 @@ class GuideHandle(CostTerm):
     along the path for a push, ahead of it, at its side or behind it for a pull, as the guide's
     ``room`` found clear of the obstacles (the place of the path cell nearest to the object).
     Replaces S_dist(R, O) (paper Eq. 14) where the robot must go round the object first, e.g.
-    to get behind a box that it dragged out of a corner. Without a path: |x_a - x_obj|.
-
-    ``outward`` (m, default 0): the place stretches that far out along its own direction, a
-    segment rather than a point, so the robot may stand up to ``outward`` farther from the
-    object at no cost. The guide's reach is a face's (half-size + robot radius); a box turned
-    corner-first towards the robot reaches farther (0.08 m for a 0.4 m box), and a point at the
-    reach draws the robot into that corner, pressing a box it holds by suction into the
-    floor."""
+    to get behind a box that it dragged out of a corner. Without a path: |x_a - x_obj|."""
 
     a: str
     obj: str
     guide: GuideState = field(repr=False)
-    outward: float = 0.0
 
     @classmethod
     def from_params(cls, s, ctx):
@@ -93,10 +82,7 @@ class GuideHandle(CostTerm):
                 "guide.room: push, pull or any",
             )
         return cls(
-            a=ctx.frame(s, "a", "robot"),
-            obj=ctx.frame(s, "obj", guide.cfg.for_),
-            guide=guide,
-            outward=s.opt("outward", 0.0, non_negative, "metres >= 0"),
+            a=ctx.frame(s, "a", "robot"), obj=ctx.frame(s, "obj", guide.cfg.for_), guide=guide
         )
 
     def sensors(self):
@@ -104,11 +90,4 @@ class GuideHandle(CostTerm):
 
     def __call__(self, batch):
         x_a, x_o = (batch.get(r)[..., :2] for r in self.requests)
-        target = handle_target(x_o, self.guide.path)
-        if self.outward:  # the nearest point of the segment from the place outward
-            h = target - x_o  # [S, T, 2]; 0 without a place
-            hn = norm(h).clamp_(min=1e-12)
-            along = last_sum((x_a - x_o) * h) / hn  # the robot's distance along h
-            out = torch.minimum((along / hn).clamp_(min=1.0), 1.0 + self.outward / hn)
-            target = x_o + h * out[..., None]
-        return norm(x_a - target)
+        return norm(x_a - handle_target(x_o, self.guide.path))
