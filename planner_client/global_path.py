@@ -202,11 +202,10 @@ def corners(cells: list[tuple[int, int]]) -> list[tuple[int, int]]:
 @dataclass(frozen=True)
 class Room:
     """Where a robot of ``radius`` must stand beside a guided object that moves one grid step:
-    ``behind`` it (a push); for a ``pull``, holding it by suction, ahead of it, at its side or,
-    where neither is clear (a wall ahead and at both sides: the last move into a corner), behind
-    it, pushing the box it holds; ``any``: behind or ahead, either first. ``reach`` is how far
-    from the object's centre the robot's centre stands (touching: object half-size + robot
-    radius), and there the robot must be ``gap`` m clear of every obstacle."""
+    ``behind`` it (a push), ahead of it or at its side (a pull, holding it by suction), or
+    either (``any``); :func:`handles` says where exactly. ``reach`` is how far from the
+    object's centre the robot's centre stands (touching: object half-size + robot radius), and
+    there the robot must be ``gap`` m clear of every obstacle."""
 
     mode: str  # push | pull | any
     radius: float
@@ -243,12 +242,14 @@ def room_moves(grid: Grid, shapes: list[Shape], room: Room) -> np.ndarray:
 def handles(cells_xy: np.ndarray, shapes: list[Shape], room: Room) -> np.ndarray:
     """``[M, 2]``: where the robot's centre stands, relative to the object's, at each point of
     a dense path ``cells_xy [M, 2]``, clear of ``shapes`` by the robot's radius: behind the
-    move for a push; for a pull ahead of it, else at the side with more room, else behind it.
-    Chosen from the goal backwards, keeping the place of the next point while it is still
-    clear (and, for a push, still behind the move). A pull keeps it on any side: the robot holds
-    the box by suction and can move it every way, but cannot go round it without dragging it
-    along; so a robot that must end beside or behind a box pulled into a corner holds it there
-    all the way. NaN where no place is clear."""
+    move for a push; for a pull ahead of it, else at the side with more room, else behind it
+    (a diagonal move into a corner leaves neither: :func:`room_moves` lets A* plan no such
+    move, but does not check a path's first cell, where the object starts). Chosen from the
+    goal backwards, keeping the place of the next point while it is still clear (and, for a
+    push, still behind the move). A pull keeps it on any side of the move: the robot holds the
+    box by suction and cannot go round it without dragging it along, so a robot that must end
+    beside a box pulled into a corner holds it from that side all the way, dragging it sideways
+    and, where the path turns, pushing it. NaN where no place is clear."""
     moves = np.diff(cells_xy, axis=0)
     moves = np.concatenate([moves, moves[-1:]]) if len(moves) else np.array([[1.0, 0.0]])
     d = moves / np.maximum(np.linalg.norm(moves, axis=1, keepdims=True), 1e-12)
