@@ -203,9 +203,9 @@ def corners(cells: list[tuple[int, int]]) -> list[tuple[int, int]]:
 class Room:
     """Where a robot of ``radius`` must stand beside a guided object that moves one grid step:
     ``behind`` it (a push), ahead of it or at its side (a pull, holding it by suction), or
-    either (``any``); ``reach`` is how far from the object's centre the robot's centre stands
-    (touching: object half-size + robot radius), and there the robot must be ``gap`` m clear
-    of every obstacle."""
+    either (``any``); :func:`handles` says where exactly. ``reach`` is how far from the
+    object's centre the robot's centre stands (touching: object half-size + robot radius), and
+    there the robot must be ``gap`` m clear of every obstacle."""
 
     mode: str  # push | pull | any
     radius: float
@@ -242,11 +242,14 @@ def room_moves(grid: Grid, shapes: list[Shape], room: Room) -> np.ndarray:
 def handles(cells_xy: np.ndarray, shapes: list[Shape], room: Room) -> np.ndarray:
     """``[M, 2]``: where the robot's centre stands, relative to the object's, at each point of
     a dense path ``cells_xy [M, 2]``, clear of ``shapes`` by the robot's radius: behind the
-    move for a push; for a pull ahead of it, or else at the side with more room. Chosen from the
-    goal backwards, keeping the place of the next point while it is still clear and still
-    behind (push) or not behind (pull) the move: a robot that must end beside a box pulled into
-    a corner holds it there all the way rather than going round it on the way. NaN where no
-    place is clear."""
+    move for a push; for a pull ahead of it, else at the side with more room, else behind it
+    (a diagonal move into a corner leaves neither: :func:`room_moves` lets A* plan no such
+    move, but does not check a path's first cell, where the object starts). Chosen from the
+    goal backwards, keeping the place of the next point while it is still clear (and, for a
+    push, still behind the move). A pull keeps it on any side of the move: the robot holds the
+    box by suction and cannot go round it without dragging it along, so a robot that must end
+    beside a box pulled into a corner holds it from that side all the way, dragging it sideways
+    and, where the path turns, pushing it. NaN where no place is clear."""
     moves = np.diff(cells_xy, axis=0)
     moves = np.concatenate([moves, moves[-1:]]) if len(moves) else np.array([[1.0, 0.0]])
     d = moves / np.maximum(np.linalg.norm(moves, axis=1, keepdims=True), 1e-12)
@@ -256,8 +259,7 @@ def handles(cells_xy: np.ndarray, shapes: list[Shape], room: Room) -> np.ndarray
         return float(signed_distance(shapes, p[None])[0])
 
     def allowed(offset: np.ndarray, dm: np.ndarray) -> bool:
-        c = float(offset @ dm) / room.reach
-        return {"push": c < -0.7, "pull": c > -1e-6, "any": True}[room.mode]
+        return room.mode != "push" or float(offset @ dm) / room.reach < -0.7
 
     prev = None
     for m in range(len(cells_xy) - 1, -1, -1):
@@ -271,7 +273,8 @@ def handles(cells_xy: np.ndarray, shapes: list[Shape], room: Room) -> np.ndarray
         options = [o * room.reach for o in first]
         sides = [] if room.mode == "push" else [side * room.reach, -side * room.reach]
         sides.sort(key=lambda o: -clear(p + o))
-        prev = next((o for o in options + sides if clear(p + o) > need), None)
+        last = [-dm * room.reach] if room.mode == "pull" else []
+        prev = next((o for o in options + sides + last if clear(p + o) > need), None)
         if prev is not None:
             out[m] = prev
     return out

@@ -12,7 +12,7 @@ import pytest
 import torch
 
 from planner_client.costs import TERMS, RolloutBatch, TermContext
-from planner_client.global_path import Room, Shape, astar, plan, signed_distance
+from planner_client.global_path import Room, Shape, astar, handles, plan, signed_distance
 from planner_client.guide import PathTensors, project
 from planner_client.sensors import SensorColumns, SensorRequest
 from shared import protocol as P
@@ -84,6 +84,23 @@ def test_a_box_in_a_corner_has_no_room_to_be_pushed_until_it_is_out():
     # a pull into the far corner ends with the robot beside the box, and holds it there
     pull = plan(WALLS, np.array([3.75, 3.75]), goal, 0.05, 0.2, Room("pull", 0.2, 0.4))
     np.testing.assert_allclose(pull.handles[[0, -1]], [[0.0, -0.4], [0.0, -0.4]], atol=1e-9)
+
+
+def test_a_pull_into_a_corner_keeps_one_side_all_the_way_and_pushes_where_no_side_is_clear():
+    # corner 1: the goal 0.25 m from two walls; no place ahead of the box there, and the path
+    # ends along the east wall with the robot west of the box
+    goal = np.array([3.75, 3.75])
+    pull = plan(WALLS, np.array([2.15, 1.75]), goal, 0.05, 0.2, Room("pull", 0.2, 0.4, 0.02))
+    assert pull.points is not None
+    np.testing.assert_allclose(pull.points[-1], goal)
+    # suction holds the box on every side: the robot holds it from the west from the start,
+    # behind-side while the box moves north-east, rather than going round it at the end
+    np.testing.assert_allclose(pull.handles, np.tile([-0.4, 0.0], (len(pull.handles), 1)))
+    # a last move diagonal into the corner: neither ahead nor at either side is clear, so
+    # behind it (a push of the box it holds), not NaN
+    diagonal = np.array([[3.65, 3.65], [3.7, 3.7], [3.75, 3.75]])
+    hands = handles(diagonal, WALLS, Room("pull", 0.2, 0.4, 0.02))
+    np.testing.assert_allclose(hands, np.tile([-0.4, -0.4], (3, 1)) / math.sqrt(2))
 
 
 def test_progress_and_distance_along_a_path():

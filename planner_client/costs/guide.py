@@ -62,10 +62,10 @@ class GuideDistance(GuideProgress):
 class GuideHandle(CostTerm):
     """Distance (m, xy) of the robot frame ``a`` (default ``robot``) from its place beside the
     guided object ``obj`` (default: the guide's body) at every rollout step: behind the object
-    along the path for a push, ahead of it or at its side for a pull, as the guide's ``room``
-    found clear of the obstacles (the place of the path cell nearest to the object). Replaces
-    S_dist(R, O) (paper Eq. 14) where the robot must go round the object first, e.g. to get
-    behind a box that it dragged out of a corner. Without a path: |x_a - x_obj|."""
+    along the path for a push, ahead of it, at its side or behind it for a pull, as the guide's
+    ``room`` found clear of the obstacles (the place of the path cell nearest to the object).
+    Replaces S_dist(R, O) (paper Eq. 14) where the robot must go round the object first, e.g.
+    to get behind a box that it dragged out of a corner. Without a path: |x_a - x_obj|."""
 
     a: str
     obj: str
