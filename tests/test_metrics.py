@@ -228,6 +228,27 @@ def test_robot_collisions_cover_the_whole_robot_tree(tmp_path):
     assert np.array_equal(ev._geoms_b, m.geom_bodyid == obstacle)
 
 
+def test_the_plot_draws_the_identified_model_against_the_worlds(scenario, tmp_path):
+    """Steps with the planner's estimate (planner.model.variants) and a header with the world's
+    factors: one series per estimated factor, NaN before the first estimate, the truth beside."""
+    from shared.tools.plots import episode_series, plot_episode
+
+    records = hand_made_log(scenario)
+    records[0]["faults_mismatch"] = {"mass": {"box": 1.5}, "gain": {"vel_x": 0.8}}
+    steps = [r for r in records if r["kind"] == "step"]
+    for i, step in enumerate(steps[1:]):
+        step["model"] = {"mass.box": 1.0 + 0.1 * i}  # as the world logs Command.model
+    series = episode_series(scenario, records)
+    assert list(series.model) == ["mass.box"] and series.truth["mass.box"] == 1.5
+    values = series.model["mass.box"]
+    assert np.isnan(values[0]) and values[1:].tolist() == pytest.approx(
+        [1.0 + 0.1 * i for i in range(len(steps) - 1)]
+    )
+    assert plot_episode(series, tmp_path / "episode.png").stat().st_size > 10_000
+    plain = episode_series(scenario, hand_made_log(scenario))
+    assert plain.model == {} and plain.truth == {}
+
+
 def test_plot_of_the_hand_made_log(scenario, tmp_path):
     from shared.tools.plots import cos_rog, episode_series, plot_episode
 

@@ -2,14 +2,16 @@
 robot-object and object-goal distances over time, and the cosine of the robot-object-goal angle
 (paper Eq. 16) over time. The object and the goal are the scenario's ``metrics.position`` frames;
 when the "object" is the robot itself (navigation) the plot shows the robot, its distance to the
-goal, and no angle.
+goal, and no angle. When the planner identified its model online (``planner.model.variants``), a
+last panel shows each estimated factor over time against the world's true one, which the log's
+header holds under a fault profile's model error (``faults_mismatch``).
 
 Drawn with matplotlib's object API on the Agg canvas (no display, no pyplot state).
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -39,6 +41,9 @@ class EpisodeSeries:
     goal_name: str
     actions: list[tuple[float, str]]  # (time, action) where the planner's action changed
     arena: float | None  # arena half-size, for the xy limits
+    # "mass.box" -> [T] the planner's estimated factor at each step (NaN before it sent one)
+    model: dict[str, np.ndarray] = field(default_factory=dict)
+    truth: dict[str, float] = field(default_factory=dict)  # "mass.box" -> the world's factor
 
 
 def cos_rog(robot: np.ndarray, obj: np.ndarray, goal: np.ndarray) -> np.ndarray:
@@ -82,6 +87,7 @@ def episode_series(scenario: Scenario, records: list[dict]) -> EpisodeSeries:
         for r in records
         if r.get("kind") == "event" and r.get("what") == "action"
     ]
+    truth = episode.faults(records).get("faults_mismatch") or {}
     return EpisodeSeries(
         name=scenario.name,
         time=np.array([s["time"] for s in steps]),
@@ -92,14 +98,26 @@ def episode_series(scenario: Scenario, records: list[dict]) -> EpisodeSeries:
         goal_name=pair.b,
         actions=actions,
         arena=scenario.world.arena.half_size if scenario.world.arena else None,
+        model=model_estimates(steps),
+        truth={f"{k}.{n}": float(v) for k, names in truth.items() for n, v in names.items()},
     )
+
+
+def model_estimates(steps: list[dict]) -> dict[str, np.ndarray]:
+    """``"KIND.NAME" -> [T]``: the identified model each step logged (its ``model``, e.g.
+    ``{"mass.box": 1.4, "gain.vel_x": 0.9}``), NaN in steps without it."""
+    labels = sorted({label for s in steps for label in s.get("model") or {}})
+    return {
+        label: np.array([(s.get("model") or {}).get(label, np.nan) for s in steps], float)
+        for label in labels
+    }
 
 
 def plot_episode(series: EpisodeSeries, out: Path, title: str = "") -> Path:
     """One figure, three panels as in Figs. A.3-A.5 (two without an object); returns its path."""
     from matplotlib.figure import Figure
 
-    panels = 2 if series.obj is None else 3
+    panels = (2 if series.obj is None else 3) + bool(series.model)
     fig = Figure(figsize=(5.2 * panels, 4.4), layout="constrained")
     axes = fig.subplots(1, panels)
     fig.suptitle(title or series.name)
@@ -146,6 +164,21 @@ def plot_episode(series: EpisodeSeries, out: Path, title: str = "") -> Path:
             ylabel=r"cos $\theta_{ROG}$",
             title="robot-object-goal angle (-1: pushing, 1: pulling)",
         )
+
+    if series.model:
+        ax = axes[-1]
+        for i, (label, values) in enumerate(series.model.items()):
+            colour = f"C{i % 10}"
+            ax.plot(series.time, values, color=colour, label=label)
+            if label in series.truth:
+                ax.axhline(series.truth[label], color=colour, linestyle="--", linewidth=0.8)
+        ax.axhline(1.0, color="grey", linewidth=0.5)
+        ax.set(
+            xlabel="time [s]",
+            ylabel="factor of the nominal model",
+            title="identified model (dashed: the world's)",
+        )
+        ax.legend(loc="best", fontsize="small")
 
     for ax in axes[1:]:
         for t, action in series.actions:
