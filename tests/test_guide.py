@@ -129,9 +129,9 @@ def _with_guide(guide, **more) -> dict:
     [
         ({"for": "table", "goal": "goal"}, "guide.for", "not the robot or a free object"),
         ({"for": "u_back", "goal": "goal"}, "guide.for", "not the robot or a free object"),
-        ({"for": "robot", "goal": "goal", "method": "rrt"}, "guide.method", ""),
+        ({"for": "robot", "goal": "goal", "method": "rrt"}, "guide.method", "one of: astar"),
         ({"for": "robot", "goal": "goal", "room": "push"}, "guide.room", "object the robot"),
-        ({"for": "robot", "goal": "goal", "resolution": 0}, "guide.resolution", ""),
+        ({"for": "robot", "goal": "goal", "resolution": 0}, "guide.resolution", "must be > 0"),
         ({"for": "robot", "goal": "goal", "lookahed": 1}, "guide.lookahed", "unknown key"),
         ({"for": "robot"}, "guide.goal", "missing"),
     ],
