@@ -5,6 +5,8 @@ polls once, the reply is read."""
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 import zmq
@@ -235,6 +237,30 @@ def test_a_replay_reads_the_log_and_the_recorded_diagnostics(world):
     dt = server.world.dt
     assert "**▶" in action_timeline(replay.actions, 2.5 * dt).splitlines()[1]
     assert "no summary" in metrics_text(replay.summary)  # the log was cut before its end
+
+
+def test_the_panel_shows_the_identified_model_live_and_in_the_replay():
+    """planner.model.variants: the estimate in Diagnostics.model reaches the side panel and
+    the recorded diagnostics (for the replay); without it the panel says nothing of a model."""
+    from shared.tools.view import PanelInfo, diagnostics_record
+
+    diag = P.Diagnostics(
+        seq=1,
+        action="push",
+        alternatives=["push"],
+        mode_names=["push"],
+        mode_weights=np.array([1.0]),
+        top=np.ones((1, 2, 3)),
+        plan_time=0.05,
+        model={"mass.box": 1.4567, "gain.vel_x": 0.9},
+    )
+    rec = diagnostics_record(diag)
+    assert rec["model"] == {"mass.box": 1.4567, "gain.vel_x": 0.9}
+    text = PanelInfo(model=rec["model"]).markdown()
+    assert "**identified model**" in text and "`mass.box` 1.46" in text
+    assert "`gain.vel_x` 0.90" in text
+    assert "model" not in diagnostics_record(dataclasses.replace(diag, model=None))
+    assert "identified" not in PanelInfo().markdown()
 
 
 def test_m3p2i_view_says_what_it_needs(tmp_path):

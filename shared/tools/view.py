@@ -249,6 +249,7 @@ class PanelInfo:
     planner_hz: float | None = None
     plan_ms: float | None = None
     extras: dict[str, float] = field(default_factory=dict)
+    model: dict[str, float] = field(default_factory=dict)  # identified: "mass.box" -> factor
     note: str = ""
 
     def markdown(self) -> str:
@@ -272,6 +273,9 @@ class PanelInfo:
             ]
         for k, v in self.extras.items():
             lines.append(f"**{k}**: {v:.1f}")
+        if self.model:  # planner.model.variants: the planner's estimate of the world's model
+            lines += ["", "**identified model** (× nominal)", ""]
+            lines += [f"`{k}` {v:.2f}  " for k, v in sorted(self.model.items())]
         if self.note:
             lines += ["", self.note]
         return "\n".join(lines)
@@ -436,6 +440,8 @@ def diagnostics_record(msg: P.Diagnostics) -> dict:
         rec["top_modes"] = np.asarray(msg.top_modes, int).tolist()
     if msg.guide is not None:
         rec["guide"] = np.round(np.asarray(msg.guide, float), 4).tolist()
+    if msg.model:
+        rec["model"] = {k: round(float(v), 4) for k, v in msg.model.items()}
     return rec
 
 
@@ -628,6 +634,7 @@ class LiveView:
         total = float(np.sum(d.mode_weights)) or 1.0
         self.info.mode_names = list(d.mode_names)
         self.info.mode_weights = [float(w) / total for w in d.mode_weights]
+        self.info.model = dict(d.model or {})
         if self.record is not None:
             self.record.write(d)
 
@@ -814,6 +821,7 @@ class ReplayView:
             info.mode_weights = [w / total for w in d["mode_weights"]]
             info.plan_ms = d["plan_time"] * 1000
             info.planner_hz = 1.0 / d["plan_time"] if d["plan_time"] > 0 else None
+            info.model = d.get("model", {})
         elif not self.replay.diagnostics:
             info.note = "(no diagnostics.jsonl beside the log: no sampled trajectories to show)"
         self.panel.content = info.markdown()
