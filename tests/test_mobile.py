@@ -92,3 +92,25 @@ def test_layout_lists_the_base_and_the_arm():
     assert result.exit_code == 0, result.output
     for name in ("base_x", "base_yaw", "panda_joint7", "base_vx", "base_wz", "gripper"):
         assert name in result.output
+
+
+def test_mobile_reactive_is_mobile_pick_place_with_its_disturbances():
+    """mobile_reactive (docs/mobile.md): the base scenario's world and success test, a person
+    walking back and forth across the aisle, the cube moved before the grasp and taken from the
+    hand during the carry, and the robot kept off the person in every planned objective."""
+    base, s = load_scenario("mobile_pick_place"), load_scenario("mobile_reactive")
+    assert s.episode.success == base.episode.success
+    assert s.world.randomize == base.world.randomize
+    assert {o.name for o in base.world.objects} < {o.name for o in s.world.objects}
+    path, moved, stolen = s.world.disturbances
+    assert (path.object, path.loop) == ("person", True)
+    assert {round(w[1], 3) for w in path.waypoints} == {1.5}  # across the aisle's middle
+    assert moved.object == stolen.object == "cube_a"
+    assert moved.when.b == "cube_a" and stolen.when.b == "cube_b"
+    assert stolen.pos[1] < 0.4  # back on table A (y within its ±0.4 m)
+    assert "person" in s.metrics.collisions.with_
+    for action, objective in s.action_objectives.items():
+        terms = s.objectives[objective].terms
+        person = [t.params for t in terms if t.term == "collision" and t.params["a"] == "chassis"]
+        assert {"a": "chassis", "obstacles": ["person"], "margin": 0.3} in person, action
+        assert len(terms) > len(base.objectives[action].terms)
