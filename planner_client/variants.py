@@ -198,12 +198,15 @@ class VariantModels:
         self._friction = model.geom_friction.copy()
         self._scratch = mujoco.MjData(model)
         self._geoms = {}  # friction param -> its geoms
-        for p in self.params:
-            if p.kind == "friction":
-                geoms, self._friction[geoms], priority = contact_friction(model, p.index)
-                self._geoms[p.name] = geoms
-                for m in self.models:
-                    m.geom_priority[geoms] = priority
+        touching = [p.index for p in self.params if p.kind == "friction"]
+        if touching:
+            priority, frictions = contact_friction(model, touching)
+            for p in self.params:
+                if p.kind == "friction":
+                    geoms, self._friction[geoms] = frictions[p.index]
+                    self._geoms[p.name] = geoms
+            for m in self.models:
+                m.geom_priority[:] = priority
         self.apply()
 
     def apply(self) -> None:

@@ -75,11 +75,9 @@ def draw_mismatch(
     factors: dict[str, dict[str, float]] = {"mass": {}, "friction": {}, "gain": {}}
     given = {kind: m.factors.get(kind, {}) for kind in factors}
     # the frictions of the objects' contacts, before any object's is scaled
-    contacts = {
-        obj.name: contact_friction(model, model.body(obj.name).id)
-        for obj in world.scenario.world.objects
-        if m.friction_of == "contacts" and not obj.visual
-    }
+    touching = [o.name for o in world.scenario.world.objects if not o.visual]
+    priority, frictions = contact_friction(model, [model.body(n).id for n in touching])
+    contacts = {n: frictions[model.body(n).id] for n in touching if m.friction_of == "contacts"}
     for obj in world.scenario.world.objects:
         body = model.body(obj.name).id
         # drawn whether used or not: each object's draws stay the same as other faults change
@@ -91,9 +89,9 @@ def draw_mismatch(
             factors["mass"][obj.name] = float(f_mass)
         if (m.friction or obj.name in given["friction"]) and not obj.visual:  # visual: no contact
             if obj.name in contacts:
-                geoms, friction, priority = contacts[obj.name]
+                geoms, friction = contacts[obj.name]
                 model.geom_friction[geoms] = friction * f_friction
-                model.geom_priority[geoms] = priority
+                model.geom_priority[:] = priority
             else:
                 model.geom_friction[model.geom_bodyid == body] *= f_friction
             factors["friction"][obj.name] = float(f_friction)

@@ -8,7 +8,7 @@ compiling; sensors do not change the dynamics, so the mirrored state stays valid
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from typing import Any
 
 import mujoco
@@ -205,17 +205,32 @@ def get_full_state(
     return out
 
 
-def contact_friction(model: mujoco.MjModel, body: int) -> tuple[np.ndarray, np.ndarray, int]:
-    """Body ``body``'s geoms ``[G]``, the friction ``[G, 3]`` of their contacts and the priority
-    that makes it theirs: MuJoCo takes the larger of two geoms' frictions (at equal priority),
-    so an object's own friction (0.5) under the floor's (1.0) decides nothing. Given this
-    priority and the larger of their own and every other colliding geom's friction, its geoms
-    make the same contacts as before (exactly when the others share one friction), and scaling
-    that friction scales the object's contacts (a model's mismatch, its variants)."""
-    own = np.flatnonzero(model.geom_bodyid == body)
+def contact_friction(
+    model: mujoco.MjModel, bodies: Sequence[int]
+) -> tuple[np.ndarray, dict[int, tuple[np.ndarray, np.ndarray]]]:
+    """The geom priorities ``[ngeom]`` that make the contacts of ``bodies`` (scenario objects)
+    theirs, and per body its geoms ``[G]`` with the friction ``[G, 3]`` of their contacts.
+
+    MuJoCo takes the larger of two geoms' frictions at equal priority, so an object's own
+    friction (0.5) under the floor's (1.0) decides nothing, and scaling it changes nothing. Here
+    the objects' geoms rank above every geom they ranked level with (floor, tables, links) and
+    take the larger of their own and those geoms' frictions: they make the same contacts as
+    before (exactly when those geoms share one friction), and scaling that friction scales the
+    object's contacts (a model's mismatch, its variants). A geom that outranked the objects (a
+    gripper's rubber pads, with their own friction, condim and solimp) still does: its contacts
+    with an object stay the pad's, whatever the object's factor."""
     collides = (model.geom_contype != 0) | (model.geom_conaffinity != 0)
-    others = np.setdiff1d(np.flatnonzero(collides), own)
-    friction = model.geom_friction[own].copy()
-    if len(others):
-        friction = np.maximum(friction, model.geom_friction[others].max(0))
-    return own, friction, int(model.geom_priority.max()) + 1
+    owned = np.isin(model.geom_bodyid, np.asarray(bodies, dtype=int))
+    level = int(model.geom_priority[owned].max()) if owned.any() else 0
+    priority = model.geom_priority.copy()
+    priority[priority > level] += 1
+    priority[owned] = level + 1
+    out = {}
+    for body in bodies:
+        own = np.flatnonzero(model.geom_bodyid == body)
+        others = collides & (model.geom_bodyid != body) & (model.geom_priority <= level)
+        friction = model.geom_friction[own].copy()
+        if others.any():
+            friction = np.maximum(friction, model.geom_friction[others].max(0))
+        out[body] = (own, friction)
+    return priority, out

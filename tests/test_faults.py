@@ -467,3 +467,29 @@ def test_a_bad_flag_stops_both_commands_before_anything_starts(tmp_path):
     assert result.exit_code == 2 and "lab2" in result.output
     result = CliRunner().invoke(server_cli, ["--scenario", "push", "--check", "--faults", "harsh"])
     assert result.exit_code == 0, result.output
+
+
+def test_scaled_contact_friction_leaves_the_grippers_pads_in_charge_of_their_contacts():
+    """``friction_of: contacts`` ranks the objects above the floor and the links so their
+    scaled friction is their contacts', and below the Panda's rubber pads (priority 1, condim 4,
+    stiff solimp): a pinched cube's contacts stay the pads', whatever its factor. Before, the
+    cube outranked the pads, its pinch lost their torsional friction and stiffness, and every
+    carried cube slipped out under ``mismatch``."""
+    sc = load_scenario("pick_place")
+    nominal = SimWorld(sc).model
+    faults = FaultConfig(mismatch=MismatchConfig(friction=0.5, friction_of="contacts"))
+    model = FaultyWorld(SimWorld(sc, seed=3), faults).model
+    prio = model.geom_priority
+    pads = np.flatnonzero(nominal.geom_priority > 0)
+    objects = [nominal.body(n).id for n in ("table", "cube_a", "cube_b")]
+    cubes = np.flatnonzero(np.isin(nominal.geom_bodyid, objects))
+    rest = np.setdiff1d(np.arange(nominal.ngeom), np.concatenate([pads, cubes]))
+    assert len(pads) == 2 and len(cubes) == 3
+    assert prio[pads].min() > prio[cubes].max() >= prio[cubes].min() > prio[rest].max()
+    # the objects' scaled friction applies against the floor and the links
+    for name in ("table", "cube_a", "cube_b"):
+        geom = model.geom(name).id
+        f = FaultyWorld(SimWorld(sc, seed=3), faults).mismatch["friction"][name]
+        assert model.geom_friction[geom, 0] == pytest.approx(
+            max(nominal.geom_friction[geom, 0], nominal.geom_friction[rest, 0].max()) * f
+        )

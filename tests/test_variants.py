@@ -27,7 +27,7 @@ from server.inprocess import build_episode
 from shared import protocol as P
 from shared.config import ConfigError
 from shared.faults import PROFILES, load_faults
-from shared.scenario import SCENARIO_DIR, parse_scenario
+from shared.scenario import SCENARIO_DIR, load_scenario, parse_scenario
 from shared.scene import get_full_state, initial_data
 
 VARIANTS = {"count": 4, "params": {"mass": 0.5, "friction": 0.5}, "identify": {}}
@@ -164,6 +164,23 @@ def test_a_variant_at_the_nominal_factors_rolls_out_as_the_model():
     variants.apply()
     heavy = _box_travel(variants.models[1], x0, controls[0])
     assert heavy < _box_travel(variants.models[0], x0, controls[0]) - 0.01
+
+
+def test_the_variants_of_a_panda_keep_its_pads_in_charge_of_the_pinch():
+    """A variant scales a cube's contacts with the table, not the pads' grip on it: the pads
+    (priority 1 in the MJCF, condim 4) still outrank every object in every variant."""
+    sc = load_scenario("pick_place_variants")
+    problem = build_problem(sc)
+    variants = VariantModels(problem.model, sc.world.objects, sc.planner.model.variants)
+    pads = np.flatnonzero(problem.model.geom_priority > 0)
+    objects = [problem.model.body(o.name).id for o in sc.world.objects]
+    owned = np.isin(problem.model.geom_bodyid, objects)
+    rest = ~owned
+    rest[pads] = False
+    assert len(pads) == 2 and owned.any()
+    for m in variants.models:
+        assert m.geom_priority[pads].min() > m.geom_priority[owned].max()
+        assert m.geom_priority[owned].min() > m.geom_priority[rest].max()
 
 
 def _box_travel(model, x0, controls) -> float:
