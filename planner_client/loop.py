@@ -134,6 +134,12 @@ class PlannerClient:
             )
             try:
                 answered = self._await_reply(req, monitor, retry)
+                if not answered and monitor.stalled:
+                    # connected, and the handshake neither succeeded nor failed in ``retry``
+                    # seconds: a CURVE world hanging up on a keyless planner without a word
+                    # (rare, under load) looks like this; a world that is up completes a
+                    # handshake in milliseconds
+                    self._count_handshake_failure("connected, but no handshake completed")
             except HandshakeRefused:
                 req.close(0)  # an open socket would block the context's termination
                 raise
@@ -230,7 +236,6 @@ class PlannerClient:
                 self._handshake_failures = 0
                 return True
             for event, value in monitor.failures():
-                self._handshake_failures += 1
                 why = describe_handshake_failure(event, value)
                 if event == zmq.EVENT_HANDSHAKE_FAILED_AUTH:
                     raise HandshakeRefused(
@@ -246,19 +251,24 @@ class PlannerClient:
                         )
                     )
                 mismatch = event == zmq.EVENT_HANDSHAKE_FAILED_PROTOCOL and value == 0x11000002
-                if mismatch or self._handshake_failures >= _HANDSHAKE_FAILURES:
-                    raise HandshakeRefused(
-                        f"no secure handshake with the world at {self.endpoints.control} "
-                        f"({why}): "
-                        + (
-                            "either DIR/planner/world.key is not this world's public key, or "
-                            "the world runs without keys"
-                            if self.keys
-                            else "the world requires CURVE keys: start the planner with --keys DIR "
-                            "(the planner/ part of `m3p2i keys DIR`)"
-                        )
-                    )
+                self._count_handshake_failure(why, at_once=mismatch)
         return False
+
+    def _count_handshake_failure(self, why: str, at_once: bool = False) -> None:
+        """One more failed handshake in a row; raise the fix once it cannot be a world that
+        is still starting (``at_once``: a mechanism mismatch, which only keys explain)."""
+        self._handshake_failures += 1
+        if at_once or self._handshake_failures >= _HANDSHAKE_FAILURES:
+            raise HandshakeRefused(
+                f"no secure handshake with the world at {self.endpoints.control} ({why}): "
+                + (
+                    "either DIR/planner/world.key is not this world's public key, or "
+                    "the world runs without keys"
+                    if self.keys
+                    else "the world requires CURVE keys: start the planner with --keys DIR "
+                    "(the planner/ part of `m3p2i keys DIR`)"
+                )
+            )
 
     # ------------------------------------------------------------------ loop
 

@@ -446,6 +446,7 @@ class HandshakeMonitor:
         )
         self.mon = sock.get_monitor_socket(HANDSHAKE_FAILURES | extra)
         self._connected = False  # a connection whose handshake has not succeeded yet
+        self.stalled = False  # (hangups) the last connection neither succeeded nor failed yet
 
     def failures(self) -> list[tuple[int, int]]:
         """``(event, value)`` of the failures since the last call."""
@@ -464,6 +465,7 @@ class HandshakeMonitor:
             else:
                 self._connected = False  # reported as a failure of its own
                 out.append((event, value))
+        self.stalled = self._connected
         return out
 
     def close(self) -> None:

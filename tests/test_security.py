@@ -346,3 +346,35 @@ def test_the_refusals_queue_is_bounded_when_nobody_drains_it():
     finally:
         auth.stop()
         ctx.term()
+
+
+def test_a_planner_connected_to_a_peer_that_never_completes_a_handshake_gives_up(monkeypatch):
+    """A listener that takes the connection and never speaks (seen once: a CURVE world that
+    hung up on a keyless planner without any event) counts as a failed handshake per attempt,
+    so the planner stops with the fix instead of waiting for ever."""
+    import socket
+
+    from planner_client import loop
+    from planner_client.build import build_motion_planner
+    from planner_client.controller import Controller
+    from planner_client.task import FixedModes
+
+    monkeypatch.setattr(loop, "_HANDSHAKE_FAILURES", 2)
+    nav = load_scenario("navigation")
+    silent = socket.create_server(("127.0.0.1", 0))  # the kernel accepts; nobody answers
+    port = silent.getsockname()[1]
+    client = loop.PlannerClient(
+        Controller(build_motion_planner(nav, threads=1), FixedModes(("navigate",))),
+        Endpoints(port=port),
+        nav.name,
+        nav.hash,
+        diagnostics=False,
+    )
+    try:
+        with pytest.raises(loop.HandshakeRefused, match="connected, but no handshake completed"):
+            client.handshake(retry=0.3, give_up=30)
+    finally:
+        for s in (client.sub, client.push):
+            s.close(0)
+        client.ctx.term()
+        silent.close()
