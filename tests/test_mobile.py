@@ -104,7 +104,11 @@ def test_mobile_reactive_is_mobile_pick_place_with_its_disturbances():
     assert {o.name for o in base.world.objects} < {o.name for o in s.world.objects}
     path, moved, stolen = s.world.disturbances
     assert (path.object, path.loop) == ("person", True)
-    assert {round(w[1], 3) for w in path.waypoints} == {1.5}  # across the aisle's middle
+    # one leg along the aisle's middle, through the base's line (x 0.4-1.2) in -x: it meets the
+    # base head-on, never from behind
+    legs = list(zip(path.waypoints, path.waypoints[1:] + path.waypoints[:1]))
+    aisle = [(a, b) for a, b in legs if round(a[1], 3) == round(b[1], 3) == 1.5]
+    assert len(aisle) == 1 and aisle[0][0][0] > 1.2 and aisle[0][1][0] < 0.4
     assert moved.object == stolen.object == "cube_a"
     assert moved.when.b == "cube_a" and stolen.when.b == "cube_b"
     assert stolen.pos[1] < 0.4  # back on table A (y within its ±0.4 m)
