@@ -3,7 +3,9 @@
 A simulated world sends exact poses and velocities. A robot's world knows its objects from
 perception: poses with noise, and often no velocity at all. ``planner.estimate`` makes the
 mirror filter the poses (an exponential filter: ``p ← w·p_new + (1 − w)·p``, quaternions
-blended the same way and renormalised) and, with ``object_velocities: from_poses``, replace the
+blended the same way and renormalised; with ``predict``, ``p`` is first moved on by its filtered
+velocity over the time since, an alpha-beta filter that does not trail a body moving at constant
+velocity by ``(1 − w)/w`` states) and, with ``object_velocities: from_poses``, replace the
 received velocities by finite differences of the filtered poses, filtered again: linear
 velocity in the world frame, angular velocity in the body's frame (MuJoCo's free-joint
 convention), from ``mju_subQuat``. A jump faster than ``max_speed`` is a teleport (a disturbance,
@@ -57,10 +59,16 @@ class PoseFilter:
         w, wv = cfg.pose_filter, cfg.velocity_filter
         prev_pos, prev_quat = self.pos.copy(), self.quat.copy()
         teleport = np.linalg.norm(pos - prev_pos, axis=1) / dt > cfg.max_speed
+        prior_pos, prior_quat = prev_pos, prev_quat
+        if cfg.predict:  # the prior: the last pose moved on at the filtered velocity
+            prior_pos = prev_pos + self.vel[:, :3] * dt
+            prior_quat = prev_quat.copy()
+            for i in range(len(prior_quat)):
+                mujoco.mju_quatIntegrate(prior_quat[i], self.vel[i, 3:], dt)
         # the same rotation either way: blend towards the nearer of q and -q
-        sign = np.where(np.sum(quat * prev_quat, axis=1) < 0, -1.0, 1.0)[:, None]
-        self.pos[:] = w * pos + (1 - w) * prev_pos
-        blended = w * sign * quat + (1 - w) * prev_quat
+        sign = np.where(np.sum(quat * prior_quat, axis=1) < 0, -1.0, 1.0)[:, None]
+        self.pos[:] = w * pos + (1 - w) * prior_pos
+        blended = w * sign * quat + (1 - w) * prior_quat
         self.quat[:] = blended / np.linalg.norm(blended, axis=1, keepdims=True)
         raw = np.zeros_like(self.vel)
         raw[:, :3] = (self.pos - prev_pos) / dt

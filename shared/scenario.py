@@ -392,6 +392,7 @@ class EstimateConfig:
     max_speed: float = 5.0  # m/s: a faster jump is a teleport (filters restart)
     held_filter: float = 1.0  # weight of a new relative pose of an attached object
     still_speed: float = 0.0  # m/s: a slower filtered velocity is noise, taken as 0
+    predict: bool = False  # blend a new pose with the last one moved on by its velocity
 
 
 @dataclass(frozen=True)
@@ -1484,6 +1485,7 @@ def _estimate(s: Section) -> EstimateConfig:
         max_speed=s.opt("max_speed", 5.0, positive, "m/s > 0"),
         held_filter=s.opt("held_filter", 1.0, _weight, "a weight in (0, 1]"),
         still_speed=s.opt("still_speed", 0.0, non_negative, "m/s >= 0"),
+        predict=s.opt("predict", False, flag, "true or false"),
     )
     s.done()
     return cfg
