@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 from typer.testing import CliRunner
 
+from planner_client.aip import ActiveInferencePlanner
 from shared.layout import bridge_layout
 from shared.robots import get_robot
 from shared.scenario import load_scenario
@@ -118,3 +119,51 @@ def test_mobile_reactive_is_mobile_pick_place_with_its_disturbances():
         person = [t.params for t in terms if t.term == "collision" and t.params["a"] == "chassis"]
         assert {"a": "chassis", "obstacles": ["person"], "margin": 0.3} in person, action
         assert len(terms) > len(base.objectives[action].terms)
+
+
+def _decide_shelf(**observed):
+    sc = load_scenario("mobile_shelf")
+    start = {
+        "reachable": "not_reachable",
+        "holding": "not_holding",
+        "front": "not_in_front",
+        "preplace": "not_at_preplace",
+        "placed": "not_placed_on",
+    }
+    return ActiveInferencePlanner(sc.task).step({**start, **observed})
+
+
+@pytest.mark.parametrize(
+    "observed, action",
+    [
+        ({"reachable": "reachable"}, "pick"),
+        ({"holding": "holding"}, "carry"),  # never into the compartment from the side
+        ({"holding": "holding", "front": "in_front"}, "move2place"),
+        ({"holding": "holding", "front": "in_front", "preplace": "at_preplace"}, "place"),
+        ({"front": "in_front"}, "reach_top"),  # a cube dropped in line: fetched again
+    ],
+)
+def test_mobile_shelf_template_carries_in_line_with_the_slot_before_going_in(observed, action):
+    d = _decide_shelf(**observed)
+    assert (d.status, d.action) == ("running", action)
+
+
+def test_mobile_shelf_fuses_both_grasps_and_keeps_the_base_off_table_and_shelf():
+    """mobile_shelf (docs/mobile.md): pick_shelf's two reach modes as alternatives, a slot drawn
+    per seed that never collides, and the chassis kept 10 cm off the table and the shelf in every
+    objective the plan uses; the collision metric counts the chassis against every board."""
+    sc = load_scenario("mobile_shelf")
+    assert _decide_shelf().alternatives == ("reach_top", "reach_side")
+    slot = next(o for o in sc.world.objects if o.name == "slot")
+    assert slot.visual
+    assert "slot" in {r.object for r in sc.world.randomize}
+    shelf = {o.name for o in sc.world.objects if o.name.startswith("shelf")}
+    assert len(shelf) == 5 and set(sc.metrics.collisions.a) == {"chassis"}
+    assert shelf | {"table_a"} == set(sc.metrics.collisions.with_)
+    for action, objective in sc.action_objectives.items():
+        keep_out = [
+            (t.params["obstacles"], t.params["margin"], t.weight)
+            for t in sc.objectives[objective].terms
+            if t.term == "collision" and t.params["a"] == "chassis"
+        ]
+        assert keep_out == [(["table_a", "shelf"], 0.1, 20.0)], action
