@@ -121,16 +121,50 @@ def test_mobile_reactive_is_mobile_pick_place_with_its_disturbances():
         assert len(terms) > len(base.objectives[action].terms)
 
 
-def _decide_shelf(**observed):
-    sc = load_scenario("mobile_shelf")
-    start = {
-        "reachable": "not_reachable",
-        "holding": "not_holding",
-        "front": "not_in_front",
-        "preplace": "not_at_preplace",
-        "placed": "not_placed_on",
-    }
+def _decide(name: str, **observed):
+    """The action mobile_* scenario ``name``'s active inference picks from the start's states
+    (nothing reached, held or placed) with ``observed`` overriding some."""
+    sc = load_scenario(name)
+    start = {f.name: f.states[1] for f in sc.task.factors}
     return ActiveInferencePlanner(sc.task).step({**start, **observed})
+
+
+@pytest.mark.parametrize(
+    "observed, action",
+    [
+        ({}, "reach"),
+        ({"reachable": "reachable"}, "pick"),
+        ({"holding": "holding"}, "carry"),
+        ({"holding": "holding", "over": "over"}, "move2place"),
+        ({"holding": "holding", "over": "over", "preplace": "at_preplace"}, "place"),
+        ({"over": "over"}, "reach"),  # a cube dropped over cube B: fetched again
+    ],
+)
+def test_mobile_pick_place_carries_over_cube_b_before_putting_it_down(observed, action):
+    d = _decide("mobile_pick_place", **observed)
+    assert (d.status, d.action) == ("running", action)
+
+
+def test_mobile_pick_place_carries_with_the_arm_near_its_ready_pose_and_lowers_with_it_free():
+    """docs/mobile.md: carry holds the arm near the ready pose (posture weight 1.0) and the cube
+    at a walking pace; move2place's posture weighs 0.2 (at 1.0 the cube hung 2 cm short in real
+    time). Every objective keeps the chassis 10 cm off both tables."""
+    sc = load_scenario("mobile_pick_place")
+
+    def weight(objective: str, term: str, **params) -> list[float]:
+        return [
+            t.weight
+            for t in sc.objectives[objective].terms
+            if t.term == term and all(t.params.get(k) == v for k, v in params.items())
+        ]
+
+    assert weight("carry", "posture", joints=None) == [1.0]
+    assert weight("move2place", "posture", joints=None) == [0.2]
+    assert weight("carry", "velocity", a="cube_a") == [0.5]
+    assert weight("move2place", "velocity", a="cube_a") == []
+    for objective in sc.action_objectives.values():
+        keep_out = weight(objective, "collision", a="chassis", margin=0.1)
+        assert keep_out == [20.0], objective
 
 
 @pytest.mark.parametrize(
@@ -144,7 +178,7 @@ def _decide_shelf(**observed):
     ],
 )
 def test_mobile_shelf_template_carries_in_line_with_the_slot_before_going_in(observed, action):
-    d = _decide_shelf(**observed)
+    d = _decide("mobile_shelf", **observed)
     assert (d.status, d.action) == ("running", action)
 
 
@@ -153,7 +187,7 @@ def test_mobile_shelf_fuses_both_grasps_and_keeps_the_base_off_table_and_shelf()
     per seed that never collides, and the chassis kept 10 cm off the table and the shelf in every
     objective the plan uses; the collision metric counts the chassis against every board."""
     sc = load_scenario("mobile_shelf")
-    assert _decide_shelf().alternatives == ("reach_top", "reach_side")
+    assert _decide("mobile_shelf").alternatives == ("reach_top", "reach_side")
     slot = next(o for o in sc.world.objects if o.name == "slot")
     assert slot.visual
     assert "slot" in {r.object for r in sc.world.randomize}
