@@ -34,13 +34,9 @@ def _load(name: str) -> mujoco.MjModel:
     return mujoco.MjModel.from_xml_path(str(get_robot(name).path))
 
 
-@pytest.fixture(scope="module")
-def models():
-    return _load("panda"), _load("mobile_panda")
-
-
-def test_the_arm_on_the_base_is_panda_xml_unchanged(models):
-    panda, mobile = models
+@pytest.mark.parametrize("robot", ["mobile_panda", "mobile_panda_diff"])
+def test_the_arm_on_the_base_is_panda_xml_unchanged(robot):
+    panda, mobile = _load("panda"), _load(robot)
     for name in ARM_BODIES:
         a, b = panda.body(name), mobile.body(name)
         for field in ("pos", "quat", "mass", "inertia", "ipos", "iquat"):
@@ -79,6 +75,42 @@ def test_the_base_drives_at_its_commanded_world_velocity_and_the_arm_holds_its_p
     # the chassis floats over the floor: no wheel or floor contacts slow it
     chassis = model.body("chassis").id
     assert not any(model.geom_bodyid[c.geom[i]] == chassis for c in data.contact for i in (0, 1))
+
+
+def test_the_differential_drive_base_drives_along_its_heading_and_never_sideways():
+    """mobile_panda_diff: the base goes where it faces at the commanded forward speed while it
+    turns at the commanded rate; the tyres' grip keeps its sideways speed near zero."""
+    sc = load_scenario("mobile_pick_place_diff")
+    model = compile_model(sc)
+    data = initial_data(sc, model)
+    data.ctrl[:] = get_robot("mobile_panda_diff").safe_ctrl
+    data.ctrl[:2] = (0.5, 0.4)  # base_forward, base_wz
+    sideways = []
+    for _ in range(100):  # 1 s: 0.4 rad of turn on the way, clear of table A
+        mujoco.mj_step(model, data)
+        yaw = data.qpos[2]
+        sideways.append(-np.sin(yaw) * data.qvel[0] + np.cos(yaw) * data.qvel[1])
+    yaw = data.qpos[2]
+    assert yaw == pytest.approx(0.4, abs=0.03)
+    forward = np.cos(yaw) * data.qvel[0] + np.sin(yaw) * data.qvel[1]
+    assert forward == pytest.approx(0.5, abs=0.01)
+    assert np.max(np.abs(sideways)) < 0.01
+    # an arc of radius 0.5 / 0.4 m: the chord from the start
+    assert np.hypot(*data.qpos[:2]) == pytest.approx(2 * 1.25 * np.sin(0.2), abs=0.03)
+
+
+@pytest.mark.parametrize(
+    "observed, action",
+    [
+        ({"holding": "holding"}, "drive"),
+        ({"holding": "holding", "arrived": "arrived"}, "turn"),
+        ({"holding": "holding", "facing": "facing"}, "carry"),
+        ({"holding": "holding", "facing": "facing", "over": "over"}, "move2place"),
+    ],
+)
+def test_the_differential_drive_base_drives_then_turns_to_face_table_b(observed, action):
+    d = _decide("mobile_pick_place_diff", **observed)
+    assert (d.status, d.action) == ("running", action)
 
 
 def test_layout_lists_the_base_and_the_arm():
