@@ -154,7 +154,9 @@ class Controller:
         self.identifier = None
         variants = self.planner.variants
         if variants is not None and variants.cfg.identify is not None:
-            self.identifier = Identifier(variants, dt)
+            estimator = self.mirror.estimator
+            from_poses = bool(estimator and estimator.cfg.object_velocities == "from_poses")
+            self.identifier = Identifier(variants, dt, from_poses=from_poses)
         if self.delays.estimate:
             self._actuation = ActuationDelayEstimate(
                 self.planner.problem.model, dt, steps_of(self.delays.max_ms, dt)

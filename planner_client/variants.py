@@ -252,9 +252,24 @@ class VariantModels:
 
 class Identifier:
     """The variants reweighted by the transitions observed (module docstring). ``world_dt``:
-    the world's step; ``max_gap``: states further apart (world steps) are not scored."""
+    the world's step; ``max_gap``: states further apart (world steps) are not scored.
 
-    def __init__(self, variants: VariantModels, world_dt: float, max_gap: int = 10):
+    ``from_poses``: the mirror estimates the free objects' velocities from their poses
+    (``planner.estimate.object_velocities: from_poses``). Its filters lag a box that speeds up,
+    and a prediction started from them, scored against them, favours variants whose box
+    accelerates less (a heavier box, weaker drives: a nominal world read as mass 1.2, gains
+    0.8). So each prediction starts instead from the objects' poses as received and their
+    velocities over the last step (the second difference of the poses is then what the
+    variants are scored on), and the objects' velocities are not scored (they would count the
+    positions' error twice)."""
+
+    def __init__(
+        self,
+        variants: VariantModels,
+        world_dt: float,
+        max_gap: int = 10,
+        from_poses: bool = False,
+    ):
         cfg = variants.cfg.identify
         self.variants = variants
         self.cfg = cfg
@@ -265,16 +280,21 @@ class Identifier:
         self.log_w = np.full(count, -math.log(count))  # [V]
         self.observed = 0  # transitions scored
         self.resampled = 0
+        self.from_poses = from_poses
         free = model.jnt_type == mujoco.mjtJoint.mjJNT_FREE
         self._positions = np.concatenate(
             [model.jnt_qposadr[j] + np.arange(3) for j in np.flatnonzero(free)] or [[]]
         ).astype(int)  # [O·3] the free objects' positions in qpos
-        self._velocities = np.concatenate(
-            [
-                np.array([model.jnt_dofadr[j] for j in range(model.njnt) if not free[j]]),
-                *[model.jnt_dofadr[j] + np.arange(3) for j in np.flatnonzero(free)],
-            ]
-        ).astype(int)  # [R + O·3] the robot's own velocities, the free objects' linear ones
+        self._free_qpos = np.concatenate(
+            [model.jnt_qposadr[j] + np.arange(7) for j in np.flatnonzero(free)] or [[]]
+        ).astype(int)  # [O·7] the free objects' poses in qpos
+        self._linear = np.concatenate(
+            [model.jnt_dofadr[j] + np.arange(3) for j in np.flatnonzero(free)] or [[]]
+        ).astype(int)  # [O·3] the free objects' linear velocities in qvel
+        robot = np.array([model.jnt_dofadr[j] for j in range(model.njnt) if not free[j]])
+        # [R (+ O·3)] the robot's own velocities (and the free objects' linear ones)
+        self._velocities = robot if from_poses else np.concatenate([robot, self._linear])
+        self._velocities = self._velocities.astype(int)
         self._sigma = np.concatenate(
             [
                 np.full(len(self._positions), cfg.position_sigma),
@@ -291,6 +311,7 @@ class Identifier:
         )
         self._scratch = mujoco.MjData(model)
         self._prev: tuple[float, np.ndarray] | None = None
+        self._received: tuple[float, np.ndarray] | None = None  # from_poses: the last poses
         self._estimate = posterior_mean(variants.factors, self.log_w)  # [P]
 
     def observation(self, qpos: np.ndarray, qvel: np.ndarray) -> np.ndarray:
@@ -312,11 +333,10 @@ class Identifier:
         ``actuation_delay`` s late. A state with a non-finite observation changes nothing."""
         qpos = data.qpos if received_qpos is None else received_qpos
         observed = self.observation(qpos, data.qvel)
-        state = np.zeros(mujoco.mj_stateSize(self.variants.base, self._kind))
-        mujoco.mj_getState(self.variants.base, data, state, self._kind)
+        time = float(data.time)
+        state = self._start_state(data, qpos, time)
         if not (np.isfinite(observed).all() and np.isfinite(state).all()):
             return
-        time = float(data.time)
         prev, self._prev = self._prev, (time, state)
         if prev is None:
             return
@@ -343,6 +363,35 @@ class Identifier:
             v.apply()
             self.log_w = np.full(len(self.log_w), -math.log(len(self.log_w)))
             self.resampled += 1
+
+    def _start_state(self, data: mujoco.MjData, qpos: np.ndarray, time: float) -> np.ndarray:
+        """The state the next transition's predictions start from: the mirror's ``data``, or,
+        with ``from_poses``, the mirror's with the free objects' poses as received in ``qpos``
+        and their linear velocities from the last step's poses (0 after a gap or at the
+        start). A received pose without orientation (zeros) keeps the mirror's."""
+        base = self.variants.base
+        state = np.zeros(mujoco.mj_stateSize(base, self._kind))
+        if not self.from_poses or not len(self._free_qpos):
+            mujoco.mj_getState(base, data, state, self._kind)
+            return state
+        poses = np.array(qpos[self._free_qpos], dtype=float)  # [O·7]
+        last, self._received = self._received, (time, poses)
+        d = self._scratch
+        mujoco.mj_getState(base, data, state, self._kind)
+        mujoco.mj_setState(base, d, state, self._kind)
+        for k in range(0, len(poses), 7):
+            a = self._free_qpos[k]
+            d.qpos[a : a + 3] = poses[k : k + 3]
+            quat = poses[k + 3 : k + 7]
+            if np.linalg.norm(quat) > 0:
+                d.qpos[a + 3 : a + 7] = quat / np.linalg.norm(quat)
+        velocity = np.zeros(len(self._linear))
+        if last is not None and 1 <= round((time - last[0]) / self.world_dt) <= self.max_gap:
+            positions = poses.reshape(-1, 7)[:, :3].ravel()
+            velocity = (positions - last[1].reshape(-1, 7)[:, :3].ravel()) / (time - last[0])
+        d.qvel[self._linear] = velocity
+        mujoco.mj_getState(base, d, state, self._kind)
+        return state
 
     def estimate(self) -> dict[str, dict[str, float]]:
         """The posterior mean of the factors after the last transition scored (the prior's
