@@ -258,10 +258,10 @@ class Identifier:
     (``planner.estimate.object_velocities: from_poses``). Its filters lag a box that speeds up,
     and a prediction started from them, scored against them, favours variants whose box
     accelerates less (a heavier box, weaker drives: a nominal world read as mass 1.2-1.5,
-    gains 0.75-0.85). So each prediction starts instead from the objects' poses as received and their
-    velocities over the last step (the second difference of the poses is then what the
-    variants are scored on), and the objects' velocities are not scored (they would count the
-    positions' error twice)."""
+    gains 0.75-0.85). So each prediction starts instead from the objects' poses as received
+    and their velocities over the last step (the second difference of the poses is then what
+    the variants are scored on), and the objects' velocities are not scored (they would count
+    the positions' error twice)."""
 
     def __init__(
         self,
