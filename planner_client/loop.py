@@ -140,6 +140,11 @@ class PlannerClient:
                     # (rare, under load) looks like this; a world that is up completes a
                     # handshake in milliseconds
                     self._count_handshake_failure("connected, but no handshake completed")
+                elif not answered and self._handshake_failures and not monitor.events:
+                    # after failed handshakes a world can stop taking connections at all (seen
+                    # under load: 15 failures, then new sockets silent for minutes); a world
+                    # that is up with our keys would have answered, so this counts as well
+                    self._count_handshake_failure("no connection since the handshakes failed")
             except HandshakeRefused:
                 req.close(0)  # an open socket would block the context's termination
                 raise

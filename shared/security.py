@@ -447,6 +447,7 @@ class HandshakeMonitor:
         self.mon = sock.get_monitor_socket(HANDSHAKE_FAILURES | extra)
         self._connected = False  # a connection whose handshake has not succeeded yet
         self.stalled = False  # (hangups) the last connection neither succeeded nor failed yet
+        self.events = 0  # monitor events seen: 0, no connection got as far as the peer
 
     def failures(self) -> list[tuple[int, int]]:
         """``(event, value)`` of the failures since the last call."""
@@ -454,6 +455,7 @@ class HandshakeMonitor:
         while self.mon.poll(0):
             msg = recv_monitor_message(self.mon)
             event, value = int(msg["event"]), int(msg["value"])
+            self.events += 1
             if event == zmq.EVENT_CONNECTED:
                 self._connected = True
             elif event == zmq.EVENT_HANDSHAKE_SUCCEEDED:
