@@ -285,9 +285,7 @@ class Identifier:
         self._positions = np.concatenate(
             [model.jnt_qposadr[j] + np.arange(3) for j in np.flatnonzero(free)] or [[]]
         ).astype(int)  # [O·3] the free objects' positions in qpos
-        self._free_qpos = np.concatenate(
-            [model.jnt_qposadr[j] + np.arange(7) for j in np.flatnonzero(free)] or [[]]
-        ).astype(int)  # [O·7] the free objects' poses in qpos
+        self._quats = model.jnt_qposadr[free] + 3  # [O] the free objects' quaternions in qpos
         self._linear = np.concatenate(
             [model.jnt_dofadr[j] + np.arange(3) for j in np.flatnonzero(free)] or [[]]
         ).astype(int)  # [O·3] the free objects' linear velocities in qvel
@@ -311,7 +309,7 @@ class Identifier:
         )
         self._scratch = mujoco.MjData(model)
         self._prev: tuple[float, np.ndarray] | None = None
-        self._received: tuple[float, np.ndarray] | None = None  # from_poses: the last poses
+        self._received: tuple[float, np.ndarray] | None = None  # from_poses: the last positions
         self._estimate = posterior_mean(variants.factors, self.log_w)  # [P]
 
     def observation(self, qpos: np.ndarray, qvel: np.ndarray) -> np.ndarray:
@@ -371,24 +369,21 @@ class Identifier:
         start). A received pose without orientation (zeros) keeps the mirror's."""
         base = self.variants.base
         state = np.zeros(mujoco.mj_stateSize(base, self._kind))
-        if not self.from_poses or not len(self._free_qpos):
-            mujoco.mj_getState(base, data, state, self._kind)
-            return state
-        poses = np.array(qpos[self._free_qpos], dtype=float)  # [O·7]
-        last, self._received = self._received, (time, poses)
-        d = self._scratch
         mujoco.mj_getState(base, data, state, self._kind)
+        if not self.from_poses or not len(self._positions):
+            return state
+        positions = np.array(qpos[self._positions], dtype=float)  # [O·3]
+        last, self._received = self._received, (time, positions)
+        d = self._scratch
         mujoco.mj_setState(base, d, state, self._kind)
-        for k in range(0, len(poses), 7):
-            a = self._free_qpos[k]
-            d.qpos[a : a + 3] = poses[k : k + 3]
-            quat = poses[k + 3 : k + 7]
-            if np.linalg.norm(quat) > 0:
-                d.qpos[a + 3 : a + 7] = quat / np.linalg.norm(quat)
+        d.qpos[self._positions] = positions
+        for a in self._quats:
+            norm = np.linalg.norm(qpos[a : a + 4])
+            if norm > 0:
+                d.qpos[a : a + 4] = qpos[a : a + 4] / norm
         velocity = np.zeros(len(self._linear))
         if last is not None and 1 <= round((time - last[0]) / self.world_dt) <= self.max_gap:
-            positions = poses.reshape(-1, 7)[:, :3].ravel()
-            velocity = (positions - last[1].reshape(-1, 7)[:, :3].ravel()) / (time - last[0])
+            velocity = (positions - last[1]) / (time - last[0])
         d.qvel[self._linear] = velocity
         mujoco.mj_getState(base, d, state, self._kind)
         return state
