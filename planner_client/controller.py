@@ -161,9 +161,10 @@ class Controller:
             self._actuation = ActuationDelayEstimate(
                 self.planner.problem.model, dt, steps_of(self.delays.max_ms, dt)
             )
-            # the plans the world played that long ago must still be at hand
-            self._sent = deque(maxlen=max(16, self._actuation.max_steps + 8))
-        self._sent.clear()
+        # the plans the world played as long ago as the estimates look back must be at hand
+        reach = [a.max_steps for a in (self._actuation,) if a is not None]
+        reach += [i.reach for i in (self.identifier,) if i is not None]
+        self._sent = deque(maxlen=max([16] + [r + 8 for r in reach]))
         self._last_start = None
 
     def _new_episode(self, seed: int | None) -> None:

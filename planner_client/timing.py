@@ -79,13 +79,41 @@ def predict(
     grid."""
     if steps <= 0:
         return
+    controls = played(model, plans, safe, float(data.time), world_dt, steps, actuation_delay)
+    step_through(model, data, controls, world_dt)
+
+
+def played(
+    model: mujoco.MjModel,
+    plans: list[TimedPlan],
+    safe: np.ndarray,
+    start: float,
+    world_dt: float,
+    steps: int,
+    actuation_delay: float = 0.0,
+) -> np.ndarray:
+    """``[steps, nu]``: the controls the world applies over ``steps`` world steps from time
+    ``start`` (:func:`predict`'s), clipped to the actuators' ranges. The times add up step by
+    step as ``mj_step`` adds them, so that each control is the one :func:`predict` would read."""
     lo, hi = model.actuator_ctrlrange.T
     limited = model.actuator_ctrllimited.astype(bool)
+    out = np.empty((steps, model.nu))
+    t = start
+    for k in range(steps):
+        u = playing(plans, t - actuation_delay)
+        u = safe if u is None else u
+        out[k] = np.where(limited, np.clip(u, lo, hi), u)
+        t += world_dt
+    return out
+
+
+def step_through(
+    model: mujoco.MjModel, data: mujoco.MjData, controls: np.ndarray, world_dt: float
+) -> None:
+    """Steps ``data`` in place under ``controls [steps, nu]``, one world step each."""
     with _timestep(model, world_dt):
-        for _ in range(steps):
-            u = playing(plans, float(data.time) - actuation_delay)
-            u = safe if u is None else u
-            data.ctrl[:] = np.where(limited, np.clip(u, lo, hi), u)
+        for u in controls:
+            data.ctrl[:] = u
             mujoco.mj_step(model, data)
 
 

@@ -222,7 +222,7 @@ def rollout_device(value: Any) -> str:
 
 VARIANT_PARAMS = ("mass", "friction", "gain")
 VARIANT_AGGREGATES = ("mean", "cvar", "worst")
-VARIANT_SPREADS = ("split", "all")
+VARIANT_SPREADS = ("split", "all", "estimate")
 
 
 @dataclass(frozen=True)
@@ -234,13 +234,17 @@ class IdentifyConfig:
     positions and the robot's velocities; ``forget``: the share of the past evidence each new
     transition keeps (old evidence fades, so the ensemble widens again when the world changes);
     ``floor``: the share of the variants redrawn from the prior at each resampling;
-    ``jitter``: each kept variant's factors moved by this fraction of the prior's half-width."""
+    ``jitter``: each kept variant's factors moved by this fraction of the prior's half-width;
+    ``window``: the world steps each prediction spans (1: from the previous state received;
+    more: from the state ``window`` steps back, its objects' positions and velocities a line
+    fitted through the poses received around it)."""
 
     position_sigma: float = 0.005
     velocity_sigma: float = 0.02
     forget: float = 0.9
     floor: float = 0.1
     jitter: float = 0.1
+    window: int = 1
 
     def as_dict(self) -> dict[str, Any]:
         return dict(self.__dict__)
@@ -254,7 +258,9 @@ class VariantsConfig:
     for ``gain`` (gain and bias). ``spread: split``: sample ``k`` rolls out in variant
     ``k mod count`` (no extra rollouts); ``all``: every sample in every variant, its cost the
     ``aggregate`` over them (``mean``, ``cvar``: the mean of the worst ``cvar_alpha`` share,
-    ``worst``). ``identify``: the variants reweighted and resampled online."""
+    ``worst``); ``estimate``: every sample in one model at the identified factors (the
+    variants only identify; needs ``identify``). ``identify``: the variants reweighted and
+    resampled online."""
 
     count: int = 8
     seed: int = 0
@@ -1367,6 +1373,17 @@ def _fraction(value: Any) -> float:
 
 _FRACTION = "a fraction in [0, 1) (0.3: factors within ±30 %)"
 
+# the longest prediction the identifier scores, in world steps: the controller keeps the plans
+# sent over that span (planner_client.controller)
+MAX_IDENTIFY_WINDOW = 20
+
+
+def _window(value: Any) -> int:
+    v = positive_int(value)
+    if v > MAX_IDENTIFY_WINDOW:
+        raise ValueError(f"must be <= {MAX_IDENTIFY_WINDOW}")
+    return v
+
 
 def _variants(s: Section) -> VariantsConfig:
     p = s.section("params")
@@ -1388,12 +1405,19 @@ def _variants(s: Section) -> VariantsConfig:
         identify=_identify(s.section("identify")) if s.has("identify") else None,
         **params,
     )
-    if cfg.spread == "split" and s.has("aggregate"):
+    if cfg.spread != "all" and s.has("aggregate"):
         raise s.error(
             "aggregate",
             "an aggregate needs every sample rolled out in every variant",
             cfg.aggregate,
-            "spread: all (with spread: split each sample meets one variant)",
+            f"spread: all (with spread: {cfg.spread} each sample meets one model)",
+        )
+    if cfg.spread == "estimate" and cfg.identify is None:
+        raise s.error(
+            "spread",
+            "rollouts at the identified factors need the variants identified",
+            cfg.spread,
+            "an identify section (e.g. identify: {}), or spread: split or all",
         )
     s.done()
     return cfg
@@ -1406,6 +1430,7 @@ def _identify(s: Section) -> IdentifyConfig:
         forget=s.opt("forget", 0.9, _weight, "a share in (0, 1]"),
         floor=s.opt("floor", 0.1, _fraction, "a share in [0, 1)"),
         jitter=s.opt("jitter", 0.1, non_negative, "a fraction >= 0 of the prior's half-width"),
+        window=s.opt("window", 1, _window, f"steps, an integer in [1, {MAX_IDENTIFY_WINDOW}]"),
     )
     s.done()
     return cfg
