@@ -162,9 +162,10 @@ class Controller:
                 self.planner.problem.model, dt, steps_of(self.delays.max_ms, dt)
             )
         # the plans the world played as long ago as the estimates look back must be at hand
-        reach = [a.max_steps for a in (self._actuation,) if a is not None]
-        reach += [i.reach for i in (self.identifier,) if i is not None]
-        self._sent = deque(maxlen=max([16] + [r + 8 for r in reach]))
+        reach = self._actuation.max_steps if self._actuation is not None else 0
+        if self.identifier is not None:
+            reach = max(reach, self.identifier.reach)
+        self._sent = deque(maxlen=max(16, reach + 8))
         self._last_start = None
 
     def _new_episode(self, seed: int | None) -> None:

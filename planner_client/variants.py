@@ -382,12 +382,7 @@ class Identifier:
         if self.cfg.window == 1:
             prev, self._prev = self._prev, (time, state)
         else:
-            if self._history and time <= self._history[-1][0]:  # the same state, or a new episode
-                if time == self._history[-1][0]:
-                    return
-                self._history.clear()
-            self._history.append((time, state, np.array(qpos[self._positions], dtype=float)))
-            prev = self._window_start(time)
+            prev = self._window_start(time, state, qpos)
         if prev is None:
             return
         steps = round((time - prev[0]) / self.world_dt)
@@ -425,11 +420,19 @@ class Identifier:
         """The furthest back, in world steps, that a scored prediction starts."""
         return self.cfg.window + self.max_gap - 1
 
-    def _window_start(self, time: float) -> tuple[float, np.ndarray] | None:
-        """``(time, state)`` of the newest state received at least ``window`` steps before
+    def _window_start(
+        self, time: float, state: np.ndarray, qpos: np.ndarray
+    ) -> tuple[float, np.ndarray] | None:
+        """Records this state (``state`` to start from, positions received in ``qpos``) and
+        returns ``(time, state)`` of the newest state received at least ``window`` steps before
         ``time``, with ``from_poses`` its free objects' positions and linear velocities from
         :func:`line_fit` through the positions received within ``window // 2`` steps of it;
-        None when there is none, or fewer than three poses to fit."""
+        None for the same state again, when there is none, or fewer than three poses to fit."""
+        if self._history and time <= self._history[-1][0]:  # the same state, or a new episode
+            if time == self._history[-1][0]:
+                return None
+            self._history.clear()
+        self._history.append((time, state, np.array(qpos[self._positions], dtype=float)))
         window = self.cfg.window
         times = np.array([h[0] for h in self._history])
         back = np.round((time - times) / self.world_dt)  # steps before now
