@@ -289,9 +289,10 @@ class Identifier:
     and a prediction started from them, scored against them, favours variants whose box
     accelerates less (a heavier box, weaker drives: a nominal world read as mass 1.2-1.5,
     gains 0.75-0.85). So each prediction starts instead from the objects' poses as received
-    and their velocities over the last step (the second difference of the poses is then what
-    the variants are scored on), and the objects' velocities are not scored (they would count
-    the positions' error twice).
+    and their velocities over the last step, linear and angular (the second difference of the
+    poses is then what the variants are scored on; an angular velocity left to the filters
+    read a nominal box's friction 5 % high), and the objects' velocities are not scored (they
+    would count the positions' error twice).
 
     ``identify.window`` > 1: each prediction spans that many steps instead, from the newest
     state received at least ``window`` steps back. Under a tracker's noise (15 mm) one step's
@@ -326,6 +327,9 @@ class Identifier:
         self._linear = np.concatenate(
             [model.jnt_dofadr[j] + np.arange(3) for j in np.flatnonzero(free)] or [[]]
         ).astype(int)  # [O·3] the free objects' linear velocities in qvel
+        self._angular = np.concatenate(
+            [model.jnt_dofadr[j] + np.arange(3, 6) for j in np.flatnonzero(free)] or [[]]
+        ).astype(int)  # [O·3] the free objects' angular velocities in qvel
         robot = np.array([model.jnt_dofadr[j] for j in range(model.njnt) if not free[j]])
         # [R (+ O·3)] the robot's own velocities (and the free objects' linear ones)
         self._velocities = robot if from_poses else np.concatenate([robot, self._linear])
@@ -346,7 +350,8 @@ class Identifier:
         )
         self._scratch = mujoco.MjData(model)
         self._prev: tuple[float, np.ndarray] | None = None
-        self._received: tuple[float, np.ndarray] | None = None  # from_poses: the last positions
+        # from_poses: the last received (time, positions [O·3], quaternions [O, 4])
+        self._received: tuple[float, np.ndarray, np.ndarray] | None = None
         # window > 1: (time, start state, received positions [O·3]) of the states received
         # over the longest span a window and its fit reach back
         window = cfg.window
@@ -460,15 +465,14 @@ class Identifier:
     def _start_state(self, data: mujoco.MjData, qpos: np.ndarray, time: float) -> np.ndarray:
         """The state the next transition's predictions start from: the mirror's ``data``, or,
         with ``from_poses``, the mirror's with the free objects' poses as received in ``qpos``
-        and their linear velocities from the last step's poses (0 after a gap or at the
-        start). A received pose without orientation (zeros) keeps the mirror's."""
+        and their linear and angular velocities from the last step's poses (0 after a gap or at
+        the start). A received pose without orientation (zeros) keeps the mirror's."""
         base = self.variants.base
         state = np.zeros(mujoco.mj_stateSize(base, self._kind))
         mujoco.mj_getState(base, data, state, self._kind)
         if not self.from_poses or not len(self._positions):
             return state
         positions = np.array(qpos[self._positions], dtype=float)  # [O·3]
-        last, self._received = self._received, (time, positions)
         d = self._scratch
         mujoco.mj_setState(base, d, state, self._kind)
         d.qpos[self._positions] = positions
@@ -476,10 +480,17 @@ class Identifier:
             norm = np.linalg.norm(qpos[a : a + 4])
             if norm > 0:
                 d.qpos[a : a + 4] = qpos[a : a + 4] / norm
-        velocity = np.zeros(len(self._linear))
+        quats = np.stack([d.qpos[a : a + 4] for a in self._quats])  # [O, 4]
+        last, self._received = self._received, (time, positions, quats)
+        d.qvel[self._linear] = 0.0
+        d.qvel[self._angular] = 0.0
         if last is not None and 1 <= round((time - last[0]) / self.world_dt) <= self.max_gap:
-            velocity = (positions - last[1]) / (time - last[0])
-        d.qvel[self._linear] = velocity
+            span = time - last[0]
+            d.qvel[self._linear] = (positions - last[1]) / span
+            turn = np.zeros(3)
+            for o, a in enumerate(self._angular.reshape(-1, 3)):
+                mujoco.mju_subQuat(turn, quats[o], last[2][o])  # in the body's frame
+                d.qvel[a] = turn / span
         mujoco.mj_getState(base, d, state, self._kind)
         return state
 

@@ -61,7 +61,7 @@ from shared import protocol as P
 from shared.config import ConfigError
 from shared.scenario import load_scenario
 from shared.scene import build_spec, compile_model, get_full_state, initial_data
-from shared.tools.bench import machine
+from shared.tools.provenance import machine, versions
 from shared.tools.speed_report import update
 
 SCENARIOS = ("navigation", "push_pull", "push_pull_fast", "pick_place")
@@ -278,6 +278,7 @@ def main(
                     "command": "python scripts/benchmark.py " + " ".join(sys.argv[1:]),
                     "date": time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime()),
                     "machine": machine(),
+                    "versions": versions(),
                     "threads": nthread,
                     "iterations": iterations,
                     "runs": runs,

@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import pytest
 
+from shared.tools.provenance import machine, versions
 from tests.episodes import BackgroundEpisodes
 
 POOL = "lockstep_episodes"
@@ -47,3 +48,9 @@ def _lockstep_pool(request, tmp_path_factory):
 @pytest.fixture(scope="session")
 def lockstep_episodes(_lockstep_pool):
     return _lockstep_pool.result()
+
+
+def pytest_report_header(config):
+    """The machine and the library versions at the top of every run (CI's log included): an
+    episode's digits depend on both."""
+    return f"m3p2i on {machine()}: {versions()}"

@@ -35,6 +35,7 @@ from shared.tools.bench_report import (
     wilson,
 )
 from shared.tools.cli import app
+from shared.tools.provenance import machine, versions
 
 ROOT = Path(__file__).resolve().parent.parent
 
@@ -222,6 +223,16 @@ def _results(folder, rows, notes=None):
     return folder
 
 
+def test_the_report_names_the_library_versions_where_rows_record_them(tmp_path):
+    old = _results(tmp_path / "old", [{"case": "a", "seed": 0, "success": True}])
+    new = _results(
+        tmp_path / "new",
+        [{"case": "b", "seed": 0, "success": True, "versions": "mujoco 4.0.1, torch 2.13.0"}],
+    )
+    text = results_report([read_results(old), read_results(new)], load_paper())
+    assert "Trials ran on CPU X, 2 cores; CPU X, 2 cores (mujoco 4.0.1, torch 2.13.0)," in text
+
+
 def test_report_counts_the_newest_scenario_version_and_explains_failures(tmp_path):
     rows = [
         {"case": "pick_place", "seed": s, "scenario_hash": "old", "success": False}
@@ -373,6 +384,9 @@ def test_bench_resumes_and_records_a_hung_trial(tmp_path):
     assert sorted(r["seed"] for r in rows) == ["0", "1"]
     assert all(r["status"] == "timeout" and r["reason"] == "" and r["time"] for r in rows)
     assert all((out / r["log"]).is_file() for r in rows)
+    # where the digits came from: the machine and the libraries that computed them
+    assert all(r["machine"] == machine() and r["versions"] == versions() for r in rows)
+    assert versions().startswith("mujoco 4.0.") and ", torch " in versions()
     assert "tiny" in (out / "summary.md").read_text()
 
     # the endless trial is cut at 5 s (wall clock) and recorded; tiny is not run again

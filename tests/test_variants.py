@@ -329,51 +329,70 @@ def _identify(
         episode.close()
 
 
+# Identification is scored over several seeds: one push is a contact-rich episode, and its
+# digits move with the CPU and the MuJoCo patch release (with the box tracked, seed 1 reads a
+# nominal box as 1.33 under mujoco 4.0.0 and 1.02 under 4.0.1; another machine read 1.12-1.15
+# where this one reads 0.97-1.01). So the medians over the seeds must be near the truth, and
+# all seeds but one must tell the heavy world from the nominal one; both fail when the
+# identifier is off (every estimate stays at 1) or its likelihood is inverted.
+HEAVY = "mismatch: {factors: {mass: {box: 1.5}, friction: {box: 0.6}}, friction_of: contacts}"
+TRACKED = {
+    "params": {"mass": 0.5, "friction": 0.5, "gain": 0.25},
+    "estimate": {
+        "object_velocities": "from_poses",
+        "pose_filter": 0.35,
+        "velocity_filter": 0.3,
+        "predict": True,
+    },
+}
+
+
+def _over_seeds(faults: str, tmp_path, seeds: int, **kw) -> dict[str, np.ndarray]:
+    """The estimates after 3 s of pushing for seeds 0 to ``seeds`` - 1: factor -> ``[seeds]``
+    (``mass``, ``friction``: the box's; a drive's name: its gain)."""
+    rows = []
+    for seed in range(seeds):
+        estimate, _ = _identify(faults, 3.0, tmp_path, seed=seed, **kw)
+        rows.append({"mass": estimate["mass"]["box"], "friction": estimate["friction"]["box"]})
+        rows[-1].update(estimate.get("gain", {}))
+    return {k: np.array([r[k] for r in rows]) for k in rows[0]}
+
+
 @pytest.mark.slow
 @pytest.mark.parametrize("window", [1, 6])
 def test_the_planner_identifies_a_heavier_box_that_slides_more_easily(tmp_path, window):
-    """Box mass x1.5, the friction of its contacts x0.6: both estimated within 15 % after 3 s
-    of pushing; in the nominal world, both within 10 % of nominal. Predictions over one step
-    and over six."""
-    estimate, world = _identify(
-        "mismatch: {factors: {mass: {box: 1.5}, friction: {box: 0.6}}, friction_of: contacts}",
-        3.0,
-        tmp_path,
-        window=window,
-    )
-    assert world == {"mass": {"box": 1.5}, "friction": {"box": 0.6}, "gain": {}}
-    assert estimate["mass"]["box"] == pytest.approx(1.5, rel=0.15)
-    assert estimate["friction"]["box"] == pytest.approx(0.6, rel=0.15)
-    estimate, _ = _identify("mismatch: {factors: {mass: {box: 1.0}}}", 3.0, tmp_path, window=window)
-    assert estimate["mass"]["box"] == pytest.approx(1.0, rel=0.10)
-    assert estimate["friction"]["box"] == pytest.approx(1.0, rel=0.10)
+    """Box mass x1.5, the friction of its contacts x0.6: over the seeds, the median estimates
+    after 3 s within 15 % of the truth; in the nominal world within 10 % of nominal; and on all
+    seeds but one the heavy world reads at least 0.25 heavier and 0.2 less frictional than the
+    nominal one (half the true differences). Predictions over one step and over six."""
+    heavy = _over_seeds(HEAVY, tmp_path, 3, window=window)
+    nominal = _over_seeds("mismatch: {factors: {mass: {box: 1.0}}}", tmp_path, 3, window=window)
+    assert np.median(heavy["mass"]) == pytest.approx(1.5, rel=0.15), heavy
+    assert np.median(heavy["friction"]) == pytest.approx(0.6, rel=0.15), heavy
+    assert np.median(nominal["mass"]) == pytest.approx(1.0, rel=0.10), nominal
+    assert np.median(nominal["friction"]) == pytest.approx(1.0, rel=0.10), nominal
+    assert (heavy["mass"] - nominal["mass"] > 0.25).sum() >= 2, (heavy, nominal)
+    assert (nominal["friction"] - heavy["friction"] > 0.2).sum() >= 2, (heavy, nominal)
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("seed", [0, 1])
-def test_identification_from_filtered_poses_stays_at_a_nominal_world(tmp_path, seed):
-    """The box's velocities hidden and estimated from its poses (push_lab's filters): in the
-    nominal world the box's mass and friction and the drives' gains stay within 10 % of
-    nominal after 3 s. Predictions started from the filtered state read mass 1.3-1.5 and gains
-    down to 0.75 here (the filters lag a box that speeds up)."""
-    estimate, world = _identify(
-        "hide_velocities: true",
-        3.0,
-        tmp_path,
-        params={"mass": 0.5, "friction": 0.5, "gain": 0.25},
-        seed=seed,
-        estimate={
-            "object_velocities": "from_poses",
-            "pose_filter": 0.35,
-            "velocity_filter": 0.3,
-            "predict": True,
-        },
+def test_identification_from_tracked_poses_reads_a_heavy_box_and_a_nominal_world(tmp_path):
+    """The box's velocities hidden and estimated from its poses (push_lab's filters; mass,
+    friction and both drives' gains varied): over five seeds, the median estimates of a nominal
+    world within 10 % of nominal, of a box 1.5 times as heavy within 15 % of 1.5, and on all
+    seeds but one the heavy box reads at least 0.25 heavier than the nominal one (a tracked
+    nominal box strays further than a measured one, see above). Predictions start from
+    the received poses and their last step's velocities, linear and angular; started from the
+    mirror's filtered state they read a nominal box as 1.3-1.5 (docs/faults.md)."""
+    hidden = "hide_velocities: true"
+    nominal = _over_seeds(hidden, tmp_path, 5, **TRACKED)
+    heavy = _over_seeds(
+        hidden + "\nmismatch: {factors: {mass: {box: 1.5}}}", tmp_path, 5, **TRACKED
     )
-    assert not any(world.values())  # a nominal world
-    assert estimate["mass"]["box"] == pytest.approx(1.0, rel=0.10)
-    assert estimate["friction"]["box"] == pytest.approx(1.0, rel=0.10)
-    for drive in ("vel_x", "vel_y"):
-        assert estimate["gain"][drive] == pytest.approx(1.0, rel=0.10)
+    for factor in ("mass", "friction", "vel_x", "vel_y"):
+        assert np.median(nominal[factor]) == pytest.approx(1.0, rel=0.10), (factor, nominal)
+    assert np.median(heavy["mass"]) == pytest.approx(1.5, rel=0.15), heavy
+    assert (heavy["mass"] - nominal["mass"] > 0.25).sum() >= 4, (heavy, nominal)
 
 
 def _replay_mass_errors(window: int, noise_seed: int) -> np.ndarray:

@@ -21,7 +21,6 @@ import dataclasses
 import fnmatch
 import json
 import os
-import platform
 import queue
 import shutil
 import threading
@@ -50,6 +49,7 @@ from shared.evaluation.metrics import MetricsEvaluator
 from shared.faults import read_old_name
 from shared.scenario import Scenario, find_scenario, load_scenario, parse_scenario
 from shared.tools.launch import MODES, EpisodeLaunch, mode_conflicts, run_episode
+from shared.tools.provenance import machine, versions
 from shared.tools.sweep import Sweep, apply_overrides, file_label, parse_sweep_section, to_cell
 from shared.tools.warm import PairSlot
 
@@ -74,24 +74,11 @@ FIELDS = (
     "initial",
     "log",
     "machine",
+    "versions",
     "date",
     "mode",
     "overrides",
 )
-
-
-def machine() -> str:
-    """The CPU model and core count, recorded with every trial: a lock-step episode repeats
-    exactly on one machine, and only there (other CPUs round differently)."""
-    model = platform.processor() or platform.machine()
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                model = line.split(":", 1)[1].strip()
-                break
-    except OSError:
-        pass
-    return f"{model}, {os.cpu_count()} cores"
 
 
 @dataclass(frozen=True)
@@ -552,6 +539,7 @@ def run_trial(
         "initial": json.dumps(initial) if initial is not None else "",
         "log": str(rel / "episode.jsonl"),
         "machine": machine(),
+        "versions": versions(),
         "date": time.strftime("%Y-%m-%d"),
         "mode": trial.case.mode_label,
         "overrides": to_cell(trial.overrides),

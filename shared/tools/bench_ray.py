@@ -27,7 +27,8 @@ from pathlib import Path
 
 from shared.evaluation.metrics import MetricsEvaluator
 from shared.scenario import load_scenario
-from shared.tools.bench import BenchCase, BenchOptions, ResultsFile, Trial, machine, run_trial
+from shared.tools.bench import BenchCase, BenchOptions, ResultsFile, Trial, run_trial
+from shared.tools.provenance import machine, versions
 from shared.tools.sweep import to_cell
 
 # seconds a task may run past the trial time-out (start-up of the two processes, scheduling)
@@ -158,6 +159,7 @@ def failure_row(trial: Trial, reason: str) -> dict:
         "status": "failure",
         "reason": reason,
         "machine": machine(),
+        "versions": versions(),
         "date": time.strftime("%Y-%m-%d"),
         "mode": trial.case.mode_label,
         "overrides": to_cell(trial.overrides),

@@ -360,7 +360,7 @@ def results_report(results: list[Results], paper: dict[str, PaperRow]) -> str:
     for res in results:
         rows += table_rows(summarize(res.rows, res.cases), paper)
         failures += _failure_lines(res.rows, res.notes)
-        machines |= {r.get("machine") or "machine not recorded" for r in res.rows}
+        machines |= {_machine(r) for r in res.rows}
         dates |= {r.get("date") or "date not recorded" for r in res.rows}
     parts = [
         markdown_table(rows),
@@ -372,8 +372,15 @@ def results_report(results: list[Results], paper: dict[str, PaperRow]) -> str:
     return "\n".join(parts) + "\n"
 
 
+def _machine(row: dict[str, str]) -> str:
+    """Where a trial ran: the machine, and the library versions where the row records them
+    (rows written before the column have none)."""
+    where = row.get("machine") or "machine not recorded"
+    return f"{where} ({row['versions']})" if row.get("versions") else where
+
+
 def _trials_ran_on(rows: list[dict[str, str]]) -> str:
-    machines = sorted({r.get("machine") or "machine not recorded" for r in rows})
+    machines = sorted({_machine(r) for r in rows})
     dates = sorted({r.get("date") or "date not recorded" for r in rows})
     return f"\nTrials ran on {'; '.join(machines)}, {', '.join(dates)}.\n"
 

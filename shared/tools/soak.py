@@ -58,9 +58,9 @@ from shared.endpoints import Endpoints
 from shared.evaluation import episode
 from shared.scenario import find_scenario
 from shared.tools import netns
-from shared.tools.bench import machine
 from shared.tools.blocks import regenerate
 from shared.tools.launch import free_port_block, stop_processes
+from shared.tools.provenance import machine, versions
 from shared.tools.push_frames import push
 
 FAULTS = ("kill", "restart", "flood", "pause", "cut")
@@ -878,6 +878,7 @@ class Soak:
             "date": time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime(started)),
             "wall_s": round(time.time() - started, 1),
             "machine": machine(),
+            "versions": versions(),
             "ok": all(c.ok for c in checks),
             "checks": [asdict(c) for c in checks],
             "faults": counts,

@@ -45,7 +45,9 @@ def markdown(results: dict, source: str) -> str:
     lines += [
         "",
         f"Median (min-max) over {results['runs']} runs of `{results['command']}`, "
-        f"{results['date']}, {results['machine']}, {results['threads']} rollout threads, "
+        f"{results['date']}, {results['machine']}"
+        + (f" ({results['versions']})" if results.get("versions") else "")
+        + f", {results['threads']} rollout threads, "
         f"median of {results['iterations']} iterations per run; from `{source}`.",
     ]
     return "\n".join(lines)

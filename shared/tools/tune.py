@@ -42,6 +42,7 @@ from shared.evaluation.metrics import MetricsEvaluator
 from shared.scenario import Scenario, find_scenario, load_scenario, parse_scenario
 from shared.tools import bench as B
 from shared.tools.bench_report import seed_ranges, wilson
+from shared.tools.provenance import machine, versions
 
 STUDY = "tune"  # the study's name in OUT/study.db
 DECIMALS = 4  # significant digits of a proposed float: what runs is what the overlay says
@@ -922,7 +923,7 @@ def report(
         f"{space.startup(opts.trials)} random proposals first; pruning "
         f"{'on' if space.prune else 'off'}",
         f"- {len(_finished(study))} trials finished; episodes' wall time {wall:.0f} s "
-        f"(sum over {len(rows)} episodes in `results.csv`, on {B.machine()})",
+        f"(sum over {len(rows)} episodes in `results.csv`, on {machine()}, {versions()})",
         f"- best: trial {best.number}; overlay `{overlay_path}` "
         f"(`m3p2i run {overlay_path}{_run_options(target.case)}`)",
         "",
