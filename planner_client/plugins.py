@@ -6,7 +6,7 @@ Only the operator chooses what is imported, on the planner's machine: the ``plug
 the scenario file the planner reads from its own disk, and ``m3p2i-planner --plugins``. Nothing
 received over the wire names a module: the handshake carries the scenario's name and hash, never
 its text, and a Ray node refuses a scenario sent to it that names plugins
-(``shared.tools.bench_ray``).
+(``m3p2i.bench_ray``).
 
 A plugin is named as a file (``my_terms.py``, or ``my_terms``: ``my_terms.py`` or the package
 ``my_terms/`` in the scenario's folder) or, when no such file is there, as a module on the

@@ -55,14 +55,14 @@ from mujoco import rollout as mj_rollout
 from rich.console import Console
 from rich.table import Table
 
+from m3p2i.provenance import machine, versions
+from measure.speed_report import update
 from planner_client.build import build_controller
 from planner_client.problem import apply_planning_model, tune_planning_model
 from shared import protocol as P
 from shared.config import ConfigError
 from shared.scenario import load_scenario
 from shared.scene import build_spec, compile_model, get_full_state, initial_data
-from shared.tools.provenance import machine, versions
-from shared.tools.speed_report import update
 
 SCENARIOS = ("navigation", "push_pull", "push_pull_fast", "pick_place")
 

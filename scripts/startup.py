@@ -26,9 +26,9 @@ import typer
 from rich.console import Console
 from rich.table import Table
 
+from m3p2i.launch import free_port_block, stop_processes
 from shared.evaluation import episode
 from shared.scenario import find_scenario
-from shared.tools.launch import free_port_block, stop_processes
 
 SCENARIOS = ("navigation", "pick_place")
 

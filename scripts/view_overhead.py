@@ -25,7 +25,7 @@ from pathlib import Path
 def run_once(scenario: str, view: bool, folder: Path) -> tuple[float, int, float]:
     """(planner Hz, steps, wall seconds) of one ``m3p2i run``."""
     run_dir = folder / f"{scenario}-{'view' if view else 'plain'}-{time.monotonic_ns()}"
-    cmd = [sys.executable, "-m", "shared.tools", "run", scenario, "--run-dir", str(run_dir)]
+    cmd = [sys.executable, "-m", "m3p2i", "run", scenario, "--run-dir", str(run_dir)]
     if view:
         cmd.append("--view")
     started = time.monotonic()

@@ -23,10 +23,10 @@ from pathlib import Path
 
 import zmq
 
+from m3p2i.launch import free_port_block
+from m3p2i.view import ControlClient
 from shared.endpoints import Endpoints
 from shared.protocol import Control
-from shared.tools.launch import free_port_block
-from shared.tools.view import ControlClient
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # the clone's tests/ package
 from tests.browser import chromium_screenshot
@@ -76,7 +76,7 @@ def main() -> None:
         [
             sys.executable,
             "-m",
-            "shared.tools",
+            "m3p2i",
             "run",
             args.scenario,
             "--view",
@@ -109,7 +109,7 @@ def main() -> None:
         [
             sys.executable,
             "-m",
-            "shared.tools",
+            "m3p2i",
             "view",
             "--log",
             str(run_dir),

@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import pytest
 
-from shared.tools.provenance import machine, versions
+from m3p2i.provenance import machine, versions
 from tests.episodes import BackgroundEpisodes
 
 POOL = "lockstep_episodes"

@@ -21,10 +21,10 @@ from pathlib import Path
 
 import yaml
 
+from m3p2i import bench as B
 from shared.evaluation import episode
 from shared.evaluation.metrics import MetricsEvaluator
 from shared.scenario import find_scenario, load_scenario
-from shared.tools import bench as B
 
 ROOT = Path(__file__).resolve().parents[1]
 

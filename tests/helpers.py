@@ -11,11 +11,11 @@ from pathlib import Path
 
 import zmq
 
+from m3p2i.cli import free_port_block
+from m3p2i.launch import stop_processes
 from shared import protocol as P
 from shared.endpoints import Endpoints
 from shared.security import PlannerKeys, curve_client
-from shared.tools.cli import free_port_block
-from shared.tools.launch import stop_processes
 
 ENV = {**os.environ, "PYTHONUNBUFFERED": "1"}
 

@@ -104,7 +104,7 @@ def _based_on_navigation(tmp_path, extra: str):
 def test_m3p2i_check_refuses_non_finite_numbers_naming_file_and_key(tmp_path, extra, key):
     from typer.testing import CliRunner
 
-    from shared.tools.cli import app
+    from m3p2i.cli import app
 
     path = _based_on_navigation(tmp_path, extra)
     result = CliRunner().invoke(app, ["check", str(path)])
@@ -125,7 +125,7 @@ def test_the_loader_refuses_non_finite_numbers(tmp_path):
 def test_m3p2i_run_refuses_an_infinite_delay_before_starting_anything(tmp_path):
     from typer.testing import CliRunner
 
-    from shared.tools.cli import app
+    from m3p2i.cli import app
 
     run_dir = tmp_path / "run"
     path = _based_on_navigation(tmp_path, "planner: {delays: {actuation_ms: .inf}}\n")
@@ -179,10 +179,10 @@ def _ws_open(port: int, origin: str | None, host: str | None = None) -> str:
 @pytest.fixture
 def live_view():
     pytest.importorskip("viser")
+    from m3p2i.launch import free_port_block
+    from m3p2i.view import LiveView
     from shared.endpoints import Endpoints
     from shared.scenario import load_scenario
-    from shared.tools.launch import free_port_block
-    from shared.tools.view import LiveView
 
     views = []
 
@@ -215,7 +215,7 @@ def test_a_page_of_another_origin_cannot_open_the_views_websocket(live_view):
 
 
 def test_a_public_view_accepts_its_machines_names_and_addresses_only():
-    from shared.tools.view import OriginPolicy
+    from m3p2i.view import OriginPolicy
 
     public = OriginPolicy(public=True, names=frozenset({"lab-pc"}))
     for host in ("lab-pc:8080", "192.168.1.20:8080", "[fe80::1]:8080", "localhost:8080"):
@@ -249,8 +249,8 @@ class _FakeView:
 def _view_cli(monkeypatch, *argv: str):
     from typer.testing import CliRunner
 
-    from shared.tools import view as V
-    from shared.tools.cli import app
+    from m3p2i import view as V
+    from m3p2i.cli import app
 
     monkeypatch.setattr(V, "LiveView", _FakeView)
     _FakeView.made.clear()
@@ -279,7 +279,7 @@ def test_a_public_view_has_no_controls_unless_asked(monkeypatch):
 
 
 def test_a_view_without_controls_shows_no_buttons_and_sends_nothing(live_view):
-    from shared.tools.view import LiveView
+    from m3p2i.view import LiveView
 
     view: LiveView = live_view(controls=False)
     assert view.buttons == {} and view.gizmos == {}

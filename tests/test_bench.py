@@ -10,9 +10,7 @@ import pytest
 import yaml
 from typer.testing import CliRunner
 
-from shared.config import ConfigError
-from shared.scenario import SCENARIO_DIR
-from shared.tools.bench import (
+from m3p2i.bench import (
     FIELDS,
     BenchOptions,
     ResultsFile,
@@ -23,7 +21,7 @@ from shared.tools.bench import (
     select_cases,
     trial_key,
 )
-from shared.tools.bench_report import (
+from m3p2i.bench_report import (
     load_paper,
     markdown_table,
     read_results,
@@ -34,8 +32,10 @@ from shared.tools.bench_report import (
     update_reports,
     wilson,
 )
-from shared.tools.cli import app
-from shared.tools.provenance import machine, versions
+from m3p2i.cli import app
+from m3p2i.provenance import machine, versions
+from shared.config import ConfigError
+from shared.scenario import SCENARIO_DIR
 
 ROOT = Path(__file__).resolve().parent.parent
 
@@ -467,7 +467,7 @@ def test_bench_faults_and_compensation_are_checked_and_reach_the_processes(tmp_p
         with pytest.raises(ConfigError, match=message) as err:
             load_bench(path)
         assert err.value.path == "cases[0].realtime_factor"
-    from shared.tools.launch import EpisodeLaunch
+    from m3p2i.launch import EpisodeLaunch
 
     launch = EpisodeLaunch(
         scenario="navigation.yaml", run_dir=tmp_path, mode="realtime", realtime_factor=0.5
@@ -507,7 +507,7 @@ def test_realtime_trials_run_last_and_alone_on_every_core(tmp_path, monkeypatch)
     import threading
     import time as _time
 
-    from shared.tools import bench as B
+    from m3p2i import bench as B
 
     log, running, lock = [], [], threading.Lock()
 
@@ -546,10 +546,10 @@ def test_realtime_trials_run_last_and_alone_on_every_core(tmp_path, monkeypatch)
 )
 def test_run_refuses_options_its_mode_would_ignore(args, message):
     """What the bench refuses by key, ``m3p2i run`` refuses by flag (one check,
-    shared.tools.launch.mode_conflicts), before anything starts."""
+    m3p2i.launch.mode_conflicts), before anything starts."""
     from typer.testing import CliRunner
 
-    from shared.tools.cli import app
+    from m3p2i.cli import app
 
     result = CliRunner().invoke(app, ["run", "navigation", *args])
     assert result.exit_code == 2 and message in result.output, result.output
@@ -585,7 +585,7 @@ def test_sigterm_stops_the_episode_processes_as_ctrl_c_does(tmp_path):
         [{"case": "e", "scenario": unreachable_scenario(tmp_path, "endless", 600.0), "trials": 1}],
     )
     proc = subprocess.Popen(
-        [sys.executable, "-m", "shared.tools", "bench", str(bench), "--out", str(tmp_path / "o")],
+        [sys.executable, "-m", "m3p2i", "bench", str(bench), "--out", str(tmp_path / "o")],
         cwd=tmp_path,
         stdout=subprocess.DEVNULL,
         stderr=subprocess.DEVNULL,

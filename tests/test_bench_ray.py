@@ -16,12 +16,12 @@ import pytest
 import yaml
 from typer.testing import CliRunner
 
+from m3p2i import bench as B
+from m3p2i.cli import app
 from shared.scenario import SCENARIO_DIR
-from shared.tools import bench as B
-from shared.tools.cli import app
 
 ray = pytest.importorskip("ray", reason="needs the cluster extra: pip install 'm3p2i[cluster]'")
-from shared.tools import bench_ray as BR  # noqa: E402  (needs ray)
+from m3p2i import bench_ray as BR  # noqa: E402  (needs ray)
 
 pytestmark = pytest.mark.slow
 

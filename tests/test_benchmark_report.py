@@ -1,4 +1,4 @@
-"""scripts/benchmark.py's report (shared.tools.speed_report): the speed table in docs/speed.md
+"""scripts/benchmark.py's report (scripts.measure.speed_report): the speed table in docs/speed.md
 is generated from a results file (median and range over the runs), never typed; regenerating it
 changes nothing."""
 
@@ -9,7 +9,7 @@ import json
 import pytest
 import typer
 
-from shared.tools import speed_report
+from scripts.measure import speed_report
 
 
 def _row(run: int, hz: float, ratio: float) -> dict:

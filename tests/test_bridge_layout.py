@@ -13,6 +13,8 @@ import pytest
 import zmq
 from typer.testing import CliRunner
 
+from m3p2i.cli import app as m3p2i
+from m3p2i.cli import free_port_block
 from server.world import SimWorld
 from shared import protocol as P
 from shared.endpoints import Endpoints, socket
@@ -21,8 +23,6 @@ from shared.layout import StateSizes, bridge_layout, frame_names
 from shared.robots import ROBOTS, get_robot
 from shared.scenario import load_scenario
 from shared.scene import STATE_FIELDS, compile_model
-from shared.tools.cli import app as m3p2i
-from shared.tools.cli import free_port_block
 
 
 @pytest.fixture(scope="module")

@@ -22,12 +22,12 @@ import pytest
 import zmq
 from typer.testing import CliRunner
 
+from m3p2i.launch import free_port_block
 from server.cli import app as server_app
 from server.interface import WorldLoadError, load_world_class
 from shared.evaluation.episode import read_log, steps
 from shared.scenario import load_scenario
 from shared.scene import compile_model, initial_data
-from shared.tools.launch import free_port_block
 from tests.bridge_worlds import KinematicBase
 from tests.helpers import ENV, start_planner, stop
 

@@ -14,13 +14,13 @@ import pytest
 import yaml
 from typer.testing import CliRunner
 
+from m3p2i.cli import app
 from planner_client import planner_check
 from server import world_check as server_check
 from shared.config import ConfigError, ConfigErrors
 from shared.frames import FrameResolver
 from shared.scenario import SCENARIO_DIR, parse_scenario, read_scenario
 from shared.scene import compile_model
-from shared.tools.cli import app
 
 
 def _nav() -> dict:

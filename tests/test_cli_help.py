@@ -18,9 +18,9 @@ import typer
 from rich.text import Text
 from typer.testing import CliRunner
 
+from m3p2i.cli import app as m3p2i_app
 from planner_client.cli import app as planner_app
 from server.cli import app as server_app
-from shared.tools.cli import app as m3p2i_app
 
 APPS = {"m3p2i": m3p2i_app, "m3p2i-server": server_app, "m3p2i-planner": planner_app}
 

@@ -111,8 +111,8 @@ def test_delays_are_read_and_checked_with_file_key_and_expectation(tmp_path):
 def test_compensate_declares_the_faults_delays_to_the_planner_only(tmp_path):
     from typer.testing import CliRunner
 
-    from shared.tools.cli import app
-    from shared.tools.launch import EpisodeLaunch
+    from m3p2i.cli import app
+    from m3p2i.launch import EpisodeLaunch
 
     launch = EpisodeLaunch(
         scenario="navigation.yaml", run_dir=tmp_path, faults="lab", delays=(25.0, 25.0)
@@ -138,8 +138,8 @@ def test_compensation_makes_up_most_of_what_a_300_ms_round_trip_costs(tmp_path):
     it arrives either way, but the compensated planner does not overshoot and wait, which the
     uncompensated one does (lock-step: the same on every run of one machine; measured 3.25 s
     against 7.95 s, and 2.98 s without delays)."""
+    from m3p2i.launch import EpisodeLaunch, run_episode
     from shared.config_files import shipped
-    from shared.tools.launch import EpisodeLaunch, run_episode
 
     faults = tmp_path / "delays.yaml"
     faults.write_text("actuation_delay_ms: 200\nstate_delay_ms: 100\n")

@@ -72,10 +72,10 @@ def test_no_answer_before_enough_states():
 def test_delays_estimate_is_read_checked_and_switched_on_by_the_command_line(tmp_path):
     import yaml
 
+    from m3p2i.launch import EpisodeLaunch
     from planner_client.cli import with_delays
     from shared.config import ConfigError
     from shared.config_files import shipped
-    from shared.tools.launch import EpisodeLaunch
 
     raw = yaml.safe_load((shipped("scenarios") / "navigation.yaml").read_text())
     raw["planner"]["delays"] = {"estimate": "yes"}
@@ -94,8 +94,8 @@ def test_estimated_delays_do_what_declared_ones_do(tmp_path):
     """Navigation behind 200 ms of actuation and 100 ms of state delay, lock-step: a planner
     that measures the delays arrives about as soon as one told them (measured 3.35 s against
     3.25 s; 7.95 s unaware), and says what it found."""
+    from m3p2i.launch import EpisodeLaunch, run_episode
     from shared.config_files import shipped
-    from shared.tools.launch import EpisodeLaunch, run_episode
 
     faults = tmp_path / "delays.yaml"
     faults.write_text("actuation_delay_ms: 200\nstate_delay_ms: 100\n")

@@ -1,11 +1,14 @@
 """The README and docs stay legible: the README and docs/speed.md are short, each generated
 table has one home (no results file feeds blocks in two files), every relative link and anchor
-resolves, and docs/architecture.md exists and names the import-rules test."""
+resolves, and docs/architecture.md names the import-rules test and only files, functions and
+classes that exist."""
 
 from __future__ import annotations
 
 import re
 from pathlib import Path
+
+import mujoco
 
 ROOT = Path(__file__).resolve().parents[1]
 DOCS = [ROOT / "README.md", *sorted((ROOT / "docs").glob("*.md"))]
@@ -89,3 +92,87 @@ def test_every_link_in_the_readme_and_docs_resolves():
 def test_the_architecture_page_names_the_import_rules_test():
     text = (ROOT / "docs" / "architecture.md").read_text(encoding="utf-8")
     assert "tests/test_import_rules.py" in text
+
+
+# ------------------------------------------------------- names in docs/architecture.md exist
+
+CODE_DIRS = ("server", "planner_client", "shared", "m3p2i", "scripts", "tests")
+PACKAGES = ("server", "planner_client", "shared", "m3p2i")
+SPAN = re.compile(r"`([^`\n]+)`")
+FILE_THEN_NAME = re.compile(r"`([\w/]+\.py)` `(\w+)`")
+DOTTED = re.compile(r"(?:{})(?:\.\w+)+".format("|".join(PACKAGES)))
+
+
+def _code_files() -> list[Path]:
+    return [p for d in CODE_DIRS for p in (ROOT / d).rglob("*") if "__pycache__" not in p.parts]
+
+
+def _defines(path: Path, name: str) -> bool:
+    return (
+        re.search(rf"^\s*(?:def|class)\s+{name}\b", path.read_text(encoding="utf-8"), re.M)
+        is not None
+    )
+
+
+def missing_names(text: str) -> list[str]:
+    """What a page names in backticks that the code lacks: paths (``mirror.py``,
+    ``mppi/sampling.py``, ``scripts/measure/``), a function or class after its file
+    (```controller.py` `_plan_start```), dotted names in the packages
+    (``server.inprocess.run_episode``) and classes (``Controller``, ``Controller.step``; not
+    MuJoCo's, such as ``MjData``)."""
+    files = _code_files()
+    rel = [p.relative_to(ROOT).as_posix() + ("/" if p.is_dir() else "") for p in files]
+    missing = []
+    for file, name in FILE_THEN_NAME.findall(text):
+        hits = [p for p, r in zip(files, rel) if r.endswith(file) and p.is_file()]
+        if not any(_defines(p, name) for p in hits):
+            missing.append(f"{file} {name}")
+    for span in set(SPAN.findall(text)):
+        if re.fullmatch(r"[\w./-]+(\.py|/)", span):
+            if not (ROOT / span).exists() and not any(r.endswith("/" + span) for r in rel):
+                missing.append(span)
+        elif DOTTED.fullmatch(span):
+            parts = span.split(".")
+            for cut in range(len(parts), 0, -1):
+                module = ROOT.joinpath(*parts[:cut])
+                source = (
+                    module.with_suffix(".py")
+                    if module.with_suffix(".py").is_file()
+                    else (module / "__init__.py")
+                )
+                if source.is_file():
+                    rest = parts[cut:]
+                    if rest and not _defines(source, rest[0]):
+                        missing.append(span)
+                    break
+            else:
+                missing.append(span)
+        elif re.fullmatch(r"[A-Z][a-z]\w*(?:\.\w+)?", span) and not hasattr(mujoco, span):
+            cls, _, method = span.partition(".")
+            owners = [p for p in files if p.suffix == ".py" and _defines(p, cls)]
+            if not owners or (method and not any(_defines(p, method) for p in owners)):
+                missing.append(span)
+    return sorted(missing)
+
+
+def test_the_architecture_page_names_only_files_and_functions_that_exist():
+    text = (ROOT / "docs" / "architecture.md").read_text(encoding="utf-8")
+    assert missing_names(text) == []
+
+
+def test_a_stale_name_on_the_architecture_page_is_found():
+    stale = (
+        "`loop.py` `_plan_start`, `controller.py` `_plan_start`, `mirror.py`, `gone.py`, "
+        "`mppi/sampling.py`, `mppi/nothing.py`, `server.inprocess.run_episode`, "
+        "`server.inprocess.walk_episode`, `Controller.step`, `Controller.fly`, `Nobody`"
+    )
+    assert missing_names(stale) == sorted(
+        [
+            "loop.py _plan_start",
+            "gone.py",
+            "mppi/nothing.py",
+            "server.inprocess.walk_episode",
+            "Controller.fly",
+            "Nobody",
+        ]
+    )

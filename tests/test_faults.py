@@ -15,6 +15,9 @@ import typer
 import yaml
 from typer.testing import CliRunner
 
+from m3p2i.bench import load_bench
+from m3p2i.cli import app as m3p2i
+from m3p2i.launch import EpisodeLaunch
 from planner_client.problem import build_problem
 from server.cli import app as server_cli
 from server.faults import FaultyWorld
@@ -23,9 +26,6 @@ from shared.config import ConfigError, load_yaml
 from shared.evaluation import episode
 from shared.faults import NOMINAL, PROFILES, FaultConfig, MismatchConfig, load_faults, steps_of
 from shared.scenario import find_scenario, load_scenario, parse_scenario
-from shared.tools.bench import load_bench
-from shared.tools.cli import app as m3p2i
-from shared.tools.launch import EpisodeLaunch
 
 
 @pytest.fixture(scope="module")
@@ -225,9 +225,9 @@ def test_realtime_delays_are_the_declared_world_steps_at_any_realtime_factor(
     # --compensate declares the delays as world steps (steps_of); the world at
     # --realtime-factor 0.5 steps every dt / 0.5 wall seconds: its delays must count world
     # seconds too, or a 120 ms delay (3 steps declared at dt 0.05) acts after 2
+    from m3p2i.launch import free_port_block
     from server.app import ServerOptions, WorldServer
     from shared.endpoints import Endpoints
-    from shared.tools.launch import free_port_block
 
     ms = 120.0
     server = WorldServer(
@@ -391,10 +391,10 @@ def test_a_faulty_episode_repeats_exactly_from_its_seed(push):
 
 
 def test_the_server_wraps_its_world_only_for_faults_and_logs_truth_and_faults(push, tmp_path):
+    from m3p2i.launch import free_port_block
     from server.app import WorldServer
     from server.episode_log import read_log
     from shared.endpoints import Endpoints
-    from shared.tools.launch import free_port_block
 
     server = WorldServer(
         push, Endpoints(port=free_port_block()), tmp_path / "a.jsonl", faults=PROFILES["nominal"]

@@ -1,12 +1,12 @@
 """The package layout's import rules (docs/architecture.md).
 
 ``server`` and ``planner_client`` meet only over the wire (or in one process, where the caller
-hands the world a planner: ``server.inprocess``): neither imports the other. ``shared`` imports
-neither. Inside ``shared``, the contract (the top-level
-modules and ``shared.robots``) imports neither ``shared.evaluation`` nor ``shared.tools``, and
-``shared.evaluation`` does not import ``shared.tools``; the two processes never import
-``shared.tools`` either. Every ``import`` in every module counts, including those inside
-functions.
+hands the world a planner: ``server.inprocess``): neither imports the other, nor ``m3p2i``, the
+command that composes them. ``shared`` is the contract both processes need and imports none of
+the three; inside it, the contract proper (the top-level modules and ``shared.robots``) does not
+import ``shared.evaluation``, and no module of ``shared`` imports the heavy libraries of the
+tools (optuna, ray, viser, matplotlib, imageio). ``m3p2i`` may import the three others. Every
+``import`` in every module counts, including those inside functions.
 """
 
 from __future__ import annotations
@@ -15,20 +15,22 @@ import ast
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parent.parent
-PACKAGES = ("server", "planner_client", "shared")
+PACKAGES = ("server", "planner_client", "shared", "m3p2i")
 
 # (importer prefix, forbidden import prefix): a module whose dotted name starts with the first
 # may not import a module whose dotted name starts with the second.
+TOOL_LIBRARIES = ("optuna", "ray", "viser", "matplotlib", "imageio")
 FORBIDDEN = (
     ("server", "planner_client"),
-    ("server", "shared.tools"),
+    ("server", "m3p2i"),
     ("planner_client", "server"),
-    ("planner_client", "shared.tools"),
+    ("planner_client", "m3p2i"),
     ("shared", "server"),
     ("shared", "planner_client"),
-    ("shared.evaluation", "shared.tools"),
+    ("shared", "m3p2i"),
+    *(("shared", lib) for lib in TOOL_LIBRARIES),
 )
-CONTRACT_MAY_NOT = ("shared.evaluation", "shared.tools")
+CONTRACT_MAY_NOT = ("shared.evaluation",)
 
 
 def module_name(path: Path, root: Path) -> str:
@@ -55,7 +57,7 @@ def imports(path: Path, root: Path) -> set[str]:
             else:
                 prefix = node.module or ""
             out.add(prefix)
-            # `from shared import tools` imports the module shared.tools
+            # `from shared import evaluation` imports the module shared.evaluation
             out.update(f"{prefix}.{a.name}" for a in node.names)
     return out
 
@@ -91,7 +93,7 @@ def test_every_package_is_scanned():
     # a rule over an empty set of files would pass for the wrong reason
     for package in PACKAGES:
         assert list((ROOT / package).rglob("*.py")), package
-    assert (ROOT / "shared" / "tools" / "cli.py").is_file()
+    assert (ROOT / "m3p2i" / "cli.py").is_file()
     assert (ROOT / "shared" / "evaluation" / "metrics.py").is_file()
 
 
@@ -102,29 +104,32 @@ def _write(root: Path, rel: str, text: str) -> None:
 
 
 def test_the_checker_finds_each_kind_of_violation(tmp_path):
-    for package in ("server", "planner_client", "shared", "shared/tools", "shared/evaluation"):
+    for package in ("server", "planner_client", "shared", "m3p2i", "shared/evaluation"):
         _write(tmp_path, f"{package}/__init__.py", "")
     _write(tmp_path, "server/app.py", "from planner_client.loop import PlannerClient\n")
+    _write(tmp_path, "server/cli.py", "from m3p2i.launch import run_episode\n")
     _write(tmp_path, "planner_client/loop.py", "def f():\n    import server.world\n")
-    _write(tmp_path, "shared/scenario.py", "from shared.tools import bench\n")
+    _write(tmp_path, "shared/scenario.py", "from m3p2i import bench\n")
     _write(tmp_path, "shared/scene.py", "from .evaluation.metrics import x\n")
-    _write(tmp_path, "shared/evaluation/metrics.py", "from ..tools.launch import y\n")
+    _write(tmp_path, "shared/geometry.py", "def f():\n    import matplotlib.pyplot\n")
+    _write(tmp_path, "shared/evaluation/metrics.py", "from ...m3p2i.launch import y\n")
     _write(
         tmp_path,
-        "shared/tools/cli.py",
-        "from shared.evaluation import episode\nfrom shared.scenario import load_scenario\n",
+        "m3p2i/cli.py",
+        "from shared.evaluation import episode\nfrom server.inprocess import build_episode\n"
+        "from planner_client.build import build_controller\nimport optuna\n",
     )
-    _write(tmp_path, "shared/tools/inprocess.py", "from server.episode import Episode\n")
     _write(tmp_path, "shared/evaluation/episode.py", "from server.app import WorldServer\n")
     _write(tmp_path, "shared/protocol.py", "import planner_client.controller\n")
     found = "\n".join(violations(tmp_path))
     assert "server.app imports planner_client.loop" in found
+    assert "server.cli imports m3p2i.launch" in found
     assert "planner_client.loop imports server.world" in found
-    assert "shared.scenario imports shared.tools" in found
+    assert "shared.scenario imports m3p2i" in found
     assert "shared.scene imports shared.evaluation.metrics" in found
-    assert "shared.evaluation.metrics imports shared.tools.launch" in found
-    assert "shared.tools.cli" not in found  # the tools may import everything in shared ...
-    assert "shared.tools.inprocess imports server.episode" in found  # ... but no process
+    assert "shared.geometry imports matplotlib.pyplot" in found
+    assert "shared.evaluation.metrics imports m3p2i.launch" in found
+    assert "m3p2i.cli" not in found  # the command may import everything
     assert "shared.evaluation.episode imports server.app" in found
     assert "shared.protocol imports planner_client.controller" in found
 

@@ -231,7 +231,7 @@ def test_robot_collisions_cover_the_whole_robot_tree(tmp_path):
 def test_the_plot_draws_the_identified_model_against_the_worlds(scenario, tmp_path):
     """Steps with the planner's estimate (planner.model.variants) and a header with the world's
     factors: one series per estimated factor, NaN before the first estimate, the truth beside."""
-    from shared.tools.plots import episode_series, plot_episode
+    from m3p2i.plots import episode_series, plot_episode
 
     records = hand_made_log(scenario)
     records[0]["faults_mismatch"] = {"mass": {"box": 1.5}, "gain": {"vel_x": 0.8}}
@@ -250,7 +250,7 @@ def test_the_plot_draws_the_identified_model_against_the_worlds(scenario, tmp_pa
 
 
 def test_plot_of_the_hand_made_log(scenario, tmp_path):
-    from shared.tools.plots import cos_rog, episode_series, plot_episode
+    from m3p2i.plots import cos_rog, episode_series, plot_episode
 
     series = episode_series(scenario, hand_made_log(scenario))
     assert series.obj is not None and series.time.shape == (len(ROBOT_X),)

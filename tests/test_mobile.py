@@ -11,12 +11,12 @@ import numpy as np
 import pytest
 from typer.testing import CliRunner
 
+from m3p2i.cli import app as m3p2i
 from planner_client.aip import ActiveInferencePlanner
 from shared.layout import bridge_layout
 from shared.robots import get_robot
 from shared.scenario import load_scenario
 from shared.scene import compile_model, initial_data
-from shared.tools.cli import app as m3p2i
 
 ARM_BODIES = [f"panda_link{i}" for i in range(1, 8)] + [
     "panda_hand",

@@ -17,7 +17,7 @@ from pathlib import Path
 
 import pytest
 
-from shared.tools import netns
+from scripts.measure import netns
 from tests.helpers import ENV
 
 pytestmark = pytest.mark.slow
@@ -31,7 +31,7 @@ RESUME = 1.0  # s after the link's return within which a planned step must come
 @pytest.fixture
 def hosts():
     """Two namespaces, ``world`` (10.a.b.1) and ``planner`` (10.a.b.2), one veth pair between
-    them, loopback up in each (:func:`shared.tools.netns.two_hosts`, which the soak's
+    them, loopback up in each (:func:`scripts.measure.netns.two_hosts`, which the soak's
     ``--netns`` uses too); deleted at the end (which deletes the pair too)."""
     try:
         with netns.two_hosts() as made:
@@ -73,7 +73,7 @@ def test_a_two_second_link_cut_between_two_hosts_holds_the_robot_and_planning_re
 ):
     keys, log = tmp_path / "keys", tmp_path / "episode.jsonl"
     subprocess.run(
-        [sys.executable, "-m", "shared.tools", "keys", str(keys)],
+        [sys.executable, "-m", "m3p2i", "keys", str(keys)],
         check=True,
         capture_output=True,
         env=ENV,

@@ -17,11 +17,11 @@ import pytest
 import yaml
 from typer.testing import CliRunner
 
+from m3p2i.bench import load_bench
+from m3p2i.cli import app
 from shared.config import ConfigError
 from shared.config_files import ENV_VAR, find, shipped
 from shared.scenario import SCENARIO_DIR, find_objectives, load_scenario
-from shared.tools.bench import load_bench
-from shared.tools.cli import app
 
 ROOT = Path(__file__).resolve().parent.parent
 SHIPPED_NAMES = sorted(p.stem for p in SCENARIO_DIR.glob("*.yaml"))
@@ -215,14 +215,22 @@ def test_pyproject_lists_every_package():
     tool = tomllib.loads((ROOT / "pyproject.toml").read_text())["tool"]["setuptools"]
     found = {
         ".".join(p.parent.relative_to(ROOT).parts)
-        for top in ("shared", "server", "planner_client")
+        for top in ("m3p2i", "shared", "server", "planner_client")
         for p in (ROOT / top).rglob("__init__.py")
     }
     assert sorted(tool["packages"]) == sorted(found | {"shared.configs"})
     assert tool["package-dir"] == {"shared.configs": "configs"}
 
 
-WHEEL_SOURCES = ("pyproject.toml", "README.md", "configs", "shared", "server", "planner_client")
+WHEEL_SOURCES = (
+    "pyproject.toml",
+    "README.md",
+    "configs",
+    "m3p2i",
+    "shared",
+    "server",
+    "planner_client",
+)
 
 
 def run(cmd: list, cwd: Path, env: dict, timeout: float = 600) -> str:

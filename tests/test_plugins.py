@@ -189,8 +189,8 @@ def test_plugins_are_names(tmp_path):
 
 def test_a_ray_node_refuses_a_received_scenario_that_names_plugins(tmp_path):
     pytest.importorskip("ray", reason="needs the cluster extra")
-    from shared.tools import bench_ray as BR
-    from shared.tools.bench import BenchCase
+    from m3p2i import bench_ray as BR
+    from m3p2i.bench import BenchCase
 
     raw = yaml.safe_load((SCENARIO_DIR / "navigation.yaml").read_text())
     path = tmp_path / "navigation.yaml"  # a shipped robot: a node has it

@@ -310,8 +310,8 @@ def test_the_rollouts_step_at_the_planning_timestep_and_the_world_at_its_own(tmp
 def test_a_planner_three_times_slower_than_the_world_still_navigates(tmp_path):
     """Lock-step with --plan-every 3: the world plays each plan for three steps, the planner
     shifts its warm start by three (navigation: not a chaotic episode)."""
+    from m3p2i.launch import EpisodeLaunch, run_episode
     from shared.config_files import shipped
-    from shared.tools.launch import EpisodeLaunch, run_episode
 
     run = run_episode(
         EpisodeLaunch(
@@ -340,8 +340,8 @@ def test_a_realtime_pick_place_succeeds_with_a_planner_under_a_third_of_the_worl
     1 %); in both the world must really have played each plan for more than 3 steps on average. A
     success chains the template's actions and stacks within Eq. 26's 1 cm and φ 0.01 (the suite's
     one end-to-end run of the plain pick_place.yaml)."""
+    from m3p2i.launch import EpisodeLaunch, run_episode
     from shared.config_files import shipped
-    from shared.tools.launch import EpisodeLaunch, run_episode
 
     outcomes = []
     for seed in (1, 2):

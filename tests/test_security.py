@@ -12,6 +12,9 @@ import pytest
 import zmq
 from typer.testing import CliRunner
 
+from m3p2i.cli import app as m3p2i
+from m3p2i.launch import EpisodeLaunch
+from m3p2i.video import DiagnosticsRecorder, read_tops
 from server.app import ServerOptions, WorldServer
 from server.episode_log import read_log
 from shared import protocol as P
@@ -28,9 +31,6 @@ from shared.security import (
     load_world_keys,
     make_keys,
 )
-from shared.tools.cli import app as m3p2i
-from shared.tools.launch import EpisodeLaunch
-from shared.tools.video import DiagnosticsRecorder, read_tops
 from tests.helpers import (
     StateWatcher,
     free_port_block,

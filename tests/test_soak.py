@@ -1,4 +1,4 @@
-"""The soak and fault test (shared.tools.soak, run by scripts/soak.py): its checks catch each
+"""The soak and fault test (scripts.measure.soak, run by scripts/soak.py): its checks catch each
 fault they claim to, the world closes its log on SIGTERM (how the soak restarts it), and a 30 s
 soak of real-time episodes under every kind of fault passes every check."""
 
@@ -13,11 +13,11 @@ from pathlib import Path
 
 import pytest
 
+from scripts.measure import netns, soak
 from server.app import ServerOptions, WorldServer
 from server.episode_log import read_log
 from shared.endpoints import Endpoints
 from shared.scenario import load_scenario
-from shared.tools import netns, soak
 from tests.helpers import ENV, StateWatcher, free_port_block, start_server, stop
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -10,12 +10,10 @@ import pytest
 import yaml
 from typer.testing import CliRunner
 
-from shared.config import ConfigError
-from shared.scenario import load_scenario
-from shared.tools.bench import BenchOptions, ResultsFile, load_bench, plan_trials, select_cases
-from shared.tools.bench_report import read_results, results_report
-from shared.tools.cli import app
-from shared.tools.sweep import (
+from m3p2i.bench import BenchOptions, ResultsFile, load_bench, plan_trials, select_cases
+from m3p2i.bench_report import read_results, results_report
+from m3p2i.cli import app
+from m3p2i.sweep import (
     Sweep,
     apply_overrides,
     parse_set,
@@ -25,6 +23,8 @@ from shared.tools.sweep import (
     sweep_report,
     swept_keys,
 )
+from shared.config import ConfigError
+from shared.scenario import load_scenario
 
 
 def write_bench(tmp_path, cases, **top):

@@ -14,10 +14,8 @@ import pytest
 import yaml
 from typer.testing import CliRunner
 
-from shared.config import ConfigError
-from shared.scenario import load_scenario
-from shared.tools.cli import app
-from shared.tools.tune import (
+from m3p2i.cli import app
+from m3p2i.tune import (
     Events,
     TuneOptions,
     best_values,
@@ -31,6 +29,8 @@ from shared.tools.tune import (
     values_id,
     write_overlay,
 )
+from shared.config import ConfigError
+from shared.scenario import load_scenario
 
 pytest.importorskip("optuna")
 
@@ -256,7 +256,7 @@ def test_the_shipped_example_writes_an_overlay_that_m3p2i_run_runs(tmp_path):
     overlay, the report, and ``m3p2i run`` of the overlay. (Resuming: the stand-in tests.)"""
     out = tmp_path / "tuned"
     example = Path(__file__).resolve().parents[1] / "configs" / "tune" / "navigation.yaml"
-    args = ["-m", "shared.tools", "tune", "navigation", "--space", str(example)]
+    args = ["-m", "m3p2i", "tune", "navigation", "--space", str(example)]
     args += ["--trials", "2", "--seeds", "0", "--holdout", "1", "--out", str(out)]
     tuned = subprocess.run([sys.executable, *args], capture_output=True, text=True)
     assert tuned.returncode == 0, tuned.stdout + tuned.stderr
@@ -272,7 +272,7 @@ def test_the_shipped_example_writes_an_overlay_that_m3p2i_run_runs(tmp_path):
         ("navigation_tuned", "1"),
     ]
     run = subprocess.run(
-        [sys.executable, "-m", "shared.tools", "run", str(out / "overlay.yaml")],
+        [sys.executable, "-m", "m3p2i", "run", str(out / "overlay.yaml")],
         capture_output=True,
         text=True,
         cwd=tmp_path,

@@ -10,12 +10,12 @@ import pytest
 import yaml
 from typer.testing import CliRunner
 
+from m3p2i.cli import app
 from planner_client.build import build_controller
 from server.inprocess import run_episode
 from shared.config import ConfigError
 from shared.robots import ROBOT_DIR, ROBOTS, get_robot, load_robot
 from shared.scenario import load_scenario, read_scenario
-from shared.tools.cli import app
 from tests.user_folder import TWO_LINK, reach, user_folder
 
 

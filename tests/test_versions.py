@@ -14,6 +14,7 @@ import numpy as np
 import pytest
 import zmq
 
+from m3p2i.launch import free_port_block
 from planner_client.build import build_motion_planner
 from planner_client.controller import Controller
 from planner_client.loop import HandshakeRefused, PlannerClient
@@ -22,7 +23,6 @@ from server.world import SimWorld
 from shared import protocol as P
 from shared.endpoints import Endpoints
 from shared.scenario import load_scenario
-from shared.tools.launch import free_port_block
 from tests.helpers import start_server, stop
 
 

@@ -8,7 +8,7 @@ import json
 import numpy as np
 import pytest
 
-from shared.tools import video
+from m3p2i import video
 from tests.test_metrics import hand_made_log, scenario  # noqa: F401  (fixture)
 
 

@@ -17,10 +17,10 @@ import numpy as np
 import pytest
 import zmq
 
+from m3p2i.launch import free_port_block
+from m3p2i.view import ControlClient
 from shared import protocol as P
 from shared.endpoints import Endpoints
-from shared.tools.launch import free_port_block
-from shared.tools.view import ControlClient
 from tests.browser import chromium, hue_share, screenshot
 from tests.helpers import ENV, _sigint_as_in_a_terminal, stop
 
@@ -30,7 +30,7 @@ pytestmark = pytest.mark.slow
 def _start(args: list[str]) -> tuple[subprocess.Popen, str]:
     """Start ``m3p2i ARGS`` and return it with the URL it prints (``view: URL``)."""
     proc = subprocess.Popen(
-        [sys.executable, "-m", "shared.tools", *args],
+        [sys.executable, "-m", "m3p2i", *args],
         stdout=subprocess.PIPE,
         stderr=subprocess.STDOUT,
         text=True,

@@ -11,12 +11,12 @@ import numpy as np
 import pytest
 import zmq
 
+from m3p2i.launch import free_port_block
 from server.app import WorldServer
 from shared import protocol as P
 from shared.endpoints import Endpoints
 from shared.evaluation.episode import read_log
 from shared.scenario import load_scenario
-from shared.tools.launch import free_port_block
 
 
 @pytest.fixture
@@ -210,7 +210,7 @@ def test_a_replay_reads_the_log_and_the_recorded_diagnostics(world):
     diagnostics at or before it, the action running then."""
     import json
 
-    from shared.tools.view import action_timeline, diagnostics_record, load_replay, metrics_text
+    from m3p2i.view import action_timeline, diagnostics_record, load_replay, metrics_text
 
     server = world("navigation")
     for action in ("go", "go", "wait", "wait"):
@@ -242,7 +242,7 @@ def test_a_replay_reads_the_log_and_the_recorded_diagnostics(world):
 def test_the_panel_shows_the_identified_model_live_and_in_the_replay():
     """planner.model.variants: the estimate in Diagnostics.model reaches the side panel and
     the recorded diagnostics (for the replay); without it the panel says nothing of a model."""
-    from shared.tools.view import PanelInfo, diagnostics_record
+    from m3p2i.view import PanelInfo, diagnostics_record
 
     diag = P.Diagnostics(
         seq=1,
@@ -266,7 +266,7 @@ def test_the_panel_shows_the_identified_model_live_and_in_the_replay():
 def test_m3p2i_view_says_what_it_needs(tmp_path):
     from typer.testing import CliRunner
 
-    from shared.tools.cli import app
+    from m3p2i.cli import app
 
     runner = CliRunner()
     result = runner.invoke(app, ["view"])
@@ -280,8 +280,8 @@ def test_the_views_controls_pass_a_keyed_world(tmp_path):
     that allows only that key takes its ops."""
     import threading
 
+    from m3p2i.view import ControlClient
     from shared.security import load_planner_keys, load_world_keys, make_keys
-    from shared.tools.view import ControlClient
 
     make_keys(tmp_path / "keys")
     port = free_port_block()

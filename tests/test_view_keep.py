@@ -88,7 +88,7 @@ def test_the_page_replays_the_episode_after_it_ends_until_ctrl_c(tmp_path):
         [
             sys.executable,
             "-m",
-            "shared.tools",
+            "m3p2i",
             "run",
             "navigation",
             "--view",

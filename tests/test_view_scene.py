@@ -10,10 +10,8 @@ import mujoco
 import numpy as np
 import pytest
 
-from shared.scenario import load_scenario
-from shared.scene import compile_model, initial_data
-from shared.tools.view import MODE_COLOURS, path_segments, trajectory_segments, weight_bar
-from shared.tools.view_scene import (
+from m3p2i.view import MODE_COLOURS, path_segments, trajectory_segments, weight_bar
+from m3p2i.view_scene import (
     box_mesh,
     camera_for,
     capsule_mesh,
@@ -23,6 +21,8 @@ from shared.tools.view_scene import (
     scene_shapes,
     sphere_mesh,
 )
+from shared.scenario import load_scenario
+from shared.scene import compile_model, initial_data
 
 SCENARIOS = sorted(
     p.stem for p in (Path(__file__).parents[1] / "configs" / "scenarios").glob("*.yaml")

@@ -12,10 +12,10 @@ from __future__ import annotations
 import mujoco
 import numpy as np
 
+from m3p2i.cli import free_port_block
 from server.app import WorldServer
 from shared.endpoints import Endpoints
 from shared.scenario import load_scenario
-from shared.tools.cli import free_port_block
 
 
 class DraggingViewer:

@@ -13,9 +13,9 @@ import time
 import numpy as np
 import pytest
 
+from m3p2i.launch import free_port_block
 from shared.scenario import load_scenario
 from shared.scene import compile_model, initial_data, scene_framing
-from shared.tools.launch import free_port_block
 from tests.browser import hue_share
 from tests.helpers import ENV, stop
 

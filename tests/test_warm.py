@@ -1,4 +1,4 @@
-"""Warm bench workers (shared/tools/warm.py): a server + planner pair kept across a case's
+"""Warm bench workers (m3p2i/warm.py): a server + planner pair kept across a case's
 trials gives each seed the episode a fresh pair gives it, without the start-up; a seeded reset
 is the world's, refused where it would overwrite a log; a failed trial takes its pair down."""
 
@@ -10,6 +10,9 @@ import numpy as np
 import pytest
 from typer.testing import CliRunner
 
+from m3p2i import bench as B
+from m3p2i.launch import EpisodeLaunch, free_port_block
+from m3p2i.warm import WarmPair
 from server.app import ServerOptions, WorldServer
 from server.cli import app as server_app
 from shared import protocol as P
@@ -17,9 +20,6 @@ from shared.endpoints import Endpoints
 from shared.evaluation import episode
 from shared.evaluation.metrics import MetricsEvaluator
 from shared.scenario import load_scenario
-from shared.tools import bench as B
-from shared.tools.launch import EpisodeLaunch, free_port_block
-from shared.tools.warm import WarmPair
 from tests.episodes import with_max_time
 from tests.test_view_control import _ask
 

@@ -25,16 +25,16 @@ from pathlib import Path
 
 import zmq
 
-from shared import protocol as P
-from shared.endpoints import DEFAULT_HOST, Endpoints, socket
-from shared.evaluation.episode import episode_log_path, has_summary
-from shared.tools.launch import (
+from m3p2i.launch import (
     EpisodeLaunch,
     EpisodeRun,
     free_port_block,
     read_summary,
     stop_processes,
 )
+from shared import protocol as P
+from shared.endpoints import DEFAULT_HOST, Endpoints, socket
+from shared.evaluation.episode import episode_log_path, has_summary
 
 _CONTROL_TIMEOUT = 10.0  # s for the world to answer a reset (it may be finishing a step)
 
@@ -59,7 +59,7 @@ class WarmPair:
 
     def run(self, seed: int, timeout: float, stop: threading.Event | None = None) -> EpisodeRun:
         """One episode from ``seed``: the pair's first (it starts the processes), or the next
-        one begun by a reset. Returns as :func:`shared.tools.launch.run_episode` does."""
+        one begun by a reset. Returns as :func:`m3p2i.launch.run_episode` does."""
         log_path = episode_log_path(self.launch.log, seed)
         shutil.rmtree(log_path.parent, ignore_errors=True)  # a stale attempt's log must not count
         log_path.parent.mkdir(parents=True)

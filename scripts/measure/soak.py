@@ -53,15 +53,16 @@ import numpy as np
 import typer
 import zmq
 
+from m3p2i.blocks import regenerate
+from m3p2i.launch import free_port_block, stop_processes
+from m3p2i.provenance import machine, versions
 from shared import protocol as P
 from shared.endpoints import Endpoints
 from shared.evaluation import episode
 from shared.scenario import find_scenario
-from shared.tools import netns
-from shared.tools.blocks import regenerate
-from shared.tools.launch import free_port_block, stop_processes
-from shared.tools.provenance import machine, versions
-from shared.tools.push_frames import push
+
+from . import netns
+from .push_frames import push
 
 FAULTS = ("kill", "restart", "flood", "pause", "cut")
 LOOPBACK_FAULTS = FAULTS[:4]  # ``cut`` needs a link: --netns only
@@ -689,7 +690,7 @@ class Soak:
         ]
         if self.hosts is None:
             push(self.ctx, Endpoints(port=self.port).command, frames + forged)
-        else:  # from the planner's namespace, with its keys (shared.tools.push_frames)
+        else:  # from the planner's namespace, with its keys (scripts.measure.push_frames)
             path = self.out / f"flood-{self.floods['floods'] + 1:03d}.msgpack"
             path.write_bytes(msgpack.packb(frames + forged))
             self.pusher.stdin.write(f"{path}\n")
@@ -750,7 +751,7 @@ class Soak:
 
     def run(self) -> dict:
         """The soak; with ``--netns`` inside two namespaces made for it and always removed
-        (:func:`shared.tools.netns.two_hosts`; :class:`netns.Unavailable` where not permitted)
+        (:func:`scripts.measure.netns.two_hosts`; :class:`netns.Unavailable` where not permitted)
         and with CURVE keys made once into ``OUT/keys``."""
         self.out.mkdir(parents=True, exist_ok=True)
         if not self.cfg.netns:
@@ -759,7 +760,7 @@ class Soak:
         if self.keys.exists():
             shutil.rmtree(self.keys)  # this soak's own, from an earlier run into the same OUT
         subprocess.run(
-            [sys.executable, "-m", "shared.tools", "keys", str(self.keys)],
+            [sys.executable, "-m", "m3p2i", "keys", str(self.keys)],
             check=True,
             capture_output=True,
             env=self.env,
@@ -768,7 +769,12 @@ class Soak:
         with netns.two_hosts() as hosts:
             self.hosts = hosts
             endpoint = Endpoints(hosts.world_ip, self.port).command
-            cmd = [sys.executable, "-m", "shared.tools.push_frames", endpoint, str(self.keys)]
+            cmd = [
+                sys.executable,
+                str(Path(__file__).with_name("push_frames.py")),
+                endpoint,
+                str(self.keys),
+            ]
             self.pusher = subprocess.Popen(
                 hosts.in_namespace("planner", cmd),
                 stdin=subprocess.PIPE,

@@ -1,7 +1,7 @@
-"""Push frames at a world's command socket: the soak's flood (:mod:`shared.tools.soak`).
+"""Push frames at a world's command socket: the soak's flood (:mod:`scripts.measure.soak`).
 
 On loopback the soak calls :func:`push` itself; with ``--netns`` it starts this module once in
-the planner's namespace (``python -m shared.tools.push_frames ENDPOINT KEYS``, :func:`serve`)
+the planner's namespace (``python scripts/measure/push_frames.py ENDPOINT KEYS``, :func:`serve`)
 and hands it each flood as a file (a msgpack list of byte strings), so that the garbage crosses
 the link from where a planner sits, without a start-up's delay. With KEYS (the ``m3p2i keys``
 folder) the socket is a CURVE client with the planner's key pair: a CURVE world refuses a socket

@@ -17,6 +17,9 @@ from pathlib import Path
 
 import typer
 
+from m3p2i.launch import EpisodeLaunch, free_port_block, mode_conflicts, run_episode
+from m3p2i.new import new_scenario
+from m3p2i.process_checks import scenario_errors
 from shared.cli_common import (
     EstimateDelays,
     Faults,
@@ -44,9 +47,6 @@ from shared.endpoints import DEFAULT_HOST, DEFAULT_PORT
 from shared.evaluation.timing import describe_timing
 from shared.robots import load_robot, registered
 from shared.scenario import find_scenario, load_scenario
-from shared.tools.launch import EpisodeLaunch, free_port_block, mode_conflicts, run_episode
-from shared.tools.new import new_scenario
-from shared.tools.process_checks import scenario_errors
 
 __all__ = ["app", "free_port_block"]  # free_port_block: tests start processes with it
 
@@ -119,9 +119,9 @@ def layout(
 
     from rich.console import Console
 
+    from m3p2i.layout_table import print_frames, print_layout
     from shared.layout import bridge_layout, frame_names
     from shared.scene import compile_model
-    from shared.tools.layout_table import print_frames, print_layout
 
     try:
         sc = load_scenario(scenario)
@@ -350,9 +350,9 @@ def bench(
     _terminate_as_interrupt()
     from rich.console import Console
 
-    from shared.tools import bench as B
-    from shared.tools import bench_report as R
-    from shared.tools import sweep as S
+    from m3p2i import bench as B
+    from m3p2i import bench_report as R
+    from m3p2i import sweep as S
 
     # piped or logged output gets the whole table instead of 80 columns of wrapped cells
     console = Console(width=None if sys.stdout.isatty() else 200)
@@ -422,7 +422,7 @@ def bench(
     )
     cluster = None
     if ray or ray_address:
-        from shared.tools import bench_ray
+        from m3p2i import bench_ray
 
         try:
             cluster = bench_ray.connect(ray_address, opts.workers)
@@ -508,7 +508,7 @@ def report(
     """Tables from bench results: success with its 95 % Wilson interval, the paper's metrics,
     the machine and date of the trials, every failure with its note (failures.yaml beside
     results.csv). README and docs tables are made this way, never by hand."""
-    from shared.tools import bench_report as R
+    from m3p2i import bench_report as R
 
     if not results and not update:
         typer.echo("error: give results files to tabulate, or --update FILE", err=True)
@@ -519,7 +519,7 @@ def report(
             read = [R.read_results(p) for p in results]
             typer.echo(R.results_report(read, paper), nl=False)
             if plots is not None:
-                from shared.tools.sweep import plot_sweep
+                from m3p2i.sweep import plot_sweep
 
                 for path in plot_sweep([r for res in read for r in res.rows], plots):
                     typer.echo(f"wrote {path}")
@@ -552,8 +552,8 @@ def plot(
 ) -> None:
     """Plot one episode like thesis Figs. A.3-A.5: trajectories, distances,
     robot-object-goal angle."""
+    from m3p2i.plots import episode_series, plot_episode
     from shared.evaluation import episode
-    from shared.tools.plots import episode_series, plot_episode
 
     try:
         path = episode.find_log(log)
@@ -592,7 +592,7 @@ def record(
 ) -> None:
     """Record an episode offscreen (EGL or OSMesa) to GIF/MP4, with the planner's best sampled
     trajectories drawn in green."""
-    from shared.tools import video
+    from m3p2i import video
 
     if (scenario is None) == (log is None):
         typer.echo(
@@ -690,8 +690,8 @@ def view(
 
     Live: `m3p2i view pick_place --port 5555` beside a running server and planner (or
     `m3p2i run pick_place --view`). Replay: `m3p2i view --log runs/pick_place-.../`."""
+    from m3p2i import view as V
     from shared.endpoints import Endpoints
-    from shared.tools import view as V
 
     if (scenario is None) == (log is None):
         typer.echo(
@@ -954,7 +954,7 @@ def tune(
     OUT/report.md (history, importances, the best trial per seed, and the held-out seeds'
     success of the tuned overlay beside the original, with Wilson intervals)."""
     _terminate_as_interrupt()
-    from shared.tools.tune import run_tune
+    from m3p2i.tune import run_tune
 
     run_tune(
         target,

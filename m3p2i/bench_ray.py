@@ -3,7 +3,7 @@
 Each trial is one task declaring ``--cpus-per-trial`` CPUs. The task carries the scenario file's
 text, writes it into a temporary folder of whichever node runs it, checks that the node reads
 it to the same hash as the driver did (same m3p2i, same included objective files), and runs the
-bench's own trial function (:func:`shared.tools.bench.run_trial`: a world + planner pair on free
+bench's own trial function (:func:`m3p2i.bench.run_trial`: a world + planner pair on free
 loopback ports of that node). It returns the results row and the trial's log files; the driver
 writes both into the output folder exactly as the local pool does, so ``results.csv`` resumes
 the same way whichever ran it.
@@ -25,11 +25,11 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
+from m3p2i.bench import BenchCase, BenchOptions, ResultsFile, Trial, run_trial
+from m3p2i.provenance import machine, versions
+from m3p2i.sweep import to_cell
 from shared.evaluation.metrics import MetricsEvaluator
 from shared.scenario import load_scenario
-from shared.tools.bench import BenchCase, BenchOptions, ResultsFile, Trial, run_trial
-from shared.tools.provenance import machine, versions
-from shared.tools.sweep import to_cell
 
 # seconds a task may run past the trial time-out (start-up of the two processes, scheduling)
 GRACE = 60.0

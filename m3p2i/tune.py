@@ -36,13 +36,13 @@ from typing import Any
 
 import yaml
 
+from m3p2i import bench as B
+from m3p2i.bench_report import seed_ranges, wilson
+from m3p2i.provenance import machine, versions
 from shared.config import ConfigError, Section, load_yaml, number, positive_int
 from shared.config_files import entries
 from shared.evaluation.metrics import MetricsEvaluator
 from shared.scenario import Scenario, find_scenario, load_scenario, parse_scenario
-from shared.tools import bench as B
-from shared.tools.bench_report import seed_ranges, wilson
-from shared.tools.provenance import machine, versions
 
 STUDY = "tune"  # the study's name in OUT/study.db
 DECIMALS = 4  # significant digits of a proposed float: what runs is what the overlay says
@@ -545,7 +545,7 @@ def make_runner(opts: TuneOptions, timeout: float, cluster=None, cpus_per_trial:
 
     def run(trials, results, on_done):
         if cluster is not None:
-            from shared.tools import bench_ray
+            from m3p2i import bench_ray
 
             return bench_ray.run_trials(
                 trials, bench_opts, results, cluster, cpus_per_trial, on_done
@@ -1082,7 +1082,7 @@ def run_tune(
     import typer
     from rich.console import Console
 
-    from shared.tools.process_checks import scenario_errors
+    from m3p2i.process_checks import scenario_errors
 
     console = Console(width=None if sys.stdout.isatty() else 200)
 
@@ -1125,7 +1125,7 @@ def run_tune(
         raise typer.Exit(2)
     cluster = None
     if ray or ray_address:
-        from shared.tools import bench_ray
+        from m3p2i import bench_ray
 
         try:
             cluster = bench_ray.connect(ray_address, opts.workers)

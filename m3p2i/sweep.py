@@ -259,7 +259,7 @@ SWEEP_HEADERS = (
 
 def sweep_table(points: list[SweepPoint], key: str) -> str:
     """Markdown table of one key's points."""
-    from shared.tools.bench_report import wilson
+    from m3p2i.bench_report import wilson
 
     head = ("case", key, *SWEEP_HEADERS[2:])
     lines = ["| " + " | ".join(head) + " |", "|---|" + "---:|" * (len(head) - 1)]

@@ -153,7 +153,7 @@ class EpisodeLaunch:
     view_port: int = 0  # its page's port (0: a free one)
     view_keep: bool = False  # after the episode, the view replays it until interrupted
     keys: Path | None = None  # CURVE key folder (m3p2i keys): both processes use it
-    keep_serving: bool = False  # a warm pair (shared.tools.warm): episodes until shut down,
+    keep_serving: bool = False  # a warm pair (m3p2i.warm): episodes until shut down,
     plugins: tuple[str, ...] = ()  # planner only: --plugins modules of the operator's
     log: str = ""  # each logged to this template ('{seed}' in it)
 
@@ -207,7 +207,7 @@ class EpisodeLaunch:
         cmd = [
             sys.executable,
             "-m",
-            "shared.tools",
+            "m3p2i",
             "view",
             self.scenario,
             "--port",

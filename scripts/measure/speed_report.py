@@ -11,7 +11,7 @@ from pathlib import Path
 
 import typer
 
-from shared.tools.blocks import regenerate
+from m3p2i.blocks import regenerate
 
 
 def spread(values: list[float], digits: int) -> str:

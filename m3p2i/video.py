@@ -4,7 +4,7 @@ as GIF (Pillow) or MP4 (an ``ffmpeg`` executable).
 
 Rendering needs an OpenGL context without a display: EGL (GPU drivers or Mesa, ``libegl1``) or
 OSMesa (software, ``libosmesa6``). MuJoCo picks the backend from ``MUJOCO_GL`` when it is first
-imported, so rendering runs in a child process, ``python -m shared.tools.video``, started with the
+imported, so rendering runs in a child process, ``python -m m3p2i.video``, started with the
 first backend that works (:func:`gl_backend`). ``m3p2i record`` drives all of it.
 """
 
@@ -291,7 +291,7 @@ def render_in_child(
     cmd = [
         sys.executable,
         "-m",
-        "shared.tools.video",
+        "m3p2i.video",
         str(log),
         str(out),
         "--width",

@@ -18,9 +18,9 @@ from pathlib import Path
 import numpy as np
 from rich.table import Table
 
+from m3p2i.blocks import regenerate
 from shared.config import ConfigError, Section, load_yaml, positive_int, vector
 from shared.config_files import shipped
-from shared.tools.blocks import regenerate
 
 PAPER_RESULTS = shipped("paper_results.yaml")
 TIME_OUT = "time-out"
@@ -351,7 +351,7 @@ def _span(values: list[float], fmt: str) -> str:
 def results_report(results: list[Results], paper: dict[str, PaperRow]) -> str:
     """The Markdown a README or doc shows for some results files: one table (a row per case and
     file), the machines and dates the trials ran on, and every failure with its note."""
-    from shared.tools.sweep import sweep_report, swept_keys
+    from m3p2i.sweep import sweep_report, swept_keys
 
     rows, failures, machines, dates = [], [], set(), set()
     swept = [r for res in results for r in res.rows if swept_keys([r])]

@@ -7,7 +7,7 @@ episode log (and the ``diagnostics.jsonl`` beside it, when the live view recorde
 
 The page is served by viser (the optional extra ``m3p2i[view]``): its web client ships inside
 the wheel, so the page loads with no network beyond the machine serving it. The drawing is
-:mod:`shared.tools.view_scene` (pure: the model's geoms as meshes, their poses).
+:mod:`m3p2i.view_scene` (pure: the model's geoms as meshes, their poses).
 """
 
 from __future__ import annotations
@@ -24,6 +24,7 @@ import mujoco
 import numpy as np
 import zmq
 
+from m3p2i.view_scene import GeomShape, camera_for, geom_poses, scene_bounds, scene_shapes
 from shared import protocol as P
 from shared.endpoints import Endpoints, socket
 from shared.evaluation import episode
@@ -31,7 +32,6 @@ from shared.frames import FrameResolver
 from shared.scenario import Scenario
 from shared.scene import compile_model, initial_data, set_state
 from shared.security import PlannerKeys, curve_client
-from shared.tools.view_scene import GeomShape, camera_for, geom_poses, scene_bounds, scene_shapes
 
 log = logging.getLogger("m3p2i.view")
 

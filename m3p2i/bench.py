@@ -5,8 +5,8 @@ A bench file (``bench/NAME.yaml`` in the user's folders or shipped: :mod:`shared
 lists cases ``{case, variant, scenario, trials}``. Trial ``i`` of a case runs one lock-step episode
 with seed ``seed + i`` for both the world's randomised start and the planner's sampling, on a
 server + planner process pair on its own free ports. Each worker keeps its pair across the trials of
-a case, beginning each with a seeded reset (:mod:`shared.tools.warm`: same results as a fresh pair,
-without its start-up); ``fresh`` starts two new processes per trial (:mod:`shared.tools.launch`).
+a case, beginning each with a seeded reset (:mod:`m3p2i.warm`: same results as a fresh pair,
+without its start-up); ``fresh`` starts two new processes per trial (:mod:`m3p2i.launch`).
 Each finished trial appends one row to ``results.csv`` in the output folder (flushed and synced
 before the next row), its episode log stays in ``logs/CASE/seed-NNN/``; a rerun skips every (case,
 seed) already in the file for the same scenario content (hash), so an interrupted bench resumes
@@ -42,16 +42,16 @@ from rich.progress import (
     TimeRemainingColumn,
 )
 
+from m3p2i.launch import MODES, EpisodeLaunch, mode_conflicts, run_episode
+from m3p2i.provenance import machine, versions
+from m3p2i.sweep import Sweep, apply_overrides, file_label, parse_sweep_section, to_cell
+from m3p2i.warm import PairSlot
 from shared.config import ConfigError, Section, flag, load_yaml, one_of, positive, positive_int
 from shared.config_files import find
 from shared.evaluation import episode
 from shared.evaluation.metrics import MetricsEvaluator
 from shared.faults import read_old_name
 from shared.scenario import Scenario, find_scenario, load_scenario, parse_scenario
-from shared.tools.launch import MODES, EpisodeLaunch, mode_conflicts, run_episode
-from shared.tools.provenance import machine, versions
-from shared.tools.sweep import Sweep, apply_overrides, file_label, parse_sweep_section, to_cell
-from shared.tools.warm import PairSlot
 
 # results.csv columns; one row per finished trial
 FIELDS = (
@@ -291,7 +291,7 @@ def select_cases(
 def check_variants(
     ready: list[ReadyCase], workers: int, check: Callable[[str], list[str]]
 ) -> list[str]:
-    """Every message ``check`` (:func:`shared.tools.process_checks.scenario_errors`: both processes'
+    """Every message ``check`` (:func:`m3p2i.process_checks.scenario_errors`: both processes'
     ``--check``) gives for the sweep variants among ``ready``, ``workers`` at a time; each
     message names the variant's file and the overrides."""
     variants = [rc for rc in ready if rc.overrides]
