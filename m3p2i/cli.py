@@ -26,6 +26,8 @@ from shared.cli_common import (
     Host,
     Keys,
     Mode,
+    OldFaults,
+    OldWindow,
     PlanEvery,
     Plugins,
     Port,
@@ -39,6 +41,7 @@ from shared.cli_common import (
     default_run_dir,
     error_blocks,
     flow_help,
+    renamed,
     summary_line,
 )
 from shared.config import ConfigError, load_yaml
@@ -188,8 +191,12 @@ def run(
     seed: Seed = 0,
     verbose: Verbose = False,
     keys: Keys = None,
+    hardware: OldFaults = None,
+    viewer: OldWindow = False,
 ) -> None:
     """Run one episode of SCENARIO with server and planner; exit 0 on success."""
+    faults = renamed(faults, hardware, "--faults", "--hardware", None)
+    window = renamed(window, viewer, "--window", "--viewer", False)
     flags = {
         "mode": "--mode",
         "max_rate": "--planner-max-rate",

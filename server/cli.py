@@ -21,6 +21,8 @@ from shared.cli_common import (
     Insecure,
     Keys,
     Mode,
+    OldFaults,
+    OldWindow,
     PlanEvery,
     Port,
     RealtimeFactor,
@@ -29,6 +31,7 @@ from shared.cli_common import (
     Window,
     default_run_dir,
     print_errors,
+    renamed,
     setup_logging,
     summary_line,
 )
@@ -117,8 +120,12 @@ def main(
     ),
     faults: Faults = None,
     verbose: Verbose = False,
+    hardware: OldFaults = None,
+    viewer: OldWindow = False,
 ) -> None:
     setup_logging(verbose, "m3p2i.server")
+    faults = renamed(faults, hardware, "--faults", "--hardware", None)
+    window = renamed(window, viewer, "--window", "--viewer", False)
     if mode not in MODES:
         raise typer.BadParameter("must be 'lockstep' or 'realtime'", param_hint="--mode")
     if not check:  # before anything else: an exposed robot is refused at once

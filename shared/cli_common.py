@@ -14,6 +14,7 @@ from typing import Annotated
 import typer
 from rich.logging import RichHandler
 
+from shared.config import deprecated
 from shared.faults import PROFILES
 
 # --- options shared by m3p2i-server, m3p2i-planner and m3p2i's commands --------------------
@@ -99,16 +100,16 @@ Faults = Annotated[
     str | None,
     typer.Option(
         "--faults",
-        "--hardware",
         help="Simulated faults for the world, to rehearse a robot "
         f"(docs/faults.md): a fault profile ({', '.join(PROFILES)}) or a YAML file of faults: keys "
         "(delays, noise, dropped states, withheld velocities, control period, model mismatch, "
         "binary gripper). Replaces the scenario's own faults: section. Only the world is told: the "
         "planner keeps the nominal model (m3p2i run --compensate declares the delays to it). "
         "lockstep: faults drawn from --seed, delays in world steps (repeatable); realtime: "
-        "wall-clock delays. (--hardware is its older name.)",
+        "wall-clock delays.",
     ),
 ]
+OldFaults = Annotated[str | None, typer.Option("--hardware", hidden=True)]  # deprecated
 EstimateDelays = Annotated[
     bool,
     typer.Option(
@@ -123,12 +124,24 @@ Window = Annotated[
     bool,
     typer.Option(
         "--window/--no-window",
-        "--viewer",
         help="Open MuJoCo's own viewer window on "
-        "the world's machine (needs a display); drag objects in it to disturb the world. "
-        "(--viewer is its older name.)",
+        "the world's machine (needs a display); drag objects in it to disturb the world.",
     ),
 ]
+OldWindow = Annotated[bool, typer.Option("--viewer", hidden=True)]  # deprecated
+
+
+def renamed(value, old_value, new: str, old: str, default):
+    """An option's ``value``, or the one given under its old name ``old`` (``--hardware``,
+    ``--viewer``), which warns once, naming ``new``; both given: a usage error."""
+    if old_value == default:
+        return value
+    if value != default:
+        raise typer.BadParameter(f"both {new} and {old} (its old name) given", param_hint=old)
+    deprecated(old, f"write {new}")
+    return old_value
+
+
 Seed = Annotated[
     int,
     typer.Option(

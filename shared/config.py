@@ -12,6 +12,7 @@ Unknown keys are errors (a typo must never silently fall back to a default).
 from __future__ import annotations
 
 import math
+import warnings
 from collections.abc import Callable, Iterable, Sequence
 from contextlib import contextmanager
 from pathlib import Path
@@ -93,6 +94,20 @@ class ErrorLog:
             raise self.errors[0]
         if self.errors:
             raise ConfigErrors(self.errors)
+
+
+_WARNED: set[str] = set()
+
+
+def deprecated(old: str, instead: str) -> None:
+    """Warn once per process that the spelling ``old`` (a key, a command-line option) is
+    deprecated, saying what to write ``instead``; CHANGELOG.md lists when it goes."""
+    if old in _WARNED:
+        return
+    _WARNED.add(old)
+    warnings.warn(
+        f"{old} is deprecated and will be removed: {instead}", FutureWarning, stacklevel=3
+    )
 
 
 def load_yaml(path: str | Path) -> dict:

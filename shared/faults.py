@@ -16,7 +16,16 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from shared.config import ConfigError, Section, flag, load_yaml, non_negative, one_of, positive
+from shared.config import (
+    ConfigError,
+    Section,
+    deprecated,
+    flag,
+    load_yaml,
+    non_negative,
+    one_of,
+    positive,
+)
 
 GRIPPER_MODES = ("continuous", "binary")
 # the scenario key's and the option's name before they were ``faults`` (read as ``faults``)
@@ -254,6 +263,7 @@ def read_old_name(raw: Any, source: str, path: str = "") -> Any:
             raw[OLD_NAME],
             "one of them: faults:",
         )
+    deprecated(f"{OLD_NAME}: (in {source})", "write faults:")
     return {("faults" if k == OLD_NAME else k): v for k, v in raw.items()}
 
 

@@ -21,6 +21,7 @@ from shared.config import (
     ConfigError,
     ErrorLog,
     Section,
+    deprecated,
     flag,
     load_yaml,
     non_negative,
@@ -1035,7 +1036,8 @@ def _arena(a: Section) -> ArenaConfig:
     arena = ArenaConfig(
         half_size=a.opt("half_size", 4.0, positive), wall_height=a.opt("wall_height", 0.3, positive)
     )
-    a.opt("wall_thickness", None, positive)  # accepted from older files: walls are planes
+    if a.opt("wall_thickness", None, positive) is not None:  # older files: walls are planes
+        deprecated(f"{a.path}.wall_thickness (in {a.source})", "remove it (walls are planes)")
     a.done()
     return arena
 

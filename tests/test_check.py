@@ -14,6 +14,7 @@ import pytest
 import yaml
 from typer.testing import CliRunner
 
+import shared.config
 from m3p2i.cli import app
 from planner_client import planner_check
 from server import world_check as server_check
@@ -190,3 +191,14 @@ def test_an_eta_window_beyond_the_samples_per_mode_is_a_load_error(tmp_path):
     assert len(errors) == 1, errors
     assert "broken.yaml: planner.mppi.eta_bounds:" in errors[0]
     assert "planner.samples = 5" in errors[0], errors
+
+
+def test_an_arena_wall_thickness_is_read_with_a_warning_and_changes_nothing(monkeypatch):
+    # walls are planes: world.arena.wall_thickness, accepted from older files, warns once
+    monkeypatch.setattr(shared.config, "_WARNED", set())
+    raw = _nav()
+    old = copy.deepcopy(raw)
+    old["world"]["arena"]["wall_thickness"] = 0.1
+    with pytest.warns(FutureWarning, match=r"world.arena.wall_thickness \(in old.yaml\).*remove"):
+        sc = parse_scenario(old, "old.yaml")
+    assert sc.world.arena == parse_scenario(raw, "new.yaml").world.arena

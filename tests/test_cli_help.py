@@ -11,6 +11,7 @@ without line breaks (``shared.cli_common.flowing``), and rich markup must not ea
 from __future__ import annotations
 
 import inspect
+import warnings
 
 import click
 import pytest
@@ -18,9 +19,11 @@ import typer
 from rich.text import Text
 from typer.testing import CliRunner
 
+import shared.config
 from m3p2i.cli import app as m3p2i_app
 from planner_client.cli import app as planner_app
 from server.cli import app as server_app
+from shared.cli_common import renamed
 
 APPS = {"m3p2i": m3p2i_app, "m3p2i-server": server_app, "m3p2i-planner": planner_app}
 
@@ -103,12 +106,25 @@ def test_shared_options_are_declared_once():
     assert server["scenario"].opts == planner["scenario"].opts == ["--scenario", "-s"]
 
 
-def test_the_mujoco_window_keeps_its_old_name():
+def test_the_mujoco_window_keeps_its_old_name_with_a_warning(monkeypatch):
     # --window (MuJoCo's window) beside m3p2i run's --view (the browser page); --viewer, its
-    # name before, still opens it
+    # name before, still opens it, warns once naming --window, and is hidden from --help
+    monkeypatch.setattr(shared.config, "_WARNED", set())
     server = typer.main.get_command(server_app)
-    for args, shown in (([], False), (["--window"], True), (["--viewer"], True)):
+    for args, shown in (([], False), (["--window"], True)):
         ctx = server.make_context("m3p2i-server", ["-s", "navigation", *args])
         assert ctx.params["window"] is shown, args
+    assert server.make_context("m3p2i-server", ["-s", "navigation", "--viewer"]).params["viewer"]
     run = typer.main.get_command(m3p2i_app).commands["run"]
-    assert run.make_context("run", ["navigation", "--viewer"]).params["window"] is True
+    assert run.make_context("run", ["navigation", "--viewer"]).params["viewer"] is True
+    assert "--viewer" not in CliRunner().invoke(server_app, ["--help"]).output
+    with pytest.warns(
+        FutureWarning, match="--viewer is deprecated and will be removed: write --window"
+    ):
+        assert renamed(False, True, "--window", "--viewer", False) is True
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # once per process
+        assert renamed(False, True, "--window", "--viewer", False) is True
+        assert renamed(True, False, "--window", "--viewer", False) is True
+    with pytest.raises(typer.BadParameter, match="both --window and --viewer"):
+        renamed(True, True, "--window", "--viewer", False)

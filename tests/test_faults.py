@@ -15,6 +15,7 @@ import typer
 import yaml
 from typer.testing import CliRunner
 
+import shared.config
 from m3p2i.bench import load_bench
 from m3p2i.cli import app as m3p2i
 from m3p2i.launch import EpisodeLaunch
@@ -97,12 +98,15 @@ def test_an_unknown_profile_or_file_is_refused():
         load_faults("no_such_profile")
 
 
-def test_the_old_names_hardware_and_dash_dash_hardware_mean_faults(tmp_path):
-    # hardware: and --hardware, the names before faults: and --faults, read the same
+def test_the_old_names_hardware_and_dash_dash_hardware_mean_faults(tmp_path, monkeypatch):
+    # hardware: and --hardware, the names before faults: and --faults, read the same and warn
+    # once (per file), naming the new spelling
+    monkeypatch.setattr(shared.config, "_WARNED", set())
     raw = load_yaml(find_scenario("push"))
     spec = {"profile": "lab", "drop_rate": 0.2}
     new = parse_scenario({**raw, "faults": spec}, "push.yaml")
-    old = parse_scenario({**raw, "hardware": spec}, "push.yaml")
+    with pytest.warns(FutureWarning, match=r"hardware: \(in push.yaml\) is deprecated.*faults:"):
+        old = parse_scenario({**raw, "hardware": spec}, "push.yaml")
     assert old.faults == new.faults == dataclasses.replace(PROFILES["lab"], drop_rate=0.2)
     # one hash for both names (bench results, logs and peers keep matching), not the nominal's
     assert old.hash == new.hash != parse_scenario(raw, "push.yaml").hash
@@ -127,12 +131,17 @@ def test_the_old_names_hardware_and_dash_dash_hardware_mean_faults(tmp_path):
     # --hardware: a second name of the same option, on m3p2i-server and m3p2i run
     server = typer.main.get_command(server_cli)
     run = typer.main.get_command(m3p2i).commands["run"]
-    for flag in ("--faults", "--hardware"):
+    for flag, param in (("--faults", "faults"), ("--hardware", "hardware")):
         ctx = server.make_context("m3p2i-server", ["-s", "push", flag, "lab"])
-        assert ctx.params["faults"] == "lab", flag
-        assert run.make_context("run", ["push", flag, "lab"]).params["faults"] == "lab", flag
-    result = CliRunner().invoke(server_cli, ["--scenario", "push", "--check", "--hardware", "x"])
+        assert ctx.params[param] == "lab", flag
+        assert run.make_context("run", ["push", flag, "lab"]).params[param] == "lab", flag
+    with pytest.warns(FutureWarning, match="--hardware is deprecated.*write --faults"):
+        result = CliRunner().invoke(
+            server_cli, ["--scenario", "push", "--check", "--hardware", "x"]
+        )
     assert result.exit_code == 2 and "--faults: neither a profile nor a file" in result.output
+    result = CliRunner().invoke(server_cli, ["-s", "push", "--faults", "lab", "--hardware", "lab"])
+    assert result.exit_code == 2 and "both --faults and --hardware" in result.output
 
 
 def test_a_log_written_before_the_rename_still_tells_its_faults():
