@@ -6,7 +6,7 @@ for episodes of 3-30 s. A warm pair is started once (``m3p2i-server --keep-servi
 seed. The world then builds a fresh world for that seed, under a new session, with its own
 episode log; the planner, seeing the new session, rebuilds its planner and task layer with the
 seed the welcome carries. Nothing of one episode reaches the next, so a lock-step trial gives
-the same result as a fresh pair with the same seed on the same machine (tests/test_bench.py).
+the same result as a fresh pair with the same seed on the same machine (tests/cli/test_bench.py).
 
 The pair's own process logs stay in ``logs/CASE/pairs/seed-NNN/`` (NNN: the pair's first seed);
 each trial's folder gets the part of them written during the trial, as ``server.log`` and

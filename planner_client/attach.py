@@ -159,7 +159,7 @@ class Attachments:
                 # MuJoCo's weld holds x2 + R2·anchor at x1 + R1·relpos. The anchor is the object's
                 # origin (in the robot body's frame) and relpos 0: anchored at the hand's origin,
                 # 11 cm away, the soft weld let a cube held off the hand's axis swing down like a
-                # pendulum (7.8 mm in 0.2 s with the arm still; tests/test_attach.py)
+                # pendulum (7.8 mm in 0.2 s with the arm still; tests/planner_client/test_attach.py)
                 m.eq_data[w.eq, :3] = relative_pose(data, w.body, w.to)[:3]
                 m.eq_data[w.eq, 3:6] = 0.0
                 m.eq_data[w.eq, 6:10] = relative_pose(data, w.to, w.body)[3:]

@@ -4,7 +4,7 @@ What ``m3p2i run NAME --seed S`` does in lock-step with two processes, done with
 the world publishes state ``seq``, the planner's control loop answers it (thesis Alg. 1), the
 world plays the command's plan for ``plan_every`` steps (its knot for each step's world time,
 the safe control past its end), and publishes the next state. The episode, its log and its
-summary are the two-process run's step for step, bit for bit (tests/test_inprocess.py checks
+summary are the two-process run's step for step, bit for bit (tests/server/test_inprocess.py checks
 it); only the session id, the wall-clock times and the planning times differ.
 
 The world never imports the planner (docs/architecture.md, import rules): the caller hands it

@@ -1,13 +1,18 @@
 """Session fixtures.
 
 ``lockstep_episodes``: the seeded lock-step episodes of every module whose selected tests read
-them and that declares ``episode_specs(out)`` (tests/test_panda.py, tests/test_push_pull.py),
-run as ONE pool (tests/episodes.py) that starts with the session, in a child process at the
-lowest CPU priority, so that its minutes of episodes fill the cores the other tests leave idle.
-The tests that read the episodes run last, when the pool has had the whole suite's time; one
-pool instead of one per module, because a pool's last episode runs alone and leaves a core
-idle (the modules list their longest episodes first for the same reason). Lock-step episodes do
-not depend on what else runs, so sharing and running them beside other tests changes no result.
+them and that declares ``episode_specs(out)`` (tests/e2e/test_panda.py,
+tests/e2e/test_push_pull.py), run as ONE pool (tests/episodes.py) that starts with the session,
+in a child process at the lowest CPU priority, so that its minutes of episodes fill the cores
+the other tests leave idle. The tests that read the episodes run last, when the pool has had
+the whole suite's time; one pool instead of one per module, because a pool's last episode runs
+alone and leaves a core idle (the modules list their longest episodes first for the same
+reason). Lock-step episodes do not depend on what else runs, so sharing and running them beside
+other tests changes no result.
+
+The tests live by package (shared/, planner_client/, server/, cli/ for the m3p2i command,
+scripts/ for scripts/measure/, project/ for what spans the repository), the end-to-end runs of
+both processes in e2e/; their helpers and data stay here.
 """
 
 from __future__ import annotations

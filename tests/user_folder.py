@@ -1,6 +1,7 @@
 """A user's folder outside the package, laid out like the shipped ``configs/``: a two-link planar
 arm of the user's own (``robots/two_link.xml`` and its robot file) and a reaching scenario for it
-(``scenarios/reach.yaml``). Shared by tests/test_user_robots.py and tests/test_plugins.py."""
+(``scenarios/reach.yaml``). Shared by tests/cli/test_user_robots.py and
+tests/planner_client/test_plugins.py."""
 
 from __future__ import annotations
 

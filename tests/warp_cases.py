@@ -1,6 +1,6 @@
 """Start states and control sequences on which the warp backend is compared with
-mujoco.rollout (tests/test_warp_backend.py): smooth motion and contact-rich motion for
-navigation, push_pull and pick_place."""
+mujoco.rollout (tests/planner_client/test_warp_backend.py): smooth motion and contact-rich
+motion for navigation, push_pull and pick_place."""
 
 from __future__ import annotations
 

@@ -10,7 +10,7 @@ the device and the costs and the M3P2I update run there.
 
 MJWarp computes in float32 (MuJoCo in float64): sensor trajectories agree with
 ``mujoco.rollout`` to float32 rounding on smooth motion and drift further where contacts decide
-the motion (tests/test_warp_backend.py states the tolerances).
+the motion (tests/planner_client/test_warp_backend.py states the tolerances).
 
 Kernels are compiled on first use (LLVM on the CPU device, NVRTC on a GPU) and cached in
 ``~/.cache/warp``: the first rollout of a new model takes tens of seconds to minutes.

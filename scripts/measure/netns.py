@@ -1,5 +1,5 @@
 """Two hosts on one machine: two network namespaces joined by a veth pair, for the world and the
-planner to talk over a real link that can be cut (``tests/test_netns.py``, ``scripts/soak.py
+planner to talk over a real link that can be cut (``tests/scripts/test_netns.py``, ``scripts/soak.py
 --netns``).
 
 :func:`two_hosts` makes the namespaces ``world`` (``10.a.b.1``) and ``planner`` (``10.a.b.2``),

@@ -23,7 +23,7 @@ from shared.config import ConfigError
 from shared.config_files import ENV_VAR, find, shipped
 from shared.scenario import SCENARIO_DIR, find_objectives, load_scenario
 
-ROOT = Path(__file__).resolve().parent.parent
+ROOT = Path(__file__).resolve().parents[2]
 SHIPPED_NAMES = sorted(p.stem for p in SCENARIO_DIR.glob("*.yaml"))
 BENCH_DIR = ROOT / "configs" / "bench"
 

@@ -1,7 +1,7 @@
 """The mobile manipulator (shared/robots/mobile_panda.xml, docs/mobile.md): the Panda it carries
 is panda.xml's, its base drives as its file says, and its scenario passes the checks and lays out
 base and arm for a bridge (both processes' checks of every shipped scenario, this one included:
-tests/test_check.py). The episodes themselves are measured by ``m3p2i bench mobile``
+tests/cli/test_check.py). The episodes themselves are measured by ``m3p2i bench mobile``
 (docs/mobile.md): one takes minutes of a core, too long for the suite."""
 
 from __future__ import annotations

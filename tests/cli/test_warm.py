@@ -20,8 +20,8 @@ from shared.endpoints import Endpoints
 from shared.evaluation import episode
 from shared.evaluation.metrics import MetricsEvaluator
 from shared.scenario import load_scenario
+from tests.cli.test_view_control import _ask
 from tests.episodes import with_max_time
-from tests.test_view_control import _ask
 
 
 def _trials(cases: list[tuple[str, str, list[int]]]) -> list[B.Trial]:

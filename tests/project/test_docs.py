@@ -10,7 +10,7 @@ from pathlib import Path
 
 import mujoco
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 DOCS = [ROOT / "README.md", *sorted((ROOT / "docs").glob("*.md"))]
 LINKED = [*DOCS, *(p for p in [ROOT / "CHANGELOG.md"] if p.exists())]
 
@@ -91,7 +91,7 @@ def test_every_link_in_the_readme_and_docs_resolves():
 
 def test_the_architecture_page_names_the_import_rules_test():
     text = (ROOT / "docs" / "architecture.md").read_text(encoding="utf-8")
-    assert "tests/test_import_rules.py" in text
+    assert "tests/project/test_import_rules.py" in text
 
 
 # ------------------------------------------------------- names in docs/architecture.md exist

@@ -14,7 +14,7 @@ from __future__ import annotations
 import ast
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parent.parent
+ROOT = Path(__file__).resolve().parents[2]
 PACKAGES = ("server", "planner_client", "shared", "m3p2i")
 
 # (importer prefix, forbidden import prefix): a module whose dotted name starts with the first

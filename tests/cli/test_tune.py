@@ -255,7 +255,7 @@ def test_the_shipped_example_writes_an_overlay_that_m3p2i_run_runs(tmp_path):
     """The docs' example, smaller (2 trials on one seed, one held-out seed): real episodes, the
     overlay, the report, and ``m3p2i run`` of the overlay. (Resuming: the stand-in tests.)"""
     out = tmp_path / "tuned"
-    example = Path(__file__).resolve().parents[1] / "configs" / "tune" / "navigation.yaml"
+    example = Path(__file__).resolve().parents[2] / "configs" / "tune" / "navigation.yaml"
     args = ["-m", "m3p2i", "tune", "navigation", "--space", str(example)]
     args += ["--trials", "2", "--seeds", "0", "--holdout", "1", "--out", str(out)]
     tuned = subprocess.run([sys.executable, *args], capture_output=True, text=True)

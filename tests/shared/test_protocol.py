@@ -217,7 +217,7 @@ def test_a_command_without_a_plan_is_still_a_command():
 
 @pytest.mark.parametrize("kind", [{"a": 1}, [1], 1.5, None, b"state"])
 def test_a_type_that_is_not_a_string_is_refused(kind):
-    # found by tests/test_fuzz.py: an unhashable type (a map, a list) raised TypeError
+    # found by tests/shared/test_fuzz.py: an unhashable type (a map, a list) raised TypeError
     with pytest.raises(P.ProtocolError, match="unknown message type"):
         P.decode(msgpack.packb({"type": kind, "v": V}, use_bin_type=True))
 
@@ -234,7 +234,7 @@ def test_a_type_that_is_not_a_string_is_refused(kind):
     ],
 )
 def test_arrays_with_unhashable_dtypes_or_overflowing_shapes_are_refused(array, reason):
-    # found by tests/test_fuzz.py: TypeError, and ValueError from numpy's reshape
+    # found by tests/shared/test_fuzz.py: TypeError, and ValueError from numpy's reshape
     with pytest.raises(P.ProtocolError) as info:
         P.decode(_raw(type="command", v=V, session="s", seq=1, ctrl=array))
     assert reason in str(info.value)
@@ -290,7 +290,8 @@ def _diag_raw(**kw):
     ],
 )
 def test_arrays_of_other_shapes_than_documented_are_refused(frame, reason):
-    # found by tests/test_fuzz.py: a 2-d mode_weights reached the view (float(row): TypeError)
+    # found by tests/shared/test_fuzz.py: a 2-d mode_weights reached the view
+    # (float(row): TypeError)
     with pytest.raises(P.ProtocolError) as info:
         P.decode(frame)
     assert reason in str(info.value)
@@ -327,7 +328,7 @@ def _welcome_raw(**kw):
     ],
 )
 def test_a_welcome_with_an_impossible_world_is_refused(frame, reason):
-    # found by tests/test_fuzz.py: dt -1e308 was accepted (the planner divides by it, and a
+    # found by tests/shared/test_fuzz.py: dt -1e308 was accepted (the planner divides by it, and a
     # negative seed makes numpy's default_rng raise)
     with pytest.raises(P.ProtocolError) as info:
         P.decode(frame)
@@ -336,6 +337,6 @@ def test_a_welcome_with_an_impossible_world_is_refused(frame, reason):
 
 @pytest.mark.parametrize("value", [float("nan"), float("inf"), -float("inf")])
 def test_a_state_extra_that_is_not_a_finite_number_is_refused(value):
-    # found by tests/test_fuzz.py: extras {'battery': nan} were accepted
+    # found by tests/shared/test_fuzz.py: extras {'battery': nan} were accepted
     with pytest.raises(P.ProtocolError, match=r"state\.extras"):
         P.decode(_state_raw(extras={"battery": value}))

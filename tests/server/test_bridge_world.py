@@ -31,7 +31,7 @@ from shared.scene import compile_model, initial_data
 from tests.bridge_worlds import KinematicBase
 from tests.helpers import ENV, start_planner, stop
 
-ROOT = Path(__file__).resolve().parent.parent
+ROOT = Path(__file__).resolve().parents[2]
 GOAL = np.array([-3.0, 3.0])  # configs/scenarios/navigation.yaml: episode.success
 WITHIN = 0.1
 

@@ -301,8 +301,8 @@ def test_a_view_without_controls_shows_no_buttons_and_sends_nothing(live_view):
     ],
 )
 def test_an_absurd_timestep_is_refused_naming_the_key(tmp_path, extra, key):
-    # found by tests/test_fuzz.py: world.timestep 5e-324 made planner.timestep / world.timestep
-    # inf, and round(inf) raised OverflowError out of the loader
+    # found by tests/shared/test_fuzz.py: world.timestep 5e-324 made
+    # planner.timestep / world.timestep inf, and round(inf) raised OverflowError out of the loader
     import yaml
 
     from shared.config import ConfigError

@@ -401,7 +401,7 @@ def _replay_mass_errors(window: int, noise_seed: int) -> np.ndarray:
     replayed through pull_lab_variants' identifier with ``window``, observed as harsh's tracker
     sees it (15 mm on the robot's and the box's positions, the box's velocities withheld, 30 %
     of the states lost): the mass estimate's relative error after each state from 3 s on."""
-    rec = np.load(Path(__file__).parent / "data" / "pull_heavy_box.npz")
+    rec = np.load(Path(__file__).parents[1] / "data" / "pull_heavy_box.npz")
     sc = load_scenario("pull_lab_variants")
     cfg = sc.planner.model.variants
     cfg = dataclasses.replace(cfg, identify=dataclasses.replace(cfg.identify, window=window))

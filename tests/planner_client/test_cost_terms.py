@@ -82,7 +82,8 @@ def ctx(model) -> TermContext:
         obstacles=["wall", "pillar"],
         actuators=["ux", "uy"],
         joints=joints,
-        # a guide for the box, with no path yet (the guide's terms: tests/test_guide.py)
+        # a guide for the box, with no path yet (the guide's terms:
+        # tests/planner_client/test_guide.py)
         guide=GuideState(GuideConfig(for_="box", goal="goal", room="push"), scenario=None),
     )
 

@@ -14,7 +14,7 @@ from rich.console import Console
 from scripts.measure import rollout_floor as floor
 from tests.helpers import ENV
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 
 
 def test_variants_switch_off_what_they_name(monkeypatch):

@@ -17,7 +17,7 @@ from shared.config import ConfigError, Section
 from shared.frames import FrameResolver
 from shared.scenario import load_scenario
 from shared.scene import build_spec, compile_model, obstacle_names
-from tests.test_cost_terms import MJCF  # the cost-term tests' small model
+from tests.planner_client.test_cost_terms import MJCF  # the cost-term tests' small model
 
 F64 = torch.float64
 MARGIN = 0.1

@@ -20,7 +20,7 @@ from shared.endpoints import Endpoints
 from shared.scenario import load_scenario
 from tests.helpers import ENV, StateWatcher, free_port_block, start_server, stop
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 
 
 CFG = soak.SoakConfig(command_timeout=0.5, takeover=3.0, slack=0.25, rss_bound=50.0)

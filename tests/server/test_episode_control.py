@@ -18,6 +18,7 @@ from shared import protocol as P
 from shared.endpoints import Endpoints
 from shared.evaluation.episode import read_log
 from shared.scenario import load_scenario
+from tests.cli.test_view_control import _ask
 from tests.helpers import (
     StateWatcher,
     free_port_block,
@@ -27,7 +28,6 @@ from tests.helpers import (
     wait_episode,
     wait_until,
 )
-from tests.test_view_control import _ask
 
 
 def _steps(records: list[dict]) -> list[dict]:

@@ -25,7 +25,7 @@ from shared.scenario import load_scenario
 from shared.scene import compile_model, initial_data
 
 SCENARIOS = sorted(
-    p.stem for p in (Path(__file__).parents[1] / "configs" / "scenarios").glob("*.yaml")
+    p.stem for p in (Path(__file__).parents[2] / "configs" / "scenarios").glob("*.yaml")
 )
 
 

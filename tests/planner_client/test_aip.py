@@ -21,7 +21,7 @@ from planner_client.aip import ActiveInferencePlanner, FactorAgent, FactorModel,
 from shared.config import ConfigError, Section
 from shared.task_template import parse_task
 
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[2]
 
 BATTERY = """
 task:

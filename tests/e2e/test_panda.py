@@ -2,7 +2,7 @@
 end to end in lock-step: the reactive run (stacking with the cube moved, stolen from the hand, goal
 blocked, unstacked) and the multi-modal grasp past a moving obstacle, in both of its cases (side
 grasp in the shelf, top grasp on the table). Plain stacking (pick_place.yaml) runs end to end in
-tests/test_realtime.py, in real time. Each run prints its position and orientation error (Table
+tests/e2e/test_realtime.py, in real time. Each run prints its position and orientation error (Table
 III's columns); ``-s`` shows them."""
 
 from __future__ import annotations

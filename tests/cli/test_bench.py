@@ -37,7 +37,7 @@ from m3p2i.provenance import machine, versions
 from shared.config import ConfigError
 from shared.scenario import SCENARIO_DIR
 
-ROOT = Path(__file__).resolve().parent.parent
+ROOT = Path(__file__).resolve().parents[2]
 
 
 def write_bench(tmp_path, cases, **top):
