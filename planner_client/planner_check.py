@@ -1,7 +1,7 @@
 """What the planner checks before it starts: the scenario file, and every name in it that only
 the compiled model or the planner's registries can confirm (cost terms and their frames and
-actuators, pinned controls, observers' frames, ``planner.mppi`` keys, ``planner.model``'s
-bodies).
+actuators, pinned controls, observers' frames, ``planner.mppi``'s lengths against the
+actuators, ``planner.model``'s bodies).
 
 ``m3p2i-planner --check`` prints them all; ``m3p2i check`` / ``m3p2i run`` merge them with the
 world's.

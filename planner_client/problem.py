@@ -7,7 +7,6 @@ compiled. :class:`~planner_client.mirror.Mirror` copies each received state into
 
 from __future__ import annotations
 
-import dataclasses
 import math
 from dataclasses import dataclass
 from pathlib import Path
@@ -20,7 +19,7 @@ from planner_client.guide import GuideState, add_site
 from planner_client.mppi import MPPIConfig
 from planner_client.plugins import import_plugins
 from planner_client.sensors import SensorColumns, SensorRequest, add_sensors
-from shared.config import ConfigError, ErrorLog, Section
+from shared.config import ConfigError, ErrorLog
 from shared.frames import FrameResolver
 from shared.robots import RobotSpec
 from shared.scenario import PlanningModel, Scenario
@@ -244,27 +243,9 @@ def mppi_config(sc: Scenario, m: mujoco.MjModel) -> MPPIConfig:
     u_max = tuple(float(v) if lim else math.inf for v, lim in zip(hi, limited))
     sigma = tuple(float((b - a) / 4) if lim else 1.0 for a, b, lim in zip(lo, hi, limited))
     values = dict(horizon=sc.planner.horizon, nu=m.nu, noise_sigma=sigma, u_min=u_min, u_max=u_max)
-    s = Section(sc.planner.mppi, sc.source, "planner.mppi")
-    names = {f.name for f in dataclasses.fields(MPPIConfig)} - {"horizon", "nu"}
-    for key, value in sc.planner.mppi.items():
-        if key not in names:
-            raise s.error(
-                key, "unknown planner parameter", value, f"one of: {', '.join(sorted(names))}"
-            )
-        values[key] = tuple(value) if isinstance(value, list) else value
+    values.update(sc.planner.mppi.given())  # checked at load (shared/scenario/mppi.py)
     try:
         cfg = MPPIConfig(**values)
-    except (ValueError, TypeError) as exc:
+    except (ValueError, TypeError) as exc:  # what needs the model: lengths against its actuators
         raise ConfigError(sc.source, "planner.mppi", str(exc)) from None
-    # Every mode gets planner.samples rollouts, and η counts the ones that carry weight (η ≤ K):
-    # M3P2I refuses a window it can never meet, so say it here, naming the file and the key.
-    if cfg.eta_bounds is not None and cfg.eta_bounds[0] > sc.planner.samples:
-        raise ConfigError(
-            sc.source,
-            "planner.mppi.eta_bounds",
-            f"eta_l cannot be reached with planner.samples = {sc.planner.samples} "
-            "per mode: eta counts the samples that carry weight",
-            list(cfg.eta_bounds),
-            f"eta_l <= {sc.planner.samples}",
-        )
     return cfg

@@ -18,6 +18,7 @@ from shared.config import (
 from shared.scenario.common import STEP_SECONDS, step_seconds
 from shared.scenario.estimate import EstimateConfig, read_estimate
 from shared.scenario.model import PlanningModel, read_planning_model
+from shared.scenario.mppi import MppiSettings, read_mppi
 from shared.scenario.world import WorldConfig
 
 # Rollout backends (planner.backend): "mujoco" is mujoco.rollout's thread pool on the CPU, the
@@ -54,11 +55,11 @@ class DelayConfig:
 
 @dataclass(frozen=True)
 class PlannerConfig:
-    """Motion-planner parameters; ``mppi`` keys are checked by the planner against MPPIConfig."""
+    """Motion-planner parameters."""
 
     samples: int = 200
     horizon: int = 15
-    mppi: dict[str, Any] = field(default_factory=dict)
+    mppi: MppiSettings = field(default_factory=MppiSettings)  # M3P2I's own keys
     threads: int = 0  # rollout threads; 0 = one per core
     aip_period: float = 0.2  # simulated seconds between active-inference ticks
     # seconds an observed change of a task factor must persist before the task layer acts on
@@ -80,10 +81,12 @@ class PlannerConfig:
 
 
 def read_planner(s: Section) -> PlannerConfig:
+    samples = s.opt("samples", 200, positive_int)
+    horizon = s.opt("horizon", 15, positive_int)
     cfg = PlannerConfig(
-        samples=s.opt("samples", 200, positive_int),
-        horizon=s.opt("horizon", 15, positive_int),
-        mppi=dict(s.section("mppi", required=False).data),
+        samples=samples,
+        horizon=horizon,
+        mppi=read_mppi(s.section("mppi", required=False), horizon, samples),
         threads=s.opt("threads", 0, int),
         aip_period=s.opt("aip_period", 0.2, positive, "simulated seconds"),
         confirm=s.opt(

@@ -20,7 +20,7 @@ from planner_client import planner_check
 from server import world_check as server_check
 from shared.config import ConfigError, ConfigErrors
 from shared.frames import FrameResolver
-from shared.scenario import SCENARIO_DIR, parse_scenario, read_scenario
+from shared.scenario import SCENARIO_DIR, load_scenario, parse_scenario, read_scenario
 from shared.scene import compile_model
 
 
@@ -202,3 +202,38 @@ def test_an_arena_wall_thickness_is_read_with_a_warning_and_changes_nothing(monk
     with pytest.warns(FutureWarning, match=r"world.arena.wall_thickness \(in old.yaml\).*remove"):
         sc = parse_scenario(old, "old.yaml")
     assert sc.world.arena == parse_scenario(raw, "new.yaml").world.arena
+
+
+@pytest.mark.parametrize(
+    "mppi, key, says",
+    [
+        ({"lambda_inti": 1.0}, "planner.mppi.lambda_inti", "unknown key"),
+        ({"gamma": 1.5}, "planner.mppi.gamma", "must be in (0, 1]"),
+        ({"sampling": "sobol"}, "planner.mppi.sampling", "gaussian, halton"),
+        ({"savgol_window": 4}, "planner.mppi.savgol_window", "odd"),
+        ({"savgol_window": 5, "savgol_order": 5}, "planner.mppi.savgol_order", "below"),
+        ({"u_min": [1.0, 1.0], "u_max": [0.0, 2.0]}, "planner.mppi.u_max", "above u_min"),
+        ({"noise_sigma": [0.1, -0.1]}, "planner.mppi.noise_sigma", "> 0"),
+        ({"keep_best": "yes"}, "planner.mppi.keep_best", "keep_best"),
+    ],
+)
+def test_an_mppi_fault_is_found_at_load_by_both_processes_and_the_check(tmp_path, mppi, key, says):
+    # planner.mppi is a section like any other: the world side learns of a typo too
+    raw = _nav()
+    raw["planner"]["mppi"] = mppi
+    path = _write(tmp_path, raw)
+    for errors in (server_check.scenario_errors(path), planner_check.scenario_errors(path)):
+        assert [e.path for e in errors] == [key], errors
+        assert says in str(errors[0]) and "broken.yaml" in str(errors[0]), errors[0]
+    result = CliRunner().invoke(app, ["check", str(path)])
+    assert result.exit_code == 2 and key in result.output, result.output
+
+
+def test_mppi_keys_reach_the_planner_as_the_file_gives_them():
+    # typed at load, the values stay the file's (a list as a tuple): the same MPPIConfig
+    from planner_client.problem import build_problem, mppi_config
+
+    sc = load_scenario("push_pull")
+    cfg = mppi_config(sc, build_problem(sc).model)
+    assert sc.planner.mppi.given() == {"eta_bounds": (3.0, 10.0), "savgol_window": 5}
+    assert cfg.eta_bounds == (3.0, 10.0) and cfg.savgol_window == 5 and cfg.horizon == 15

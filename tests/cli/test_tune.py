@@ -150,7 +150,7 @@ def test_the_overlay_is_a_base_plus_the_tuned_keys_and_loads(tmp_path):
     tuned, original = load_scenario(path), load_scenario("navigation")
     assert tuned.planner.samples == values["planner.samples"]
     assert tuned.objectives["navigate"].terms[1].weight == values[WEIGHT]
-    assert tuned.planner.mppi["eta_bounds"] == values["planner.mppi.eta_bounds"]
+    assert list(tuned.planner.mppi.eta_bounds) == values["planner.mppi.eta_bounds"]
     # the rest is the original's: the list that holds the weight is carried whole
     for mine, theirs in zip(
         tuned.objectives["navigate"].terms, original.objectives["navigate"].terms
