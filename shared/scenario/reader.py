@@ -219,18 +219,7 @@ def _read(raw: dict, source: str, errors: ErrorLog) -> ScenarioReading:
     planner = errors.call(
         lambda: read_planner(top.section("planner", required=False)), default=PlannerConfig()
     )
-    if world is not None and planner.timestep is not None:
-        ratio = planner.timestep / world.timestep
-        if abs(ratio - round(ratio)) > 1e-6 or round(ratio) < 1:
-            errors.add(
-                ConfigError(
-                    source,
-                    "planner.timestep",
-                    "not a whole multiple of world.timestep",
-                    planner.timestep,
-                    f"{world.timestep} × 1, 2, 3, ... seconds",
-                )
-            )
+    _check_timestep(world, planner, source, errors)
     faults = NOMINAL
     if top.has("faults"):  # a profile's name or a mapping
         faults = errors.call(parse_faults, top.opt("faults", None), source, default=NOMINAL)
@@ -246,6 +235,62 @@ def _read(raw: dict, source: str, errors: ErrorLog) -> ScenarioReading:
     objectives = errors.call(
         lambda: read_objectives(top.section("objectives"), errors, library), default={}
     )
+    task, observers, action_objectives, modes = _read_task(top, errors, plugins, objectives)
+    _check_confirm(raw, top, planner, task, errors)
+    _check_planning_model(planner, task, world, source, errors)
+    _check_modes(top, modes, errors)
+    guide = _read_guide(top, world, planner, errors)
+    errors.call(top.done)
+    if robot is None:
+        return ScenarioReading(None, errors.errors, False)
+    if world is None:  # what the faulty world declares stands in, for name checks only
+        world = declared_world(raw.get("world"), source)
+    scenario = Scenario(
+        name=name,
+        description=description,
+        source=source,
+        hash=scenario_hash(raw, included, robot.spec, source),
+        robot=robot,
+        world=world,
+        episode=episode or EpisodeConfig(max_time=0.0, success=()),
+        planner=planner,
+        objectives=objectives,
+        modes=modes,
+        task=task,
+        observers=observers,
+        action_objectives=action_objectives,
+        metrics=metrics,
+        faults=faults,
+        plugins=plugins,
+        raw=raw,
+        guide=guide,
+    )
+    return ScenarioReading(scenario, errors.errors, model_ok)
+
+
+def _check_timestep(
+    world: WorldConfig | None, planner: PlannerConfig, source: str, errors: ErrorLog
+) -> None:
+    """``planner.timestep`` is a whole multiple of the world's."""
+    if world is not None and planner.timestep is not None:
+        ratio = planner.timestep / world.timestep
+        if abs(ratio - round(ratio)) > 1e-6 or round(ratio) < 1:
+            errors.add(
+                ConfigError(
+                    source,
+                    "planner.timestep",
+                    "not a whole multiple of world.timestep",
+                    planner.timestep,
+                    f"{world.timestep} × 1, 2, 3, ... seconds",
+                )
+            )
+
+
+def _read_task(
+    top: Section, errors: ErrorLog, plugins: tuple[str, ...], objectives: dict
+) -> tuple[TaskTemplate | None, dict, dict, tuple[str, ...]]:
+    """``task`` and what hangs on it (``observers``, ``plan``), or the fixed ``modes``:
+    ``(task, observers, action_objectives, modes)``."""
     task = errors.call(lambda: parse_task(top.section("task"))) if top.has("task") else None
     observers, action_objectives, modes = {}, {}, ()
     if task is None and not top.has("task"):
@@ -271,6 +316,14 @@ def _read(raw: dict, source: str, errors: ErrorLog) -> ScenarioReading:
         else:  # the task's own errors are reported; its dependants would only repeat them
             top.section("observers", required=False)
             top.section("plan", required=False)
+    return task, observers, action_objectives, modes
+
+
+def _check_confirm(
+    raw: dict, top: Section, planner: PlannerConfig, task: TaskTemplate | None, errors: ErrorLog
+) -> None:
+    """``planner.confirm`` names the task's factors and their states."""
+    source = top.source
     if planner is not None and planner.confirm and task is None and not top.has("task"):
         errors.add(
             ConfigError(
@@ -307,6 +360,17 @@ def _read(raw: dict, source: str, errors: ErrorLog) -> ScenarioReading:
                                 "one of: " + ", ".join(states),
                             )
                         )
+
+
+def _check_planning_model(
+    planner: PlannerConfig,
+    task: TaskTemplate | None,
+    world: WorldConfig | None,
+    source: str,
+    errors: ErrorLog,
+) -> None:
+    """``planner.model``'s objects are the world's free ones; what it attaches, and a filter of
+    held poses, need each other."""
     if planner is not None and planner.model.objects and world is not None:
         free = [o.name for o in world.objects if not o.fixed]
         for obj in planner.model.objects:
@@ -332,6 +396,11 @@ def _read(raw: dict, source: str, errors: ErrorLog) -> ScenarioReading:
                 "planner.model.attach, or no held_filter",
             )
         )
+
+
+def _check_modes(top: Section, modes: tuple[str, ...], errors: ErrorLog) -> None:
+    """Every fixed mode is an objective of the file."""
+    source = top.source
     if top.has("objectives") and isinstance(top.data["objectives"], dict):
         known = list(top.data["objectives"])
         for i, m in enumerate(modes):
@@ -345,6 +414,14 @@ def _read(raw: dict, source: str, errors: ErrorLog) -> ScenarioReading:
                         f"one of: {', '.join(known)}",
                     )
                 )
+
+
+def _read_guide(
+    top: Section, world: WorldConfig | None, planner: PlannerConfig, errors: ErrorLog
+) -> GuideConfig | None:
+    """``guide``, against the world's objects (skipped when the world is faulty), on the CPU
+    rollouts only."""
+    source = top.source
     guide = None
     if top.has("guide") and world is not None:
         guide = errors.call(
@@ -365,32 +442,7 @@ def _read(raw: dict, source: str, errors: ErrorLog) -> ScenarioReading:
                 "planner.backend: mujoco, or no guide",
             )
         )
-    errors.call(top.done)
-    if robot is None:
-        return ScenarioReading(None, errors.errors, False)
-    if world is None:  # what the faulty world declares stands in, for name checks only
-        world = declared_world(raw.get("world"), source)
-    scenario = Scenario(
-        name=name,
-        description=description,
-        source=source,
-        hash=scenario_hash(raw, included, robot.spec, source),
-        robot=robot,
-        world=world,
-        episode=episode or EpisodeConfig(max_time=0.0, success=()),
-        planner=planner,
-        objectives=objectives,
-        modes=modes,
-        task=task,
-        observers=observers,
-        action_objectives=action_objectives,
-        metrics=metrics,
-        faults=faults,
-        plugins=plugins,
-        raw=raw,
-        guide=guide,
-    )
-    return ScenarioReading(scenario, errors.errors, model_ok)
+    return guide
 
 
 def _check_attach(
