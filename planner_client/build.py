@@ -9,14 +9,17 @@ from pathlib import Path
 import torch
 
 from planner_client.aip import ActiveInferencePlanner
+from planner_client.attach import Attachments
 from planner_client.backends import make_backend
-from planner_client.controller import Controller
+from planner_client.controller import Controller, Parts
+from planner_client.guide import Guide
 from planner_client.loop import PlannerClient
+from planner_client.mirror import Mirror
 from planner_client.motion import MotionPlanner
 from planner_client.observers import SymbolicObserver
 from planner_client.problem import build_problem, mppi_config
 from planner_client.task import ActiveInferenceTask, FixedModes, TaskLayer
-from planner_client.variants import VariantModels
+from planner_client.variants import Identifier, VariantModels
 from shared.config import ConfigError
 from shared.endpoints import Endpoints
 from shared.predicates import check_frames
@@ -90,6 +93,31 @@ def build_task(scenario: Scenario, planner: MotionPlanner) -> TaskLayer:
     )
 
 
+def build_parts(planner: MotionPlanner, task: TaskLayer) -> Parts:
+    """The collaborators a :class:`Controller` drives for ``planner`` and ``task``: the mirror
+    (with ``planner.estimate``'s filters), the attachments of ``planner.model.attach``, the
+    guide of ``guide``, and, with ``planner.model.variants.identify``, the maker of the
+    identifier that reweights the planner's variants."""
+    problem = planner.problem
+    pc = problem.scenario.planner
+    mirror = Mirror(
+        problem.model,
+        estimate=pc.estimate,
+        planar=[n for n, o in pc.model.objects.items() if o.planar],
+    )
+    attachments = Attachments(problem.model, pc.model.attach, held_filter=pc.estimate.held_filter)
+    guide = (
+        Guide(problem.guide, problem.model, problem.resolve) if problem.guide is not None else None
+    )
+    parts = Parts(planner, task, mirror, attachments, guide)
+    variants = planner.variants
+    if variants is not None and variants.cfg.identify is not None:
+        estimator = mirror.estimator
+        from_poses = bool(estimator and estimator.cfg.object_velocities == "from_poses")
+        parts.identifier = lambda dt: Identifier(variants, dt, from_poses=from_poses)
+    return parts
+
+
 def build_controller(
     scenario: Scenario | str | Path,
     threads: int = 0,
@@ -109,10 +137,9 @@ def build_controller(
         planner = build_motion_planner(
             scenario, threads, seed if episode_seed is None else episode_seed, backend, device
         )
-        return planner, build_task(scenario, planner)
+        return build_parts(planner, build_task(scenario, planner))
 
-    planner, task = renew(None)
-    return Controller(planner, task, renew=renew)
+    return Controller(renew(None), renew=renew)
 
 
 def build_client(

@@ -1,8 +1,9 @@
 """The paper's control loop (thesis Alg. 1) for one robot: state in, dated command out.
 
 :class:`Controller` holds everything the loop keeps between ticks and nothing of the network:
-the mirror of the world in the planner's model, the attachments (welds of held objects), the
-delay estimates, the task layer, the motion planner (M3P2I) and the plans already sent. One
+its :class:`Parts` (the motion planner (M3P2I), the task layer, the mirror of the world in the
+planner's model, the attachments (welds of held objects), the guide, the model identifier),
+the delay estimates and the plans already sent. One
 :meth:`Controller.step` is one tick of Alg. 1:
 
 1. mirror the received state into the planner's model (and weld what the robot holds);
@@ -83,11 +84,6 @@ class LoopStats:
         return mean_hz(self.plan_times)
 
 
-Renew = Callable[[int | None], tuple[MotionPlanner, TaskLayer]]
-"""Builds the planner and task layer afresh for a new episode, sampling with the given seed
-(None: the planner's own)."""
-
-
 @dataclass
 class Tick:
     """One :meth:`Controller.step`: the state it answered, the task's decision, the M3P2I
@@ -101,32 +97,50 @@ class Tick:
     steps: int
 
 
+@dataclass
+class Parts:
+    """One episode's collaborators of a :class:`Controller`, built together from one scenario
+    (``planner_client.build.build_parts``): the motion planner, the task layer, the mirror of
+    the world in the planner's model, the attachments (welds of held objects), the global
+    guide, and the maker of the model identifier, which needs the world's step (known at
+    :meth:`Controller.begin`) and reweights the planner's own variants."""
+
+    planner: MotionPlanner
+    task: TaskLayer
+    mirror: Mirror
+    attachments: Attachments
+    guide: Guide | None = None
+    identifier: Callable[[float], Identifier | None] = lambda dt: None
+
+
+Renew = Callable[[int | None], Parts]
+"""Builds the parts afresh for a new episode, sampling with the given seed (None: the
+planner's own)."""
+
+
 class Controller:
     """Thesis Alg. 1 without the network: :meth:`begin` an episode, then :meth:`step` on each
     state; the command it returns answers that state (echoes its ``seq``)."""
 
     def __init__(
         self,
-        planner: MotionPlanner,
-        task: TaskLayer,
+        parts: Parts,
         delays: DelayConfig | None = None,
         renew: Renew | None = None,
     ):
         """``delays``: the robot's unseen delays to compensate (default: the scenario's
-        ``planner.delays``). ``renew``: when given, :meth:`begin` with ``new_episode`` gets a
-        planner and task layer as a fresh process would build them, so no warm start, belief or
-        random stream carries over."""
-        self.planner = planner
-        self.task = task
+        ``planner.delays``). ``renew``: when given, :meth:`begin` with ``new_episode`` gets
+        the parts as a fresh process would build them, so no warm start, belief or random
+        stream carries over."""
         self.renew = renew
-        self.delays = delays or planner.problem.scenario.planner.delays
-        self._bind(planner)
+        self._take(parts)
+        self.delays = delays or self.planner.problem.scenario.planner.delays
         self.stats = LoopStats()
         self.mode: str | None = None  # the world's: lockstep | realtime (None: lock-step)
         self.dt: float | None = None  # the world's step, s
         self.last: Tick | None = None  # the last step's, for diagnostics
         self._action: tuple[str, tuple[str, ...]] | None = None
-        self.robot = planner.problem.robot
+        self.robot = self.planner.problem.robot
         self._last_ctrl = self.robot.safe_stop()
         # what the world plays, oldest first: enough plans to cover a lead plus declared delays
         self._sent: deque[TimedPlan] = deque(maxlen=16)
@@ -151,12 +165,7 @@ class Controller:
         # a lock-step world reports its state delay in state.lag too (0 without one)
         self._lead = LeadEstimate(dt) if mode == "realtime" or self.delays.estimate else None
         self._actuation = None
-        self.identifier = None
-        variants = self.planner.variants
-        if variants is not None and variants.cfg.identify is not None:
-            estimator = self.mirror.estimator
-            from_poses = bool(estimator and estimator.cfg.object_velocities == "from_poses")
-            self.identifier = Identifier(variants, dt, from_poses=from_poses)
+        self.identifier = self.parts.identifier(dt)
         if self.delays.estimate:
             self._actuation = ActuationDelayEstimate(
                 self.planner.problem.model, dt, steps_of(self.delays.max_ms, dt)
@@ -177,32 +186,17 @@ class Controller:
             "new episode%s: planner and task layer rebuilt",
             f" (seed {seed})" if seed is not None else "",
         )
-        self.planner.close()
-        self.planner, self.task = self.renew(seed)
-        self._bind(self.planner)
+        self.close()
+        self._take(self.renew(seed))
         self._action = None
         self._last_ctrl = self.robot.safe_stop()
         self._faults = 0
 
-    def _bind(self, planner: MotionPlanner) -> None:
-        """The mirror of the world in ``planner``'s model, and its attachments."""
-        pc = planner.problem.scenario.planner
-        self.mirror = Mirror(
-            planner.problem.model,
-            estimate=pc.estimate,
-            planar=[n for n, o in pc.model.objects.items() if o.planar],
-        )
-        self.attachments = Attachments(
-            planner.problem.model, pc.model.attach, held_filter=pc.estimate.held_filter
-        )
-        if getattr(self, "guide", None) is not None:  # the last episode's
-            self.guide.close()
-        problem = planner.problem
-        self.guide = (
-            Guide(problem.guide, problem.model, problem.resolve)
-            if problem.guide is not None
-            else None
-        )
+    def _take(self, parts: Parts) -> None:
+        """Drive ``parts`` from now on."""
+        self.parts = parts
+        self.planner, self.task = parts.planner, parts.task
+        self.mirror, self.attachments, self.guide = parts.mirror, parts.attachments, parts.guide
 
     def check_layout(self, state: P.State) -> None:
         """Raise :class:`LayoutMismatch` when ``state``'s arrays have other sizes than the

@@ -29,6 +29,11 @@ class TaskDecision:
 
 
 class TaskLayer(Protocol):
+    """What the controller reads of a task layer: each tick's decision, and the factors'
+    observed states it was made from (the attachments follow them: ``planner.model.attach``)."""
+
+    last_observation: dict[str, str]  # factor -> observed state; {} without a task
+
     def decide(self, data: mujoco.MjData, extras: dict[str, float], time: float) -> TaskDecision:
         """Choose the modes for this tick from the mirrored world state."""
 
@@ -37,6 +42,7 @@ class FixedModes:
     """The scenario's ``modes:`` list, every tick."""
 
     def __init__(self, modes: tuple[str, ...]):
+        self.last_observation: dict[str, str] = {}
         self.decision = TaskDecision(
             action="+".join(modes), modes=tuple(modes), alternatives=tuple(modes)
         )

@@ -169,7 +169,7 @@ def test_compensation_makes_up_most_of_what_a_300_ms_round_trip_costs(tmp_path):
 def test_the_plan_is_dated_when_it_reaches_the_world_and_planned_for_when_it_acts(
     mode, dated, acts
 ):
-    from planner_client.build import build_motion_planner
+    from planner_client.build import build_motion_planner, build_parts
     from planner_client.controller import Controller
     from planner_client.task import FixedModes
     from shared import protocol as P
@@ -177,7 +177,8 @@ def test_the_plan_is_dated_when_it_reaches_the_world_and_planned_for_when_it_act
     nav = load_scenario("navigation")  # world steps of 0.05 s
     planner = build_motion_planner(nav, threads=1)
     controller = Controller(
-        planner, FixedModes(("navigate",)), delays=DelayConfig(actuation_ms=150.0, state_ms=100.0)
+        build_parts(planner, FixedModes(("navigate",))),
+        delays=DelayConfig(actuation_ms=150.0, state_ms=100.0),
     )
     try:
         model = planner.problem.model

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 import torch
 
-from planner_client.build import build_motion_planner
+from planner_client.build import build_motion_planner, build_parts
 from planner_client.controller import Controller
 from planner_client.loop import PlannerClient
 from planner_client.mirror import Mirror
@@ -204,7 +204,7 @@ def test_no_finite_cost_sends_the_safe_control_and_says_why(nav, caplog):
     planner = build_motion_planner(nav, threads=1)
     faulty = _Faulty(planner.problem.objectives["navigate"])
     planner.problem.objectives["navigate"] = faulty
-    controller = Controller(planner, FixedModes(("navigate",)))
+    controller = Controller(build_parts(planner, FixedModes(("navigate",))))
     controller.begin("lockstep", nav.world.timestep)
     safe = controller.robot.safe_stop()
     model = planner.problem.model

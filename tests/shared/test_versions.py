@@ -15,7 +15,7 @@ import pytest
 import zmq
 
 from m3p2i.launch import free_port_block
-from planner_client.build import build_motion_planner
+from planner_client.build import build_motion_planner, build_parts
 from planner_client.controller import Controller
 from planner_client.loop import HandshakeRefused, PlannerClient
 from planner_client.task import FixedModes
@@ -38,7 +38,7 @@ def planner(nav):
 
 def _client(planner, nav, port: int) -> PlannerClient:
     client = PlannerClient(
-        Controller(planner, FixedModes(("navigate",))),
+        Controller(build_parts(planner, FixedModes(("navigate",)))),
         Endpoints(port=port),
         nav.name,
         nav.hash,
