@@ -42,7 +42,6 @@ from shared.security import (
     curve_server,
     describe_handshake_failure,
 )
-from shared.timed_plan import PlanPlayer
 
 log = logging.getLogger("m3p2i.server")
 
@@ -130,7 +129,6 @@ class WorldServer:
             realtime_factor=self.opt.realtime_factor,
         )
         self._ending = False  # the safe stop, metrics and summary are being written
-        self.player = PlanPlayer()
         self._paused = False  # control op pause: the world neither steps nor waits out time
 
     def _log_path(self, seed: int) -> Path:
@@ -170,15 +168,16 @@ class WorldServer:
         )
         try:
             while True:
-                outcome = self._serve_episode()
+                outcome = self.serve_episode()
                 if not self.opt.keep_serving or not self._await_next_episode():
                     return outcome
-                self._begin_episode(self._next_seed)
-                self._next_seed = None
+                self.next_episode()
         finally:
             self.close()
 
-    def _serve_episode(self) -> Outcome:
+    def serve_episode(self) -> Outcome:
+        """Serve the episode begun last until it ends (success, time-out, a stop), then write
+        its safe stop, metrics and summary, whatever happened; returns its outcome."""
         try:
             if self.opt.mode == "lockstep":
                 self._run_lockstep()
@@ -215,31 +214,49 @@ class WorldServer:
         episode is over) and serve control until a reset (True) or a shutdown (False)."""
         log.info("episode over (%s): waiting for a reset with the next seed", self.world.status)
         while not self._stop and self._next_seed is None:
-            self._publish()
+            self.publish()
             try:
-                self._poll(self.opt.republish)
+                self.serve(self.opt.republish)
             except KeyboardInterrupt:
                 return False
         return self._next_seed is not None and not self._stop
 
-    def _running(self) -> bool:
+    @property
+    def running(self) -> bool:
+        """Whether the episode goes on: the world running, no stop asked, no reset pending."""
         return self.world.status == "running" and not self._stop and self._next_seed is None
+
+    @property
+    def paused(self) -> bool:
+        """Control op ``pause``: the world neither steps nor waits out time."""
+        return self._paused
+
+    def stop(self) -> None:
+        """End the episode after the current step and serve no other (as a signal does,
+        without raising)."""
+        self._stop = True
+
+    def next_episode(self) -> None:
+        """Begin the episode a ``reset`` with a seed asked for (a kept world, between
+        episodes)."""
+        self._begin_episode(self._next_seed)
+        self._next_seed = None
 
     def _run_lockstep(self) -> None:
         """Each state waits for the command answering it; ``plan_every`` world steps under it,
         then the next state (:meth:`Episode.play`)."""
-        self._publish()
-        while (cmd := self._next_command(lambda c: c.seq == self.episode.seq)) is not None:
+        self.publish()
+        while (cmd := self.await_command(lambda c: c.seq == self.episode.seq)) is not None:
             self.episode.play(cmd, self.opt.plan_every, self._after_step)
-            self._publish()
+            self.publish()
 
-    def _next_command(self, wanted) -> P.Command | None:
+    def await_command(self, wanted) -> P.Command | None:
         """The next valid command ``wanted`` accepts, the pending state re-published every
         ``republish`` seconds meanwhile (for late subscribers); None when stopped. Before the
         first step, ``wait_planner`` seconds without one raise."""
         started = last_pub = time.monotonic()
-        while self._running():
-            cmd = self._poll(self.opt.republish)
+        while self.running:
+            cmd = self.serve(self.opt.republish)
             # paused: the command is dropped; the planner sends it again for the re-published state
             if cmd is not None and wanted(cmd) and not self._paused:
                 return cmd
@@ -251,7 +268,7 @@ class WorldServer:
                     and time.monotonic() - started > self.opt.wait_planner
                 ):
                     raise TimeoutError(f"no planner command within {self.opt.wait_planner} s")
-                self._publish()
+                self.publish()
                 last_pub = time.monotonic()
         return None
 
@@ -262,21 +279,21 @@ class WorldServer:
         ended = -1  # seq of the last plan whose end was logged
         # the clock starts with the planner: its start-up (imports, model compilation) is not
         # part of the episode
-        self._publish()
-        cmd = self._next_command(lambda c: True)
+        self.publish()
+        cmd = self.await_command(lambda c: True)
         next_tick = time.monotonic()
-        while self._running():
+        while self.running:
             if cmd is not None and not self._outdated(cmd):
                 latest_at = time.monotonic()
-                self.player.receive(self.episode.receive(cmd))
+                self.episode.receive(cmd)
             now = time.monotonic()
             if self._paused:
                 # the world's clock stands still (plans are dated in world time, so they stay
                 # valid); the state is re-published so the planner does not take the world for lost
                 if now >= next_tick:
-                    self._publish()
+                    self.publish()
                     next_tick = now + self.opt.republish
-                cmd = self._poll(max(0.0, min(next_tick - now, self.opt.republish)))
+                cmd = self.serve(max(0.0, min(next_tick - now, self.opt.republish)))
                 if not self._paused:
                     next_tick = time.monotonic()
                 continue
@@ -290,9 +307,9 @@ class WorldServer:
                         self.opt.command_timeout,
                     )
                     self.log.event("commands_stale", seq=self.episode.seq, age=now - latest_at)
-                    self.player.clear()
+                    self.episode.drop_plans()
                 stale = not fresh
-                ctrl, source = self._playing() if fresh else (None, -1)
+                ctrl, source = self.episode.playing() if fresh else (None, -1)
                 cmd_age = now - latest_at if latest_at > -np.inf else None
                 if ctrl is None and source >= 0 and source != ended:
                     ended = source
@@ -302,11 +319,11 @@ class WorldServer:
                         self.world.time,
                     )
                     self.log.event("plan_ended", seq=source, time=self.world.time)
-                self._apply(ctrl, source, cmd_age=cmd_age)
+                self.step(ctrl, source, cmd_age=cmd_age)
                 next_tick += period
                 if now - next_tick > 10 * period:  # fell far behind (debugger, load): resync
                     next_tick = now
-            cmd = self._poll(max(0.0, next_tick - time.monotonic()))
+            cmd = self.serve(max(0.0, next_tick - time.monotonic()))
 
     def _outdated(self, cmd: P.Command) -> bool:
         """Whether ``cmd`` answers a state older than the command time-out (in world seconds):
@@ -319,33 +336,25 @@ class WorldServer:
         self.log.event("stale_command", seq=cmd.seq, age=age, time=self.world.time)
         return True
 
-    def _playing(self) -> tuple[np.ndarray | None, int]:
-        """The control for the world's time and the state ``seq`` it was planned from;
-        ``(None, seq)`` when that plan ran out, ``(None, -1)`` before any command."""
-        ctrl, plan = self.player.control(self.world.time)
-        return ctrl, (plan.seq if plan is not None else -1)
-
     def _linger(self) -> None:
         end = time.monotonic() + self.opt.linger
         while time.monotonic() < end and not self._stop:
-            self._publish()
-            self._poll(0.05)
+            self.publish()
+            self.serve(0.05)
 
     # ------------------------------------------------------------------ steps
 
-    def _apply(
-        self, ctrl: np.ndarray | None, source: int = -1, cmd_age: float | None = None
-    ) -> None:
+    def step(self, ctrl: np.ndarray | None, source: int = -1, cmd_age: float | None = None) -> None:
         """Real time: one logged world step (:meth:`Episode.apply`), then its state published."""
         self.episode.apply(ctrl, source, cmd_age)
         self._after_step()
-        self._publish()
+        self.publish()
 
     def _after_step(self) -> None:
         if self.viewer is not None:
             self.viewer.sync()
 
-    def _publish(self) -> None:
+    def publish(self) -> None:
         """The world's current state as state ``seq``. A state the world's link loses
         (:meth:`Episode.publish`) is not sent: lock-step re-sends it on the ``republish`` timer
         (the loss costs wall time, never world time), real time sends the next step's."""
@@ -353,7 +362,7 @@ class WorldServer:
         if state is not None:
             self.pub.send(P.encode(state, self.version))
 
-    def _poll(self, timeout_s: float) -> P.Command | None:
+    def serve(self, timeout_s: float) -> P.Command | None:
         """Serve control requests and drain commands; return the newest valid command."""
         newest = None
         events = dict(self.poller.poll(int(timeout_s * 1000)))
@@ -468,7 +477,7 @@ class WorldServer:
                 chosen,
             )
         )
-        self._publish()
+        self.publish()
 
     def _control(self, msg: P.Control) -> None:
         """A control op: echoed when done, answered with ``error`` and its reason when refused
@@ -480,7 +489,7 @@ class WorldServer:
                 self.rep.send(P.encode(P.Error(reason=f"move refused: {exc}")))
                 return
             # a new state: a lock-step world waits for the command answering the moved one
-            self._publish()
+            self.publish()
         elif msg.op == "reset" and msg.seed is not None and not self.opt.keep_serving:
             reason = (
                 "a reset with a seed begins a new episode, and this world serves one: "
@@ -505,9 +514,8 @@ class WorldServer:
             self._next_seed = self.episode.seed if msg.seed is None else msg.seed
         elif msg.op == "reset":
             # a new session: the planner starts over; plans dated in the old run are void
-            self.episode.reset()
-            self.player.clear()
-            self._publish()
+            self.episode.reset()  # the plans received go with the old session
+            self.publish()
         elif msg.op in ("pause", "resume"):
             if self._paused != (msg.op == "pause"):
                 log.info(

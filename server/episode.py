@@ -85,7 +85,7 @@ class Episode:
         self._state_times: dict[int, float] = {}  # seq -> world time of recent states
         self._plan_time_of: dict[int, float] = {}  # seq -> planning time, until first applied
         self._published = -1  # the newest seq published (or lost: drop_state)
-        self._player = PlanPlayer()  # lock-step: the plans received, each from its t0 on
+        self._player = PlanPlayer()  # the plans received, each played from its t0 on
         self.log = EpisodeLog(log_path)
         self.log.write(
             "header",
@@ -158,18 +158,12 @@ class Episode:
         have) waits, and the plan playing goes on until then. A planner's usual plan is dated
         at the state's time, so it starts at once."""
         self._count_plan(cmd)
-        plan = (
-            TimedPlan(cmd.plan_t0, cmd.plan_dt, cmd.plan_ctrl, cmd.seq)
-            if cmd.has_plan
-            else held(cmd.ctrl, self.world.time, cmd.seq)
-        )
         # the lag, as in real time: from the answered state's time (its measurement's) to now;
         # 0 unless the world publishes its states late (a state delay)
         self.lag = max(0.0, self.world.time - self._state_times.get(cmd.seq, self.world.time))
-        self._player.receive(plan)
+        self._player.receive(self._timed(cmd))
         for _ in range(steps):
-            ctrl, playing = self._player.control(self.world.time)
-            self.apply(ctrl, playing.seq if playing is not None else -1)
+            self.apply(*self.playing())
             if after_step is not None:
                 after_step()
             if not self.running:
@@ -182,21 +176,33 @@ class Episode:
         sent = self._state_times.get(seq)
         return None if sent is None else self.world.time - sent
 
-    def receive(self, cmd: P.Command) -> TimedPlan:
+    def receive(self, cmd: P.Command) -> None:
         """Real time: a command's lag (published as ``state.lag``), planning time and action;
-        returns its plan as the world plays it (a command without a plan holds its ``ctrl``
-        until the next one: protocol 1's meaning)."""
+        its plan goes to the player (:meth:`playing`)."""
         sent = self._state_times.get(cmd.seq)
         if sent is not None:
             self.lag = max(0.0, self.world.time - sent)
         self._count_plan(cmd)
         self.note_action(cmd.action)
         self.model = cmd.model
-        return (
-            TimedPlan(cmd.plan_t0, cmd.plan_dt, cmd.plan_ctrl, cmd.seq)
-            if cmd.has_plan
-            else held(cmd.ctrl, self.world.time, cmd.seq)
-        )
+        self._player.receive(self._timed(cmd))
+
+    def playing(self) -> tuple[np.ndarray | None, int]:
+        """The control the plans received give for the world's time, and the state ``seq`` its
+        plan answered: ``(None, seq)`` when that plan ran out, ``(None, -1)`` before any."""
+        ctrl, plan = self._player.control(self.world.time)
+        return ctrl, (plan.seq if plan is not None else -1)
+
+    def drop_plans(self) -> None:
+        """Forget the plans received (commands gone stale: the safe control until the next)."""
+        self._player.clear()
+
+    def _timed(self, cmd: P.Command) -> TimedPlan:
+        """The plan ``cmd`` carries, as the world plays it; a command without a plan holds its
+        ``ctrl`` until the next one (protocol 1's meaning)."""
+        if cmd.has_plan:
+            return TimedPlan(cmd.plan_t0, cmd.plan_dt, cmd.plan_ctrl, cmd.seq)
+        return held(cmd.ctrl, self.world.time, cmd.seq)
 
     def _count_plan(self, cmd: P.Command) -> None:
         """Its planning time counts (Hz statistics) once, on the first step it drives."""

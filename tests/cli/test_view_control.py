@@ -49,7 +49,7 @@ def _ask(server: WorldServer, msg: P.Control):
     try:
         req.send(P.encode(msg))
         for _ in range(50):
-            server._poll(0.05)
+            server.serve(0.05)
             if req.poll(0):
                 return P.decode(req.recv(), expect=("control", "error"))
         raise AssertionError("the world did not answer")
@@ -127,6 +127,9 @@ def test_a_paused_lockstep_world_takes_no_command_until_resumed(world):
     push = zmq.Context.instance().socket(zmq.PUSH)
     push.setsockopt(zmq.LINGER, 0)
     push.connect(server.pull.getsockopt_string(zmq.LAST_ENDPOINT))
+    resume = zmq.Context.instance().socket(zmq.REQ)
+    resume.setsockopt(zmq.LINGER, 0)
+    resume.connect(server.rep.getsockopt_string(zmq.LAST_ENDPOINT))
     cmd = P.encode(
         P.Command(
             session=server.episode.session,
@@ -140,28 +143,29 @@ def test_a_paused_lockstep_world_takes_no_command_until_resumed(world):
 
         def send_then_wait():
             push.send(cmd)
-            return server._next_command(wanted[0])
+            return server.await_command(wanted[0])
 
-        # paused: the command is dropped; _next_command would wait for ever, so resume from a
+        # paused: the command is dropped; await_command would wait for ever, so resume from a
         # stand-in planner that re-sends its answer as the lock-step planner does
         calls = []
 
-        def poll(timeout, original=server._poll):
+        def poll(timeout, original=server.serve):
             calls.append(1)
-            if len(calls) == 5:
-                server._paused = False  # as the op "resume" does (tested below)
+            if len(calls) == 5:  # a viewer resumes: this very poll serves it
+                resume.send(P.encode(P.Control(op="resume")))
             push.send(cmd)
             return original(timeout)
 
-        server._poll = poll
+        server.serve = poll
         got = send_then_wait()
         assert got is not None and got.seq == server.episode.seq
         assert len(calls) >= 5  # nothing was taken while paused
+        assert isinstance(P.decode(resume.recv(), expect=("control", "error")), P.Control)
     finally:
         push.close(0)
-        del server._poll
-    assert isinstance(_ask(server, P.Control(op="resume")), P.Control)
-    assert not server._paused
+        resume.close(0)
+        del server.serve
+    assert not server.paused
     assert [e["op"] for e in _events(server, "control")] == ["pause", "resume"]
 
 
@@ -215,7 +219,7 @@ def test_a_replay_reads_the_log_and_the_recorded_diagnostics(world):
     server = world("navigation")
     for action in ("go", "go", "wait", "wait"):
         server.episode.note_action(action)
-        server._apply(None)
+        server.step(None)
     server.log.close()
     diag = P.Diagnostics(
         seq=2,
@@ -306,7 +310,7 @@ def test_the_views_controls_pass_a_keyed_world(tmp_path):
     try:
         sender.start()
         for _ in range(200):
-            server._poll(0.05)
+            server.serve(0.05)
             if replies:
                 break
         sender.join(10)

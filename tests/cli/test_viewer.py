@@ -61,7 +61,7 @@ def test_a_cube_dragged_in_the_viewer_moves_in_the_published_state(tmp_path):
             server.world.model, server.world.data, "cube_a", force=(-0.3, 0.0, 1.0)
         )
         for _ in range(30):
-            server._apply(None)  # one world step with the robot held still
+            server.step(None)  # one world step with the robot held still
         after = server.world.state().qpos[adr : adr + 3]
     finally:
         server.close()
@@ -79,7 +79,7 @@ def test_a_fixed_object_dragged_in_the_viewer_is_published_where_it_was_put(tmp_
             server.world.model, server.world.data, "blocker", shift=(0.0, -0.01, 0.0)
         )
         for _ in range(10):
-            server._apply(None)
+            server.step(None)
         published = server.world.state().mocap_pos[mocap]
     finally:
         server.close()

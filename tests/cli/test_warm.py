@@ -131,9 +131,9 @@ def test_a_kept_world_begins_the_seeds_episode_on_a_seeded_reset(kept_world, tmp
     first = kept_world.episode.session
     assert kept_world.log.path == tmp_path / "seed-3.jsonl"
     assert isinstance(_ask(kept_world, P.Control(op="reset", seed=7)), P.Control)
-    assert not kept_world._running()  # the running episode ends ...
-    kept_world._serve_episode()
-    kept_world._begin_episode(kept_world._next_seed)  # ... as run() does, and the next begins
+    assert not kept_world.running  # the running episode ends ...
+    kept_world.serve_episode()
+    kept_world.next_episode()  # ... as run() does, and the next begins
     assert kept_world.episode.session != first and kept_world.episode.seq == 0
     assert episode.summary(episode.read_log(tmp_path / "seed-3.jsonl"))["status"] == "stopped"
     assert episode.header(episode.read_log(tmp_path / "seed-7.jsonl"))["seed"] == 7
@@ -157,7 +157,7 @@ def test_a_seeded_reset_is_refused_by_a_world_serving_one_episode(tmp_path):
     try:
         reply = _ask(server, P.Control(op="reset", seed=4))
         assert isinstance(reply, P.Error) and "--keep-serving" in reply.reason
-        assert server._running()
+        assert server.running
     finally:
         server.log.close()
         server.close()

@@ -211,7 +211,7 @@ def test_a_signal_during_a_world_step_lands_once_the_step_is_logged(tmp_path):
     logged, and the summary counted one step more than the log held. The interrupt now waits
     for the step's record, so the log holds every step the world took."""
     with _navigation_world(tmp_path) as server:
-        server._apply(None)  # one step, no signal
+        server.step(None)  # one step, no signal
         real_step = server.world.step
 
         def step_then_signal(ctrl):
@@ -220,7 +220,7 @@ def test_a_signal_during_a_world_step_lands_once_the_step_is_logged(tmp_path):
 
         server.world.step = step_then_signal
         with pytest.raises(KeyboardInterrupt):
-            server._apply(None)
+            server.step(None)
         time_stepped = server.world.time
         outcome = server.run()  # _stop is set: the episode ends at once
     assert outcome.status == "stopped"

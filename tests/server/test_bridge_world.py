@@ -313,7 +313,7 @@ def test_a_realtime_bridge_is_stopped_on_stale_commands_on_pause_and_at_the_end(
         push.close(0)
         ctx.term()
         if runner.is_alive():
-            server._stop = True
+            server.stop()
             runner.join(10)
     np.testing.assert_array_equal(world.sent[-1], [0.0, 0.0])  # the episode's end
     records = read_log(tmp_path / "e.jsonl")
@@ -371,7 +371,7 @@ def test_a_bridge_that_fails_mid_episode_is_stopped_and_its_log_summarised(tmp_p
         push.close(0)
         ctx.term()
         if runner.is_alive():
-            server._stop = True
+            server.stop()
     assert [str(e) for e in failure] == ["motion capture lost the base"]
     np.testing.assert_array_equal(world.sent[-1], [0.0, 0.0])  # the safe stop
     summary = read_log(tmp_path / "e.jsonl")[-1]

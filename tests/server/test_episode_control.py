@@ -169,9 +169,8 @@ def test_a_kept_world_never_overwrites_the_log_of_a_seed_it_served(tmp_path):
         paths = [first]
         for _ in range(2):
             assert isinstance(_ask(server, P.Control(op="reset", seed=3)), P.Control)
-            server._serve_episode()  # as run() does: this episode ends ...
-            server._begin_episode(server._next_seed)  # ... and the seed's next begins
-            server._next_seed = None
+            server.serve_episode()  # as run() does: this episode ends ...
+            server.next_episode()  # ... and the seed's next begins
             paths.append(server.log.path)
     finally:
         server.log.close()

@@ -420,16 +420,16 @@ def test_the_server_wraps_its_world_only_for_faults_and_logs_truth_and_faults(pu
     try:
         assert isinstance(server.world, FaultyWorld)
         for _ in range(3):
-            server._apply(u(0.5, 0.2))
+            server.step(u(0.5, 0.2))
         # a state is lost at most once: re-publishing the same seq always sends it
         before = server.episode.dropped
         for _ in range(5):
-            server._publish()
+            server.publish()
         assert server.episode.dropped == before
         n = 400
         for _ in range(n):
             server.episode.seq += 1
-            server._publish()
+            server.publish()
         assert abs((server.episode.dropped - before) / n - 0.5) < 4 * math.sqrt(0.25 / n)
         server.log.close()
         records = read_log(tmp_path / "b.jsonl")

@@ -266,7 +266,7 @@ def test_a_keyed_world_answers_only_the_allowed_key_and_logs_every_refusal(
         for p in peers.values():
             p.close()
         if world.is_alive():  # a failed assertion above: stop the world all the same
-            server._stop = True
+            server.stop()
             world.join(30)
     records = read_log(log)
     assert records[0]["curve"] is True and records[-1]["kind"] == "summary"

@@ -79,7 +79,7 @@ def test_the_server_logs_every_state_field_with_each_step(tmp_path):
         load_scenario("push_pull"), Endpoints(port=free_port_block()), tmp_path / "episode.jsonl"
     )
     try:
-        server._apply(None)  # one safe-stop step, as without a planner
+        server.step(None)  # one safe-stop step, as without a planner
     finally:  # a server left open blocks its ZeroMQ context's clean-up, and the next test hangs
         server.log.close()
         server.close()
