@@ -7,19 +7,17 @@ over the wire.
 
 from __future__ import annotations
 
-import functools
-import os
 import signal
 import sys
 import threading
-import time
 from pathlib import Path
 
 import typer
 
+from m3p2i.bench_command import bench
+from m3p2i.cli_support import load_or_exit, plugin_args, terminate_as_interrupt
 from m3p2i.launch import EpisodeLaunch, free_port_block, mode_conflicts, run_episode
 from m3p2i.new import new_scenario
-from m3p2i.process_checks import scenario_errors
 from shared.cli_common import (
     EstimateDelays,
     Faults,
@@ -49,7 +47,7 @@ from shared.config_files import ENV_VAR, KINDS, Entry, entries, search_folders, 
 from shared.endpoints import DEFAULT_HOST, DEFAULT_PORT
 from shared.evaluation.timing import describe_timing
 from shared.robots import load_robot, registered
-from shared.scenario import find_scenario, load_scenario
+from shared.scenario import load_scenario
 
 __all__ = ["app", "free_port_block"]  # free_port_block: tests start processes with it
 
@@ -66,35 +64,11 @@ app = typer.Typer(
 )
 
 
-def _load_or_exit(scenario: str, plugins: tuple[str, ...] = ()):
-    """The scenario, checked by both processes before either starts (the planner with its
-    ``--plugins``); or exit 2 printing every error of the file (file, key path, value,
-    expected)."""
-    try:
-        path = find_scenario(scenario)
-    except ConfigError as exc:
-        typer.echo(f"error: {exc}", err=True)
-        raise typer.Exit(2) from None
-    errors = scenario_errors(path, plugins)
-    for message in errors:
-        typer.echo(f"error: {message}", err=True)
-    if errors:
-        typer.echo(f"{path}: {len(errors)} error{'s' if len(errors) > 1 else ''}", err=True)
-        raise typer.Exit(2)
-    return load_scenario(path)
-
-
-def _plugin_args(plugins: list[str] | None) -> tuple[str, ...]:
-    """``--plugins`` for the planner processes: a file as an absolute path (they may run in
-    another folder), a module name as given."""
-    return tuple(str(Path(p).absolute()) if Path(p).is_file() else p for p in plugins or ())
-
-
 @app.command("check")
 def check(scenario: ScenarioArgument, plugins: Plugins = None) -> None:
     """Check SCENARIO as both processes would, without starting them: every error of the file
     at once (frames, actuators, cost terms, observers included); exit 0 when sound, 2 if not."""
-    sc = _load_or_exit(scenario, _plugin_args(plugins))
+    sc = load_or_exit(scenario, plugin_args(plugins))
     typer.echo(f"{sc.source}: ok")
 
 
@@ -211,7 +185,7 @@ def run(
         raise typer.Exit(2)
     if faults is not None:  # first: a mistyped profile is refused at once
         faults = _faults_or_exit(faults)
-    sc = _load_or_exit(scenario, _plugin_args(plugins))
+    sc = load_or_exit(scenario, plugin_args(plugins))
     _keys_or_exit(keys)
     delays = _declared_delays_or_exit(sc, faults) if compensate else None
     run_dir = run_dir or default_run_dir(sc.name)
@@ -250,7 +224,7 @@ def run(
                 estimate_delays=estimate_delays,
                 max_rate=planner_max_rate,
                 realtime_factor=realtime_factor,
-                plugins=_plugin_args(plugins),
+                plugins=plugin_args(plugins),
             ),
             on_view=lambda url: typer.echo(f"view: {url}"),
             on_kept=kept,
@@ -288,202 +262,7 @@ def _report_run(
     return 0 if summary["status"] == "success" else 1
 
 
-@app.command("bench")
-def bench(
-    config: str = typer.Argument(
-        "paper", help="Bench file: a name (m3p2i list bench) or a YAML path."
-    ),
-    quick: bool = typer.Option(
-        False, "--quick", help="A few trials per case (the file's quick_trials)."
-    ),
-    cases: str | None = typer.Option(
-        None, help="Comma-separated case names or patterns, e.g. 'navigation,corner*'."
-    ),
-    out: Path | None = typer.Option(
-        None,
-        help="Output folder (default runs/bench/CONFIG, "
-        "with --quick runs/bench/CONFIG-quick); rerun with the "
-        "same folder to resume.",
-    ),
-    workers: int = typer.Option(
-        0, help="Trials at once, each a server + planner pair (0: one per core)."
-    ),
-    trials: int | None = typer.Option(
-        None, min=1, help="Trials per case (overrides the file and --quick)."
-    ),
-    timeout: float | None = typer.Option(
-        None,
-        help="Wall-clock seconds per trial before both processes are killed (default: the file's).",
-    ),
-    seed: int = typer.Option(0, help="Seed of trial 0; trial i uses seed + i."),
-    fresh: bool = typer.Option(
-        False,
-        "--fresh",
-        help="Start a new server + planner pair for "
-        "every trial. By default each worker keeps its pair across a "
-        "case's trials and begins each with a seeded reset: the same "
-        "results, without ~2.5-5 s of start-up per trial.",
-    ),
-    set_: list[str] | None = typer.Option(
-        None,
-        "--set",
-        help="Sweep a scenario key over "
-        "values: KEY=V1,V2,... (repeatable; the product "
-        "runs), e.g. --set planner.samples=50,100,200. "
-        "Adds to or replaces the file's sweep: section.",
-    ),
-    ray: bool = typer.Option(
-        False,
-        "--ray",
-        help="Run the trials as Ray tasks on a local Ray "
-        "instance of --workers CPUs (needs Ray: the 'cluster' extra of m3p2i).",
-    ),
-    ray_address: str | None = typer.Option(
-        None,
-        help="Run the trials on the Ray cluster at "
-        "this address (e.g. ray://head:10001 or auto); "
-        "every node needs m3p2i installed.",
-    ),
-    cpus_per_trial: int = typer.Option(
-        1, min=1, help="With Ray: CPUs each trial declares, and the planner's rollout threads."
-    ),
-    plugins: Plugins = None,
-) -> None:
-    """Run seeded trials of every case (Tables I-III), resumable; print and write the summary.
-
-    With --set or a sweep: section, every case runs once per combination of the values; the
-    summary adds one table and one plot (sweep-KEY.png) per swept key. With --ray or
-    --ray-address the same trials run as Ray tasks; results and logs come back to OUT."""
-    _terminate_as_interrupt()
-    from rich.console import Console
-
-    from m3p2i import bench as B
-    from m3p2i import bench_report as R
-    from m3p2i import sweep as S
-
-    # piped or logged output gets the whole table instead of 80 columns of wrapped cells
-    console = Console(width=None if sys.stdout.isatty() else 200)
-    try:
-        cfg = B.load_bench(config)
-        # --quick has its own folder: its trials are seeds 0-1 of the full run's, but its
-        # summary must not replace the full run's summary.md
-        out_dir = out or Path("runs") / "bench" / (
-            Path(cfg.source).stem + ("-quick" if quick else "")
-        )
-        swept = cfg.sweep.merged(S.parse_set(set_)) if set_ else cfg.sweep
-        ready, skipped = B.select_cases(
-            cfg,
-            [c.strip() for c in cases.split(",")] if cases else None,
-            swept,
-            out_dir / "scenarios",
-        )
-        paper = R.load_paper()
-    except ConfigError as exc:
-        typer.echo(f"error: {exc}", err=True)
-        raise typer.Exit(2) from None
-    if swept.keys:
-        # the loader checked each variant's keys and values; what only the processes resolve
-        # (planner.mppi keys, cost-term parameters) is checked by them now, not trial by trial
-        console.print(f"checking {len(ready)} scenario variants (both processes' --check)")
-        problems = B.check_variants(
-            ready,
-            workers or os.cpu_count() or 1,
-            functools.partial(scenario_errors, plugins=_plugin_args(plugins)),
-        )
-        if problems:
-            for message in problems:
-                typer.echo(f"error: {message}", err=True)
-            raise typer.Exit(2)
-    opts = B.BenchOptions(
-        out_dir=out_dir,
-        workers=workers or os.cpu_count() or 1,
-        timeout=timeout or cfg.timeout,
-        trials=trials,
-        quick=quick,
-        seed=seed,
-        fresh=fresh,
-        plugins=_plugin_args(plugins),
-    )
-    if (ray or ray_address) and opts.plugins:
-        typer.echo(
-            "error: --plugins: a Ray node imports no module the driver names (the planner's "
-            "plugins are the node operator's choice); run the bench on this machine's pool",
-            err=True,
-        )
-        raise typer.Exit(2)
-    results = B.ResultsFile(out_dir / "results.csv")
-    done = {B.trial_key(r["case"], r["seed"], r["scenario_hash"]) for r in results.rows()}
-    planned, todo = B.plan_trials(ready, cfg, opts, done)
-    for s in skipped:
-        console.print(f"[yellow]skipped[/] {s.case.case}: {s.reason}")
-    variants = len(swept.variants())
-    shape = (
-        f"{len(ready) // variants} cases × {variants} variants"
-        if swept.keys
-        else f"{len(ready)} cases"
-    )
-    console.print(
-        f"{len(planned)} trials in {shape}, {len(planned) - len(todo)} already "
-        f"in {results.path}, {len(todo)} to run on {opts.workers} workers "
-        f"(time-out {opts.timeout:.0f} s each)"
-    )
-    cluster = None
-    if ray or ray_address:
-        from m3p2i import bench_ray
-
-        try:
-            cluster = bench_ray.connect(ray_address, opts.workers)
-        except bench_ray.RayUnavailable as exc:
-            typer.echo(f"error: {exc}", err=True)
-            raise typer.Exit(2) from None
-        console.print(f"Ray: {cluster.describe()}, {cpus_per_trial} CPU(s) per trial")
-    with B.progress(console) as bar:
-        task = bar.add_task("bench", total=len(todo))
-
-        def done(row: dict) -> None:
-            label = f" ({S.label(S.from_cell(row['overrides']))})" if row.get("overrides") else ""
-            bar.update(
-                task,
-                advance=1,
-                description=f"{row['case']}{label} seed {row['seed']}: "
-                f"{row['reason'] or row['status']}",
-            )
-
-        if cluster is not None:
-            finished = bench_ray.run_trials(todo, opts, results, cluster, cpus_per_trial, done)
-        else:
-            finished = B.run_trials(todo, opts, results, on_done=done)
-    keys = {B.trial_key(t.case.case, t.seed, t.scenario.hash) for t in planned}
-    rows = B.latest_rows(results.rows(), keys)
-    # a sweep's variants are rows of their own: "push (samples=50)"
-    labelled = [{**r, "case": S.variant_case(r)} for r in rows]
-    order = [
-        S.variant_case({"case": rc.case.case, "overrides": S.to_cell(rc.overrides)}) for rc in ready
-    ]
-    table = R.table_rows(R.summarize(labelled, order), paper)
-    title = f"m3p2i bench {Path(cfg.source).stem}{' --quick' if quick else ''}"
-    console.print(R.rich_table(table, title))
-    header = (
-        f"# {title}\n\n{time.strftime('%Y-%m-%d %H:%M')}, {os.cpu_count()} cores; "
-        f"results: `{results.path}`"
-    )
-    out_dir.mkdir(parents=True, exist_ok=True)
-    text = R.markdown_report(table, [(s.case.case, s.reason) for s in skipped], header)
-    if swept.keys:
-        text += "\n" + S.sweep_report(rows)
-        console.print(S.sweep_report(rows), markup=False)
-        try:
-            for path in S.plot_sweep(rows, out_dir):
-                console.print(f"plot: {path}")
-        except ImportError:
-            console.print(
-                "[yellow]no sweep plot[/]: it needs matplotlib: pip install 'm3p2i[plots]'"
-            )
-    (out_dir / "summary.md").write_text(text)
-    console.print(f"summary: {out_dir / 'summary.md'}")
-    if not finished:
-        console.print("interrupted: finished trials are kept; run the same command to resume")
-        raise typer.Exit(130)
+app.command("bench")(bench)
 
 
 @app.command("report")
@@ -612,7 +391,7 @@ def record(
         typer.echo(f"error: {exc}", err=True)
         raise typer.Exit(3) from None
     if log is None:
-        sc = _load_or_exit(scenario)
+        sc = load_or_exit(scenario)
         planner_keys = _keys_or_exit(keys)
         run_dir = run_dir or default_run_dir(sc.name)
         run_dir.mkdir(parents=True, exist_ok=True)
@@ -717,7 +496,7 @@ def view(
                 typer.echo(f"error: {exc}", err=True)
                 raise typer.Exit(2) from None
         else:
-            sc = _load_or_exit(scenario)
+            sc = load_or_exit(scenario)
             shown = V.LiveView(
                 sc,
                 Endpoints(host, port),
@@ -752,17 +531,6 @@ def view(
         pass
     finally:
         shown.close()
-
-
-def _terminate_as_interrupt() -> None:
-    """SIGTERM (``kill``, a job scheduler, a CI time-out) as Ctrl-C: Python's default would end
-    the process on the spot, leaving the episodes' server and planner processes running; as a
-    KeyboardInterrupt it takes the Ctrl-C path, which stops them and keeps the finished rows."""
-
-    def interrupt(signum, frame):
-        raise KeyboardInterrupt
-
-    signal.signal(signal.SIGTERM, interrupt)
 
 
 def _faults_or_exit(spec: str) -> str:
@@ -960,7 +728,7 @@ def tune(
     Writes OUT/overlay.yaml (base: the original plus the tuned keys, for m3p2i run) and
     OUT/report.md (history, importances, the best trial per seed, and the held-out seeds'
     success of the tuned overlay beside the original, with Wilson intervals)."""
-    _terminate_as_interrupt()
+    terminate_as_interrupt()
     from m3p2i.tune import run_tune
 
     run_tune(
