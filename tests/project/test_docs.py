@@ -6,6 +6,7 @@ classes that exist."""
 from __future__ import annotations
 
 import re
+import sys
 from pathlib import Path
 
 import mujoco
@@ -176,3 +177,93 @@ def test_a_stale_name_on_the_architecture_page_is_found():
             "Nobody",
         ]
     )
+
+
+# ------------------------------------------- docs/scenarios.md and the scenario schema agree
+
+SCENARIO_READERS = ("shared.scenario", "shared.guide", "shared.predicates")
+# mappings keyed by the user's names: objectives.NAME, planner.model.geoms.NAME, ...
+NAMED = re.compile(r"^(objectives|planner\.model\.geoms|planner\.model\.objects)\.[^.\[]+")
+FENCED_KEY = re.compile(r"^\s*-?\s*([A-Za-z_]\w*):", re.M)
+ANY_FENCE = re.compile(r"^[ \t]*```.*?^[ \t]*```", re.S | re.M)  # indented in lists too
+TABLE_KEYS = re.compile(r"^\| (`[^|]+`) \|", re.M)
+
+
+def asked_keys() -> set[str]:
+    """Every key path the scenario readers ask for while loading the shipped scenarios
+    (``world.objects[].size``; a user's names as NAME: ``objectives.NAME.terms[].weight``), the
+    task's own names (``observers.FACTOR``, ``plan.ACTION``: the template's, documented with it)
+    left out."""
+    from shared import config
+    from shared.scenario import SCENARIO_DIR, load_scenario
+
+    asked: set[str] = set()
+    originals = {m: getattr(config.Section, m) for m in ("opt", "req", "section", "items", "has")}
+
+    def recording(original):
+        def ask(self, key, *args, **kwargs):
+            frame = sys._getframe(1)  # the reader that asked, past ErrorLog.call
+            while frame.f_back is not None and frame.f_globals["__name__"] == "shared.config":
+                frame = frame.f_back
+            caller = frame.f_globals.get("__name__", "")
+            if caller.startswith(SCENARIO_READERS) and isinstance(key, str):
+                path = NAMED.sub(r"\1.NAME", re.sub(r"\[\d+\]", "[]", self.key_path(key)))
+                if not path.startswith(("observers.", "plan.")):
+                    asked.add(path)
+            return original(self, key, *args, **kwargs)
+
+        return ask
+
+    try:
+        for name, original in originals.items():
+            setattr(config.Section, name, recording(original))
+        for path in sorted(SCENARIO_DIR.glob("*.yaml")):
+            load_scenario(path)
+    finally:
+        for name, original in originals.items():
+            setattr(config.Section, name, original)
+    return asked
+
+
+def documented_names(text: str) -> set[str]:
+    """The names a page documents: every word in backticks, and every key of its YAML
+    examples."""
+    names = {w for span in SPAN.findall(text) for w in re.findall(r"[A-Za-z_]\w*", span)}
+    for block in ANY_FENCE.findall(text):
+        names |= set(FENCED_KEY.findall(block))
+    return names
+
+
+def undocumented(asked: set[str], text: str) -> list[str]:
+    """The asked key paths whose last name ``text`` never mentions."""
+    names = documented_names(text) | {"NAME"}
+    return sorted(p for p in asked if re.split(r"[.\[\]]+", p.strip(".[]"))[-1] not in names)
+
+
+def unknown_table_keys(asked: set[str], text: str) -> list[str]:
+    """The key paths of the page's key table (``| `world.objects[]` | ...``) that no reader
+    asks for (neither the path nor a key under it)."""
+    found = []
+    for cell in TABLE_KEYS.findall(text):
+        for path in SPAN.findall(cell):
+            if "." not in path and "[" not in path and path in {p.split(".")[0] for p in asked}:
+                continue
+            if not any(p == path or p.startswith((path + ".", path + "[")) for p in asked):
+                found.append(path)
+    return found
+
+
+def test_every_scenario_key_is_documented_and_the_key_table_names_only_real_keys():
+    asked = asked_keys()
+    assert len(asked) > 200  # the readers were recorded
+    text = (ROOT / "docs" / "scenarios.md").read_text(encoding="utf-8")
+    assert undocumented(asked, text) == []
+    table = text.split("## Keys", 1)[-1] if "## Keys" in text else text
+    assert unknown_table_keys(asked, table.split("\n## ", 1)[0]) == []
+
+
+def test_a_key_the_docs_miss_or_invent_is_found():
+    asked = {"world.objects[].size", "planner.mppi.gamma", "robot.safe_ctrl"}
+    text = "`size` and\n```yaml\nrobot:\n  safe_ctrl: [0]\n```\n| `world.objects[]` | x |\n"
+    assert undocumented(asked, text) == ["planner.mppi.gamma"]
+    assert unknown_table_keys(asked, text + "| `world.shapes[]` | y |\n") == ["world.shapes[]"]
