@@ -49,11 +49,11 @@ from shared.evaluation.episode import read_log, summary
 from shared.faults import FaultConfig, load_faults
 from shared.scenario import Scenario, load_scenario
 
-__all__ = ["EpisodeResult", "Planner", "build_episode", "drive", "run_episode"]
+__all__ = ["ControlLoop", "EpisodeResult", "build_episode", "drive", "run_episode"]
 
 
-class Planner(Protocol):
-    """What the world asks of a planner in one process: the methods of
+class ControlLoop(Protocol):
+    """What the world asks of a planner's control loop in one process: the methods of
     :class:`planner_client.controller.Controller` that :func:`drive` calls."""
 
     stats: Any
@@ -69,7 +69,7 @@ class Planner(Protocol):
     def close(self) -> None: ...
 
 
-PlannerFactory = Callable[..., Planner]
+ControlLoopFactory = Callable[..., ControlLoop]
 """Builds the planner of a scenario, called as ``factory(scenario, seed=seed)``:
 :func:`planner_client.build.build_controller`, or a ``functools.partial`` of it with
 ``threads``, ``backend`` or ``device`` set."""
@@ -130,7 +130,7 @@ def _published(episode: Episode) -> P.State:
 
 def drive(
     episode: Episode,
-    controller: Planner,
+    controller: ControlLoop,
     plan_every: int = 1,
     max_steps: int | None = None,
     on_step: OnStep | None = None,
@@ -162,7 +162,7 @@ def drive(
 
 def run_episode(
     scenario: str | Path | Scenario,
-    planner: PlannerFactory,
+    planner: ControlLoopFactory,
     seed: int = 0,
     log_path: str | Path | None = None,
     plan_every: int = 1,
