@@ -7,6 +7,7 @@ import math
 import os
 import signal
 from pathlib import Path
+from typing import Annotated
 
 import typer
 
@@ -59,6 +60,64 @@ HELP = (
 log = logging.getLogger("m3p2i.server")
 
 
+LogFile = Annotated[
+    Path | None,
+    typer.Option(
+        "--log",
+        help="Episode log (JSON lines); '{seed}' in it (e.g. seed-{seed:03d}) becomes the "
+        "episode's seed. Default: runs/<scenario>-<time>/episode.jsonl",
+    ),
+]
+CommandTimeout = Annotated[
+    float,
+    typer.Option(
+        help="realtime: seconds after which a missing command makes the robot hold still."
+    ),
+]
+Republish = Annotated[
+    float,
+    typer.Option(
+        min=0.001,
+        help="lockstep: re-send the state waiting for its command this often (seconds), for a "
+        "planner that subscribed late or lost it.",
+    ),
+]
+KeepServing = Annotated[
+    bool,
+    typer.Option(
+        help="After the episode, keep the sockets open and wait for a control 'reset' with a "
+        "seed, which begins the next episode (new session, new log: --log must hold "
+        "'{seed}'); 'shutdown' exits. What warm bench workers use; pair it with m3p2i-planner "
+        "--keep-running.",
+    ),
+]
+CheckOnly = Annotated[
+    bool,
+    typer.Option(
+        "--check",
+        help="Only check the scenario (every error of the file, model names included) and "
+        "--world's class, and exit: 0 sound, 2 faulty.",
+    ),
+]
+WorldSeed = Annotated[
+    int,
+    typer.Option(
+        help="Seed of the scenario's randomised start (world.randomize) and of the simulated "
+        "faults (--faults).",
+    ),
+]
+WorldClass = Annotated[
+    str | None,
+    typer.Option(
+        "--world",
+        help="The world to serve instead of the MuJoCo simulation: package.module:Class naming "
+        "a subclass of server.bridge.Bridge (a robot) or server.interface.World, imported from "
+        "the installed packages, PYTHONPATH or the current directory (docs/bridge.md). A robot "
+        "runs --mode realtime.",
+    ),
+]
+
+
 @app.command(help=HELP)
 def main(
     scenario: ScenarioOption,
@@ -67,57 +126,16 @@ def main(
     keys: Keys = None,
     insecure: Insecure = False,
     port: Port = DEFAULT_PORT,
-    log_file: Path | None = typer.Option(
-        None,
-        "--log",
-        help="Episode log (JSON lines); "
-        "'{seed}' in it (e.g. seed-{seed:03d}) becomes the "
-        "episode's seed. Default: "
-        "runs/<scenario>-<time>/episode.jsonl",
-    ),
-    command_timeout: float = typer.Option(
-        0.5, help="realtime: seconds after which a missing command makes the robot hold still."
-    ),
+    log_file: LogFile = None,
+    command_timeout: CommandTimeout = 0.5,
     realtime_factor: RealtimeFactor = 1.0,
-    republish: float = typer.Option(
-        0.2,
-        min=0.001,
-        help="lockstep: re-send the state waiting "
-        "for its command this often (seconds), for a planner that "
-        "subscribed late or lost it.",
-    ),
+    republish: Republish = 0.2,
     plan_every: PlanEvery = 1,
-    keep_serving: bool = typer.Option(
-        False,
-        help="After the episode, keep the sockets open and "
-        "wait for a control 'reset' with a seed, which begins "
-        "the next episode (new session, new log: --log must "
-        "hold '{seed}'); 'shutdown' exits. What warm bench "
-        "workers use; pair it with m3p2i-planner --keep-running.",
-    ),
+    keep_serving: KeepServing = False,
     window: Window = False,
-    check: bool = typer.Option(
-        False,
-        "--check",
-        help="Only check the scenario (every error of "
-        "the file, model names included) and --world's class, and exit: "
-        "0 sound, 2 faulty.",
-    ),
-    seed: int = typer.Option(
-        0,
-        help="Seed of the scenario's randomised start (world.randomize) "
-        "and of the simulated faults (--faults).",
-    ),
-    world: str | None = typer.Option(
-        None,
-        "--world",
-        help="The world to serve instead of "
-        "the MuJoCo simulation: package.module:Class naming a "
-        "subclass of server.bridge.Bridge (a robot) or "
-        "server.interface.World, imported from the installed "
-        "packages, PYTHONPATH or the current directory "
-        "(docs/bridge.md). A robot runs --mode realtime.",
-    ),
+    check: CheckOnly = False,
+    seed: WorldSeed = 0,
+    world: WorldClass = None,
     faults: Faults = None,
     verbose: Verbose = False,
     hardware: OldFaults = None,
@@ -128,8 +146,48 @@ def main(
     window = renamed(window, viewer, "--window", "--viewer", False)
     if mode not in MODES:
         raise typer.BadParameter("must be 'lockstep' or 'realtime'", param_hint="--mode")
-    if not check:  # before anything else: an exposed robot is refused at once
-        world_keys = _security({"--host": host}, keys, insecure)
+    # before anything else: an exposed robot is refused at once (--check checks no keys)
+    world_keys = None if check else _security({"--host": host}, keys, insecure)
+    world_class, fault_config = _checked_or_exit(scenario, world, faults, check)
+    _serving_or_exit(keep_serving, log_file, window)
+    sc = load_scenario(scenario)
+    opts = ServerOptions(
+        mode=mode,
+        command_timeout=command_timeout,
+        realtime_factor=realtime_factor,
+        republish=republish,
+        plan_every=plan_every,
+        keep_serving=keep_serving,
+    )
+    try:
+        server = WorldServer(
+            sc,
+            Endpoints(host, port),
+            log_file or default_run_dir(sc.name) / "episode.jsonl",
+            opts,
+            seed=seed,
+            keys=world_keys,
+            world=world_class,
+            faults=fault_config,
+        )
+    except ConfigError as exc:  # e.g. a metrics frame the compiled model lacks
+        _exit(f"error: {exc}")
+    except WorldError as exc:  # a bridge that cannot reach its robot
+        _exit(f"error: --world {world}: {exc}")
+    if window:
+        _open_window(server, world)
+    _serve(server, world)
+
+
+def _exit(message: str, code: int = 2) -> None:
+    typer.echo(message, err=True)
+    raise typer.Exit(code)
+
+
+def _checked_or_exit(scenario: str, world: str | None, faults: str | None, check: bool):
+    """``(world class, faults)`` once the scenario, ``--world``'s class and ``--faults`` are
+    sound; every error of them printed and exit 2 otherwise (with ``--check``: exit 0 when
+    sound)."""
     try:  # --check checks it too
         world_class, world_error = (SimWorld if world is None else load_world_class(world)), None
     except WorldLoadError as exc:
@@ -145,63 +203,42 @@ def main(
     print_errors(errors, err=not check)
     if errors or world_error or check:
         raise typer.Exit(2 if errors or world_error else 0)
-    if keep_serving and (log_file is None or "{seed" not in str(log_file)):
-        typer.echo(
-            "error: --keep-serving needs a --log holding '{seed}' (e.g. "
-            "runs/x/seed-{seed:03d}/episode.jsonl): each episode gets its own log",
-            err=True,
-        )
-        raise typer.Exit(2)
-    if keep_serving and window:
-        typer.echo(
-            "error: --keep-serving builds a new world for each episode; MuJoCo's window "
-            "shows one: use `m3p2i view` (the browser view) instead",
-            err=True,
-        )
-        raise typer.Exit(2)
-    sc = load_scenario(scenario)
-    log_file = log_file or default_run_dir(sc.name) / "episode.jsonl"
-    opts = ServerOptions(
-        mode=mode,
-        command_timeout=command_timeout,
-        realtime_factor=realtime_factor,
-        republish=republish,
-        plan_every=plan_every,
-        keep_serving=keep_serving,
-    )
-    try:
-        server = WorldServer(
-            sc,
-            Endpoints(host, port),
-            log_file,
-            opts,
-            seed=seed,
-            keys=world_keys,
-            world=world_class,
-            faults=fault_config,
-        )
-    except ConfigError as exc:  # e.g. a metrics frame the compiled model lacks
-        typer.echo(f"error: {exc}", err=True)
-        raise typer.Exit(2) from None
-    except WorldError as exc:  # a bridge that cannot reach its robot
-        typer.echo(f"error: --world {world}: {exc}", err=True)
-        raise typer.Exit(2) from None
-    if window:
-        if server.world.data is None:
-            log.warning(
-                "the world %s keeps no MuJoCo data to show: running without the viewer", world
-            )
-        elif os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY"):
-            import mujoco.viewer
+    return world_class, fault_config
 
-            # the side panels would cover most of the window it opens with (Tab and
-            # Shift+Tab show them)
-            server.viewer = mujoco.viewer.launch_passive(
-                server.world.model, server.world.data, show_left_ui=False, show_right_ui=False
-            )
-            frame_viewer(server.viewer, server.world.model, server.world.data)
-        else:
-            log.warning("no display found: running without the viewer")
+
+def _serving_or_exit(keep_serving: bool, log_file: Path | None, window: bool) -> None:
+    """A kept world needs a log per episode and no MuJoCo window (it shows one world)."""
+    if keep_serving and (log_file is None or "{seed" not in str(log_file)):
+        _exit(
+            "error: --keep-serving needs a --log holding '{seed}' (e.g. "
+            "runs/x/seed-{seed:03d}/episode.jsonl): each episode gets its own log"
+        )
+    if keep_serving and window:
+        _exit(
+            "error: --keep-serving builds a new world for each episode; MuJoCo's window "
+            "shows one: use `m3p2i view` (the browser view) instead"
+        )
+
+
+def _open_window(server: WorldServer, world: str | None) -> None:
+    """MuJoCo's passive viewer on the world's data, where there is a display and data."""
+    if server.world.data is None:
+        log.warning("the world %s keeps no MuJoCo data to show: running without the viewer", world)
+    elif os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY"):
+        import mujoco.viewer
+
+        # the side panels would cover most of the window it opens with (Tab and Shift+Tab
+        # show them)
+        server.viewer = mujoco.viewer.launch_passive(
+            server.world.model, server.world.data, show_left_ui=False, show_right_ui=False
+        )
+        frame_viewer(server.viewer, server.world.model, server.world.data)
+    else:
+        log.warning("no display found: running without the viewer")
+
+
+def _serve(server: WorldServer, world: str | None) -> None:
+    """Serve until the episode (or, kept, the last one) ends; exit 0 on success, 1 otherwise."""
     # a supervisor (systemd, the launcher's stop, a soak test's restart) stops the world with
     # SIGTERM: end the episode as Ctrl-C does, so the log still gets its summary
     for sig in (signal.SIGINT, signal.SIGTERM):
