@@ -6,6 +6,7 @@ import dataclasses
 import logging
 import sys
 from pathlib import Path
+from typing import Annotated
 
 import typer
 
@@ -42,114 +43,119 @@ HELP = (
 log = logging.getLogger("m3p2i.planner")
 
 
+DiagnosticsHost = Annotated[
+    str,
+    typer.Option(
+        help="Address on this machine to bind the diagnostics (port+3) to; a network address "
+        "needs --keys, or --insecure."
+    ),
+]
+Threads = Annotated[
+    int,
+    typer.Option(help="Rollout threads (0: the scenario's planner.threads, else one per core)."),
+]
+ServerTimeout = Annotated[float, typer.Option(help="Seconds of silence before reconnecting.")]
+KeepRunning = Annotated[
+    bool,
+    typer.Option(help="Keep planning across episodes instead of exiting when the episode ends."),
+]
+SamplingSeed = Annotated[
+    int | None, typer.Option(help="Sampling seed (default: planner.mppi.seed of the scenario).")
+]
+Backend = Annotated[
+    str | None,
+    typer.Option(
+        help="Rollout backend, overriding the scenario's planner.backend: 'mujoco' "
+        "(mujoco.rollout's thread pool on the CPU, the default) or 'warp' (MuJoCo Warp, from the "
+        "m3p2i\\[gpu] extra: thousands of samples on a GPU; it compiles its kernels on first use, "
+        "cached in ~/.cache/warp)."
+    ),
+]
+Device = Annotated[
+    str | None,
+    typer.Option(
+        help="The warp backend's device, overriding planner.device: cuda:0 (default), cuda:N, "
+        "or cpu (slow, for tests without a GPU)."
+    ),
+]
+CheckOnly = Annotated[
+    bool,
+    typer.Option(
+        "--check",
+        help="Only check the scenario (every error of the file, cost terms and model names "
+        "included) and exit: 0 sound, 2 faulty.",
+    ),
+]
+Standby = Annotated[
+    bool,
+    typer.Option(
+        help="Hot spare for a supervisor: load the scenario and compile the models, print "
+        "'standby: ready', then wait for a line on standard input before connecting (end of "
+        "input: exit 1 unconnected). It then takes over in a fraction of a second instead of a "
+        "cold start's several."
+    ),
+]
+ActuationDelay = Annotated[
+    float | None,
+    typer.Option(
+        min=0.0,
+        help="Declared actuation delay of the robot (ms from a command reaching the world to "
+        "the actuators acting on it), overriding planner.delays.actuation_ms: the planner plans "
+        "from the state predicted for when its plan acts (docs/faults.md).",
+    ),
+]
+StateDelay = Annotated[
+    float | None,
+    typer.Option(
+        min=0.0,
+        help="Declared state delay (ms from a measurement to its state being published), "
+        "overriding planner.delays.state_ms.",
+    ),
+]
+MaxRate = Annotated[
+    float,
+    typer.Option(
+        min=0.0,
+        help="At most this many plans per second (0: as fast as the machine allows): rehearse "
+        "what a slower computer does, e.g. a planner under a third of a 100 Hz arm's rate with "
+        "--max-rate 25 (in real time; lock-step has m3p2i-server --plan-every).",
+    ),
+]
+
+
 @app.command(help=HELP)
 def main(
     scenario: ScenarioOption,
     host: Host = DEFAULT_HOST,
     port: Port = DEFAULT_PORT,
-    diagnostics_host: str = typer.Option(
-        DEFAULT_HOST,
-        help="Address on this machine to bind "
-        "the diagnostics (port+3) to; a network address "
-        "needs --keys, or --insecure.",
-    ),
+    diagnostics_host: DiagnosticsHost = DEFAULT_HOST,
     keys: Keys = None,
     insecure: Insecure = False,
-    threads: int = typer.Option(
-        0, help="Rollout threads (0: the scenario's planner.threads, else one per core)."
-    ),
-    server_timeout: float = typer.Option(2.0, help="Seconds of silence before reconnecting."),
-    keep_running: bool = typer.Option(
-        False, help="Keep planning across episodes instead of exiting when the episode ends."
-    ),
-    seed: int | None = typer.Option(
-        None, help="Sampling seed (default: planner.mppi.seed of the scenario)."
-    ),
-    backend: str | None = typer.Option(
-        None,
-        help="Rollout backend, overriding the scenario's planner.backend: 'mujoco' "
-        "(mujoco.rollout's thread pool on the CPU, the default) or 'warp' (MuJoCo Warp, from the "
-        "m3p2i\\[gpu] extra: thousands of samples on a GPU; it compiles its kernels on first use, "
-        "cached in ~/.cache/warp).",
-    ),
-    device: str | None = typer.Option(
-        None,
-        help="The warp backend's device, overriding planner.device: cuda:0 (default), "
-        "cuda:N, or cpu (slow, for tests without a GPU).",
-    ),
-    check: bool = typer.Option(
-        False,
-        "--check",
-        help="Only check the scenario (every error of "
-        "the file, cost terms and model names included) and exit: 0 "
-        "sound, 2 faulty.",
-    ),
-    standby: bool = typer.Option(
-        False,
-        help="Hot spare for a supervisor: load the scenario "
-        "and compile the models, print 'standby: ready', then wait for "
-        "a line on standard input before connecting (end of input: exit "
-        "1 unconnected). It then takes over in a fraction of a second "
-        "instead of a cold start's several.",
-    ),
-    actuation_delay_ms: float | None = typer.Option(
-        None,
-        min=0.0,
-        help="Declared actuation delay of the robot (ms from a command reaching "
-        "the world to the actuators acting on it), overriding planner.delays.actuation_ms: the "
-        "planner plans from the state predicted for when its plan acts (docs/faults.md).",
-    ),
-    state_delay_ms: float | None = typer.Option(
-        None,
-        min=0.0,
-        help="Declared state delay (ms from a measurement to its state being "
-        "published), overriding planner.delays.state_ms.",
-    ),
+    threads: Threads = 0,
+    server_timeout: ServerTimeout = 2.0,
+    keep_running: KeepRunning = False,
+    seed: SamplingSeed = None,
+    backend: Backend = None,
+    device: Device = None,
+    check: CheckOnly = False,
+    standby: Standby = False,
+    actuation_delay_ms: ActuationDelay = None,
+    state_delay_ms: StateDelay = None,
     estimate_delays: EstimateDelays = False,
     plugins: Plugins = None,
-    max_rate: float = typer.Option(
-        0.0,
-        min=0.0,
-        help="At most this many plans per second "
-        "(0: as fast as the machine allows): rehearse what a slower "
-        "computer does, e.g. a planner under a third of a 100 Hz arm's "
-        "rate with --max-rate 25 (in real time; lock-step has "
-        "m3p2i-server --plan-every).",
-    ),
+    max_rate: MaxRate = 0.0,
     verbose: Verbose = False,
 ) -> None:
     setup_logging(verbose, "m3p2i.planner")
-    if not check:  # before anything else: an exposed robot is refused at once
-        planner_keys = _security(
-            {"--host": host, "--diagnostics-host": diagnostics_host}, keys, insecure
-        )
-    from planner_client.planner_check import scenario_errors
-    from planner_client.plugins import import_plugins
-
-    try:  # the operator's own modules, before the scenario's terms are looked up
-        import_plugins(plugins or [], Path.cwd(), "m3p2i-planner", "--plugins")
-    except ConfigError as exc:
-        print_errors(exc.errors if isinstance(exc, ConfigErrors) else [exc], err=not check)
-        raise typer.Exit(2) from None
-    errors = scenario_errors(scenario)  # every error of the file, before anything starts
-    print_errors(errors, err=not check)
-    if errors or check:
-        raise typer.Exit(2 if errors else 0)
+    # before anything else: an exposed robot is refused at once (--check checks no keys)
+    planner_keys = (
+        None
+        if check
+        else _security({"--host": host, "--diagnostics-host": diagnostics_host}, keys, insecure)
+    )
+    _checked_or_exit(scenario, plugins, check)
+    device = _rollouts_or_exit(backend, device)
     from planner_client.build import build_client
-    from shared.scenario import ROLLOUT_BACKENDS, rollout_device
-
-    if backend is not None and backend not in ROLLOUT_BACKENDS:
-        typer.echo(
-            f"error: --backend {backend!r}: expected one of {', '.join(ROLLOUT_BACKENDS)}", err=True
-        )
-        raise typer.Exit(2)
-    try:
-        device = device if device is None else rollout_device(device)
-    except ValueError as exc:
-        typer.echo(f"error: --device {device!r}: {exc}", err=True)
-        raise typer.Exit(2) from None
-    from planner_client.controller import LayoutMismatch
-    from planner_client.loop import HandshakeRefused
 
     try:
         sc = with_delays(
@@ -172,6 +178,49 @@ def main(
     except ConfigError as exc:
         typer.echo(f"error: {exc}", err=True)
         raise typer.Exit(2) from None
+    _plan(client, scenario)
+
+
+def _checked_or_exit(scenario: str, plugins: list[str] | None, check: bool) -> None:
+    """The operator's ``--plugins`` imported and the scenario checked (cost terms and model
+    names included): every error printed and exit 2; with ``--check``, exit 0 when sound."""
+    from planner_client.planner_check import scenario_errors
+    from planner_client.plugins import import_plugins
+
+    try:  # the operator's own modules, before the scenario's terms are looked up
+        import_plugins(plugins or [], Path.cwd(), "m3p2i-planner", "--plugins")
+    except ConfigError as exc:
+        print_errors(exc.errors if isinstance(exc, ConfigErrors) else [exc], err=not check)
+        raise typer.Exit(2) from None
+    errors = scenario_errors(scenario)  # every error of the file, before anything starts
+    print_errors(errors, err=not check)
+    if errors or check:
+        raise typer.Exit(2 if errors else 0)
+
+
+def _rollouts_or_exit(backend: str | None, device: str | None) -> str | None:
+    """``--backend`` among the rollout backends and ``--device`` a device they know (returned
+    as read); exit 2 otherwise."""
+    from shared.scenario import ROLLOUT_BACKENDS, rollout_device
+
+    if backend is not None and backend not in ROLLOUT_BACKENDS:
+        typer.echo(
+            f"error: --backend {backend!r}: expected one of {', '.join(ROLLOUT_BACKENDS)}", err=True
+        )
+        raise typer.Exit(2)
+    try:
+        return device if device is None else rollout_device(device)
+    except ValueError as exc:
+        typer.echo(f"error: --device {device!r}: {exc}", err=True)
+        raise typer.Exit(2) from None
+
+
+def _plan(client, scenario: str) -> None:
+    """Plan until the episode (or, kept running, the world) ends; print the planner's
+    statistics and exit 0 on success, 1 otherwise, 3 when the world refuses this planner."""
+    from planner_client.controller import LayoutMismatch
+    from planner_client.loop import HandshakeRefused
+
     try:
         stats = client.run()
     except HandshakeRefused as exc:
