@@ -11,6 +11,7 @@ import signal
 import sys
 import threading
 from pathlib import Path
+from typing import Annotated
 
 import typer
 
@@ -115,53 +116,67 @@ def layout(
     print_frames(frames, console)
 
 
+Compensate = Annotated[
+    bool,
+    typer.Option(
+        "--compensate",
+        help="Declare the simulated faults' actuation and state delays to the planner (as a "
+        "robot's owner who measured them would, in planner.delays): it plans from the state "
+        "predicted for when its plan acts.",
+    ),
+]
+PlannerMaxRate = Annotated[
+    float,
+    typer.Option(
+        min=0.0,
+        help="realtime: the planner makes at most this many plans per second (0: as fast as it "
+        "can): a slower computer, rehearsed.",
+    ),
+]
+FirstPort = Annotated[
+    int,
+    typer.Option(
+        help="The world's first port, as m3p2i-server --port (0: pick a free block of ports)."
+    ),
+]
+View = Annotated[
+    bool,
+    typer.Option(
+        "--view",
+        help="Serve the browser view (m3p2i view) of the episode and print its URL; needs "
+        "m3p2i\\[view].",
+    ),
+]
+ViewPort = Annotated[int, typer.Option(help="With --view: the page's port (0: a free one).")]
+ViewExit = Annotated[
+    bool | None,
+    typer.Option(
+        "--view-exit/--view-keep",
+        help="With --view, once the episode is over: exit, or keep the page up showing the "
+        "episode's replay until Ctrl-C (then exit with the episode's code). Default: keep when "
+        "stdin and stdout are a terminal, exit otherwise (scripts, tests).",
+    ),
+]
+
+
 @app.command("run")
 def run(
     scenario: ScenarioArgument,
     mode: Mode = "lockstep",
     plan_every: PlanEvery = 1,
     faults: Faults = None,
-    compensate: bool = typer.Option(
-        False,
-        "--compensate",
-        help="Declare the simulated faults' "
-        "actuation and state delays to the planner (as a robot's "
-        "owner who measured them would, in planner.delays): it plans "
-        "from the state predicted for when its plan acts.",
-    ),
+    compensate: Compensate = False,
     estimate_delays: EstimateDelays = False,
     plugins: Plugins = None,
-    planner_max_rate: float = typer.Option(
-        0.0,
-        min=0.0,
-        help="realtime: the planner makes at "
-        "most this many plans per second (0: as fast as it "
-        "can): a slower computer, rehearsed.",
-    ),
+    planner_max_rate: PlannerMaxRate = 0.0,
     realtime_factor: RealtimeFactor = 1.0,
-    port: int = typer.Option(
-        0, help="The world's first port, as m3p2i-server --port (0: pick a free block of ports)."
-    ),
+    port: FirstPort = 0,
     run_dir: RunDir = None,
     timeout: Timeout = 900.0,
     window: Window = False,
-    view: bool = typer.Option(
-        False,
-        "--view",
-        help="Serve the browser view (m3p2i view) of the "
-        "episode and print its URL; needs m3p2i\\[view].",
-    ),
-    view_port: int = typer.Option(0, help="With --view: the page's port (0: a free one)."),
-    view_exit: bool | None = typer.Option(
-        None,
-        "--view-exit/--view-keep",
-        help="With --view, "
-        "once the episode is over: exit, or keep the page "
-        "up showing the episode's replay until Ctrl-C "
-        "(then exit with the episode's code). Default: "
-        "keep when stdin and stdout are a terminal, exit "
-        "otherwise (scripts, tests).",
-    ),
+    view: View = False,
+    view_port: ViewPort = 0,
+    view_exit: ViewExit = None,
     seed: Seed = 0,
     verbose: Verbose = False,
     keys: Keys = None,
@@ -171,18 +186,7 @@ def run(
     """Run one episode of SCENARIO with server and planner; exit 0 on success."""
     faults = renamed(faults, hardware, "--faults", "--hardware", None)
     window = renamed(window, viewer, "--window", "--viewer", False)
-    flags = {
-        "mode": "--mode",
-        "max_rate": "--planner-max-rate",
-        "realtime_factor": "--realtime-factor",
-        "plan_every": "--plan-every",
-    }
-    for key, why, value, expected in mode_conflicts(
-        mode, plan_every, planner_max_rate, realtime_factor
-    ):
-        expected = expected.replace("mode: ", "--mode ").replace("plan_every", "--plan-every")
-        typer.echo(f"error: {flags[key]} {value}: {why} (expected {expected})", err=True)
-        raise typer.Exit(2)
+    _modes_or_exit(mode, plan_every, planner_max_rate, realtime_factor)
     if faults is not None:  # first: a mistyped profile is refused at once
         faults = _faults_or_exit(faults)
     sc = load_or_exit(scenario, plugin_args(plugins))
@@ -196,45 +200,65 @@ def run(
     )
     if view_exit is None:  # an interactive run keeps its page; a script must not block
         view_exit = not (sys.stdin.isatty() and sys.stdout.isatty())
+    launch = EpisodeLaunch(
+        scenario=sc.source,
+        run_dir=run_dir,
+        seed=seed,
+        mode=mode,
+        port=port,
+        timeout=timeout,
+        window=window,
+        verbose=verbose,
+        plan_every=plan_every,
+        view=view,
+        view_port=view_port,
+        keys=keys,
+        view_keep=view and not view_exit,
+        faults=faults or "",
+        delays=delays,
+        estimate_delays=estimate_delays,
+        max_rate=planner_max_rate,
+        realtime_factor=realtime_factor,
+        plugins=plugin_args(plugins),
+    )
+    raise typer.Exit(_launch(launch, sc.name))
+
+
+def _modes_or_exit(mode: str, plan_every: int, max_rate: float, realtime_factor: float) -> None:
+    """Options that belong to the other mode (``--plan-every`` in real time, ...): exit 2."""
+    flags = {
+        "mode": "--mode",
+        "max_rate": "--planner-max-rate",
+        "realtime_factor": "--realtime-factor",
+        "plan_every": "--plan-every",
+    }
+    for key, why, value, expected in mode_conflicts(mode, plan_every, max_rate, realtime_factor):
+        expected = expected.replace("mode: ", "--mode ").replace("plan_every", "--plan-every")
+        typer.echo(f"error: {flags[key]} {value}: {why} (expected {expected})", err=True)
+        raise typer.Exit(2)
+
+
+def _launch(launch: EpisodeLaunch, name: str) -> int:
+    """Run the episode of ``launch`` (printing the view's URL, and keeping the page when asked)
+    and report it: the exit code."""
     codes = []
 
+    def report(result) -> int:
+        return _report_run(
+            result, name, launch.run_dir, launch.timeout, launch.mode, launch.plan_every
+        )
+
     def kept(result, url: str) -> None:
-        codes.append(_report_run(result, sc.name, run_dir, timeout, mode, plan_every))
+        codes.append(report(result))
         typer.echo(f"episode over; view still at {url}: Ctrl-C to quit")
         sys.stdout.flush()
 
     try:
-        result = run_episode(
-            EpisodeLaunch(
-                scenario=sc.source,
-                run_dir=run_dir,
-                seed=seed,
-                mode=mode,
-                port=port,
-                timeout=timeout,
-                window=window,
-                verbose=verbose,
-                plan_every=plan_every,
-                view=view,
-                view_port=view_port,
-                keys=keys,
-                view_keep=view and not view_exit,
-                faults=faults or "",
-                delays=delays,
-                estimate_delays=estimate_delays,
-                max_rate=planner_max_rate,
-                realtime_factor=realtime_factor,
-                plugins=plugin_args(plugins),
-            ),
-            on_view=lambda url: typer.echo(f"view: {url}"),
-            on_kept=kept,
-        )
+        result = run_episode(launch, on_view=lambda url: typer.echo(f"view: {url}"), on_kept=kept)
     except RuntimeError as exc:  # the view could not serve its page
         typer.echo(f"error: {exc}", err=True)
         raise typer.Exit(2) from None
-    raise typer.Exit(
-        codes[0] if codes else _report_run(result, sc.name, run_dir, timeout, mode, plan_every)
-    )
+    return codes[0] if codes else report(result)
 
 
 def _report_run(
