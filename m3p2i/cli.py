@@ -447,51 +447,68 @@ def record(
     typer.echo(f"wrote {out}")
 
 
+ViewScenario = Annotated[
+    str | None,
+    typer.Argument(
+        help="Scenario the world runs (name or path), for a live view; leave out with --log."
+    ),
+]
+ReplayLog = Annotated[
+    Path | None,
+    typer.Option(
+        help="Replay this episode log (or run folder) instead: a time slider, the actions, the "
+        "metrics."
+    ),
+]
+PagePort = Annotated[int, typer.Option(help="Port of the page (the next free one if taken).")]
+Public = Annotated[
+    bool,
+    typer.Option(
+        "--public",
+        help="Serve the page on every network interface, not only loopback, to watch only: its "
+        "pause, reset and move controls are off (see --public-controls).",
+    ),
+]
+PublicControls = Annotated[
+    bool,
+    typer.Option(
+        "--public-controls",
+        help="With --public: keep the controls, so that anyone who reaches the page can pause, "
+        "reset and disturb the world (with the planner's keys): only on a network you trust.",
+    ),
+]
+Record = Annotated[
+    Path | None,
+    typer.Option(
+        help="Live: also write the planner's diagnostics (trajectories, mode weights) to this "
+        "file, for a replay (as diagnostics.jsonl beside the episode log)."
+    ),
+]
+Duration = Annotated[
+    float | None, typer.Option(help="Stop after this many seconds (default: until Ctrl-C).")
+]
+ReplayAfter = Annotated[
+    Path | None,
+    typer.Option(
+        help="Live: on SIGUSR1 (what `m3p2i run --view` sends once its episode is over) the "
+        "same page replays this episode log or run folder, until Ctrl-C."
+    ),
+]
+
+
 @app.command("view")
 def view(
-    scenario: str | None = typer.Argument(
-        None, help="Scenario the world runs (name or path), for a live view; leave out with --log."
-    ),
-    log: Path | None = typer.Option(
-        None,
-        help="Replay this episode log (or run folder) "
-        "instead: a time slider, the actions, the metrics.",
-    ),
+    scenario: ViewScenario = None,
+    log: ReplayLog = None,
     host: Host = DEFAULT_HOST,
     port: Port = DEFAULT_PORT,
-    view_port: int = typer.Option(8080, help="Port of the page (the next free one if taken)."),
-    public: bool = typer.Option(
-        False,
-        "--public",
-        help="Serve the page on every network "
-        "interface, not only loopback, to watch only: its pause, reset "
-        "and move controls are off (see --public-controls).",
-    ),
-    public_controls: bool = typer.Option(
-        False,
-        "--public-controls",
-        help="With --public: keep "
-        "the controls, so that anyone who reaches the page can "
-        "pause, reset and disturb the world (with the "
-        "planner's keys): only on a network you trust.",
-    ),
-    record: Path | None = typer.Option(
-        None,
-        help="Live: also write the planner's diagnostics "
-        "(trajectories, mode weights) to this file, for a replay "
-        "(as diagnostics.jsonl beside the episode log).",
-    ),
-    duration: float | None = typer.Option(
-        None, help="Stop after this many seconds (default: until Ctrl-C)."
-    ),
+    view_port: PagePort = 8080,
+    public: Public = False,
+    public_controls: PublicControls = False,
+    record: Record = None,
+    duration: Duration = None,
     keys: Keys = None,
-    replay_after: Path | None = typer.Option(
-        None,
-        help="Live: on SIGUSR1 (what `m3p2i run "
-        "--view` sends once its episode is over) the "
-        "same page replays this episode log or run "
-        "folder, until Ctrl-C.",
-    ),
+    replay_after: ReplayAfter = None,
 ) -> None:
     """Show a world and its planner in a browser: the scene from the scenario's model, the
     planner's best sampled trajectories coloured by mode, the executed path, the action and its
@@ -514,15 +531,10 @@ def view(
         signal.signal(signal.SIGUSR1, lambda *_: over.set())
     try:
         if log is not None:
-            try:
-                shown = V.ReplayView(V.load_replay(log), bind, view_port)
-            except (ConfigError, FileNotFoundError, ValueError) as exc:
-                typer.echo(f"error: {exc}", err=True)
-                raise typer.Exit(2) from None
+            shown = _replay_or_exit(log, bind, view_port)
         else:
-            sc = load_or_exit(scenario)
             shown = V.LiveView(
-                sc,
+                load_or_exit(scenario),
                 Endpoints(host, port),
                 bind,
                 view_port,
@@ -537,17 +549,29 @@ def view(
         shown.stop = over  # the live view serves until the episode is over
     typer.echo(f"view: {shown.url}")
     sys.stdout.flush()
+    _show(shown, duration, over, replay_after, bind, view_port)
+
+
+def _replay_or_exit(log: Path, bind: str, view_port: int, server=None, code: int = 2):
+    """The replay page of ``log`` (on ``server``, the live page's, when given); exit ``code``
+    when it cannot be read."""
+    from m3p2i import view as V
+
+    try:
+        return V.ReplayView(V.load_replay(log), bind, view_port, server=server)
+    except (ConfigError, FileNotFoundError, ValueError) as exc:
+        typer.echo(f"error: {'no replay of ' + str(log) + ': ' if server else ''}{exc}", err=True)
+        raise typer.Exit(code) from None
+
+
+def _show(shown, duration, over, replay_after, bind: str, view_port: int) -> None:
+    """Serve the page for ``duration`` (or until Ctrl-C); once the episode is ``over``, the
+    same page replays ``replay_after``."""
     try:
         shown.serve(duration)
         if over.is_set():
             shown.close(keep_server=True)
-            try:
-                shown = V.ReplayView(
-                    V.load_replay(replay_after), bind, view_port, server=shown.server
-                )
-            except (ConfigError, FileNotFoundError, ValueError) as exc:
-                typer.echo(f"error: no replay of {replay_after}: {exc}", err=True)
-                raise typer.Exit(1) from None
+            shown = _replay_or_exit(replay_after, bind, view_port, server=shown.server, code=1)
             typer.echo(f"replay: {replay_after}")
             sys.stdout.flush()
             shown.serve(None)
