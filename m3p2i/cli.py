@@ -16,7 +16,14 @@ from typing import Annotated
 import typer
 
 from m3p2i.bench_command import bench
-from m3p2i.cli_support import load_or_exit, plugin_args, terminate_as_interrupt
+from m3p2i.cli_support import (
+    declared_delays_or_exit,
+    faults_or_exit,
+    keys_or_exit,
+    load_or_exit,
+    plugin_args,
+    terminate_as_interrupt,
+)
 from m3p2i.launch import EpisodeLaunch, free_port_block, mode_conflicts, run_episode
 from m3p2i.new import new_scenario
 from shared.cli_common import (
@@ -188,10 +195,10 @@ def run(
     window = renamed(window, viewer, "--window", "--viewer", False)
     _modes_or_exit(mode, plan_every, planner_max_rate, realtime_factor)
     if faults is not None:  # first: a mistyped profile is refused at once
-        faults = _faults_or_exit(faults)
+        faults = faults_or_exit(faults)
     sc = load_or_exit(scenario, plugin_args(plugins))
-    _keys_or_exit(keys)
-    delays = _declared_delays_or_exit(sc, faults) if compensate else None
+    keys_or_exit(keys)
+    delays = declared_delays_or_exit(sc, faults) if compensate else None
     run_dir = run_dir or default_run_dir(sc.name)
     typer.echo(
         f"running {sc.name} ({mode}{', faults ' + faults if faults else ''}"
@@ -416,7 +423,7 @@ def record(
         raise typer.Exit(3) from None
     if log is None:
         sc = load_or_exit(scenario)
-        planner_keys = _keys_or_exit(keys)
+        planner_keys = keys_or_exit(keys)
         run_dir = run_dir or default_run_dir(sc.name)
         run_dir.mkdir(parents=True, exist_ok=True)
         port = free_port_block()
@@ -539,7 +546,7 @@ def view(
                 bind,
                 view_port,
                 record=record,
-                keys=_keys_or_exit(keys, world=False),
+                keys=keys_or_exit(keys, world=False),
                 controls=not public or public_controls,
             )
     except ImportError as exc:
@@ -579,53 +586,6 @@ def _show(shown, duration, over, replay_after, bind: str, view_port: int) -> Non
         pass
     finally:
         shown.close()
-
-
-def _faults_or_exit(spec: str) -> str:
-    """``--faults`` checked before either process starts; what the server is passed (a
-    profile's name, or the file's absolute path: the server may run elsewhere than here)."""
-    from shared.faults import PROFILES, load_faults
-
-    try:
-        load_faults(spec)
-    except ConfigError as exc:
-        typer.echo(f"error: {exc}", err=True)
-        raise typer.Exit(2) from None
-    return spec if spec in PROFILES else str(Path(spec).resolve())
-
-
-def _declared_delays_or_exit(sc, faults: str | None) -> tuple[float, float]:
-    """``--compensate``: the (actuation, state) delays in ms of ``--faults``, else of the
-    scenario's faults: section, for the planner to declare; exit 2 when there are none."""
-    from shared.faults import load_faults
-
-    delays = (load_faults(faults) if faults else sc.faults).delays
-    if delays is None:
-        typer.echo(
-            "error: --compensate: no delay to compensate (give --faults PROFILE, or a "
-            "scenario whose faults: section sets actuation_delay_ms or state_delay_ms)",
-            err=True,
-        )
-        raise typer.Exit(2)
-    return delays
-
-
-def _keys_or_exit(keys: Path | None, world: bool = True):
-    """Both sides' keys checked before either process starts (a bad key folder is one clear
-    error here, not two processes failing); the planner's (tools use its pair), or None.
-    ``world=False``: a tool that starts no world (m3p2i view), which may run on a planner
-    machine holding only ``DIR/planner``, needs and checks only the planner's keys."""
-    if keys is None:
-        return None
-    from shared.security import load_planner_keys, load_world_keys
-
-    try:
-        if world:
-            load_world_keys(keys)
-        return load_planner_keys(keys)
-    except ConfigError as exc:
-        typer.echo(f"error: {exc}", err=True)
-        raise typer.Exit(2) from None
 
 
 @app.command("keys")

@@ -1,5 +1,6 @@
 """What several ``m3p2i`` commands share: a scenario checked by both processes before anything
-starts, the planner's ``--plugins`` as the processes need them, and SIGTERM taken as Ctrl-C."""
+starts, ``--faults``, ``--compensate`` and ``--keys`` checked likewise, the planner's
+``--plugins`` as the processes need them, and SIGTERM taken as Ctrl-C."""
 
 from __future__ import annotations
 
@@ -46,3 +47,50 @@ def terminate_as_interrupt() -> None:
         raise KeyboardInterrupt
 
     signal.signal(signal.SIGTERM, interrupt)
+
+
+def faults_or_exit(spec: str) -> str:
+    """``--faults`` checked before either process starts; what the server is passed (a
+    profile's name, or the file's absolute path: the server may run elsewhere than here)."""
+    from shared.faults import PROFILES, load_faults
+
+    try:
+        load_faults(spec)
+    except ConfigError as exc:
+        typer.echo(f"error: {exc}", err=True)
+        raise typer.Exit(2) from None
+    return spec if spec in PROFILES else str(Path(spec).resolve())
+
+
+def declared_delays_or_exit(sc, faults: str | None) -> tuple[float, float]:
+    """``--compensate``: the (actuation, state) delays in ms of ``--faults``, else of the
+    scenario's faults: section, for the planner to declare; exit 2 when there are none."""
+    from shared.faults import load_faults
+
+    delays = (load_faults(faults) if faults else sc.faults).delays
+    if delays is None:
+        typer.echo(
+            "error: --compensate: no delay to compensate (give --faults PROFILE, or a "
+            "scenario whose faults: section sets actuation_delay_ms or state_delay_ms)",
+            err=True,
+        )
+        raise typer.Exit(2)
+    return delays
+
+
+def keys_or_exit(keys: Path | None, world: bool = True):
+    """Both sides' keys checked before either process starts (a bad key folder is one clear
+    error here, not two processes failing); the planner's (tools use its pair), or None.
+    ``world=False``: a tool that starts no world (m3p2i view), which may run on a planner
+    machine holding only ``DIR/planner``, needs and checks only the planner's keys."""
+    if keys is None:
+        return None
+    from shared.security import load_planner_keys, load_world_keys
+
+    try:
+        if world:
+            load_world_keys(keys)
+        return load_planner_keys(keys)
+    except ConfigError as exc:
+        typer.echo(f"error: {exc}", err=True)
+        raise typer.Exit(2) from None
