@@ -1,0 +1,309 @@
+"""The live page: the world's states and the planner's diagnostics as they come, and the
+controls (pause, resume, reset, move) sent to the world."""
+
+from __future__ import annotations
+
+import json
+import logging
+import threading
+import time
+from collections import deque
+from pathlib import Path
+
+import mujoco
+import numpy as np
+import zmq
+
+from m3p2i.view.drawing import PANEL_HZ, PATH_STEP, SCENE_HZ, PanelInfo, SceneDrawing, robot_frame
+from m3p2i.view.page import viser_server
+from shared import protocol as P
+from shared.endpoints import Endpoints, socket
+from shared.scenario import Scenario
+from shared.scene import compile_model, initial_data, set_state
+from shared.security import PlannerKeys, curve_client
+
+log = logging.getLogger("m3p2i.view")
+
+
+class ControlClient:
+    """Sends ``control`` ops to the world's control socket, a fresh REQ each time (so a world
+    that restarted or does not answer never wedges the view); returns the reply's text."""
+
+    def __init__(
+        self,
+        ctx: zmq.Context,
+        endpoints: Endpoints,
+        timeout: float = 2.0,
+        keys: PlannerKeys | None = None,
+    ):
+        self.ctx, self.endpoints, self.timeout, self.keys = ctx, endpoints, timeout, keys
+        self._lock = threading.Lock()
+
+    def send(self, msg: P.Control) -> tuple[bool, str]:
+        """(accepted, what happened)."""
+        with self._lock:
+            req = socket(self.ctx, zmq.REQ)
+            if self.keys is not None:  # CURVE: the planner's pair, checking the world's key
+                curve_client(req, self.keys.own, self.keys.world)
+            try:
+                req.connect(self.endpoints.control)
+                req.send(P.encode(msg))
+                if not req.poll(int(self.timeout * 1000)):
+                    return False, f"{msg.op}: the world did not answer within {self.timeout:.0f} s"
+                reply = P.decode(req.recv(), expect=("control", "error"))
+            except P.ProtocolError as exc:
+                return False, f"{msg.op}: {exc}"
+            finally:
+                req.close(0)
+        if isinstance(reply, P.Error):
+            return False, reply.reason
+        return True, f"{msg.op}: done"
+
+
+class DiagnosticsLog:
+    """Appends the planner's diagnostics to a JSON-lines file for the replay, at most ``hz``
+    messages per wall second (the replay draws trajectories, it does not need every one)."""
+
+    def __init__(self, path: Path, hz: float = 20.0):
+        self.path = Path(path)
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        self._f = self.path.open("w", buffering=1)
+        self._period = 1.0 / hz
+        self._last = -np.inf
+
+    def write(self, msg: P.Diagnostics) -> None:
+        now = time.monotonic()
+        if now - self._last < self._period:
+            return
+        self._last = now
+        self._f.write(json.dumps(diagnostics_record(msg)) + "\n")
+
+    def close(self) -> None:
+        self._f.close()
+
+
+def diagnostics_record(msg: P.Diagnostics) -> dict:
+    """A diagnostics message as a JSON-able record (what ``diagnostics.jsonl`` holds)."""
+    rec = {
+        "seq": msg.seq,
+        "action": msg.action,
+        "alternatives": list(msg.alternatives),
+        "mode_names": list(msg.mode_names),
+        "mode_weights": np.round(np.asarray(msg.mode_weights, float), 4).tolist(),
+        "top": np.round(np.asarray(msg.top, float), 4).tolist(),
+        "plan_time": msg.plan_time,
+    }
+    if msg.top_modes is not None:
+        rec["top_modes"] = np.asarray(msg.top_modes, int).tolist()
+    if msg.guide is not None:
+        rec["guide"] = np.round(np.asarray(msg.guide, float), 4).tolist()
+    if msg.model:
+        rec["model"] = {k: round(float(v), 4) for k, v in msg.model.items()}
+    return rec
+
+
+class LiveView:
+    """Draws the running world and planner; serves until :meth:`close` (or ``stop`` is set)."""
+
+    def __init__(
+        self,
+        scenario: Scenario,
+        endpoints: Endpoints,
+        host: str,
+        port: int,
+        record: Path | None = None,
+        keys: PlannerKeys | None = None,
+        controls: bool = True,
+    ):
+        self.scenario = scenario
+        self.model = compile_model(scenario)
+        self.data = initial_data(scenario, self.model)
+        self.robot = robot_frame(scenario, self.model)
+        self.controls = controls  # False: the page only shows (pause, reset, move: none)
+        self.server = viser_server(host, port, f"m3p2i {scenario.name}")
+        self.drawing = SceneDrawing(self.server, self.model, self.data)
+        self.info = PanelInfo(scenario=scenario.name)
+        self.ctx = zmq.Context()
+        self.state_sub = socket(self.ctx, zmq.SUB, conflate=True)
+        self.state_sub.setsockopt(zmq.SUBSCRIBE, b"")
+        self.diag_sub = socket(self.ctx, zmq.SUB, conflate=True)
+        self.diag_sub.setsockopt(zmq.SUBSCRIBE, b"")
+        if keys is not None:
+            # CURVE, as a tool beside the planner: the planner's pair; the world's key checked
+            # on the state socket, the planner's own on its diagnostics socket
+            curve_client(self.state_sub, keys.own, keys.world)
+            curve_client(self.diag_sub, keys.own, keys.own.public)
+        self.state_sub.connect(endpoints.state)
+        self.diag_sub.connect(endpoints.diagnostics)
+        self.control = ControlClient(self.ctx, endpoints, keys=keys)
+        self.record = DiagnosticsLog(record) if record else None
+        self._path: list[np.ndarray] = []
+        self._session = ""
+        self._diag_times: deque[float] = deque(maxlen=20)
+        self._build_gui()
+        self.stop = threading.Event()
+
+    @property
+    def url(self) -> str:
+        host = self.server.get_host()
+        host = "127.0.0.1" if host in ("0.0.0.0", "") else host
+        return f"http://{host}:{self.server.get_port()}/"
+
+    def _build_gui(self) -> None:
+        gui = self.server.gui
+        self.panel = gui.add_markdown(self.info.markdown())
+        self.buttons, self.gizmos = {}, {}
+        if not self.controls:
+            gui.add_markdown("*controls off* (a `--public` view without `--public-controls`)")
+            return
+        pause = gui.add_button("Pause")
+        resume = gui.add_button("Resume")
+        reset = gui.add_button("Reset")
+        pause.on_click(lambda _: self._send(P.Control(op="pause")))
+        resume.on_click(lambda _: self._send(P.Control(op="resume")))
+        reset.on_click(lambda _: self._reset())
+        self.buttons = {"Pause": pause, "Resume": resume, "Reset": reset}
+        movable = gui.add_checkbox(
+            "move objects",
+            False,
+            hint="Show a handle on each object: "
+            "drag it to move the object; the world logs a disturbance.",
+        )
+        mj_data = self.data
+        for obj in self.scenario.world.objects:
+            body = self.model.body(obj.name)
+            # big enough to grab on a 5 cm cube, small enough not to hide a table
+            size = float(np.clip(np.max(obj.size) * 3.0, 0.08, 0.5))
+            g = self.server.scene.add_transform_controls(
+                f"/drag/{obj.name}",
+                scale=size,
+                disable_sliders=True,
+                depth_test=False,
+                position=mj_data.xpos[body.id],
+                wxyz=mj_data.xquat[body.id],
+                visible=False,
+            )
+            g.dragging = False
+            g.on_drag_start(lambda _, g=g: setattr(g, "dragging", True))
+            g.on_drag_end(lambda _, name=obj.name, g=g: self._moved(name, g))
+            self.gizmos[obj.name] = (body.id, g)
+
+        def show_handles(_) -> None:
+            for _, g in self.gizmos.values():
+                g.visible = movable.value
+
+        movable.on_update(show_handles)
+
+    def _send(self, msg: P.Control) -> bool:
+        if not self.controls:
+            log.warning("control %s not sent: this view's controls are off", msg.op)
+            return False
+        ok, text = self.control.send(msg)
+        self.info.note = text if ok else f"**refused**: {text}"
+        log.info("control %s: %s", msg.op, text)
+        return ok
+
+    def _reset(self) -> None:
+        if self._send(P.Control(op="reset")):
+            self._path.clear()
+            self.drawing.set_path(np.zeros((0, 3)))
+
+    def _moved(self, name: str, gizmo) -> None:
+        gizmo.dragging = False
+        self._send(
+            P.Control(
+                op="move",
+                object=name,
+                pos=np.asarray(gizmo.position, float),
+                quat=np.asarray(gizmo.wxyz, float),
+            )
+        )
+
+    def serve(self, duration: float | None = None) -> None:
+        """Receive and draw until ``stop`` is set (or ``duration`` seconds passed)."""
+        poller = zmq.Poller()
+        poller.register(self.state_sub, zmq.POLLIN)
+        poller.register(self.diag_sub, zmq.POLLIN)
+        end = None if duration is None else time.monotonic() + duration
+        last_scene = last_panel = 0.0
+        state = diag = None
+        while not self.stop.is_set() and (end is None or time.monotonic() < end):
+            events = dict(poller.poll(20))
+            if self.state_sub in events:
+                state = self._receive(self.state_sub, "state") or state
+            if self.diag_sub in events:
+                got = self._receive(self.diag_sub, "diagnostics")
+                if got is not None:
+                    diag = got
+                    self._diagnostics(got)
+            now = time.monotonic()
+            if state is not None and now - last_scene >= 1 / SCENE_HZ:
+                self._state(state)
+                if diag is not None:
+                    self.drawing.set_top(diag.top, diag.top_modes)
+                    self.drawing.set_guide(diag.guide)
+                    diag = None
+                state = None
+                last_scene = now
+            if now - last_panel >= 1 / PANEL_HZ:
+                self.panel.content = self.info.markdown()
+                last_panel = now
+
+    def _receive(self, sock, kind: str):
+        try:
+            return P.decode(sock.recv(), expect=kind)
+        except P.ProtocolError as exc:
+            log.warning("ignored a %s message: %s", kind, exc)
+            return None
+
+    def _state(self, state: P.State) -> None:
+        try:
+            set_state(self.model, self.data, vars(state))
+        except ValueError as exc:
+            self.info.note = (
+                f"**the world's state does not fit {self.scenario.name}'s model** "
+                f"({exc}): is the view attached to the right scenario?"
+            )
+            return
+        mujoco.mj_kinematics(self.model, self.data)
+        if state.session != self._session or (self._path and state.time < self._last_time):
+            self._path.clear()  # a new world, or a reset: a new path
+        self._session, self._last_time = state.session, state.time
+        p = self.robot.pos(self.data).copy()
+        if not self._path or np.linalg.norm(p - self._path[-1]) > PATH_STEP:
+            self._path.append(p)
+            self.drawing.set_path(np.array(self._path))
+        self.drawing.set_poses(self.data)
+        for body, g in self.gizmos.values():
+            if not g.dragging:
+                g.position = self.data.xpos[body].copy()
+                g.wxyz = self.data.xquat[body].copy()
+        self.info.status, self.info.time, self.info.extras = state.status, state.time, state.extras
+
+    def _diagnostics(self, d: P.Diagnostics) -> None:
+        now = time.monotonic()
+        self._diag_times.append(now)
+        if len(self._diag_times) > 1:
+            span = self._diag_times[-1] - self._diag_times[0]
+            self.info.planner_hz = (len(self._diag_times) - 1) / span if span > 0 else None
+        self.info.plan_ms = d.plan_time * 1000
+        self.info.action, self.info.alternatives = d.action, list(d.alternatives)
+        total = float(np.sum(d.mode_weights)) or 1.0
+        self.info.mode_names = list(d.mode_names)
+        self.info.mode_weights = [float(w) / total for w in d.mode_weights]
+        self.info.model = dict(d.model or {})
+        if self.record is not None:
+            self.record.write(d)
+
+    def close(self, keep_server: bool = False) -> None:
+        """Stop receiving (and recording); with ``keep_server`` the page stays served, for a
+        :class:`ReplayView` to take over (``m3p2i run --view`` once its episode is over)."""
+        self.stop.set()
+        if not self.ctx.closed:
+            for s in (self.state_sub, self.diag_sub):
+                s.close(0)
+            self.ctx.term()
+            if self.record is not None:
+                self.record.close()
+        if not keep_server:
+            self.server.stop()
