@@ -105,8 +105,9 @@ def deprecated(old: str, instead: str) -> None:
     if old in _WARNED:
         return
     _WARNED.add(old)
-    warnings.warn(
-        f"{old} is deprecated and will be removed: {instead}", FutureWarning, stacklevel=3
+    # attributed to the project, not to a line of its code: the user's spelling is at fault
+    warnings.warn_explicit(
+        f"{old} is deprecated and will be removed: {instead}", FutureWarning, "m3p2i", 0
     )
 
 
