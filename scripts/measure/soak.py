@@ -53,7 +53,6 @@ import numpy as np
 import typer
 import zmq
 
-from m3p2i.blocks import regenerate
 from m3p2i.launch import free_port_block, stop_processes
 from m3p2i.provenance import machine, versions
 from shared import protocol as P
@@ -63,13 +62,20 @@ from shared.scenario import find_scenario
 
 from . import netns
 from .push_frames import push
+from .soak_checks import (  # noqa: F401  (FORGED_CTRL, evaluate, update: the soak's API)
+    FORGED_CTRL,
+    MIB,
+    evaluate,
+    first_driven_after,
+    markdown,
+    print_table,
+    rss_growth,
+    update,
+)
 
 FAULTS = ("kill", "restart", "flood", "pause", "cut")
 LOOPBACK_FAULTS = FAULTS[:4]  # ``cut`` needs a link: --netns only
 NETNS_PORT = 5555  # the world's namespace is its own: no port is taken there
-_MIB = 1024 * 1024
-# a wrong-session command carries this control, so that the log proves it was never applied
-FORGED_CTRL = (0.123456, -0.654321)
 
 
 # ---------------------------------------------------------------- configuration and records
@@ -182,200 +188,6 @@ def rss_kib(pid: int) -> int | None:
     except (FileNotFoundError, ProcessLookupError, PermissionError):
         return None
     return None
-
-
-# ---------------------------------------------------------------- pure checks
-
-
-def stale_steps(steps: list[dict], timeout: float) -> list[dict]:
-    """Steps driven by a command (not the safe control) chosen more than ``timeout`` s after
-    the newest command arrived: what the watchdog must never let through."""
-    return [
-        s
-        for s in steps
-        if not s.get("safe") and (s.get("cmd_age") is None or s["cmd_age"] > timeout)
-    ]
-
-
-def outage_violations(steps: list[dict], start: float, end: float) -> tuple[int, list[dict]]:
-    """Steps logged between ``start`` and ``end`` (wall): how many, and those not safe."""
-    inside = [s for s in steps if start <= s["wall"] < end]
-    return len(inside), [s for s in inside if not s.get("safe")]
-
-
-def first_driven_after(steps: list[dict], since: float) -> dict | None:
-    """The first step driven by a command that arrived at or after ``since`` (wall)."""
-    for s in steps:
-        if not s.get("safe") and s.get("cmd_age") is not None and s["wall"] - s["cmd_age"] >= since:
-            return s
-    return None
-
-
-def _after_cuts(faults: list[Fault], driven: list[dict], window: float = 5.0) -> str:
-    """For the cut row: how old the states were that the plans driving the robot in the
-    ``window`` s after each link's return were made from (the step record's ``age``). Measured,
-    not checked: a TCP stream that held states through the cut can deliver them that late
-    (the world times a command from its arrival, so ``cmd_age`` does not show it)."""
-    back = [f.resumed for f in faults if f.kind == "cut" and f.resumed is not None]
-    ages = [s.get("age") or 0.0 for s in driven if any(b <= s["wall"] < b + window for b in back)]
-    if not ages:
-        return ""
-    return (
-        f"; in the {window:g} s after the link's return the driving plans came from states "
-        f"{np.median(ages):.2f} s old (median, max {max(ages):.2f} s)"
-    )
-
-
-def is_forged(ctrl: list[float]) -> bool:
-    """Whether a step's control is the one only wrong-session commands carried."""
-    n = min(len(ctrl), len(FORGED_CTRL))
-    return bool(np.allclose(ctrl[:n], FORGED_CTRL[:n], rtol=0, atol=1e-9))
-
-
-def rss_growth(samples: list[tuple[float, int]], since: float | None) -> float | None:
-    """MiB from the first sample at or after ``since`` to the last; None without two."""
-    if since is None:
-        return None
-    after = [b for t, b in samples if t >= since]
-    if len(after) < 2:
-        return None
-    return (after[-1] - after[0]) / _MIB
-
-
-@dataclass
-class Check:
-    name: str
-    ok: bool
-    detail: str
-
-
-def evaluate(
-    cfg: SoakConfig,
-    faults: list[Fault],
-    worlds: list[dict],
-    planners: list[dict],
-    floods_sent: dict,
-) -> list[Check]:
-    """The soak's verdicts from what it did (``faults``) and what the logs say (``worlds``:
-    per world process its records, exit code and whether it was stopped on purpose)."""
-    checks = []
-    all_steps = [s for w in worlds for s in w["steps"]]
-    driven = [s for s in all_steps if not s.get("safe")]
-
-    stale = stale_steps(all_steps, cfg.command_timeout)
-    worst = max((s["cmd_age"] for s in driven if s.get("cmd_age") is not None), default=0.0)
-    checks.append(
-        Check(
-            "no stale command applied",
-            not stale and bool(driven),
-            f"{len(stale)} of {len(driven)} driven steps had a command older than "
-            f"{cfg.command_timeout:g} s (oldest driving: {worst:.3f} s)",
-        )
-    )
-
-    held, bad, windows = 0, [], 0
-    for f in faults:
-        if f.outage is None:
-            continue
-        windows += 1
-        end = f.recovered if f.recovered is not None else time.time()
-        n, v = outage_violations(all_steps, f.outage + cfg.command_timeout + cfg.slack, end)
-        held += n
-        bad += v
-    checks.append(
-        Check(
-            "safe control while the planner was down",
-            not bad and (held > 0 or not windows),
-            f"{held} steps logged in {windows} outages (from fault + "
-            f"{cfg.command_timeout:g} s + {cfg.slack:g} s), {len(bad)} not safe",
-        )
-    )
-
-    labels = {
-        "kill": "killed planner replaced",
-        "restart": "planner found the restarted world",
-        "pause": "paused planner resumed",
-        "flood": "planner drove on after a flood",
-        "cut": "planner drove again after a link cut",
-    }
-    for kind in sorted(cfg.kinds, key=("kill", "restart", "pause", "flood", "cut").index):
-        label = labels[kind]
-        mine = [f for f in faults if f.kind == kind]
-        times = [f.recovery for f in mine if f.recovery is not None]
-        late = [f for f in mine if f.recovery is None or f.recovery > cfg.takeover]
-        worst_s = f"max {max(times):.2f} s" if times else "none measured"
-        checks.append(
-            Check(
-                f"{label} within {cfg.takeover:g} s",
-                not late,
-                f"{len(mine) - len(late)}/{len(mine)} ({worst_s})" + _after_cuts(mine, driven),
-            )
-        )
-
-    cold = [w["serving_after_s"] for w in worlds if w.get("serving_after_s") is not None]
-    restart = next((c for c in checks if c.name.startswith("planner found the restarted")), None)
-    if cold and restart is not None:  # the world's own start-up, which recovery leaves out
-        restart.detail += (
-            f" from its serving; a new world serves {np.median(cold):.2f} s "
-            f"(median, max {max(cold):.2f} s) after its start"
-        )
-    died = [w for w in worlds if not w["stopped_on_purpose"] and w["returncode"] not in (0, 1)]
-    checks.append(
-        Check(
-            "the world never died",
-            not died,
-            f"{len(worlds)} world processes, {len(died)} ended otherwise than by "
-            f"their episode's end or the deliberate stop"
-            + (f" (codes {[w['returncode'] for w in died]})" if died else ""),
-        )
-    )
-
-    incomplete = [w["log"] for w in worlds if not w["complete"]]
-    checks.append(
-        Check(
-            "every episode log complete with its summary",
-            not incomplete and bool(worlds),
-            f"{len(worlds) - len(incomplete)}/{len(worlds)} logs parse, start with the "
-            f"header and end with the summary (steps = summary.steps)"
-            + (f"; not: {incomplete[:3]}" if incomplete else ""),
-        )
-    )
-
-    forged = [s for s in all_steps if is_forged(s["ctrl"])]
-    rejected = sum(w["rejected"] for w in worlds)
-    expected = floods_sent.get("rejectable", 0)
-    checks.append(
-        Check(
-            "garbage rejected, none applied",
-            not forged and rejected >= expected,
-            f"{floods_sent.get('frames', 0)} frames in {floods_sent.get('floods', 0)} "
-            f"floods: {rejected} logged as rejected (>= {expected} expected), "
-            f"{floods_sent.get('wrong_session', 0)} of a wrong session, "
-            f"{len(forged)} steps with a forged control",
-        )
-    )
-
-    growths = {}
-    for p in planners + worlds:
-        g = p.get("rss_growth")
-        if g is not None:
-            growths.setdefault(p["role"], []).append(g)
-    over = {r: max(g) for r, g in growths.items() if max(g) > cfg.rss_bound}
-    text = (
-        ", ".join(
-            f"{r}: max {max(g):+.1f} MiB over {len(g)} processes"
-            for r, g in sorted(growths.items())
-        )
-        or "no process lived long enough"
-    )
-    checks.append(
-        Check(
-            f"memory growth <= {cfg.rss_bound:g} MiB per process",
-            not over and "planner" in growths,
-            text,
-        )
-    )
-    return checks
 
 
 def world_record(proc: Proc) -> dict:
@@ -857,8 +669,8 @@ class Soak:
                 "index": p.index,
                 "returncode": p.returncode,
                 "stopped_on_purpose": p.stopped_on_purpose,
-                "rss_first_mib": p.rss[0][1] / _MIB if p.rss else None,
-                "rss_last_mib": p.rss[-1][1] / _MIB if p.rss else None,
+                "rss_first_mib": p.rss[0][1] / MIB if p.rss else None,
+                "rss_last_mib": p.rss[-1][1] / MIB if p.rss else None,
                 "lived_s": (p.rss[-1][0] - p.started) if p.rss else 0.0,
                 "rss_growth": rss_growth(p.rss, p.driving_from),
             }
@@ -894,58 +706,3 @@ class Soak:
             "worlds": [{k: v for k, v in w.items() if k != "steps"} for w in worlds],
             "planners": planners,
         }
-
-
-# ---------------------------------------------------------------- reporting
-
-
-def markdown(results: dict, source: str) -> str:
-    """The reliability table of docs/reliability.md, from a results file."""
-    lines = ["| check | holds | measured |", "|---|:---:|---|"]
-    for c in results["checks"]:
-        lines.append(f"| {c['name']} | {'yes' if c['ok'] else '**no**'} | {c['detail']} |")
-    faults = ", ".join(f"{k} {v['survived']}/{v['injected']}" for k, v in results["faults"].items())
-    episodes = ", ".join(f"{n} {s}" for s, n in sorted(results["episodes"].items()))
-    cfg = results["config"]
-    lines += [
-        "",
-        f"Faults survived/injected: {faults}. Episodes ({cfg['scenario']}, real time, "
-        f"{len(results['worlds'])} world processes, {results['steps']} steps): {episodes} "
-        f"(`stopped`: the deliberate world restarts and the end of the run). "
-        f"`{results['command']}`, {results['date']}, {results['wall_s']:.0f} s of wall "
-        f"time on {results['machine']} (seed {cfg['seed']}); from `{source}`.",
-    ]
-    return "\n".join(lines)
-
-
-def update(text: str, base: Path) -> str:
-    """``text`` with every ``<!-- soak PATH -->`` block regenerated from its results file."""
-    new, n = regenerate(
-        text,
-        "soak",
-        "soak",
-        lambda path: markdown(json.loads((base / path).read_text()), path) + "\n",
-    )
-    if not n:
-        raise typer.BadParameter(
-            "no '<!-- soak PATH -->' ... '<!-- end of soak -->' block found", param_hint="--update"
-        )
-    return new
-
-
-def print_table(results: dict) -> None:
-    from rich.console import Console
-    from rich.table import Table
-
-    table = Table("check", "holds", "measured", title="soak: " + results["command"])
-    for c in results["checks"]:
-        table.add_row(c["name"], "yes" if c["ok"] else "NO", c["detail"])
-    console = Console(width=160)
-    console.print(table)
-    console.print(
-        "faults survived/injected: "
-        + ", ".join(f"{k} {v['survived']}/{v['injected']}" for k, v in results["faults"].items())
-    )
-    console.print(
-        f"episodes: {results['episodes']}; {results['steps']} steps; {results['wall_s']:.0f} s"
-    )
