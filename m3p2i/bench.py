@@ -46,10 +46,10 @@ from m3p2i.launch import MODES, EpisodeLaunch, mode_conflicts, run_episode
 from m3p2i.provenance import machine, versions
 from m3p2i.sweep import Sweep, apply_overrides, file_label, parse_sweep_section, to_cell
 from m3p2i.warm import PairSlot
+from server.evaluation import episode
+from server.evaluation.metrics import MetricsEvaluator
 from shared.config import ConfigError, Section, flag, load_yaml, one_of, positive, positive_int
 from shared.config_files import find
-from shared.evaluation import episode
-from shared.evaluation.metrics import MetricsEvaluator
 from shared.faults import read_old_name
 from shared.scenario import Scenario, find_scenario, load_scenario, parse_scenario
 

@@ -28,7 +28,7 @@ from pathlib import Path
 from m3p2i.bench import BenchCase, BenchOptions, ResultsFile, Trial, run_trial
 from m3p2i.provenance import machine, versions
 from m3p2i.sweep import to_cell
-from shared.evaluation.metrics import MetricsEvaluator
+from server.evaluation.metrics import MetricsEvaluator
 from shared.scenario import load_scenario
 
 # seconds a task may run past the trial time-out (start-up of the two processes, scheduling)

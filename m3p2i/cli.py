@@ -26,6 +26,7 @@ from m3p2i.cli_support import (
 )
 from m3p2i.launch import EpisodeLaunch, free_port_block, mode_conflicts, run_episode
 from m3p2i.new import new_scenario
+from server.evaluation.timing import describe_timing
 from shared.cli_common import (
     EstimateDelays,
     Faults,
@@ -53,7 +54,6 @@ from shared.cli_common import (
 from shared.config import ConfigError, load_yaml
 from shared.config_files import ENV_VAR, KINDS, Entry, entries, search_folders, shown
 from shared.endpoints import DEFAULT_HOST, DEFAULT_PORT
-from shared.evaluation.timing import describe_timing
 from shared.robots import load_robot, registered
 from shared.scenario import load_scenario
 
@@ -370,7 +370,7 @@ def plot(
     """Plot one episode like thesis Figs. A.3-A.5: trajectories, distances,
     robot-object-goal angle."""
     from m3p2i.plots import episode_series, plot_episode
-    from shared.evaluation import episode
+    from server.evaluation import episode
 
     try:
         path = episode.find_log(log)

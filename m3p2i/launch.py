@@ -19,8 +19,8 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
+from server.evaluation import episode
 from shared.endpoints import DEFAULT_HOST
-from shared.evaluation import episode
 
 # Ports this process already handed out: parallel bench trials pick their blocks at the same
 # moment, before any server has bound them, so "free right now" alone could give two trials

@@ -16,9 +16,9 @@ from pathlib import Path
 
 import numpy as np
 
+from server.evaluation import episode
+from server.evaluation.replay import frame_tracks, resolve_frame
 from shared.config import ConfigError
-from shared.evaluation import episode
-from shared.evaluation.replay import frame_tracks, resolve_frame
 from shared.geometry import select_axes
 from shared.scenario import Scenario
 from shared.scene import compile_model

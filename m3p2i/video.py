@@ -24,10 +24,10 @@ import numpy as np
 import typer
 import zmq
 
+from server.evaluation import episode
 from shared import protocol as P
 from shared.config import ConfigError
 from shared.endpoints import Endpoints, socket
-from shared.evaluation import episode
 from shared.security import PlannerKeys, curve_client
 
 GL_BACKENDS = ("egl", "osmesa")
@@ -171,7 +171,7 @@ def render_frames(
     log: Path, scenario: str | None, width: int, height: int, fps: float, speed: float
 ) -> list[np.ndarray]:
     """RGB frames of a logged episode, with the trajectories of ``diagnostics.jsonl`` beside it."""
-    from shared.evaluation.replay import load_step, resolve_frame
+    from server.evaluation.replay import load_step, resolve_frame
     from shared.scene import compile_model
 
     records = episode.read_log(log)

@@ -32,9 +32,9 @@ from m3p2i.launch import (
     read_summary,
     stop_processes,
 )
+from server.evaluation.episode import episode_log_path, has_summary
 from shared import protocol as P
 from shared.endpoints import DEFAULT_HOST, Endpoints, socket
-from shared.evaluation.episode import episode_log_path, has_summary
 
 _CONTROL_TIMEOUT = 10.0  # s for the world to answer a reset (it may be finishing a step)
 

@@ -27,7 +27,7 @@ from rich.console import Console
 from rich.table import Table
 
 from m3p2i.launch import free_port_block, stop_processes
-from shared.evaluation import episode
+from server.evaluation import episode
 from shared.scenario import find_scenario
 
 SCENARIOS = ("navigation", "pick_place")

@@ -21,15 +21,15 @@ from pathlib import Path
 import numpy as np
 
 from server.episode_log import EpisodeLog, read_log
+from server.evaluation.metrics import MetricsEvaluator, describe
+from server.evaluation.timing import describe_timing, timing_summary
 from server.faults import FaultyWorld
 from server.interface import Outcome, World, world_name
 from server.world import SimWorld
 from shared import protocol as P
-from shared.evaluation.metrics import MetricsEvaluator, describe, mean_hz
-from shared.evaluation.timing import describe_timing, timing_summary
 from shared.faults import FaultConfig
 from shared.scenario import Scenario
-from shared.timed_plan import PlanPlayer, TimedPlan, held
+from shared.timed_plan import PlanPlayer, TimedPlan, held, mean_hz
 
 log = logging.getLogger("m3p2i.server")
 
@@ -221,7 +221,7 @@ class Episode:
     ) -> None:
         """One world step under ``ctrl`` (None: the safe control), planned from state
         ``source`` (-1: none); the step's log record has the control's age (world seconds since
-        that state) and source, from which shared.evaluation.timing tells whether the planner
+        that state) and source, from which server.evaluation.timing tells whether the planner
         kept up. Real time also records ``cmd_age``: wall seconds from the newest command's
         arrival to the moment this step's control was chosen (what the stale-command watchdog
         compares with ``command_timeout``; None before the first command and in lock-step), so
@@ -350,7 +350,7 @@ class Episode:
         return outcome
 
     def evaluate(self, status: str) -> tuple[dict | None, dict | None]:
-        """shared.evaluation's metrics and timing of the logged steps (the log is line-buffered,
+        """server.evaluation's metrics and timing of the logged steps (the log is line-buffered,
         so complete on disk). A failure here is logged, never allowed to cost the summary."""
         try:
             records = read_log(self.log.path)

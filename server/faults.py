@@ -313,7 +313,7 @@ class FaultyWorld(World):
         """What the episode log's header records of the faults: the config, the mismatch
         factors drawn, the delays and control period in the units this mode counts (a log
         written before the rename names them ``hardware*``:
-        :func:`shared.evaluation.episode.faults` reads both)."""
+        :func:`server.evaluation.episode.faults` reads both)."""
         unit = "s" if self.realtime else "steps"
         return {
             "faults": self.config.to_dict(),

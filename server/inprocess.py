@@ -42,10 +42,10 @@ from pathlib import Path
 from typing import Any, Protocol
 
 from server.episode import Episode
+from server.evaluation.episode import read_log, summary
 from server.interface import Outcome, World
 from server.world import SimWorld
 from shared import protocol as P
-from shared.evaluation.episode import read_log, summary
 from shared.faults import FaultConfig, load_faults
 from shared.scenario import Scenario, load_scenario
 

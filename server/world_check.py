@@ -11,8 +11,8 @@ import os
 
 import mujoco
 
+from server.evaluation.metrics import MetricsEvaluator
 from shared.config import ConfigError, ErrorLog
-from shared.evaluation.metrics import MetricsEvaluator
 from shared.frames import FrameResolver
 from shared.predicates import check_frames
 from shared.scenario import MoveConfig, Scenario

@@ -13,6 +13,7 @@ Pure functions and a small player; no sockets. ``docs/protocol.md`` ("Playing a 
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -104,3 +105,10 @@ class PlanPlayer:
         if self.active is None:
             return None, None
         return self.active.at(t), self.active
+
+
+def mean_hz(plan_times: Sequence[float]) -> float:
+    """Planner iterations per second, as both the planner and the world report it: 1 / mean
+    planning time (0 when nothing was planned)."""
+    times = [t for t in plan_times if t > 0]
+    return 1.0 / float(np.mean(times)) if times else 0.0

@@ -22,8 +22,8 @@ from pathlib import Path
 import yaml
 
 from m3p2i import bench as B
-from shared.evaluation import episode
-from shared.evaluation.metrics import MetricsEvaluator
+from server.evaluation import episode
+from server.evaluation.metrics import MetricsEvaluator
 from shared.scenario import find_scenario, load_scenario
 
 ROOT = Path(__file__).resolve().parents[1]

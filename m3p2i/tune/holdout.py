@@ -10,8 +10,8 @@ from pathlib import Path
 from m3p2i import bench as B
 from m3p2i.tune.study import Events, Runner, Score, TuneOptions
 from m3p2i.tune.target import Target
+from server.evaluation.metrics import MetricsEvaluator
 from shared.config import ConfigError
-from shared.evaluation.metrics import MetricsEvaluator
 from shared.scenario import load_scenario
 
 

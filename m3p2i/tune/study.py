@@ -13,8 +13,8 @@ from typing import Any
 from m3p2i import bench as B
 from m3p2i.tune.space import METRICS, Objective, Space
 from m3p2i.tune.target import Target, baseline, values_id, write_variant
+from server.evaluation.metrics import MetricsEvaluator
 from shared.config import ConfigError
-from shared.evaluation.metrics import MetricsEvaluator
 
 STUDY = "tune"  # the study's name in OUT/study.db
 

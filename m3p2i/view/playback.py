@@ -13,7 +13,7 @@ import numpy as np
 
 from m3p2i.view.drawing import PanelInfo, SceneDrawing, robot_frame
 from m3p2i.view.page import viser_server
-from shared.evaluation import episode
+from server.evaluation import episode
 from shared.scenario import Scenario
 from shared.scene import compile_model, initial_data
 
@@ -210,6 +210,6 @@ class ReplayView:
 
 
 def _load(model: mujoco.MjModel, data: mujoco.MjData, step: dict) -> None:
-    from shared.evaluation.replay import load_step
+    from server.evaluation.replay import load_step
 
     load_step(model, data, step)

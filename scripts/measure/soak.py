@@ -55,9 +55,9 @@ import zmq
 
 from m3p2i.launch import free_port_block, stop_processes
 from m3p2i.provenance import machine, versions
+from server.evaluation import episode
 from shared import protocol as P
 from shared.endpoints import Endpoints
-from shared.evaluation import episode
 from shared.scenario import find_scenario
 
 from . import netns

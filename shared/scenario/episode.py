@@ -47,7 +47,7 @@ class CollisionMetricConfig:
 
 @dataclass(frozen=True)
 class MetricsConfig:
-    """What ``shared.evaluation.metrics`` measures per episode (``metrics:``; docs/evaluation.md). A
+    """What ``server.evaluation.metrics`` measures per episode (``metrics:``; docs/evaluation.md). A
     metric left as None is not measured."""
 
     position: FramePairConfig | None = None

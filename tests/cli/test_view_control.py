@@ -13,9 +13,9 @@ import zmq
 
 from m3p2i.launch import free_port_block
 from server.app import WorldServer
+from server.evaluation.episode import read_log
 from shared import protocol as P
 from shared.endpoints import Endpoints
-from shared.evaluation.episode import read_log
 from shared.scenario import load_scenario
 
 

@@ -15,10 +15,10 @@ from m3p2i.launch import EpisodeLaunch, free_port_block
 from m3p2i.warm import WarmPair
 from server.app import ServerOptions, WorldServer
 from server.cli import app as server_app
+from server.evaluation import episode
+from server.evaluation.metrics import MetricsEvaluator
 from shared import protocol as P
 from shared.endpoints import Endpoints
-from shared.evaluation import episode
-from shared.evaluation.metrics import MetricsEvaluator
 from shared.scenario import load_scenario
 from tests.cli.test_view_control import _ask
 from tests.episodes import with_max_time

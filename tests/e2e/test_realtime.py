@@ -16,10 +16,10 @@ import zmq
 from planner_client.mppi import M3P2I, ModeSpec, MPPIConfig
 from planner_client.mppi.shift import shift
 from planner_client.timing import LeadEstimate, predict, steps_between
+from server.evaluation.episode import read_log
+from server.evaluation.timing import timing_summary
 from shared import protocol as P
 from shared.endpoints import Endpoints
-from shared.evaluation.episode import read_log
-from shared.evaluation.timing import timing_summary
 from shared.scenario import load_scenario
 from shared.scene import compile_model, reset_data
 from shared.timed_plan import PlanPlayer, TimedPlan, held, playing

@@ -21,10 +21,10 @@ from m3p2i.cli import app as m3p2i
 from m3p2i.launch import EpisodeLaunch
 from planner_client.problem import build_problem
 from server.cli import app as server_cli
+from server.evaluation import episode
 from server.faults import FaultyWorld
 from server.world import SimWorld
 from shared.config import ConfigError, load_yaml
-from shared.evaluation import episode
 from shared.faults import NOMINAL, PROFILES, FaultConfig, MismatchConfig, load_faults, steps_of
 from shared.scenario import find_scenario, load_scenario, parse_scenario
 

@@ -13,9 +13,9 @@ import pytest
 from planner_client.build import build_controller
 from planner_client.controller import LayoutMismatch
 from planner_client.task import TaskDecision
+from server.evaluation.episode import read_log, steps, summary
 from server.inprocess import run_episode
 from shared import protocol as P
-from shared.evaluation.episode import read_log, steps, summary
 from shared.scenario import load_scenario
 from tests.helpers import free_port_block, start_planner, start_server, stop, wait_episode
 

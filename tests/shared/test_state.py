@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 import torch
 
-from shared.evaluation.metrics import position_error
-from shared.evaluation.replay import load_step
+from server.evaluation.metrics import position_error
+from server.evaluation.replay import load_step
 from shared.geometry import AXES, select_axes
 from shared.scene import STATE_FIELDS, set_state
 
@@ -71,8 +71,8 @@ def test_a_log_from_before_act_was_logged_replays_with_zero_activation(model):
 def test_the_server_logs_every_state_field_with_each_step(tmp_path):
     from m3p2i.launch import free_port_block
     from server.app import WorldServer
+    from server.evaluation.episode import read_log, steps
     from shared.endpoints import Endpoints
-    from shared.evaluation.episode import read_log, steps
     from shared.scenario import load_scenario
 
     server = WorldServer(

@@ -1,4 +1,4 @@
-"""Episode metrics (shared/evaluation/metrics.py) on a hand-made episode log with known answers; the
+"""Episode metrics (server/evaluation/metrics.py) on a hand-made episode log with known answers; the
 scenario's ``metrics:`` section; the episode plot on the same log."""
 
 from __future__ import annotations
@@ -10,14 +10,14 @@ import numpy as np
 import pytest
 import yaml
 
-from shared.config import ConfigError
-from shared.evaluation.metrics import (
+from server.evaluation.metrics import (
     MetricsEvaluator,
     contact_onsets,
     mean_hz,
     orientation_error,
     position_error,
 )
+from shared.config import ConfigError
 from shared.scenario import load_scenario, parse_scenario
 from shared.scene import compile_model
 

@@ -4,7 +4,7 @@ Success, final position error and orientation error (paper Eq. 33) between two f
 collisions (contact onsets), completion time (simulated seconds), wall time and mean planner rate.
 Which frames is the scenario's ``metrics:`` section (:class:`shared.scenario.MetricsConfig`).
 Kinematics are recomputed by replaying logged states into the scenario's model
-(:mod:`shared.evaluation.replay`), so the same function serves the server's summary, ``m3p2i bench``
+(:mod:`server.evaluation.replay`), so the same function serves the server's summary, ``m3p2i bench``
 and any log on disk. The maths are the small pure functions at the top.
 """
 
@@ -16,13 +16,14 @@ from dataclasses import asdict, dataclass
 import mujoco
 import numpy as np
 
+from server.evaluation import episode
+from server.evaluation.replay import load_step, replay, resolve_frame
 from shared.config import ErrorLog
-from shared.evaluation import episode
-from shared.evaluation.replay import load_step, replay, resolve_frame
 from shared.frames import Frame
 from shared.geometry import select_axes, symmetric_orientation_error
 from shared.scenario import Scenario
 from shared.scene import compile_model
+from shared.timed_plan import mean_hz
 
 
 @dataclass(frozen=True)
@@ -69,12 +70,6 @@ def contact_onsets(touching: Sequence[bool]) -> int:
         count += bool(now) and not before
         before = bool(now)
     return count
-
-
-def mean_hz(plan_times: Sequence[float]) -> float:
-    """Planner iterations per second: 1 / mean planning time (0 when nothing was planned)."""
-    times = [t for t in plan_times if t > 0]
-    return 1.0 / float(np.mean(times)) if times else 0.0
 
 
 def wall_time(records: list[dict]) -> float:
