@@ -46,12 +46,12 @@ from m3p2i.launch import MODES, EpisodeLaunch, mode_conflicts, run_episode
 from m3p2i.provenance import machine, versions
 from m3p2i.sweep import Sweep, apply_overrides, file_label, parse_sweep_section, to_cell
 from m3p2i.warm import PairSlot
-from server.evaluation import episode
+from server.evaluation import log_reader
 from server.evaluation.metrics import MetricsEvaluator
 from shared.config import ConfigError, Section, flag, load_yaml, one_of, positive, positive_int
 from shared.config_files import find
-from shared.faults import read_old_name
 from shared.scenario import Scenario, find_scenario, load_scenario, parse_scenario
+from shared.scenario.faults import read_old_name
 
 # results.csv columns; one row per finished trial
 FIELDS = (
@@ -126,7 +126,7 @@ def _with_faults(case: BenchCase, c: Section, bench: Path) -> BenchCase:
     """A case's ``faults`` (profile, or file relative to the bench file) and ``compensate``
     (``true``: declare its delays to the planner; ``estimate``: the planner measures them
     online), checked now, not trial by trial."""
-    from shared.faults import PROFILES, load_faults
+    from shared.scenario.faults import PROFILES, load_faults
 
     spec = c.opt("faults", "", str, "a profile (nominal, lab, harsh) or a YAML file")
     compensate = c.opt(
@@ -515,10 +515,10 @@ def run_trial(
         result = run_episode(launch, stop)
     if result.reason == "interrupted":
         return None
-    records = episode.read_log(result.log_path) if result.log_path.is_file() else []
-    summary = episode.summary(records)
+    records = log_reader.read_log(result.log_path) if result.log_path.is_file() else []
+    summary = log_reader.summary(records)
     metrics = (summary or {}).get("metrics") or trial.evaluator.evaluate(records).as_dict()
-    initial = episode.header(records).get("initial")
+    initial = log_reader.header(records).get("initial")
     return {
         "case": trial.case.case,
         "variant": trial.case.variant,

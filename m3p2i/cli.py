@@ -26,7 +26,7 @@ from m3p2i.cli_support import (
 )
 from m3p2i.launch import EpisodeLaunch, free_port_block, mode_conflicts, run_episode
 from m3p2i.new import new_scenario
-from server.evaluation.timing import describe_timing
+from server.evaluation.plan_ages import describe_timing
 from shared.cli_common import (
     EstimateDelays,
     Faults,
@@ -370,17 +370,17 @@ def plot(
     """Plot one episode like thesis Figs. A.3-A.5: trajectories, distances,
     robot-object-goal angle."""
     from m3p2i.plots import episode_series, plot_episode
-    from server.evaluation import episode
+    from server.evaluation import log_reader
 
     try:
-        path = episode.find_log(log)
-        records = episode.read_log(path)
-        sc = episode.log_scenario(records, scenario)
+        path = log_reader.find_log(log)
+        records = log_reader.read_log(path)
+        sc = log_reader.log_scenario(records, scenario)
         series = episode_series(sc, records)
     except (ConfigError, FileNotFoundError, ValueError) as exc:
         typer.echo(f"error: {exc}", err=True)
         raise typer.Exit(2) from None
-    head = episode.header(records)
+    head = log_reader.header(records)
     title = f"{sc.name}, seed {head.get('seed', '?')}"
     try:
         typer.echo(f"wrote {plot_episode(series, out / 'episode.png', title)}")

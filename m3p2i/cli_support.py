@@ -52,7 +52,7 @@ def terminate_as_interrupt() -> None:
 def faults_or_exit(spec: str) -> str:
     """``--faults`` checked before either process starts; what the server is passed (a
     profile's name, or the file's absolute path: the server may run elsewhere than here)."""
-    from shared.faults import PROFILES, load_faults
+    from shared.scenario.faults import PROFILES, load_faults
 
     try:
         load_faults(spec)
@@ -65,7 +65,7 @@ def faults_or_exit(spec: str) -> str:
 def declared_delays_or_exit(sc, faults: str | None) -> tuple[float, float]:
     """``--compensate``: the (actuation, state) delays in ms of ``--faults``, else of the
     scenario's faults: section, for the planner to declare; exit 2 when there are none."""
-    from shared.faults import load_faults
+    from shared.scenario.faults import load_faults
 
     delays = (load_faults(faults) if faults else sc.faults).delays
     if delays is None:

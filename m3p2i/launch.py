@@ -19,7 +19,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
-from server.evaluation import episode
+from server.evaluation import log_reader
 from shared.endpoints import DEFAULT_HOST
 
 # Ports this process already handed out: parallel bench trials pick their blocks at the same
@@ -74,7 +74,7 @@ def read_summary(log_path: Path) -> dict | None:
     """The ``summary`` record of an episode log (None when missing or never written)."""
     if not log_path.is_file():
         return None
-    return episode.summary(episode.read_log(log_path))
+    return log_reader.summary(log_reader.read_log(log_path))
 
 
 MODES = ("lockstep", "realtime")

@@ -16,7 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
-from server.evaluation import episode
+from server.evaluation import log_reader
 from server.evaluation.replay import frame_tracks, resolve_frame
 from shared.config import ConfigError
 from shared.geometry import select_axes
@@ -70,7 +70,7 @@ def episode_series(scenario: Scenario, records: list[dict]) -> EpisodeSeries:
             "nothing to plot: no position metric and no 'near' success predicate",
             expected="metrics: {position: {a: OBJECT, b: GOAL}}",
         )
-    steps = episode.steps(records)
+    steps = log_reader.steps(records)
     if not steps:
         raise ValueError("the episode log has no steps (the episode never started)")
     model = compile_model(scenario)
@@ -87,7 +87,7 @@ def episode_series(scenario: Scenario, records: list[dict]) -> EpisodeSeries:
         for r in records
         if r.get("kind") == "event" and r.get("what") == "action"
     ]
-    truth = episode.faults(records).get("faults_mismatch") or {}
+    truth = log_reader.faults(records).get("faults_mismatch") or {}
     return EpisodeSeries(
         name=scenario.name,
         time=np.array([s["time"] for s in steps]),

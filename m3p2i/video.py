@@ -24,7 +24,7 @@ import numpy as np
 import typer
 import zmq
 
-from server.evaluation import episode
+from server.evaluation import log_reader
 from shared import protocol as P
 from shared.config import ConfigError
 from shared.endpoints import Endpoints, socket
@@ -115,7 +115,7 @@ def read_tops(path: Path) -> dict[int, np.ndarray]:
     """seq -> ``[M, T, 3]`` best sampled trajectories, from a diagnostics file (empty if none)."""
     if not path.is_file():
         return {}
-    return {r["seq"]: np.asarray(r["top"], dtype=float) for r in episode.read_log(path)}
+    return {r["seq"]: np.asarray(r["top"], dtype=float) for r in log_reader.read_log(path)}
 
 
 # ------------------------------------------------------------------------------ rendering (child)
@@ -174,9 +174,9 @@ def render_frames(
     from server.evaluation.replay import load_step, resolve_frame
     from shared.scene import compile_model
 
-    records = episode.read_log(log)
-    sc = episode.log_scenario(records, scenario)
-    steps = episode.steps(records)
+    records = log_reader.read_log(log)
+    sc = log_reader.log_scenario(records, scenario)
+    steps = log_reader.steps(records)
     if not steps:
         raise ValueError(f"{log}: the episode log has no steps")
     tops = read_tops(log.parent / DIAGNOSTICS_FILE)
@@ -277,7 +277,7 @@ def main(
 ) -> None:
     """Render an episode log to a video (run with MUJOCO_GL set; ``m3p2i record`` does that)."""
     try:
-        frames = render_frames(episode.find_log(log), scenario, width, height, fps, speed)
+        frames = render_frames(log_reader.find_log(log), scenario, width, height, fps, speed)
         typer.echo(f"wrote {write_video(frames, out, fps)} ({len(frames)} frames)")
     except (ConfigError, FileNotFoundError, ValueError, RuntimeError) as exc:
         typer.echo(f"error: {exc}", err=True)

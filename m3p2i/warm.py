@@ -32,7 +32,7 @@ from m3p2i.launch import (
     read_summary,
     stop_processes,
 )
-from server.evaluation.episode import episode_log_path, has_summary
+from server.evaluation.log_reader import episode_log_path, has_summary
 from shared import protocol as P
 from shared.endpoints import DEFAULT_HOST, Endpoints, socket
 

@@ -76,11 +76,11 @@ def build_motion_planner(
     )
 
 
-def build_task(scenario: Scenario, planner: MotionPlanner) -> TaskLayer:
+def build_task(scenario: Scenario, motion: MotionPlanner) -> TaskLayer:
     """Fixed modes, or active inference when the scenario has a task template."""
     if scenario.task is None:
         return FixedModes(scenario.modes)
-    problem = planner.problem
+    problem = motion.problem
     for factor, cfg in scenario.observers.items():
         for _, pred in cfg.rules:
             check_frames(pred, problem.resolve, scenario.source, f"observers.{factor}")
@@ -93,12 +93,12 @@ def build_task(scenario: Scenario, planner: MotionPlanner) -> TaskLayer:
     )
 
 
-def build_parts(planner: MotionPlanner, task: TaskLayer) -> Parts:
-    """The collaborators a :class:`Controller` drives for ``planner`` and ``task``: the mirror
+def build_parts(motion: MotionPlanner, task: TaskLayer) -> Parts:
+    """The collaborators a :class:`Controller` drives for ``motion`` and ``task``: the mirror
     (with ``planner.estimate``'s filters), the attachments of ``planner.model.attach``, the
     guide of ``guide``, and, with ``planner.model.variants.identify``, the maker of the
-    identifier that reweights the planner's variants."""
-    problem = planner.problem
+    identifier that reweights the motion planner's variants."""
+    problem = motion.problem
     pc = problem.scenario.planner
     mirror = Mirror(
         problem.model,
@@ -109,8 +109,8 @@ def build_parts(planner: MotionPlanner, task: TaskLayer) -> Parts:
     guide = (
         Guide(problem.guide, problem.model, problem.resolve) if problem.guide is not None else None
     )
-    parts = Parts(planner, task, mirror, attachments, guide)
-    variants = planner.variants
+    parts = Parts(motion, task, mirror, attachments, guide)
+    variants = motion.variants
     if variants is not None and variants.cfg.identify is not None:
         estimator = mirror.estimator
         from_poses = bool(estimator and estimator.cfg.object_velocities == "from_poses")
@@ -134,10 +134,10 @@ def build_controller(
         scenario = load_scenario(scenario)
 
     def renew(episode_seed: int | None):
-        planner = build_motion_planner(
+        motion = build_motion_planner(
             scenario, threads, seed if episode_seed is None else episode_seed, backend, device
         )
-        return build_parts(planner, build_task(scenario, planner))
+        return build_parts(motion, build_task(scenario, motion))
 
     return Controller(renew(None), renew=renew)
 

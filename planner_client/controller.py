@@ -39,9 +39,9 @@ from planner_client.task import TaskDecision, TaskLayer
 from planner_client.timing import LeadEstimate, predict, steps_between
 from planner_client.variants import Identifier
 from shared import protocol as P
-from shared.faults import steps_of
 from shared.layout import StateSizes
 from shared.scenario import DelayConfig
+from shared.scenario.faults import steps_of
 from shared.scene import STATE_FIELDS, get_full_state
 from shared.timed_plan import TimedPlan, held, mean_hz
 
@@ -104,7 +104,7 @@ class Parts:
     guide, and the maker of the model identifier, which needs the world's step (known at
     :meth:`Controller.begin`) and reweights the planner's own variants."""
 
-    planner: MotionPlanner
+    motion: MotionPlanner
     task: TaskLayer
     mirror: Mirror
     attachments: Attachments
@@ -133,13 +133,13 @@ class Controller:
         stream carries over."""
         self.renew = renew
         self._take(parts)
-        self.delays = delays or self.planner.problem.scenario.planner.delays
+        self.delays = delays or self.motion.problem.scenario.planner.delays
         self.stats = LoopStats()
         self.mode: str | None = None  # the world's: lockstep | realtime (None: lock-step)
         self.dt: float | None = None  # the world's step, s
         self.last: Tick | None = None  # the last step's, for diagnostics
         self._action: tuple[str, tuple[str, ...]] | None = None
-        self.robot = self.planner.problem.robot
+        self.robot = self.motion.problem.robot
         self._last_ctrl = self.robot.safe_stop()
         # what the world plays, oldest first: enough plans to cover a lead plus declared delays
         self._sent: deque[TimedPlan] = deque(maxlen=16)
@@ -167,7 +167,7 @@ class Controller:
         self.identifier = self.parts.identifier(dt)
         if self.delays.estimate:
             self._actuation = ActuationDelayEstimate(
-                self.planner.problem.model, dt, steps_of(self.delays.max_ms, dt)
+                self.motion.problem.model, dt, steps_of(self.delays.max_ms, dt)
             )
         # the plans the world played as long ago as the estimates look back must be at hand
         reach = self._actuation.max_steps if self._actuation is not None else 0
@@ -194,17 +194,17 @@ class Controller:
     def _take(self, parts: Parts) -> None:
         """Drive ``parts`` from now on."""
         self.parts = parts
-        self.planner, self.task = parts.planner, parts.task
+        self.motion, self.task = parts.motion, parts.task
         self.mirror, self.attachments, self.guide = parts.mirror, parts.attachments, parts.guide
 
     def check_layout(self, state: P.State) -> None:
         """Raise :class:`LayoutMismatch` when ``state``'s arrays have other sizes than the
         planner's model (a bridge sending another layout: every state would be dropped)."""
-        mismatches = StateSizes.of(self.planner.problem.model).mismatches(
+        mismatches = StateSizes.of(self.motion.problem.model).mismatches(
             {name: getattr(state, name) for name in STATE_FIELDS}
         )
         if mismatches:
-            raise LayoutMismatch(self.planner.problem.scenario.name, mismatches)
+            raise LayoutMismatch(self.motion.problem.scenario.name, mismatches)
 
     def over(self, state: P.State) -> bool:
         """Whether ``state`` ends the episode (its status is not ``running``); the status is
@@ -246,9 +246,9 @@ class Controller:
         decision = self.task.decide(self.mirror.data, extras, state.time)  # 3. task
         if self.attachments.welds:
             self.attachments.update(self.mirror.data, self.task.last_observation, state.time)
-        self.planner.set_modes(decision.modes)  # 4. modes
+        self.motion.set_modes(decision.modes)  # 4. modes
         start, x0, mocap = self._plan_start(state, x0)  # 5. plan start
-        it = self.planner.iterate(x0, mocap)  # 6. M3P2I
+        it = self.motion.iterate(x0, mocap)  # 6. M3P2I
         self._note_fault(it, state.time)
         if decision.stop or it.fault is not None:  # 7. command
             # a safe stop keeps the hold_ctrl actuators where they were: a gripper keeps its grip;
@@ -257,7 +257,7 @@ class Controller:
             self._sent.append(held(ctrl, start, state.seq))
         else:
             ctrl, plan = it.command, it.plan
-            self._sent.append(TimedPlan(start, self.planner.dt, plan, state.seq))
+            self._sent.append(TimedPlan(start, self.motion.dt, plan, state.seq))
         self._last_ctrl = ctrl
         plan_time = time.perf_counter() - t0
         command = P.Command(
@@ -268,7 +268,7 @@ class Controller:
             action=decision.action,
             plan_ctrl=plan,
             plan_t0=None if plan is None else start,
-            plan_dt=None if plan is None else self.planner.dt,
+            plan_dt=None if plan is None else self.motion.dt,
             model=self.model_estimate(),
         )
         steps = state.seq - self._last_start[1] if self._last_start else 0
@@ -367,7 +367,7 @@ class Controller:
                     mocap.pos + mocap.vel * (float(data.time) - state.time), mocap.quat, mocap.vel
                 )
         if self._last_start is not None and start >= self._last_start[0] - _NEW_EPISODE:
-            self.planner.advance(steps_between(self._last_start[0], start, self.planner.dt))
+            self.motion.advance(steps_between(self._last_start[0], start, self.motion.dt))
         return start, x0, mocap
 
     def _acting_steps(self) -> int:
@@ -408,6 +408,6 @@ class Controller:
 
     def close(self) -> None:
         """Release the motion planner's rollout workers and the guide's thread."""
-        self.planner.close()
+        self.motion.close()
         if self.guide is not None:
             self.guide.close()

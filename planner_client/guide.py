@@ -4,7 +4,7 @@ for an object it moves, kept up to date beside the planner, and the sub-goal alo
 The local planner looks 0.75 s ahead and is pulled into local minima by its distance costs (a
 U-shaped obstacle, a box in a corner); thesis Sec. 5.2 names a global planner as the remedy.
 :class:`GuideState` is what the planner's model and its cost terms share: the current path (as
-tensors for :mod:`planner_client.costs.guide`) and the site ``site:guide``, the sub-goal
+tensors for :mod:`planner_client.costs.path`) and the site ``site:guide``, the sub-goal
 ``lookahead`` metres along the path beyond the guided body, which any term can name as a frame.
 :class:`Guide` plans in a thread of its own from snapshots of the mirrored scene: at start, and
 again when an obstacle moves (a disturbance, the ``move`` control op), the goal moves, or the
@@ -29,8 +29,8 @@ import torch
 from planner_client import global_path
 from planner_client.global_path import PathResult, Room, Shape
 from shared.frames import FrameResolver
-from shared.guide import GuideConfig
 from shared.scenario import Scenario
+from shared.scenario.guide import GuideConfig
 from shared.scene import WALL_NAMES
 
 log = logging.getLogger(__name__)

@@ -163,7 +163,7 @@ class PlannerClient:
                     plain = self._plain_hello(reply, version, plain)
                     continue
                 self._speak(version)
-                nu = self.controller.planner.problem.model.nu
+                nu = self.controller.motion.problem.model.nu
                 if reply.nu != nu:
                     raise HandshakeRefused(
                         f"server model has nu={reply.nu}, planner model has nu={nu}"

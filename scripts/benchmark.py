@@ -89,7 +89,7 @@ def measure(
     so idle threads never compete.
     """
     controller = build_controller(scenario, nthread, backend=backend, device=device)
-    planner = controller.planner
+    planner = controller.motion
     model = planner.problem.model
     data = initial_data(scenario, model)  # the scenario's start pose (the Panda's ready pose)
     world = compile_model(scenario)

@@ -27,7 +27,7 @@ from rich.console import Console
 from rich.table import Table
 
 from m3p2i.launch import free_port_block, stop_processes
-from server.evaluation import episode
+from server.evaluation import log_reader
 from shared.scenario import find_scenario
 
 SCENARIOS = ("navigation", "pick_place")
@@ -40,7 +40,7 @@ def _wait_for(log: Path, kind: str, proc: subprocess.Popen, timeout: float) -> d
     end = time.monotonic() + timeout
     while time.monotonic() < end:
         if log.is_file():
-            for rec in episode.read_log(log):
+            for rec in log_reader.read_log(log):
                 if rec.get("kind") == kind:
                     return rec
         if proc.poll() is not None:

@@ -28,13 +28,13 @@ import zmq
 
 from server.episode import Episode
 from server.episode_log import EpisodeLog
-from server.evaluation.episode import episode_log_path
+from server.evaluation.log_reader import episode_log_path
 from server.interface import Outcome, World
 from server.world import SimWorld
 from shared import protocol as P
 from shared.endpoints import Endpoints, socket
-from shared.faults import FaultConfig
 from shared.scenario import Scenario
+from shared.scenario.faults import FaultConfig
 from shared.security import (
     Authenticator,
     HandshakeMonitor,

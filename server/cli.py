@@ -38,8 +38,8 @@ from shared.cli_common import (
 )
 from shared.config import ConfigError
 from shared.endpoints import DEFAULT_HOST, DEFAULT_PORT, Endpoints
-from shared.faults import load_faults
 from shared.scenario import load_scenario
+from shared.scenario.faults import load_faults
 from shared.scene import scene_framing
 from shared.security import ExposureError, keys_for_cli, load_world_keys
 

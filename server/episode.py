@@ -22,13 +22,13 @@ import numpy as np
 
 from server.episode_log import EpisodeLog, read_log
 from server.evaluation.metrics import MetricsEvaluator, describe
-from server.evaluation.timing import describe_timing, timing_summary
+from server.evaluation.plan_ages import describe_timing, timing_summary
 from server.faults import FaultyWorld
 from server.interface import Outcome, World, world_name
 from server.world import SimWorld
 from shared import protocol as P
-from shared.faults import FaultConfig
 from shared.scenario import Scenario
+from shared.scenario.faults import FaultConfig
 from shared.timed_plan import PlanPlayer, TimedPlan, held, mean_hz
 
 log = logging.getLogger("m3p2i.server")
@@ -221,7 +221,7 @@ class Episode:
     ) -> None:
         """One world step under ``ctrl`` (None: the safe control), planned from state
         ``source`` (-1: none); the step's log record has the control's age (world seconds since
-        that state) and source, from which server.evaluation.timing tells whether the planner
+        that state) and source, from which server.evaluation.plan_ages tells whether the planner
         kept up. Real time also records ``cmd_age``: wall seconds from the newest command's
         arrival to the moment this step's control was chosen (what the stale-command watchdog
         compares with ``command_timeout``; None before the first command and in lock-step), so

@@ -3,7 +3,7 @@
 Line-buffered JSONL survives Ctrl-C, a planner crash or a server crash: everything up to the last
 complete line is on disk. Record kinds (``kind`` field): ``header``, ``step``, ``event``,
 ``summary``. The server's own metrics, ``m3p2i bench``, ``plot`` and ``record``, and the tests
-read it back with :func:`read_log` (:mod:`server.evaluation.episode`, so that ``shared`` never
+read it back with :func:`read_log` (:mod:`server.evaluation.log_reader`, so that ``shared`` never
 imports the server; re-exported here).
 """
 
@@ -16,7 +16,7 @@ from typing import Any
 
 import numpy as np
 
-from server.evaluation.episode import read_log
+from server.evaluation.log_reader import read_log
 
 __all__ = ["EpisodeLog", "read_log"]
 

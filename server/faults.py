@@ -31,7 +31,7 @@ import numpy as np
 
 from server.interface import Outcome, World, WorldError, WorldState
 from server.world import SimWorld
-from shared.faults import FaultConfig, steps_of
+from shared.scenario.faults import FaultConfig, steps_of
 from shared.scene import contact_friction
 
 # independent generator streams per fault, so that turning one fault on leaves the others' draws
@@ -313,7 +313,7 @@ class FaultyWorld(World):
         """What the episode log's header records of the faults: the config, the mismatch
         factors drawn, the delays and control period in the units this mode counts (a log
         written before the rename names them ``hardware*``:
-        :func:`server.evaluation.episode.faults` reads both)."""
+        :func:`server.evaluation.log_reader.faults` reads both)."""
         unit = "s" if self.realtime else "steps"
         return {
             "faults": self.config.to_dict(),

@@ -42,12 +42,12 @@ from pathlib import Path
 from typing import Any, Protocol
 
 from server.episode import Episode
-from server.evaluation.episode import read_log, summary
+from server.evaluation.log_reader import read_log, summary
 from server.interface import Outcome, World
 from server.world import SimWorld
 from shared import protocol as P
-from shared.faults import FaultConfig, load_faults
 from shared.scenario import Scenario, load_scenario
+from shared.scenario.faults import FaultConfig, load_faults
 
 __all__ = ["ControlLoop", "EpisodeResult", "build_episode", "drive", "run_episode"]
 

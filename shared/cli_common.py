@@ -15,7 +15,7 @@ import typer
 from rich.logging import RichHandler
 
 from shared.config import deprecated
-from shared.faults import PROFILES
+from shared.scenario.faults import PROFILES
 
 # --- options shared by m3p2i-server, m3p2i-planner and m3p2i's commands --------------------
 

@@ -22,7 +22,7 @@ from pathlib import Path
 import yaml
 
 from m3p2i import bench as B
-from server.evaluation import episode
+from server.evaluation import log_reader
 from server.evaluation.metrics import MetricsEvaluator
 from shared.scenario import find_scenario, load_scenario
 
@@ -39,7 +39,7 @@ class Episode:
 
     @property
     def summary(self) -> dict:
-        return episode.summary(self.records) or {}
+        return log_reader.summary(self.records) or {}
 
     @property
     def success(self) -> bool:
@@ -47,7 +47,7 @@ class Episode:
 
     @property
     def steps(self) -> list[dict]:
-        return episode.steps(self.records)
+        return log_reader.steps(self.records)
 
     @property
     def actions(self) -> list[str]:
@@ -100,7 +100,7 @@ def load_episodes(specs: list[Spec], out: Path) -> dict[tuple[str, int], Episode
         row = {**row, "success": row["success"] == "1"}
         log = out / row["log"]
         done[(row["case"], int(row["seed"]))] = Episode(
-            row, episode.read_log(log), (log.parent / "planner.log").read_text()
+            row, log_reader.read_log(log), (log.parent / "planner.log").read_text()
         )
     missing = [(label, seed) for label, _, seed in specs if (label, seed) not in done]
     assert not missing, f"no result for {missing}"

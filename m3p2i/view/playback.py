@@ -13,7 +13,7 @@ import numpy as np
 
 from m3p2i.view.drawing import PanelInfo, SceneDrawing, robot_frame
 from m3p2i.view.page import viser_server
-from server.evaluation import episode
+from server.evaluation import log_reader
 from shared.scenario import Scenario
 from shared.scene import compile_model, initial_data
 
@@ -48,13 +48,13 @@ class Replay:
 
 def load_replay(log_path: Path, scenario: str | None = None) -> Replay:
     """Read an episode log (a file or run folder) and the ``diagnostics.jsonl`` beside it."""
-    path = episode.find_log(log_path)
-    records = episode.read_log(path)
-    sc = episode.log_scenario(records, scenario)
-    steps = episode.steps(records)
+    path = log_reader.find_log(log_path)
+    records = log_reader.read_log(path)
+    sc = log_reader.log_scenario(records, scenario)
+    steps = log_reader.steps(records)
     if not steps:
         raise ValueError(f"{path}: no step records to replay (the episode never started)")
-    summary = episode.summary(records)
+    summary = log_reader.summary(records)
     actions = [
         (float(r["time"]), r["action"])
         for r in records
@@ -64,7 +64,9 @@ def load_replay(log_path: Path, scenario: str | None = None) -> Replay:
         r for r in records if r.get("kind") == "event" and r.get("what") == "disturbance"
     ]
     diag_path = path.parent / "diagnostics.jsonl"
-    diags = {int(r["seq"]): r for r in episode.read_log(diag_path)} if diag_path.is_file() else {}
+    diags = (
+        {int(r["seq"]): r for r in log_reader.read_log(diag_path)} if diag_path.is_file() else {}
+    )
     return Replay(sc, steps, actions, summary, diags, disturbances)
 
 

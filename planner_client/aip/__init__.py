@@ -5,6 +5,6 @@ Build a planner from a parsed action template (:func:`shared.task_template.parse
 """
 
 from planner_client.aip.agent import FactorAgent, FactorModel
-from planner_client.aip.planner import ActiveInferencePlanner, Decision
+from planner_client.aip.task_planner import ActiveInferencePlanner, Decision
 
 __all__ = ["ActiveInferencePlanner", "Decision", "FactorAgent", "FactorModel"]

@@ -1,8 +1,8 @@
 """Cost terms (a registry YAML names them by) and objectives (weighted sums of terms).
 
-Terms live by concept: ``geometry`` (distances, orientation, approach), ``contact`` (obstacles),
-``push_pull``, ``gripper``, ``control``, ``joints`` (limits, posture); what several of them use is
-public in ``helpers``.
+Terms live by concept: ``poses`` (distances, orientation, approach), ``contact`` (obstacles),
+``clearance``, ``path`` (the guide's), ``push_pull``, ``gripper``, ``control``, ``joints`` (limits,
+posture); what several of them use is public in ``helpers``.
 """
 
 # importing the term modules registers their terms
@@ -10,10 +10,10 @@ from planner_client.costs import (  # noqa: F401
     clearance,
     contact,
     control,
-    geometry,
     gripper,
-    guide,
     joints,
+    path,
+    poses,
     push_pull,
 )
 from planner_client.costs.base import (

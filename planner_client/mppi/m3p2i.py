@@ -18,8 +18,8 @@ import torch
 from torch import Tensor
 
 from .config import ModeSpec, MPPIConfig
-from .layout import ModeLayout
-from .mppi import Parts, control_costs, trajectory_costs
+from .mode_rows import ModeLayout
+from .mppi import MppiCore, control_costs, trajectory_costs
 from .result import PlanResult, diagnostics
 from .shift import shift
 from .temperature import weigh
@@ -64,7 +64,7 @@ class M3P2I:
         dtype: torch.dtype = torch.float64,
         device: str | torch.device = "cpu",
     ):
-        self._p = Parts(cfg, sum(m.samples for m in modes), dtype, device)
+        self._p = MppiCore(cfg, sum(m.samples for m in modes), dtype, device)
         self._set_layout(modes)
         self.reset()
 

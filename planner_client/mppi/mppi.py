@@ -63,7 +63,7 @@ def control_costs(
     return coef * (mean * (mean + 2.0 * eps) * inv_var).sum(dim=(-2, -1))
 
 
-class Parts:
+class MppiCore:
     """What MPPI and M3P2I build identically from a config: their device, noise scale σ
     ``[nu]``, 1/σ² ``[nu]``, discounts γ^t ``[T]``, bounds, control-cost coefficient, the
     finishing of their means (smoothing, projection, shift) and their sampler."""
@@ -123,7 +123,7 @@ class MPPI:
         if samples < 1 + cfg.null_action + cfg.keep_best:
             raise ValueError(f"MPPI needs more than {cfg.null_action + cfg.keep_best} samples")
         self.num_samples = samples
-        self._p = Parts(cfg, samples, dtype, device)
+        self._p = MppiCore(cfg, samples, dtype, device)
         self.reset()
 
     def reset(self) -> None:

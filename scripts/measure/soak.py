@@ -55,7 +55,7 @@ import zmq
 
 from m3p2i.launch import free_port_block, stop_processes
 from m3p2i.provenance import machine, versions
-from server.evaluation import episode
+from server.evaluation import log_reader
 from shared import protocol as P
 from shared.endpoints import Endpoints
 from shared.scenario import find_scenario
@@ -193,13 +193,13 @@ def rss_kib(pid: int) -> int | None:
 def world_record(proc: Proc) -> dict:
     """What the checks need of one world process: its steps, completeness, rejections."""
     try:
-        records = episode.read_log(proc.log) if proc.log and proc.log.is_file() else []
+        records = log_reader.read_log(proc.log) if proc.log and proc.log.is_file() else []
         parse_error = ""
     except (OSError, UnicodeDecodeError) as exc:
         records, parse_error = [], str(exc)
     with_torn = proc.log.read_text().count("\n") if proc.log and proc.log.is_file() else 0
-    steps = episode.steps(records)
-    summ = episode.summary(records)
+    steps = log_reader.steps(records)
+    summ = log_reader.summary(records)
     complete = (
         not parse_error
         and bool(records)

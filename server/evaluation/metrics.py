@@ -16,7 +16,7 @@ from dataclasses import asdict, dataclass
 import mujoco
 import numpy as np
 
-from server.evaluation import episode
+from server.evaluation import log_reader
 from server.evaluation.replay import load_step, replay, resolve_frame
 from shared.config import ErrorLog
 from shared.frames import Frame
@@ -74,12 +74,12 @@ def contact_onsets(touching: Sequence[bool]) -> int:
 
 def wall_time(records: list[dict]) -> float:
     """Wall seconds from the planner's first handshake (or the log's start) to the last step."""
-    steps = episode.steps(records)
+    steps = log_reader.steps(records)
     if not steps:
         return 0.0
     start = next(
         (r["wall"] for r in records if r.get("what") == "handshake"),
-        episode.header(records).get("wall", steps[0]["wall"]),
+        log_reader.header(records).get("wall", steps[0]["wall"]),
     )
     return max(0.0, float(steps[-1]["wall"] - start))
 
@@ -117,9 +117,9 @@ class MetricsEvaluator:
     def evaluate(self, records: list[dict], status: str | None = None) -> EpisodeMetrics:
         """Metrics of a logged episode. ``status`` overrides the log's summary (the server calls
         this before writing its summary); a log without either is ``unfinished``."""
-        summary = episode.summary(records)
+        summary = log_reader.summary(records)
         status = status or (summary["status"] if summary else "unfinished")
-        steps = episode.steps(records)
+        steps = log_reader.steps(records)
         pos_err = ori_err = collisions = None
         if steps:
             data = mujoco.MjData(self.model)

@@ -20,10 +20,10 @@ from shared.config import (
     string_list,
 )
 from shared.config_files import find, shipped
-from shared.faults import NOMINAL, OLD_NAME, FaultConfig, parse_faults, read_old_name
-from shared.guide import GuideConfig, parse_guide
 from shared.robots import RobotSpec
 from shared.scenario.episode import EpisodeConfig, MetricsConfig, read_episode, read_metrics
+from shared.scenario.faults import NOMINAL, OLD_NAME, FaultConfig, parse_faults, read_old_name
+from shared.scenario.guide import GuideConfig, parse_guide
 from shared.scenario.objectives import ObjectiveConfig, read_includes, read_objectives
 from shared.scenario.planner import PlannerConfig, read_planner
 from shared.scenario.robot import RobotConfig, read_robot
@@ -57,7 +57,7 @@ class Scenario:
     # (planner_client.plugins): NAME.py beside the scenario, else a module name; never the world
     plugins: tuple[str, ...] = ()
     raw: dict = field(repr=False, default_factory=dict)
-    guide: GuideConfig | None = None  # a global path the planner's terms follow (shared/guide.py)
+    guide: GuideConfig | None = None  # a global path the planner's terms follow (guide.py)
 
 
 def find_scenario(name_or_path: str | os.PathLike) -> Path:

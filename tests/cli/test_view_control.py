@@ -13,7 +13,7 @@ import zmq
 
 from m3p2i.launch import free_port_block
 from server.app import WorldServer
-from server.evaluation.episode import read_log
+from server.evaluation.log_reader import read_log
 from shared import protocol as P
 from shared.endpoints import Endpoints
 from shared.scenario import load_scenario

@@ -15,7 +15,7 @@ from m3p2i.launch import EpisodeLaunch, free_port_block
 from m3p2i.warm import WarmPair
 from server.app import ServerOptions, WorldServer
 from server.cli import app as server_app
-from server.evaluation import episode
+from server.evaluation import log_reader
 from server.evaluation.metrics import MetricsEvaluator
 from shared import protocol as P
 from shared.endpoints import Endpoints
@@ -37,7 +37,7 @@ def _steps(path) -> list[tuple]:
     """What the world did at each step: time, state and the control that drove it."""
     return [
         (s["time"], s["qpos"], s["qvel"], s["ctrl"], s["action"])
-        for s in episode.steps(episode.read_log(path))
+        for s in log_reader.steps(log_reader.read_log(path))
     ]
 
 
@@ -105,7 +105,7 @@ def test_a_trial_that_fails_takes_its_pair_down_and_the_next_starts_afresh(tmp_p
         assert late.reason == "timeout" and not pair.alive
         ok = pair.run(1, timeout=300)
         assert ok.reason == "" and ok.summary["status"] == "success" and pair.alive
-        assert episode.header(episode.read_log(ok.log_path))["seed"] == 1
+        assert log_reader.header(log_reader.read_log(ok.log_path))["seed"] == 1
         assert (tmp_path / "seed-001" / "planner.log").is_file()
     finally:
         pair.close()
@@ -135,8 +135,8 @@ def test_a_kept_world_begins_the_seeds_episode_on_a_seeded_reset(kept_world, tmp
     kept_world.serve_episode()
     kept_world.next_episode()  # ... as run() does, and the next begins
     assert kept_world.episode.session != first and kept_world.episode.seq == 0
-    assert episode.summary(episode.read_log(tmp_path / "seed-3.jsonl"))["status"] == "stopped"
-    assert episode.header(episode.read_log(tmp_path / "seed-7.jsonl"))["seed"] == 7
+    assert log_reader.summary(log_reader.read_log(tmp_path / "seed-3.jsonl"))["status"] == "stopped"
+    assert log_reader.header(log_reader.read_log(tmp_path / "seed-7.jsonl"))["seed"] == 7
     fresh = WorldServer(
         load_scenario("navigation"),
         Endpoints(port=free_port_block()),

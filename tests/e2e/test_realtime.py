@@ -16,8 +16,8 @@ import zmq
 from planner_client.mppi import M3P2I, ModeSpec, MPPIConfig
 from planner_client.mppi.shift import shift
 from planner_client.timing import LeadEstimate, predict, steps_between
-from server.evaluation.episode import read_log
-from server.evaluation.timing import timing_summary
+from server.evaluation.log_reader import read_log
+from server.evaluation.plan_ages import timing_summary
 from shared import protocol as P
 from shared.endpoints import Endpoints
 from shared.scenario import load_scenario

@@ -22,8 +22,8 @@ from planner_client.guide import GuideState
 from planner_client.sensors import SensorColumns, SensorRequest, add_sensors
 from shared.config import ConfigError, Section
 from shared.frames import FrameResolver
-from shared.guide import GuideConfig
 from shared.scenario import ObjectiveConfig, TermConfig
+from shared.scenario.guide import GuideConfig
 
 F64 = torch.float64
 SRC = "test.yaml"
@@ -514,7 +514,7 @@ def test_reach_with_obj_axis_up_takes_a_tipped_box_by_its_new_top_face(model, ct
 
 
 def test_top_axis_is_the_signed_axis_nearest_up():
-    from planner_client.costs.geometry import top_axis
+    from planner_client.costs.poses import top_axis
 
     rot = torch.eye(3, dtype=F64)  # rows: x, y, z axes in the world
     torch.testing.assert_close(top_axis(rot), torch.tensor([0.0, 0.0, 1.0], dtype=F64))

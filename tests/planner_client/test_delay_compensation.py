@@ -14,8 +14,8 @@ from planner_client.timing import predict
 from server.faults import FaultyWorld
 from server.world import SimWorld
 from shared.config import ConfigError
-from shared.faults import FaultConfig
 from shared.scenario import DelayConfig, load_scenario
+from shared.scenario.faults import FaultConfig
 from shared.scene import compile_model
 from shared.timed_plan import PlanPlayer, TimedPlan
 

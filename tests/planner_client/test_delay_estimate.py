@@ -10,8 +10,8 @@ import pytest
 from planner_client.delay_estimate import ActuationDelayEstimate
 from server.faults import FaultyWorld
 from server.world import SimWorld
-from shared.faults import FaultConfig
 from shared.scenario import load_scenario
+from shared.scenario.faults import FaultConfig
 from shared.scene import compile_model
 from shared.timed_plan import PlanPlayer, TimedPlan
 

@@ -1,4 +1,4 @@
-"""The global guide (shared/guide.py, planner_client/guide.py, planner_client/global_path.py):
+"""The global guide (shared/scenario/guide.py, planner_client/guide.py and global_path.py):
 A* round a U and blocked when closed, room for a robot behind a box,
 the path recomputed after an obstacle is moved while planning goes on, the terms' values, and
 the scenario errors of a faulty guide."""
@@ -254,8 +254,8 @@ def test_a_walled_in_goal_says_blocked_to_the_observers_and_leaves_the_goal_as_s
     controller.begin("lockstep", episode.dt)
     assert controller.step(episode.publish()) is not None
     assert controller.guide.extras() == {"guide": 0.0, "guide_length": math.inf}
-    goal = controller.planner.problem.resolve("goal").pos(controller.mirror.data)
-    subgoal = controller.planner.problem.model.body_pos[controller.guide.site_body]
+    goal = controller.motion.problem.resolve("goal").pos(controller.mirror.data)
+    subgoal = controller.motion.problem.model.body_pos[controller.guide.site_body]
     np.testing.assert_allclose(subgoal[:2], goal[:2])
     controller.close()
     episode.close()

@@ -178,7 +178,7 @@ def test_a_term_registered_twice_names_both(tmp_path):
         build_problem(load_scenario(path))
     text = str(exc.value)
     assert "cost term 'distance' registered twice" in text
-    assert "planner_client.costs.geometry.Distance" in text and "SquaredDistance" in text
+    assert "planner_client.costs.poses.Distance" in text and "SquaredDistance" in text
 
 
 def test_plugins_are_names(tmp_path):

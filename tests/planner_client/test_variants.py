@@ -30,8 +30,8 @@ from planner_client.variants import (
 from server.inprocess import build_episode
 from shared import protocol as P
 from shared.config import ConfigError
-from shared.faults import PROFILES, load_faults
 from shared.scenario import SCENARIO_DIR, load_scenario, parse_scenario
+from shared.scenario.faults import PROFILES, load_faults
 from shared.scene import get_full_state, initial_data
 from shared.timed_plan import TimedPlan
 
@@ -160,7 +160,7 @@ def test_without_the_section_nothing_changes():
     assert sc.planner.model.variants is None and "variants" not in sc.planner.model.as_dict()
     controller = build_controller(sc, threads=1)
     try:
-        assert controller.planner.variants is None and controller.model_estimate() is None
+        assert controller.motion.variants is None and controller.model_estimate() is None
     finally:
         controller.close()
     # a command without a model estimate is the frame it always was
@@ -192,7 +192,7 @@ def _closed_loop(sc, steps: int = 5):
 
 def test_with_spread_estimate_every_sample_rolls_out_at_the_identified_factors():
     with _closed_loop(_scenario({**VARIANTS, "spread": "estimate"})) as (controller, *_):
-        variants = controller.planner.variants
+        variants = controller.motion.variants
         assert variants.per_rollout(7, "estimate") == [variants.identified] * 7
         box = variants.base.body("box").id
         factor = controller.identifier.estimate()["mass"]["box"]

@@ -181,7 +181,7 @@ def test_a_stale_name_on_the_architecture_page_is_found():
 
 # ------------------------------------------- docs/scenarios.md and the scenario schema agree
 
-SCENARIO_READERS = ("shared.scenario", "shared.guide", "shared.predicates")
+SCENARIO_READERS = ("shared.scenario", "shared.scenario.guide", "shared.predicates")
 # mappings keyed by the user's names: objectives.NAME, planner.model.geoms.NAME, ...
 NAMED = re.compile(r"^(objectives|planner\.model\.geoms|planner\.model\.objects)\.[^.\[]+")
 FENCED_KEY = re.compile(r"^\s*-?\s*([A-Za-z_]\w*):", re.M)

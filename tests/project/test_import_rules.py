@@ -117,10 +117,10 @@ def test_the_checker_finds_each_kind_of_violation(tmp_path):
     _write(
         tmp_path,
         "m3p2i/cli.py",
-        "from server.evaluation import episode\nfrom server.inprocess import build_episode\n"
+        "from server.evaluation import log\nfrom server.inprocess import build_episode\n"
         "from planner_client.build import build_controller\nimport optuna\n",
     )
-    _write(tmp_path, "server/evaluation/episode.py", "from server.app import WorldServer\n")
+    _write(tmp_path, "server/evaluation/log_reader.py", "from server.app import WorldServer\n")
     _write(tmp_path, "shared/protocol.py", "import planner_client.controller\n")
     found = "\n".join(violations(tmp_path))
     assert "server.app imports planner_client.loop" in found
@@ -131,7 +131,7 @@ def test_the_checker_finds_each_kind_of_violation(tmp_path):
     assert "shared.geometry imports matplotlib.pyplot" in found
     assert "server.evaluation.metrics imports m3p2i.launch" in found
     assert "m3p2i.cli" not in found  # the command may import everything
-    assert "server.evaluation.episode imports server.app" in found
+    assert "server.evaluation.log_reader imports server.app" in found
     assert "shared.protocol imports planner_client.controller" in found
 
 

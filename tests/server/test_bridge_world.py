@@ -24,7 +24,7 @@ from typer.testing import CliRunner
 
 from m3p2i.launch import free_port_block
 from server.cli import app as server_app
-from server.evaluation.episode import read_log, steps
+from server.evaluation.log_reader import read_log, steps
 from server.interface import WorldLoadError, load_world_class
 from shared.scenario import load_scenario
 from shared.scene import compile_model, initial_data

@@ -13,7 +13,7 @@ import pytest
 from planner_client.build import build_controller
 from planner_client.cli import with_delays
 from server.app import ServerOptions, WorldServer
-from server.evaluation.episode import read_log
+from server.evaluation.log_reader import read_log
 from server.inprocess import build_episode, run_episode
 from shared import protocol as P
 from shared.endpoints import Endpoints

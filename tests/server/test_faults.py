@@ -1,5 +1,5 @@
-"""Simulated faults (server/faults.py, shared/faults.py, docs/faults.md): each fault happens
-as configured, the profiles load, bad values are refused clearly, ``--faults`` reaches the
+"""Simulated faults (server/faults.py, shared/scenario/faults.py, docs/faults.md): each fault
+happens as configured, the profiles load, bad values are refused clearly, ``--faults`` reaches the
 world's command line and not the planner's, and the old names (``hardware:``, ``--hardware``)
 still mean the same."""
 
@@ -21,12 +21,19 @@ from m3p2i.cli import app as m3p2i
 from m3p2i.launch import EpisodeLaunch
 from planner_client.problem import build_problem
 from server.cli import app as server_cli
-from server.evaluation import episode
+from server.evaluation import log_reader
 from server.faults import FaultyWorld
 from server.world import SimWorld
 from shared.config import ConfigError, load_yaml
-from shared.faults import NOMINAL, PROFILES, FaultConfig, MismatchConfig, load_faults, steps_of
 from shared.scenario import find_scenario, load_scenario, parse_scenario
+from shared.scenario.faults import (
+    NOMINAL,
+    PROFILES,
+    FaultConfig,
+    MismatchConfig,
+    load_faults,
+    steps_of,
+)
 
 
 @pytest.fixture(scope="module")
@@ -153,12 +160,12 @@ def test_a_log_written_before_the_rename_still_tells_its_faults():
             "hardware_delays": {"actuation": 1},
         }
     ]
-    assert episode.faults(old) == {
+    assert log_reader.faults(old) == {
         "faults": {"drop_rate": 0.1},
         "faults_mismatch": {"mass": {}},
         "faults_delays": {"actuation": 1},
     }
-    assert episode.faults([{"kind": "header"}]) == {}
+    assert log_reader.faults([{"kind": "header"}]) == {}
 
 
 def test_both_names_at_once_are_an_error_naming_the_file_and_both_keys(tmp_path):
@@ -442,7 +449,7 @@ def test_the_server_wraps_its_world_only_for_faults_and_logs_truth_and_faults(pu
             "unit": "steps",
             "control_period_steps": 1,
         }
-        assert episode.faults(records) == {
+        assert log_reader.faults(records) == {
             k: header[k] for k in ("faults", "faults_mismatch", "faults_delays")
         }
         step = [r for r in records if r.get("kind", r.get("type")) == "step"][-1]

@@ -13,7 +13,7 @@ import pytest
 from planner_client.build import build_controller
 from planner_client.controller import LayoutMismatch
 from planner_client.task import TaskDecision
-from server.evaluation.episode import read_log, steps, summary
+from server.evaluation.log_reader import read_log, steps, summary
 from server.inprocess import run_episode
 from shared import protocol as P
 from shared.scenario import load_scenario
@@ -48,10 +48,10 @@ def _state(model, seq: int = 3, time: float = 0.15, **fields) -> P.State:
 
 
 def test_a_step_answers_the_state_with_a_plan_dated_at_its_time(controller, nav):
-    model = controller.planner.problem.model
+    model = controller.motion.problem.model
     cmd = controller.step(_state(model))
     assert (cmd.session, cmd.seq, cmd.action) == ("s", 3, "navigate")
-    assert cmd.plan_t0 == 0.15 and cmd.plan_dt == controller.planner.dt  # lock-step: no lead
+    assert cmd.plan_t0 == 0.15 and cmd.plan_dt == controller.motion.dt  # lock-step: no lead
     assert cmd.plan_ctrl.shape == (nav.planner.horizon, model.nu)
     np.testing.assert_array_equal(cmd.ctrl, cmd.plan_ctrl[0])
     assert cmd.plan_time > 0 and controller.stats.iterations == 1
@@ -61,7 +61,7 @@ def test_a_step_answers_the_state_with_a_plan_dated_at_its_time(controller, nav)
 
 
 def test_a_task_that_says_stop_gets_the_safe_stop_without_a_plan(controller):
-    model = controller.planner.problem.model
+    model = controller.motion.problem.model
     controller.task = type(
         "Done",
         (),
@@ -77,7 +77,7 @@ def test_a_task_that_says_stop_gets_the_safe_stop_without_a_plan(controller):
 
 
 def test_the_end_of_the_episode_and_a_wrong_layout_are_told(controller):
-    model = controller.planner.problem.model
+    model = controller.motion.problem.model
     assert not controller.over(_state(model))
     assert controller.over(_state(model, status="success"))
     assert controller.stats.final_status == "success"

@@ -71,7 +71,7 @@ def test_a_log_from_before_act_was_logged_replays_with_zero_activation(model):
 def test_the_server_logs_every_state_field_with_each_step(tmp_path):
     from m3p2i.launch import free_port_block
     from server.app import WorldServer
-    from server.evaluation.episode import read_log, steps
+    from server.evaluation.log_reader import read_log, steps
     from shared.endpoints import Endpoints
     from shared.scenario import load_scenario
 

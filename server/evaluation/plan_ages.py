@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from server.evaluation.episode import steps as step_records
+from server.evaluation.log_reader import steps as step_records
 
 
 def timing_summary(records: list[dict]) -> dict | None:
