@@ -48,7 +48,16 @@ from m3p2i.sweep import Sweep, apply_overrides, file_label, parse_sweep_section,
 from m3p2i.warm import PairSlot
 from server.evaluation import log_reader
 from server.evaluation.metrics import MetricsEvaluator
-from shared.config import ConfigError, Section, flag, load_yaml, one_of, positive, positive_int
+from shared.config import (
+    ConfigError,
+    Section,
+    deprecated,
+    flag,
+    load_yaml,
+    one_of,
+    positive,
+    positive_int,
+)
 from shared.config_files import find
 from shared.scenario import Scenario, find_scenario, load_scenario, parse_scenario
 from shared.scenario.faults import read_old_name
@@ -91,7 +100,7 @@ class BenchCase:
     plan_every: int = 1  # lockstep: world steps per command (a slow planner, repeatably)
     faults: str = ""  # the world's simulated faults: a profile, or a file's path
     delays: tuple[float, float] | None = None  # compensate: (actuation, state) ms declared
-    estimate_delays: bool = False  # compensate: estimate (the planner measures them online)
+    measure_delays: bool = False  # compensate: measure (the planner measures them online)
     max_rate: float = 0.0  # realtime: the planner's plans per second at most (0: no cap)
     realtime_factor: float = 1.0  # realtime: world seconds per wall second (< 1: a slower world)
 
@@ -107,7 +116,7 @@ class BenchCase:
             label += f", world at {self.realtime_factor:g}x wall clock"
         if self.faults:
             label += f", faults {Path(self.faults).stem}"
-        if self.estimate_delays:
+        if self.measure_delays:
             return label + ", delays estimated"
         return label + (", compensated" if self.delays is not None else "")
 
@@ -124,7 +133,7 @@ class BenchConfig:
 
 def _with_faults(case: BenchCase, c: Section, bench: Path) -> BenchCase:
     """A case's ``faults`` (profile, or file relative to the bench file) and ``compensate``
-    (``true``: declare its delays to the planner; ``estimate``: the planner measures them
+    (``true``: declare its delays to the planner; ``measure``: the planner measures them
     online), checked now, not trial by trial."""
     from shared.scenario.faults import PROFILES, load_faults
 
@@ -133,7 +142,7 @@ def _with_faults(case: BenchCase, c: Section, bench: Path) -> BenchCase:
         "compensate",
         False,
         _compensation,
-        "true (declare the delays), false, or estimate (measured online)",
+        "true (declare the delays), false, or measure (measured online)",
     )
     if spec and spec not in PROFILES:
         if not (bench.parent / spec).is_file():
@@ -154,13 +163,16 @@ def _with_faults(case: BenchCase, c: Section, bench: Path) -> BenchCase:
             compensate,
             "a case whose faults set actuation_delay_ms or state_delay_ms",
         )
-    if compensate == "estimate":
-        return dataclasses.replace(case, faults=spec, estimate_delays=True)
+    if compensate == "measure":
+        return dataclasses.replace(case, faults=spec, measure_delays=True)
     return dataclasses.replace(case, faults=spec, delays=delays)
 
 
 def _compensation(value) -> bool | str:
-    if value == "estimate":
+    if value == "estimate":  # the old spelling
+        deprecated("compensate: estimate", "write compensate: measure")
+        return "measure"
+    if value == "measure":
         return value
     return flag(value)
 
@@ -492,7 +504,7 @@ def run_trial(
         plan_every=trial.case.plan_every,
         faults=trial.case.faults,
         delays=trial.case.delays,
-        estimate_delays=trial.case.estimate_delays,
+        measure_delays=trial.case.measure_delays,
         max_rate=trial.case.max_rate,
         realtime_factor=trial.case.realtime_factor,
         plugins=opts.plugins,
@@ -556,7 +568,7 @@ def pair_key(trial: Trial) -> tuple:
         trial.case.plan_every,
         trial.case.faults,
         trial.case.delays,
-        trial.case.estimate_delays,
+        trial.case.measure_delays,
         trial.case.max_rate,
         trial.case.realtime_factor,
     )

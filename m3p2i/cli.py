@@ -28,12 +28,13 @@ from m3p2i.launch import EpisodeLaunch, free_port_block, mode_conflicts, run_epi
 from m3p2i.new import new_scenario
 from server.evaluation.plan_ages import describe_timing
 from shared.cli_common import (
-    EstimateDelays,
     Faults,
     Host,
     Keys,
+    MeasureDelays,
     Mode,
     OldFaults,
+    OldMeasureDelays,
     OldWindow,
     PlanEvery,
     Plugins,
@@ -173,7 +174,7 @@ def run(
     plan_every: PlanEvery = 1,
     faults: Faults = None,
     compensate: Compensate = False,
-    estimate_delays: EstimateDelays = False,
+    measure_delays: MeasureDelays = False,
     plugins: Plugins = None,
     planner_max_rate: PlannerMaxRate = 0.0,
     realtime_factor: RealtimeFactor = 1.0,
@@ -189,10 +190,14 @@ def run(
     keys: Keys = None,
     hardware: OldFaults = None,
     viewer: OldWindow = False,
+    estimate_delays: OldMeasureDelays = False,
 ) -> None:
     """Run one episode of SCENARIO with server and planner; exit 0 on success."""
     faults = renamed(faults, hardware, "--faults", "--hardware", None)
     window = renamed(window, viewer, "--window", "--viewer", False)
+    measure_delays = renamed(
+        measure_delays, estimate_delays, "--measure-delays", "--estimate-delays", False
+    )
     _modes_or_exit(mode, plan_every, planner_max_rate, realtime_factor)
     if faults is not None:  # first: a mistyped profile is refused at once
         faults = faults_or_exit(faults)
@@ -203,7 +208,7 @@ def run(
     typer.echo(
         f"running {sc.name} ({mode}{', faults ' + faults if faults else ''}"
         f"{', delays compensated' if delays else ''}"
-        f"{', delays estimated' if estimate_delays else ''}); logs in {run_dir}"
+        f"{', delays estimated' if measure_delays else ''}); logs in {run_dir}"
     )
     if view_exit is None:  # an interactive run keeps its page; a script must not block
         view_exit = not (sys.stdin.isatty() and sys.stdout.isatty())
@@ -223,7 +228,7 @@ def run(
         view_keep=view and not view_exit,
         faults=faults or "",
         delays=delays,
-        estimate_delays=estimate_delays,
+        measure_delays=measure_delays,
         max_rate=planner_max_rate,
         realtime_factor=realtime_factor,
         plugins=plugin_args(plugins),

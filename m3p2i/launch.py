@@ -144,7 +144,7 @@ class EpisodeLaunch:
     plan_every: int = 1  # lockstep: world steps per command (emulates a slow planner)
     faults: str = ""  # server only: a fault profile or file (docs/faults.md)
     delays: tuple[float, float] | None = None  # planner only: declared (actuation, state) ms
-    estimate_delays: bool = False  # planner only: measure the delays online
+    measure_delays: bool = False  # planner only: measure the delays online
     max_rate: float = 0.0  # planner only: at most this many plans per second (0: no cap)
     realtime_factor: float = 1.0  # server, realtime: world seconds per wall second
     window: bool = False  # server: MuJoCo's own viewer window (a display needed)
@@ -195,8 +195,8 @@ class EpisodeLaunch:
                 "--state-delay-ms",
                 repr(self.delays[1]),
             ]
-        if self.estimate_delays:
-            planner.append("--estimate-delays")
+        if self.measure_delays:
+            planner.append("--measure-delays")
         for plugin in self.plugins:
             planner += ["--plugins", plugin]
         return {"server": server, "planner": planner}

@@ -18,7 +18,7 @@ because ``mujoco.rollout`` starts every rollout from a reset MjData, whose equal
 the model's, and through the mirror's ``eq_active`` for the prediction over the plan's lead.
 
 A held object's measured pose carries perception's noise, while the hand's comes from the arm's
-encoders: with ``planner.estimate.held_filter`` < 1, :meth:`Attachments.track` puts each attached
+encoders: with ``planner.tracking.held_filter`` < 1, :meth:`Attachments.track` puts each attached
 object where the hand holds it, at a relative pose filtered over the states (constant while the
 grasp holds, so a strong filter costs no lag) and moving with the hand. A relative pose that
 jumps by more than ``slip`` is taken as measured (a cube slipped or was taken). The relative pose

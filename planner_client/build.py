@@ -95,17 +95,17 @@ def build_task(scenario: Scenario, motion: MotionPlanner) -> TaskLayer:
 
 def build_parts(motion: MotionPlanner, task: TaskLayer) -> Parts:
     """The collaborators a :class:`Controller` drives for ``motion`` and ``task``: the mirror
-    (with ``planner.estimate``'s filters), the attachments of ``planner.model.attach``, the
+    (with ``planner.tracking``'s filters), the attachments of ``planner.model.attach``, the
     guide of ``guide``, and, with ``planner.model.variants.identify``, the maker of the
     identifier that reweights the motion planner's variants."""
     problem = motion.problem
     pc = problem.scenario.planner
     mirror = Mirror(
         problem.model,
-        estimate=pc.estimate,
+        tracking=pc.tracking,
         planar=[n for n, o in pc.model.objects.items() if o.planar],
     )
-    attachments = Attachments(problem.model, pc.model.attach, held_filter=pc.estimate.held_filter)
+    attachments = Attachments(problem.model, pc.model.attach, held_filter=pc.tracking.held_filter)
     guide = (
         Guide(problem.guide, problem.model, problem.resolve) if problem.guide is not None else None
     )

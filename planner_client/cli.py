@@ -11,15 +11,17 @@ from typing import Annotated
 import typer
 
 from shared.cli_common import (
-    EstimateDelays,
     Host,
     Insecure,
     Keys,
+    MeasureDelays,
+    OldMeasureDelays,
     Plugins,
     Port,
     ScenarioOption,
     Verbose,
     print_errors,
+    renamed,
     setup_logging,
 )
 from shared.config import ConfigError, ConfigErrors
@@ -141,12 +143,16 @@ def main(
     standby: Standby = False,
     actuation_delay_ms: ActuationDelay = None,
     state_delay_ms: StateDelay = None,
-    estimate_delays: EstimateDelays = False,
+    measure_delays: MeasureDelays = False,
     plugins: Plugins = None,
     max_rate: MaxRate = 0.0,
     verbose: Verbose = False,
+    estimate_delays: OldMeasureDelays = False,
 ) -> None:
     setup_logging(verbose, "m3p2i.planner")
+    measure_delays = renamed(
+        measure_delays, estimate_delays, "--measure-delays", "--estimate-delays", False
+    )
     # before anything else: an exposed robot is refused at once (--check checks no keys)
     planner_keys = (
         None
@@ -159,7 +165,7 @@ def main(
 
     try:
         sc = with_delays(
-            load_scenario(scenario), actuation_delay_ms, state_delay_ms, estimate_delays
+            load_scenario(scenario), actuation_delay_ms, state_delay_ms, measure_delays
         )
         client = build_client(
             sc,
@@ -245,12 +251,12 @@ def _plan(client, scenario: str) -> None:
     raise typer.Exit(0 if stats.final_status == "success" else 1)
 
 
-def with_delays(sc, actuation_ms: float | None, state_ms: float | None, estimate: bool = False):
+def with_delays(sc, actuation_ms: float | None, state_ms: float | None, measure: bool = False):
     """``sc`` with the declared delays of the command line in place of its planner.delays
-    (``estimate``: switched on, else as the scenario says)."""
+    (``measure``: switched on, else as the scenario says)."""
     delays = sc.planner.delays
-    if estimate:
-        delays = dataclasses.replace(delays, estimate=True)
+    if measure:
+        delays = dataclasses.replace(delays, measure=True)
     if actuation_ms is not None:
         delays = dataclasses.replace(delays, actuation_ms=actuation_ms)
     if state_ms is not None:

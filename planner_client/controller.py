@@ -144,7 +144,7 @@ class Controller:
         # what the world plays, oldest first: enough plans to cover a lead plus declared delays
         self._sent: deque[TimedPlan] = deque(maxlen=16)
         self._lead: LeadEstimate | None = None
-        self._actuation: ActuationDelayEstimate | None = None  # planner.delays.estimate
+        self._actuation: ActuationDelayEstimate | None = None  # planner.delays.measure
         self.identifier: Identifier | None = None  # planner.model.variants.identify
         self._acting_logged: int | None = None  # the delays last logged, in world steps
         self._ahead_logged = 0
@@ -162,10 +162,10 @@ class Controller:
             self._new_episode(seed)
         self.mode, self.dt = mode, dt
         # a lock-step world reports its state delay in state.lag too (0 without one)
-        self._lead = LeadEstimate(dt) if mode == "realtime" or self.delays.estimate else None
+        self._lead = LeadEstimate(dt) if mode == "realtime" or self.delays.measure else None
         self._actuation = None
         self.identifier = self.parts.identifier(dt)
-        if self.delays.estimate:
+        if self.delays.measure:
             self._actuation = ActuationDelayEstimate(
                 self.motion.problem.model, dt, steps_of(self.delays.max_ms, dt)
             )

@@ -13,9 +13,9 @@ from dataclasses import dataclass
 import mujoco
 import numpy as np
 
-from planner_client.estimate import FreeBodyEstimator, MocapEstimator, filters_poses
+from planner_client.tracking import FreeBodyEstimator, MocapEstimator, filters_poses
 from shared.protocol import State
-from shared.scenario import EstimateConfig
+from shared.scenario import TrackingConfig
 from shared.scene import STATE_FIELDS, free_joint, get_full_state, set_state
 
 
@@ -42,8 +42,8 @@ class Mirror:
     It also estimates the velocity of every mocap body (objects the world moves: scripted or dynamic
     obstacles) from the last two states, for the constant-velocity prediction of paper Eq. 22. A
     jump faster than ``max_speed`` is a teleport (a disturbance), not motion: velocity 0. With
-    ``estimate`` (``planner.estimate``), the free bodies' and the mocap bodies' poses are
-    filtered and their velocities estimated from them (:mod:`planner_client.estimate`). The free
+    ``tracking`` (``planner.tracking``), the free bodies' and the mocap bodies' poses are
+    filtered and their velocities estimated from them (:mod:`planner_client.tracking`). The free
     objects named in ``planar`` (``planner.model.objects.<name>.planar``) are laid flat
     (:func:`flatten`).
     """
@@ -52,12 +52,12 @@ class Mirror:
         self,
         model: mujoco.MjModel,
         max_speed: float = 5.0,
-        estimate: EstimateConfig | None = None,
+        tracking: TrackingConfig | None = None,
         planar: Sequence[str] = (),
     ):
         self.model = model
         self.planar = [_free_joint(model, name) for name in planar]
-        cfg = estimate or EstimateConfig()
+        cfg = tracking or TrackingConfig()
         estimator = FreeBodyEstimator(model, cfg)
         self.estimator = estimator if estimator.active else None
         self.mocap_estimator = (

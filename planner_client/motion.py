@@ -207,7 +207,7 @@ class MotionPlanner:
         if self._variant_rows != S:
             self.engine.set_models(variants.per_rollout(S, cfg.spread))
             self._variant_rows = S
-        if cfg.spread != "all":  # split, estimate: one model per sample
+        if cfg.spread != "all":  # split, identified: one model per sample
             sd = self.engine.sensors(x0, V, path)
             self._step_costs = self._costs(sd, V)
             return sd

@@ -8,7 +8,7 @@ lead under the plan being played, and dates its plan's first knot ``t_eff``. The
 from ``state.lag`` (world seconds between publishing a state and the arrival of the command that
 answered it: planning plus transport, both ways). In lock-step the world waits and the lag is 0,
 unless the world publishes its states late: then it is their state delay, which a planner
-estimating its delays (``planner.delays.estimate``) plans ahead by.
+estimating its delays (``planner.delays.measure``) plans ahead by.
 
 Delays no message shows (``planner.delays``, declared: docs/faults.md) come on top: a state
 published ``state_ms`` after its measurement, and actuators that act ``actuation_ms`` after a

@@ -193,7 +193,7 @@ class VariantModels:
 
     A variant's friction factor scales the friction of the object's contacts
     (:func:`shared.scene.contact_friction`: scaling the object's own friction, 0.5 under the
-    floor's 1.0, would change nothing). With ``spread: estimate`` one more copy,
+    floor's 1.0, would change nothing). With ``spread: identified`` one more copy,
     :attr:`identified`, holds the factors the identifier estimates (:meth:`set_estimate`), and
     every sample rolls out in it."""
 
@@ -205,7 +205,7 @@ class VariantModels:
         self.rng = np.random.default_rng([cfg.seed])
         self.factors = draw_factors(self.rng, cfg.count, self.half)  # [V, P]
         self.models = [copy.copy(model) for _ in range(cfg.count)]
-        self.identified = copy.copy(model) if cfg.spread == "estimate" else None
+        self.identified = copy.copy(model) if cfg.spread == "identified" else None
         self._mass = model.body_mass.copy()
         self._inertia = model.body_inertia.copy()
         self._gain = model.actuator_gainprm.copy()
@@ -223,7 +223,7 @@ class VariantModels:
             for m in self._all():
                 m.geom_priority[:] = priority
         self.apply()
-        self.set_estimate(self.factors.mean(0))
+        self.set_identified(self.factors.mean(0))
 
     def apply(self) -> None:
         """Write :attr:`factors` into the variants' parameter arrays (no recompilation), and
@@ -232,8 +232,8 @@ class VariantModels:
         for m, row in zip(self.models, self.factors):
             self._write(m, row)
 
-    def set_estimate(self, factors: np.ndarray) -> None:
-        """The identified factors ``[P]`` into :attr:`identified` (``spread: estimate``; a
+    def set_identified(self, factors: np.ndarray) -> None:
+        """The identified factors ``[P]`` into :attr:`identified` (``spread: identified``; a
         no-op otherwise)."""
         if self.identified is not None:
             self._write(self.identified, factors)
@@ -264,8 +264,8 @@ class VariantModels:
     def per_rollout(self, samples: int, spread: str) -> list[mujoco.MjModel]:
         """The model of each rollout: ``split``, sample ``k`` in variant ``k mod V``
         (``samples`` rollouts); ``all``, every sample in every variant, variant-major
-        (``V · samples`` rollouts); ``estimate``, every sample in :attr:`identified`."""
-        if spread == "estimate":
+        (``V · samples`` rollouts); ``identified``, every sample in :attr:`identified`."""
+        if spread == "identified":
             return [self.identified] * samples
         if spread == "split":
             return [self.models[k % len(self.models)] for k in range(samples)]
@@ -285,7 +285,7 @@ class Identifier:
     the world's step; ``max_gap``: states further apart (world steps) are not scored.
 
     ``from_poses``: the mirror estimates the free objects' velocities from their poses
-    (``planner.estimate.object_velocities: from_poses``). Its filters lag a box that speeds up,
+    (``planner.tracking.object_velocities: from_poses``). Its filters lag a box that speeds up,
     and a prediction started from them, scored against them, favours variants whose box
     accelerates less (a heavier box, weaker drives: a nominal world read as mass 1.2-1.5,
     gains 0.75-0.85). So each prediction starts instead from the objects' poses as received
@@ -410,7 +410,7 @@ class Identifier:
         self.observed += 1
         # the estimate is the posterior's, before resampling redraws a share from the prior
         self._estimate = posterior_mean(self.variants.factors, self.log_w)
-        self.variants.set_estimate(self._estimate)
+        self.variants.set_identified(self._estimate)
         if effective_size(self.log_w) < len(self.log_w) / 2:
             v = self.variants
             v.factors = resample(

@@ -110,12 +110,12 @@ Faults = Annotated[
     ),
 ]
 OldFaults = Annotated[str | None, typer.Option("--hardware", hidden=True)]  # deprecated
-EstimateDelays = Annotated[
+MeasureDelays = Annotated[
     bool,
     typer.Option(
-        "--estimate-delays",
+        "--measure-delays",
         help="The planner measures the robot's delays online "
-        "(planner.delays.estimate): the state delay from the lag the world reports, the actuation "
+        "(planner.delays.measure): the state delay from the lag the world reports, the actuation "
         "delay from how the robot answers the controls sent; declared delays stand until then "
         "(docs/faults.md).",
     ),
@@ -129,6 +129,7 @@ Window = Annotated[
     ),
 ]
 OldWindow = Annotated[bool, typer.Option("--viewer", hidden=True)]  # deprecated
+OldMeasureDelays = Annotated[bool, typer.Option("--estimate-delays", hidden=True)]  # deprecated
 
 
 def renamed(value, old_value, new: str, old: str, default):

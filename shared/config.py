@@ -180,6 +180,16 @@ class Section:
             return default
         return self._convert(key, self.data[key], kind, expected)
 
+    def renamed(self, old: str, new: str) -> str:
+        """The key to read for ``new``: ``old`` when only the old spelling is given (it warns
+        once, naming ``new``); both given: an error."""
+        if old not in self.data:
+            return new
+        if new in self.data:
+            raise self.error(old, f"both {new} and {old} (its old name) given", expected=new)
+        deprecated(f"{self.key_path(old)} (in {self.source})", f"write {self.key_path(new)}")
+        return old
+
     def section(self, key: str, required: bool = True) -> Section:
         """A nested mapping (an empty one when optional and absent)."""
         if key not in self.data:

@@ -192,8 +192,8 @@ def run_options(case: B.BenchCase) -> str:
         opts.append(f"--realtime-factor {case.realtime_factor:g}")
     if case.faults:
         opts.append(f"--faults {case.faults}")
-    if case.estimate_delays:
-        opts.append("--estimate-delays")
+    if case.measure_delays:
+        opts.append("--measure-delays")
     elif case.delays is not None:
         opts.append("--compensate")
     return (" " + " ".join(opts)) if opts else ""

@@ -9,7 +9,6 @@ and its ``model``, ``variants``, ``estimate``, ``mppi``); ``reader`` reads a fil
 both processes use are re-exported here; the rest are in their section's module."""
 
 from shared.scenario.episode import EpisodeConfig, MetricsConfig
-from shared.scenario.estimate import EstimateConfig
 from shared.scenario.model import Attach, PlanningModel
 from shared.scenario.objectives import ObjectiveConfig, TermConfig, find_objectives
 from shared.scenario.planner import ROLLOUT_BACKENDS, DelayConfig, PlannerConfig, rollout_device
@@ -26,6 +25,7 @@ from shared.scenario.reader import (
 )
 from shared.scenario.robot import RobotConfig
 from shared.scenario.task import ObserverConfig
+from shared.scenario.tracking import TrackingConfig
 from shared.scenario.variants import VARIANT_PARAMS, VariantsConfig
 from shared.scenario.world import (
     MoveConfig,

@@ -1,5 +1,5 @@
 """The ``planner`` section: samples, horizon, rollout backend, timing and delays, and its
-subsections (``model``, ``estimate``, ``mppi``)."""
+subsections (``model``, ``tracking``, ``delays``, ``mppi``)."""
 
 from __future__ import annotations
 
@@ -16,9 +16,9 @@ from shared.config import (
     positive_int,
 )
 from shared.scenario.common import STEP_SECONDS, step_seconds
-from shared.scenario.estimate import EstimateConfig, read_estimate
 from shared.scenario.model import PlanningModel, read_planning_model
 from shared.scenario.mppi import MppiSettings, read_mppi
+from shared.scenario.tracking import TrackingConfig, read_tracking
 from shared.scenario.world import WorldConfig
 
 # Rollout backends (planner.backend): "mujoco" is mujoco.rollout's thread pool on the CPU, the
@@ -39,18 +39,18 @@ class DelayConfig:
     plans for the state its plan will meet (docs/faults.md, "Delay compensation").
     ``actuation_ms``: from a command reaching the world to the actuators acting on it;
     ``state_ms``: from a measurement to its state being published (a state's ``time`` is
-    its measurement's). ``estimate``: measure them online instead, the state delay from
+    its measurement's). ``measure``: measure them online instead, the state delay from
     ``state.lag``, the actuation delay (up to ``max_ms``) from the robot's response; a declared
     value stands until the estimate has one."""
 
     actuation_ms: float = 0.0
     state_ms: float = 0.0
-    estimate: bool = False  # measure both online (planner_client/delay_estimate.py)
+    measure: bool = False  # measure both online (planner_client/delay_estimate.py)
     max_ms: float = 300.0  # the longest actuation delay the estimate considers
 
     @property
     def active(self) -> bool:
-        return bool(self.actuation_ms or self.state_ms or self.estimate)
+        return bool(self.actuation_ms or self.state_ms or self.measure)
 
 
 @dataclass(frozen=True)
@@ -72,7 +72,7 @@ class PlannerConfig:
     njmax: int | None = None  # warp: constraint rows per world; None = estimated
     model: PlanningModel = field(default_factory=PlanningModel)  # the rollout model's own options
     # the mirror's filters for the free bodies
-    estimate: EstimateConfig = field(default_factory=EstimateConfig)
+    tracking: TrackingConfig = field(default_factory=TrackingConfig)
     delays: DelayConfig = DelayConfig()  # the robot's unseen delays, compensated by prediction
 
     def step(self, world: WorldConfig) -> float:
@@ -103,7 +103,7 @@ def read_planner(s: Section) -> PlannerConfig:
         nconmax=s.opt("nconmax", None, positive_int, "contacts per world"),
         njmax=s.opt("njmax", None, positive_int, "constraint rows per world"),
         model=read_planning_model(s.section("model", required=False)),
-        estimate=read_estimate(s.section("estimate", required=False)),
+        tracking=read_tracking(s.section(s.renamed("estimate", "tracking"), required=False)),
         delays=_delays(s.section("delays", required=False)),
     )
     s.done()
@@ -138,7 +138,7 @@ def _delays(s: Section) -> DelayConfig:
     cfg = DelayConfig(
         actuation_ms=s.opt("actuation_ms", 0.0, non_negative, "milliseconds >= 0"),
         state_ms=s.opt("state_ms", 0.0, non_negative, "milliseconds >= 0"),
-        estimate=s.opt("estimate", False, flag, "true or false"),
+        measure=s.opt(s.renamed("estimate", "measure"), False, flag, "true or false"),
         max_ms=s.opt("max_ms", 300.0, positive, "milliseconds > 0"),
     )
     s.done()

@@ -177,9 +177,8 @@ def scenario_hash(
     file and of a robot file of the user's (the shipped ones are part of the package, and a
     shipped scenario keeps the hash it had before robots were files). ``faults:`` is hashed under
     its old name, ``hardware:``: a scenario keeps its hash (bench results, logs, an older peer's)
-    whichever name it uses."""
-    if "faults" in raw:
-        raw = {(OLD_NAME if k == "faults" else k): v for k, v in raw.items()}
+    whichever name it uses, and so are the other renamed keys (:data:`HASHED_AS`)."""
+    raw = _hashed_spelling(raw)
     h = hashlib.sha256(json.dumps(raw, sort_keys=True, default=str).encode())
     for inc in included:
         h.update(json.dumps(inc, sort_keys=True, default=str).encode())
@@ -188,6 +187,34 @@ def scenario_hash(
         if robot.source and robot.source != source and not robot.shipped:
             h.update(Path(robot.source).read_bytes())
     return h.hexdigest()[:16]
+
+
+# (path of a mapping, key or key: value today, its spelling before the rename): hashed under the
+# old spelling, so that a scenario keeps its hash (bench results resume) whichever it uses
+HASHED_AS = (
+    ((), "faults", OLD_NAME),
+    (("planner",), "tracking", "estimate"),
+    (("planner", "delays"), "measure", "estimate"),
+    (("planner", "model", "variants"), ("spread", "identified"), ("spread", "estimate")),
+)
+
+
+def _hashed_spelling(raw: dict) -> dict:
+    """``raw`` with every renamed key (and value) in its old spelling; ``raw`` is not changed."""
+    out = copy.deepcopy(raw)
+    for path, new, old in HASHED_AS:
+        node = out
+        for key in path:
+            node = node.get(key) if isinstance(node, dict) else None
+        if not isinstance(node, dict):
+            continue
+        if isinstance(new, tuple):
+            (key, value), (_, old_value) = new, old
+            if node.get(key) == value:
+                node[key] = old_value
+        elif new in node:
+            node[old] = node.pop(new)
+    return out
 
 
 def parse_scenario(raw: dict, source: str) -> Scenario:
@@ -386,13 +413,13 @@ def _check_planning_model(
                 )
     if planner is not None and planner.model.attach:
         _check_attach(planner, task, world, source, errors)
-    elif planner is not None and planner.estimate.held_filter < 1.0:
+    elif planner is not None and planner.tracking.held_filter < 1.0:
         errors.add(
             ConfigError(
                 source,
-                "planner.estimate.held_filter",
+                "planner.tracking.held_filter",
                 "filters the pose of an attached object, and nothing is attached",
-                planner.estimate.held_filter,
+                planner.tracking.held_filter,
                 "planner.model.attach, or no held_filter",
             )
         )

@@ -8,6 +8,7 @@ from typing import Any
 
 from shared.config import (
     Section,
+    deprecated,
     non_negative,
     one_of,
     positive,
@@ -21,7 +22,7 @@ VARIANT_PARAMS = ("mass", "friction", "gain")
 VARIANT_AGGREGATES = ("mean", "cvar", "worst")
 
 
-VARIANT_SPREADS = ("split", "all", "estimate")
+VARIANT_SPREADS = ("split", "all", "identified")
 
 
 @dataclass(frozen=True)
@@ -57,7 +58,7 @@ class VariantsConfig:
     for ``gain`` (gain and bias). ``spread: split``: sample ``k`` rolls out in variant
     ``k mod count`` (no extra rollouts); ``all``: every sample in every variant, its cost the
     ``aggregate`` over them (``mean``, ``cvar``: the mean of the worst ``cvar_alpha`` share,
-    ``worst``); ``estimate``: every sample in one model at the identified factors (the
+    ``worst``); ``identified``: every sample in one model at the identified factors (the
     variants only identify; needs ``identify``). ``identify``: the variants reweighted and
     resampled online."""
 
@@ -115,7 +116,7 @@ def read_variants(s: Section) -> VariantsConfig:
     cfg = VariantsConfig(
         count=s.opt("count", 8, positive_int, "an integer >= 1 (models)"),
         seed=s.opt("seed", 0, count_of, "an integer >= 0"),
-        spread=s.opt("spread", "split", one_of(VARIANT_SPREADS)),
+        spread=_spread(s),
         aggregate=s.opt("aggregate", "mean", one_of(VARIANT_AGGREGATES)),
         cvar_alpha=s.opt("cvar_alpha", 0.25, unit_weight, "a share in (0, 1]"),
         identify=_identify(s.section("identify")) if s.has("identify") else None,
@@ -128,7 +129,7 @@ def read_variants(s: Section) -> VariantsConfig:
             cfg.aggregate,
             f"spread: all (with spread: {cfg.spread} each sample meets one model)",
         )
-    if cfg.spread == "estimate" and cfg.identify is None:
+    if cfg.spread == "identified" and cfg.identify is None:
         raise s.error(
             "spread",
             "rollouts at the identified factors need the variants identified",
@@ -150,3 +151,11 @@ def _identify(s: Section) -> IdentifyConfig:
     )
     s.done()
     return cfg
+
+
+def _spread(s: Section) -> str:
+    """``spread``, its old value ``estimate`` read as ``identified`` (it warns once)."""
+    if s.data.get("spread") == "estimate":
+        deprecated(f"{s.key_path('spread')}: estimate (in {s.source})", "write spread: identified")
+        s.data = {**s.data, "spread": "identified"}
+    return s.opt("spread", "split", one_of(VARIANT_SPREADS))

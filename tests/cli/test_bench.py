@@ -491,10 +491,10 @@ def test_bench_faults_and_compensation_are_checked_and_reach_the_processes(tmp_p
         ],
     )
     (f,) = load_bench(path).cases
-    assert f.estimate_delays and f.delays is None and f.mode_label.endswith("delays estimated")
+    assert f.measure_delays and f.delays is None and f.mode_label.endswith("delays estimated")
     assert (
-        "--estimate-delays"
-        in EpisodeLaunch(scenario="n.yaml", run_dir=tmp_path, estimate_delays=True).commands(5555)[
+        "--measure-delays"
+        in EpisodeLaunch(scenario="n.yaml", run_dir=tmp_path, measure_delays=True).commands(5555)[
             "planner"
         ]
     )

@@ -99,7 +99,7 @@ def test_shared_options_are_declared_once():
         ("faults", (server, run)),
         ("plan_every", (server, run)),
         ("window", (server, run)),
-        ("estimate_delays", (planner, run)),
+        ("measure_delays", (planner, run)),
     ):
         shown = {(tuple(p[name].opts), tuple(p[name].secondary_opts), p[name].help) for p in where}
         assert len(shown) == 1, (name, shown)

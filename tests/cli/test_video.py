@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from m3p2i import video
-from tests.shared.test_metrics import hand_made_log, scenario  # noqa: F401  (fixture)
+from tests.server.test_metrics import hand_made_log, scenario  # noqa: F401  (fixture)
 
 
 def test_frame_steps_follow_fps_and_speed():

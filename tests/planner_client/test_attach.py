@@ -244,8 +244,8 @@ def test_without_a_held_filter_nothing_is_tracked():
 def test_a_held_filter_needs_an_attachment():
     raw = _pick_place()
     del raw["planner"]["model"]["attach"]
-    raw["planner"]["estimate"] = {"held_filter": 0.1}
-    with pytest.raises(ConfigError, match=r"planner.estimate.held_filter.*nothing is attached"):
+    raw["planner"]["tracking"] = {"held_filter": 0.1}
+    with pytest.raises(ConfigError, match=r"planner.tracking.held_filter.*nothing is attached"):
         parse_scenario(raw, "pp.yaml")
 
 

@@ -1,4 +1,4 @@
-"""Delays estimated online (planner.delays.estimate, `m3p2i run --estimate-delays`;
+"""Delays estimated online (planner.delays.measure, `m3p2i run --measure-delays`;
 docs/faults.md): the actuation delay from how the robot answers the controls sent, the state
 delay from the lag a world reports, in lock-step too."""
 
@@ -78,15 +78,15 @@ def test_delays_estimate_is_read_checked_and_switched_on_by_the_command_line(tmp
     from shared.config_files import shipped
 
     raw = yaml.safe_load((shipped("scenarios") / "navigation.yaml").read_text())
-    raw["planner"]["delays"] = {"estimate": "yes"}
+    raw["planner"]["delays"] = {"measure": "yes"}
     bad = tmp_path / "bad.yaml"
     bad.write_text(yaml.safe_dump(raw))
-    with pytest.raises(ConfigError, match=r"bad.yaml: planner.delays.estimate.*true or false"):
+    with pytest.raises(ConfigError, match=r"bad.yaml: planner.delays.measure.*true or false"):
         load_scenario(str(bad))
-    sc = with_delays(load_scenario("navigation"), None, None, estimate=True)
-    assert sc.planner.delays.estimate and sc.planner.delays.active
-    cmds = EpisodeLaunch(scenario="n.yaml", run_dir=tmp_path, estimate_delays=True).commands(5000)
-    assert "--estimate-delays" in cmds["planner"] and "--estimate-delays" not in cmds["server"]
+    sc = with_delays(load_scenario("navigation"), None, None, measure=True)
+    assert sc.planner.delays.measure and sc.planner.delays.active
+    cmds = EpisodeLaunch(scenario="n.yaml", run_dir=tmp_path, measure_delays=True).commands(5000)
+    assert "--measure-delays" in cmds["planner"] and "--measure-delays" not in cmds["server"]
 
 
 @pytest.mark.slow
@@ -104,7 +104,7 @@ def test_estimated_delays_do_what_declared_ones_do(tmp_path):
             scenario=str(shipped("scenarios") / "navigation.yaml"),
             run_dir=tmp_path / "estimated",
             faults=str(faults),
-            estimate_delays=True,
+            measure_delays=True,
             timeout=300,
         )
     )

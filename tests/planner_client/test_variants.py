@@ -122,9 +122,9 @@ _AGG = "variants.aggregate"
         ({"params": {"mass": 0.5}, "count": 0}, {}, "variants.count", "an integer >= 1"),
         ({"params": {"mass": 0.5}, "aggregate": "median"}, {}, "variants.aggregate", "one of"),
         ({"params": {"mass": 0.5}, "aggregate": "cvar"}, {}, "variants.aggregate", "spread: all"),
-        ({"params": {"mass": 0.5}, "spread": "some"}, {}, "variants.spread", "all, estimate"),
-        ({"params": {"mass": 0.5}, "spread": "estimate"}, {}, "variants.spread", "identify"),
-        ({**_MASS, "spread": "estimate", "identify": {}, "aggregate": "cvar"}, {}, _AGG, "all"),
+        ({"params": {"mass": 0.5}, "spread": "some"}, {}, "variants.spread", "all, identified"),
+        ({"params": {"mass": 0.5}, "spread": "identified"}, {}, "variants.spread", "identify"),
+        ({**_MASS, "spread": "identified", "identify": {}, "aggregate": "cvar"}, {}, _AGG, "all"),
         ({**_MASS, "identify": {"window": 21}}, {}, "variants.identify.window", "[1, 20]"),
         ({**_MASS, "identify": {"window": 0}}, {}, "variants.identify.window", "[1, 20]"),
         ({"params": {"mass": 0.5}, "count": 300}, {}, "variants.count", "count <= 200"),
@@ -190,10 +190,10 @@ def _closed_loop(sc, steps: int = 5):
         episode.close()
 
 
-def test_with_spread_estimate_every_sample_rolls_out_at_the_identified_factors():
-    with _closed_loop(_scenario({**VARIANTS, "spread": "estimate"})) as (controller, *_):
+def test_with_spread_identified_every_sample_rolls_out_at_the_identified_factors():
+    with _closed_loop(_scenario({**VARIANTS, "spread": "identified"})) as (controller, *_):
         variants = controller.motion.variants
-        assert variants.per_rollout(7, "estimate") == [variants.identified] * 7
+        assert variants.per_rollout(7, "identified") == [variants.identified] * 7
         box = variants.base.body("box").id
         factor = controller.identifier.estimate()["mass"]["box"]
         assert factor != 1.0
@@ -251,7 +251,7 @@ def _box_travel(model, x0, controls) -> float:
 
 
 @pytest.mark.parametrize(
-    "spread, aggregate", [("split", None), ("all", "cvar"), ("estimate", None)]
+    "spread, aggregate", [("split", None), ("all", "cvar"), ("identified", None)]
 )
 def test_the_planner_plans_over_the_variants(spread, aggregate):
     variants = {**VARIANTS, "spread": spread, **({"aggregate": aggregate} if aggregate else {})}
@@ -338,7 +338,7 @@ def _identify(
 HEAVY = "mismatch: {factors: {mass: {box: 1.5}, friction: {box: 0.6}}, friction_of: contacts}"
 TRACKED = {
     "params": {"mass": 0.5, "friction": 0.5, "gain": 0.25},
-    "estimate": {
+    "tracking": {
         "object_velocities": "from_poses",
         "pose_filter": 0.35,
         "velocity_filter": 0.3,

@@ -119,5 +119,5 @@ def test_the_shipped_lab_variants_change_only_the_planner():
         assert {
             k: v for k, v in lab.raw.items() if k not in ("name", "description", "planner")
         } == {k: v for k, v in nominal.raw.items() if k not in ("name", "description", "planner")}
-        assert lab.planner.estimate.held_filter < 1.0 and lab.planner.confirm
-        assert nominal.planner.estimate.held_filter == 1.0
+        assert lab.planner.tracking.held_filter < 1.0 and lab.planner.confirm
+        assert nominal.planner.tracking.held_filter == 1.0

@@ -1,4 +1,4 @@
-"""``planner.estimate``: how the planner's mirror reads bodies a world measures by perception."""
+"""``planner.tracking``: how the planner's mirror reads bodies a world measures by perception."""
 
 from __future__ import annotations
 
@@ -15,8 +15,8 @@ from shared.scenario.common import unit_weight
 
 
 @dataclass(frozen=True)
-class EstimateConfig:
-    """``planner.estimate``: how the planner's mirror turns received states of the free bodies
+class TrackingConfig:
+    """``planner.tracking``: how the planner's mirror turns received states of the free bodies
     (the scenario's objects) into the rollouts' start, for worlds whose object poses come from
     perception (noisy) and whose object velocities are not measured."""
 
@@ -29,8 +29,8 @@ class EstimateConfig:
     predict: bool = False  # blend a new pose with the last one moved on by its velocity
 
 
-def read_estimate(s: Section) -> EstimateConfig:
-    cfg = EstimateConfig(
+def read_tracking(s: Section) -> TrackingConfig:
+    cfg = TrackingConfig(
         object_velocities=s.opt(
             "object_velocities", "received", one_of(("received", "from_poses"))
         ),

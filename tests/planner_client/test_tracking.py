@@ -1,4 +1,4 @@
-"""planner.estimate: the mirror filters noisy object poses and estimates the velocities a world
+"""planner.tracking: the mirror filters noisy object poses and estimates the velocities a world
 does not send (finite differences of the filtered poses); a teleport restarts the filters.
 Synthetic states of the push scene's box (no physics): deterministic, with a seeded noise."""
 
@@ -15,7 +15,7 @@ from planner_client.mirror import Mirror
 from planner_client.problem import build_problem
 from shared import protocol as P
 from shared.config import ConfigError
-from shared.scenario import SCENARIO_DIR, EstimateConfig, load_scenario, parse_scenario
+from shared.scenario import SCENARIO_DIR, TrackingConfig, load_scenario, parse_scenario
 from shared.scene import initial_data
 
 V, W, DT = np.array([0.3, -0.2, 0.0]), 0.5, 0.05  # the box: m/s, rad/s about z, s per state
@@ -54,7 +54,7 @@ def _states(push, seconds: float, noise: float, seed: int = 0):
 
 def _run(push, cfg, seconds=3.0, noise=0.005):
     model, _, qa, va = push
-    mirror = Mirror(model, estimate=cfg)
+    mirror = Mirror(model, tracking=cfg)
     out = []
     for state in _states(push, seconds, noise):
         mirror.apply(state)
@@ -65,7 +65,7 @@ def _run(push, cfg, seconds=3.0, noise=0.005):
 
 
 def test_velocities_withheld_by_the_world_are_estimated_from_the_poses(push):
-    cfg = EstimateConfig(object_velocities="from_poses", pose_filter=0.5, velocity_filter=0.3)
+    cfg = TrackingConfig(object_velocities="from_poses", pose_filter=0.5, velocity_filter=0.3)
     late = [(v, p) for t, v, p in _run(push, cfg) if t >= 1.0]
     lin = np.array([v[:3] for v, _ in late])
     ang = np.array([v[3:] for v, _ in late])
@@ -79,8 +79,8 @@ def test_filtered_poses_are_closer_to_the_truth_than_the_measured_ones(push):
     _, data, qa, _ = push
     p0 = data.qpos[qa : qa + 3]
     w = 0.3
-    filtered = _run(push, EstimateConfig(pose_filter=w, object_velocities="from_poses"))
-    measured = _run(push, EstimateConfig(velocity_filter=0.999))  # active, poses unfiltered
+    filtered = _run(push, TrackingConfig(pose_filter=w, object_velocities="from_poses"))
+    measured = _run(push, TrackingConfig(velocity_filter=0.999))  # active, poses unfiltered
 
     def error(run, lag=0.0):
         return np.mean([np.linalg.norm(p - (p0 + V * (t - lag))) for t, _, p in run[20:]])
@@ -93,7 +93,7 @@ def test_filtered_poses_are_closer_to_the_truth_than_the_measured_ones(push):
 def test_a_predicting_filter_does_not_trail_a_box_moving_at_constant_velocity(push):
     _, data, qa, _ = push
     p0 = data.qpos[qa : qa + 3]
-    cfg = EstimateConfig(pose_filter=0.35, velocity_filter=0.42, object_velocities="from_poses")
+    cfg = TrackingConfig(pose_filter=0.35, velocity_filter=0.42, object_velocities="from_poses")
 
     def lag(cfg):  # mean error of the filtered position after 1 s, noise-free measurements
         run = _run(push, cfg, noise=0.0)
@@ -107,7 +107,7 @@ def test_a_predicting_filter_does_not_trail_a_box_moving_at_constant_velocity(pu
 
 
 def test_a_predicting_filter_still_filters_noise_and_turns(push):
-    cfg = EstimateConfig(
+    cfg = TrackingConfig(
         pose_filter=0.35, velocity_filter=0.42, object_velocities="from_poses", predict=True
     )
     late = [v for t, v, _ in _run(push, cfg, noise=0.005) if t >= 1.0]
@@ -120,14 +120,14 @@ def test_a_predicting_filter_still_filters_noise_and_turns(push):
 def test_received_velocities_pass_through_by_default(push):
     model, _, _, _va = push
     assert Mirror(model).estimator is None
-    assert all(np.all(v == 0) for _, v, _ in _run(push, EstimateConfig(), seconds=0.5))
+    assert all(np.all(v == 0) for _, v, _ in _run(push, TrackingConfig(), seconds=0.5))
 
 
 def test_a_teleport_restarts_the_filters(push):
     model, _data, qa, va = push
     mirror = Mirror(
         model,
-        estimate=EstimateConfig(
+        tracking=TrackingConfig(
             object_velocities="from_poses", pose_filter=0.5, velocity_filter=0.5
         ),
     )
@@ -165,10 +165,10 @@ def test_a_teleport_restarts_the_filters(push):
         ("filter", 0.5, "unknown key"),
     ],
 )
-def test_estimate_keys_are_checked(key, value, expected):
+def test_tracking_keys_are_checked(key, value, expected):
     raw = yaml.safe_load((SCENARIO_DIR / "push.yaml").read_text())
-    raw["planner"]["estimate"] = {key: value}
-    with pytest.raises(ConfigError, match=rf"planner\.estimate\.{key}") as info:
+    raw["planner"]["tracking"] = {key: value}
+    with pytest.raises(ConfigError, match=rf"planner\.tracking\.{key}") as info:
         parse_scenario(raw, "p.yaml")
     assert expected in str(info.value)
 
@@ -186,7 +186,7 @@ def _mocap_run(table, cfg, velocity=(0.0, 0.0, 0.0), seconds=3.0, noise=0.005, d
     mirror's estimated mocap velocity after each state (from 0.5 s on)."""
     model, data = table
     rng = np.random.default_rng(1)
-    mirror = Mirror(model, estimate=cfg)
+    mirror = Mirror(model, tracking=cfg)
     p0 = data.mocap_pos.copy()
     out = []
     for k in range(int(seconds / dt)):
@@ -216,9 +216,9 @@ def _mocap_run(table, cfg, velocity=(0.0, 0.0, 0.0), seconds=3.0, noise=0.005, d
 def test_a_noisy_fixed_object_is_filtered_and_does_not_move(table):
     """A tracker's 5 mm noise on the table: raw differences read it moving at up to ~1 m/s (the
     rollouts then threw the table and the cube on it about); filtered, it stays put."""
-    raw = np.array([v for v, _ in _mocap_run(table, EstimateConfig())])
+    raw = np.array([v for v, _ in _mocap_run(table, TrackingConfig())])
     assert np.linalg.norm(raw, axis=1).max() > 0.8
-    cfg = EstimateConfig(object_velocities="from_poses", pose_filter=0.15, velocity_filter=0.3)
+    cfg = TrackingConfig(object_velocities="from_poses", pose_filter=0.15, velocity_filter=0.3)
     run = _mocap_run(table, cfg)
     speeds = np.array([np.linalg.norm(v) for v, _ in run])
     assert speeds.max() < 0.2 and np.median(speeds) < 0.06
@@ -231,7 +231,7 @@ def test_a_moving_fixed_object_keeps_its_velocity_above_still_speed(table):
     """A scripted obstacle at 0.3 m/s, 5 mm noisy: its velocity is estimated within 5 cm/s on
     average, and ``still_speed`` (0.12 m/s) does not stop it."""
     v = np.array([0.3, 0.0, 0.0])
-    cfg = EstimateConfig(
+    cfg = TrackingConfig(
         object_velocities="from_poses", pose_filter=0.15, velocity_filter=0.3, still_speed=0.12
     )
     vel = np.array([u for u, _ in _mocap_run(table, cfg, velocity=v)])
@@ -246,7 +246,7 @@ def test_still_speed_zeroes_a_resting_objects_velocity(push):
     rng = np.random.default_rng(2)
 
     def run(cfg):
-        mirror = Mirror(model, estimate=cfg)
+        mirror = Mirror(model, tracking=cfg)
         out = []
         for k in range(200):
             qpos = data.qpos.copy()
@@ -266,15 +266,15 @@ def test_still_speed_zeroes_a_resting_objects_velocity(push):
             out.append(not mirror.data.qvel[va : va + 6].any())
         return np.mean(out[50:])
 
-    cfg = EstimateConfig(object_velocities="from_poses", pose_filter=0.15, velocity_filter=0.3)
+    cfg = TrackingConfig(object_velocities="from_poses", pose_filter=0.15, velocity_filter=0.3)
     assert run(cfg) == 0.0
     assert run(dataclasses.replace(cfg, still_speed=0.12)) > 0.99
 
 
 def test_a_state_with_the_same_time_stamp_is_a_duplicate_not_a_new_episode():
-    from planner_client.estimate import PoseFilter
+    from planner_client.tracking import PoseFilter
 
-    cfg = EstimateConfig(pose_filter=0.5, velocity_filter=0.5)
+    cfg = TrackingConfig(pose_filter=0.5, velocity_filter=0.5)
     f = PoseFilter(1, cfg)
     quat = np.array([[1.0, 0.0, 0.0, 0.0]])
     for k in range(10):

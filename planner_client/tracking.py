@@ -1,7 +1,7 @@
 """State estimation of the bodies a world measures by perception, from their received poses.
 
 A simulated world sends exact poses and velocities. A robot's world knows its objects from
-perception: poses with noise, and often no velocity at all. ``planner.estimate`` makes the
+perception: poses with noise, and often no velocity at all. ``planner.tracking`` makes the
 mirror filter the poses (an exponential filter: ``p ← w·p_new + (1 − w)·p``, quaternions
 blended the same way and renormalised; with ``predict``, ``p`` is first moved on by its filtered
 velocity over the time since, an alpha-beta filter that does not trail a body moving at constant
@@ -26,7 +26,7 @@ from __future__ import annotations
 import mujoco
 import numpy as np
 
-from shared.scenario import EstimateConfig
+from shared.scenario import TrackingConfig
 
 
 class PoseFilter:
@@ -36,7 +36,7 @@ class PoseFilter:
     velocities (linear in the world frame, angular in the body's).
     """
 
-    def __init__(self, n: int, cfg: EstimateConfig):
+    def __init__(self, n: int, cfg: TrackingConfig):
         self.cfg = cfg
         self.pos = np.zeros((n, 3))
         self.quat = np.zeros((n, 4))
@@ -89,7 +89,7 @@ class PoseFilter:
         return out
 
 
-def filters_poses(cfg: EstimateConfig) -> bool:
+def filters_poses(cfg: TrackingConfig) -> bool:
     """Whether ``cfg`` changes received poses or velocities at all."""
     return (
         cfg.pose_filter < 1.0 or cfg.velocity_filter < 1.0 or cfg.object_velocities == "from_poses"
@@ -100,7 +100,7 @@ class FreeBodyEstimator:
     """Filters the free joints' ``qpos`` (7 each) and, when asked, estimates their ``qvel``
     (6 each) in place of the received ones."""
 
-    def __init__(self, model: mujoco.MjModel, cfg: EstimateConfig):
+    def __init__(self, model: mujoco.MjModel, cfg: TrackingConfig):
         self.cfg = cfg
         free = [j for j in range(model.njnt) if model.jnt_type[j] == mujoco.mjtJoint.mjJNT_FREE]
         self.qadr = np.array([model.jnt_qposadr[j] for j in free], dtype=int)  # [F]
@@ -135,7 +135,7 @@ class MocapEstimator:
     """Filters the mocap bodies' received poses and estimates their linear velocities
     (``[nmocap, 3]``) from the filtered poses, for worlds that perceive them."""
 
-    def __init__(self, model: mujoco.MjModel, cfg: EstimateConfig):
+    def __init__(self, model: mujoco.MjModel, cfg: TrackingConfig):
         self.cfg = cfg
         self.filter = PoseFilter(model.nmocap, cfg)
 
