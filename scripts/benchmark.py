@@ -41,11 +41,14 @@ machine, and ``--report FILE --update docs/speed.md`` regenerates that file's
 from __future__ import annotations
 
 import dataclasses
+import itertools
 import json
 import os
 import sys
 import time
+from collections.abc import Callable, Iterator
 from pathlib import Path
+from typing import Annotated
 
 import mujoco
 import numpy as np
@@ -58,10 +61,12 @@ from rich.table import Table
 from m3p2i.provenance import machine, versions
 from measure.speed_report import update
 from planner_client.build import build_controller
+from planner_client.controller import Controller
+from planner_client.motion import MotionPlanner
 from planner_client.problem import apply_planning_model, tune_planning_model
 from shared import protocol as P
 from shared.config import ConfigError
-from shared.scenario import load_scenario
+from shared.scenario import Scenario, load_scenario
 from shared.scene import build_spec, compile_model, get_full_state, initial_data
 
 SCENARIOS = ("navigation", "push_pull", "push_pull_fast", "pick_place")
@@ -69,8 +74,144 @@ SCENARIOS = ("navigation", "push_pull", "push_pull_fast", "pick_place")
 app = typer.Typer(add_completion=False)
 
 
+def _own_model(scenario: Scenario, timestep: float) -> mujoco.MjModel:
+    """The planner's own model (its options, with steps of ``timestep``) without the sensors
+    its costs read."""
+    own_spec = build_spec(scenario)
+    own_spec.option.timestep = timestep
+    apply_planning_model(own_spec, scenario.planner.model, scenario.source)
+    own = compile_model(scenario, own_spec)
+    tune_planning_model(own, scenario.planner.model)
+    return own
+
+
+def _variant_copies(planner: MotionPlanner) -> int:
+    """How many times the planner rolls out each sample: with planner.model.variants' spread:
+    all, every sample rolls out in every variant."""
+    return (
+        planner.variants.cfg.count
+        if planner.variants is not None and planner.variants.cfg.spread == "all"
+        else 1
+    )
+
+
+def _lockstep_state(data: mujoco.MjData, seq: int) -> P.State:
+    """The state of ``data`` as a lock-step world publishes it."""
+    return P.State(
+        session="bench",
+        seq=seq,
+        time=float(data.time),
+        qpos=data.qpos.copy(),
+        qvel=data.qvel.copy(),
+        act=data.act.copy(),
+        mocap_pos=data.mocap_pos.copy(),
+        mocap_quat=data.mocap_quat.copy(),
+    )
+
+
+@dataclasses.dataclass
+class _Bench:
+    """The controller in closed loop and the bare rollouts that replay its recent iterations,
+    each timed in blocks of its own (see :func:`measure`)."""
+
+    controller: Controller
+    planner: MotionPlanner
+    model: mujoco.MjModel  # the planner's
+    data: mujoco.MjData  # the world the controller drives, in the planner's model
+    world: mujoco.MjModel
+    own: mujoco.MjModel  # the planner's own model without sensors (_own_model)
+    hold: int  # world steps per planned step
+    horizon: int
+    copies: int  # rollouts of each sample (_variant_copies)
+    block: int  # timed calls per block
+    world_data: list[mujoco.MjData]  # one per rollout thread
+    own_data: list[mujoco.MjData]
+    work: list[tuple[np.ndarray, np.ndarray]] = dataclasses.field(default_factory=list)
+    times: dict[str, list[float]] = dataclasses.field(
+        default_factory=lambda: {"plan": [], "world": [], "own": [], "sensors": []}
+    )
+    seq: Iterator[int] = dataclasses.field(default_factory=itertools.count)
+    replayed: Iterator[int] = dataclasses.field(default_factory=itertools.count)
+
+    @classmethod
+    def around(cls, scenario: Scenario, controller: Controller, nthread: int, block: int) -> _Bench:
+        """The harness of ``controller``, its world at the scenario's start and ``nthread``
+        rollout threads, timing ``block`` calls per block."""
+        planner = controller.motion
+        model = planner.problem.model
+        data = initial_data(scenario, model)  # the scenario's start pose (the Panda's ready pose)
+        world = compile_model(scenario)
+        own = _own_model(scenario, model.opt.timestep)
+        return cls(
+            controller=controller,
+            planner=planner,
+            model=model,
+            data=data,
+            world=world,
+            own=own,
+            hold=round(model.opt.timestep / world.opt.timestep),
+            horizon=scenario.planner.horizon,
+            copies=_variant_copies(planner),
+            block=block,
+            world_data=[mujoco.MjData(world) for _ in range(nthread)],
+            own_data=[mujoco.MjData(own) for _ in range(nthread)],
+        )
+
+    def run_round(self, pool: mj_rollout.Rollout) -> None:
+        """One block of each in turn: planner iterations, then the replays on the world's
+        model, on the planner's own, and on it with its sensors."""
+        self._timed("plan", self._plan_step)
+        self._timed("world", self._world_rollout, pool)
+        self._timed("own", self._own_rollout, pool)
+        self._timed("sensors", self._sensor_rollout)
+
+    def medians(self) -> dict[str, float]:
+        """The median seconds of each kind of call."""
+        return {k: float(np.median(v)) for k, v in self.times.items()}
+
+    def _timed(self, key: str, fn: Callable[..., float | None], *args) -> None:
+        for i in range(self.block + 3):
+            t = time.perf_counter()
+            took = fn(*args)
+            if i >= 3:  # the first calls of a block warm caches and threads
+                self.times[key].append(took if took is not None else time.perf_counter() - t)
+
+    def _plan_step(self) -> float:
+        """One controller step, timed by itself (the command's ``plan_time``): the world's
+        step and the copies kept for the replays around it are the harness's work, not the
+        planner's (60 µs of navigation's)."""
+        cmd = self.controller.step(_lockstep_state(self.data, next(self.seq)))
+        # the start state the iteration rolled out from: the mirror's (no delays: no prediction)
+        x0 = get_full_state(self.model, self.controller.mirror.data).copy()
+        self.work.append((x0, self.planner.last_samples.copy()))
+        del self.work[: -self.block]
+        self.data.ctrl[:] = cmd.ctrl
+        mujoco.mj_step(self.model, self.data)
+        return cmd.plan_time
+
+    def _world_rollout(self, pool: mj_rollout.Rollout) -> None:
+        # sensors add no state, so the planner's x0 is a valid world state
+        x0, ctrl = self.work[next(self.replayed) % len(self.work)]
+        pool.rollout(
+            self.world,
+            self.world_data,
+            x0[None],
+            np.repeat(ctrl, self.hold, axis=1),
+            nstep=self.horizon * self.hold,
+        )
+
+    def _own_rollout(self, pool: mj_rollout.Rollout) -> None:
+        x0, ctrl = self.work[next(self.replayed) % len(self.work)]
+        pool.rollout(self.own, self.own_data, x0[None], ctrl, nstep=self.horizon)
+
+    def _sensor_rollout(self) -> None:
+        x0, ctrl = self.work[next(self.replayed) % len(self.work)]
+        ctrl = np.tile(ctrl, (self.copies, 1, 1))
+        self.planner.engine.sensors(x0, torch.from_numpy(ctrl).to(self.planner.device))
+
+
 def measure(
-    scenario,
+    scenario: Scenario,
     iterations: int,
     nthread: int,
     rounds: int = 20,
@@ -89,99 +230,27 @@ def measure(
     so idle threads never compete.
     """
     controller = build_controller(scenario, nthread, backend=backend, device=device)
-    planner = controller.motion
-    model = planner.problem.model
-    data = initial_data(scenario, model)  # the scenario's start pose (the Panda's ready pose)
-    world = compile_model(scenario)
-    own_spec = build_spec(scenario)
-    own_spec.option.timestep = model.opt.timestep
-    apply_planning_model(own_spec, scenario.planner.model, scenario.source)
-    own = compile_model(scenario, own_spec)
-    tune_planning_model(own, scenario.planner.model)
-    hold = round(model.opt.timestep / world.opt.timestep)  # world steps per planned step
-    samples, horizon = planner.mppi.num_samples, scenario.planner.horizon
-    pool_data = [mujoco.MjData(world) for _ in range(nthread)]
-    own_data = [mujoco.MjData(own) for _ in range(nthread)]
-    work: list[tuple[np.ndarray, np.ndarray]] = []  # (planner x0, samples) of recent iterations
-    times: dict[str, list[float]] = {"plan": [], "world": [], "own": [], "sensors": []}
-    block = max(1, iterations // rounds)
-
-    def timed(key, fn):
-        for i in range(block + 3):
-            t = time.perf_counter()
-            took = fn()
-            if i >= 3:  # the first calls of a block warm caches and threads
-                times[key].append(took if took is not None else time.perf_counter() - t)
-
-    controller.begin("lockstep", model.opt.timestep)
-    seq = iter(range(10**9))
-
-    def plan_step() -> float:
-        """One controller step, timed by itself (the command's ``plan_time``): the world's
-        step and the copies kept for the replays around it are the harness's work, not the
-        planner's (60 µs of navigation's)."""
-        cmd = controller.step(
-            P.State(
-                session="bench",
-                seq=next(seq),
-                time=float(data.time),
-                qpos=data.qpos.copy(),
-                qvel=data.qvel.copy(),
-                act=data.act.copy(),
-                mocap_pos=data.mocap_pos.copy(),
-                mocap_quat=data.mocap_quat.copy(),
-            )
-        )
-        # the start state the iteration rolled out from: the mirror's (no delays: no prediction)
-        x0 = get_full_state(model, controller.mirror.data).copy()
-        work.append((x0, planner.last_samples.copy()))
-        del work[:-block]
-        data.ctrl[:] = cmd.ctrl
-        mujoco.mj_step(model, data)
-        return cmd.plan_time
-
-    counter = iter(range(10**9))
-
-    def world_rollout():
-        # sensors add no state, so the planner's x0 is a valid world state
-        x0, ctrl = work[next(counter) % len(work)]
-        pool.rollout(
-            world, pool_data, x0[None], np.repeat(ctrl, hold, axis=1), nstep=horizon * hold
-        )
-
-    def own_rollout():
-        x0, ctrl = work[next(counter) % len(work)]
-        pool.rollout(own, own_data, x0[None], ctrl, nstep=horizon)
-
-    # with planner.model.variants' spread: all, every sample rolls out in every variant
-    copies = (
-        planner.variants.cfg.count
-        if planner.variants is not None and planner.variants.cfg.spread == "all"
-        else 1
-    )
-
-    def sensor_rollout():
-        x0, ctrl = work[next(counter) % len(work)]
-        ctrl = np.tile(ctrl, (copies, 1, 1))
-        planner.engine.sensors(x0, torch.from_numpy(ctrl).to(planner.device))
-
+    bench = _Bench.around(scenario, controller, nthread, block=max(1, iterations // rounds))
+    controller.begin("lockstep", bench.model.opt.timestep)
     try:
         with mj_rollout.Rollout(nthread=nthread) as pool:
             for _ in range(rounds):
-                timed("plan", plan_step)
-                timed("world", world_rollout)
-                timed("own", own_rollout)
-                timed("sensors", sensor_rollout)
+                bench.run_round(pool)
     finally:
         controller.close()
-    med = {k: float(np.median(v)) for k, v in times.items()}
+    return _row(scenario, bench, nthread, backend, device)
+
+
+def _row(scenario: Scenario, bench: _Bench, nthread: int, backend: str, device: str) -> dict:
+    """One case's result: what ran, the median times and their ratios."""
+    med = bench.medians()
     return {
         "scenario": scenario.name,
-        "samples": samples,
-        "horizon": horizon,
+        "samples": bench.planner.mppi.num_samples,
+        "horizon": bench.horizon,
         "hz": round(1.0 / med["plan"], 2),
-        "planning_step": float(model.opt.timestep),
-        "world_step": float(world.opt.timestep),
+        "planning_step": float(bench.model.opt.timestep),
+        "world_step": float(bench.world.opt.timestep),
         "planning_model": scenario.planner.model.as_dict(),
         "ratio_to_rollout": round(med["plan"] / med["world"], 3),
         "ratio_to_own_rollout": round(med["plan"] / med["own"], 3),
@@ -196,130 +265,213 @@ def measure(
     }
 
 
-@app.command()
-def main(
-    scenario: list[str] = typer.Option(
-        list(SCENARIOS), "--scenario", "-s", help="Scenarios to run."
-    ),
-    iterations: int = typer.Option(200, "--iterations", "-n", help="Timed planner iterations."),
-    threads: int = typer.Option(0, help="Rollout threads (0: one per core)."),
-    as_json: bool = typer.Option(False, "--json", help="One JSON object per line per case."),
-    backend: str = typer.Option(
-        "mujoco",
+ScenariosOption = Annotated[list[str], typer.Option("--scenario", "-s", help="Scenarios to run.")]
+Iterations = Annotated[int, typer.Option("--iterations", "-n", help="Timed planner iterations.")]
+Threads = Annotated[int, typer.Option(help="Rollout threads (0: one per core).")]
+AsJson = Annotated[bool, typer.Option("--json", help="One JSON object per line per case.")]
+Backend = Annotated[
+    str,
+    typer.Option(
         help="Rollout backend: mujoco (mujoco.rollout on the "
         "CPU) or warp (MuJoCo Warp, the m3p2i\\[gpu] extra).",
     ),
-    device: str = typer.Option("cuda:0", help="The warp backend's device: cuda:N or cpu."),
-    samples: str = typer.Option(
-        "",
+]
+Device = Annotated[str, typer.Option(help="The warp backend's device: cuda:N or cpu.")]
+Samples = Annotated[
+    str,
+    typer.Option(
         help="Samples per mode, comma-separated (1024,4096,16384): "
         "one case each; default: the scenario's planner.samples.",
     ),
-    horizon: int = typer.Option(
-        0,
+]
+Horizon = Annotated[
+    int,
+    typer.Option(
         min=0,
         help="Planned steps instead of the scenario's "
         "planner.horizon (0: the scenario's), each of its "
         "planner.timestep: what a longer or shorter plan would cost.",
     ),
-    runs: int = typer.Option(1, min=1, help="Repeat the whole measurement this many times."),
-    out: Path | None = typer.Option(
-        None, help="Write every row, with the command, date and machine, to this JSON file."
-    ),
-    report: Path | None = typer.Option(
-        None,
+]
+Runs = Annotated[int, typer.Option(min=1, help="Repeat the whole measurement this many times.")]
+Out = Annotated[
+    Path | None,
+    typer.Option(help="Write every row, with the command, date and machine, to this JSON file."),
+]
+Report = Annotated[
+    Path | None,
+    typer.Option(
         help="Measure nothing: regenerate the "
         "'<!-- benchmark PATH -->' blocks of --update from "
         "the results files they name.",
     ),
-    update_file: Path | None = typer.Option(
-        None, "--update", help="Markdown file whose benchmark blocks --report regenerates."
-    ),
+]
+UpdateFile = Annotated[
+    Path | None,
+    typer.Option("--update", help="Markdown file whose benchmark blocks --report regenerates."),
+]
+
+
+@dataclasses.dataclass(frozen=True)
+class Options:
+    """What one command measures: every scenario at every sample count, ``runs`` times over,
+    and how (the rollout backend and threads, the iterations timed, the output)."""
+
+    scenarios: list[str]
+    counts: list[int | None]  # samples per mode, a case each (None: the scenario's)
+    horizon: int  # planned steps (0: the scenario's)
+    iterations: int
+    runs: int
+    nthread: int
+    backend: str
+    device: str
+    as_json: bool  # a JSON line per row as it is measured, instead of the table at the end
+
+
+@app.command()
+def main(
+    scenario: ScenariosOption = SCENARIOS,
+    iterations: Iterations = 200,
+    threads: Threads = 0,
+    as_json: AsJson = False,
+    backend: Backend = "mujoco",
+    device: Device = "cuda:0",
+    samples: Samples = "",
+    horizon: Horizon = 0,
+    runs: Runs = 1,
+    out: Out = None,
+    report: Report = None,
+    update_file: UpdateFile = None,
 ) -> None:
     if report is not None or update_file is not None:
-        if update_file is None:
-            raise typer.BadParameter("--report needs --update FILE", param_hint="--update")
-        update_file.write_text(update(update_file.read_text(), update_file.parent))
-        typer.echo(f"updated {update_file}")
+        _regenerate(update_file)
         return
-    nthread = threads or os.cpu_count() or 1
+    opts = Options(
+        scenarios=scenario,
+        counts=_sample_counts(samples),
+        horizon=horizon,
+        iterations=iterations,
+        runs=runs,
+        nthread=threads or os.cpu_count() or 1,
+        backend=backend,
+        device=device,
+        as_json=as_json,
+    )
+    rows = []
+    for run in range(opts.runs):
+        for name in opts.scenarios:
+            rows += _measure_cases(name, run, opts)
+    if out is not None:
+        _save(out, rows, opts)
+    if not as_json:
+        _print_table(rows, opts)
+
+
+def _regenerate(update_file: Path | None) -> None:
+    """--report: regenerate the benchmark blocks of ``update_file`` from the results files
+    they name."""
+    if update_file is None:
+        raise typer.BadParameter("--report needs --update FILE", param_hint="--update")
+    update_file.write_text(update(update_file.read_text(), update_file.parent))
+    typer.echo(f"updated {update_file}")
+
+
+def _sample_counts(samples: str) -> list[int | None]:
+    """--samples' values, or ``[None]`` (the scenario's planner.samples) when empty."""
     try:
-        counts = [int(v) for v in samples.split(",") if v.strip()] or [None]
+        return [int(v) for v in samples.split(",") if v.strip()] or [None]
     except ValueError:
         raise typer.BadParameter(
             f"{samples!r}: expected integers separated by commas", param_hint="--samples"
         ) from None
+
+
+def _case(name: str, count: int | None, horizon: int) -> Scenario:
+    """Scenario ``name`` with ``count`` samples per mode and ``horizon`` planned steps, where
+    given."""
+    sc = load_scenario(name)
+    if count is not None:
+        sc = dataclasses.replace(sc, planner=dataclasses.replace(sc.planner, samples=count))
+    if horizon:
+        sc = dataclasses.replace(sc, planner=dataclasses.replace(sc.planner, horizon=horizon))
+    return sc
+
+
+def _measure_cases(name: str, run: int, opts: Options) -> list[dict]:
+    """Scenario ``name``'s rows of run ``run``, one per sample count; none after the first
+    count its configuration refuses (skipped, with a line saying why)."""
     rows = []
-    for run in range(runs):
-        for name in scenario:
-            for count in counts:
-                sc = load_scenario(name)
-                if count is not None:
-                    sc = dataclasses.replace(
-                        sc, planner=dataclasses.replace(sc.planner, samples=count)
-                    )
-                if horizon:
-                    sc = dataclasses.replace(
-                        sc, planner=dataclasses.replace(sc.planner, horizon=horizon)
-                    )
-                try:
-                    row = measure(sc, iterations, nthread, backend=backend, device=device)
-                except ConfigError as exc:
-                    print(f"{name}: skipped: {exc}", flush=True)
-                    break
-                rows.append({**row, "run": run})
-                if as_json:
-                    print(json.dumps(row), flush=True)
-    if out is not None:
-        out.parent.mkdir(parents=True, exist_ok=True)
-        out.write_text(
-            json.dumps(
-                {
-                    "command": "python scripts/benchmark.py " + " ".join(sys.argv[1:]),
-                    "date": time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime()),
-                    "machine": machine(),
-                    "versions": versions(),
-                    "threads": nthread,
-                    "iterations": iterations,
-                    "runs": runs,
-                    "rows": rows,
-                },
-                indent=1,
+    for count in opts.counts:
+        sc = _case(name, count, opts.horizon)
+        try:
+            row = measure(
+                sc, opts.iterations, opts.nthread, backend=opts.backend, device=opts.device
             )
+        except ConfigError as exc:
+            print(f"{name}: skipped: {exc}", flush=True)
+            break
+        rows.append({**row, "run": run})
+        if opts.as_json:
+            print(json.dumps(row), flush=True)
+    return rows
+
+
+def _save(out: Path, rows: list[dict], opts: Options) -> None:
+    """--out: every row, with the command, date, machine and versions that produced it."""
+    out.parent.mkdir(parents=True, exist_ok=True)
+    out.write_text(
+        json.dumps(
+            {
+                "command": "python scripts/benchmark.py " + " ".join(sys.argv[1:]),
+                "date": time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime()),
+                "machine": machine(),
+                "versions": versions(),
+                "threads": opts.nthread,
+                "iterations": opts.iterations,
+                "runs": opts.runs,
+                "rows": rows,
+            },
+            indent=1,
         )
-        typer.echo(f"results: {out}")
-    if not as_json:
-        where = (
-            f"{backend} backend on {device}" if backend == "warp" else f"{nthread} rollout threads"
+    )
+    typer.echo(f"results: {out}")
+
+
+def _print_table(rows: list[dict], opts: Options) -> None:
+    """The rows as a table on the terminal."""
+    where = (
+        f"{opts.backend} backend on {opts.device}"
+        if opts.backend == "warp"
+        else f"{opts.nthread} rollout threads"
+    )
+    table = Table(title=f"planner speed ({where}, median of {opts.iterations})")
+    for col in (
+        "scenario",
+        "samples x horizon",
+        "planner Hz",
+        "iteration ms",
+        "world rollout ms",
+        "ratio",
+        "own rollout ms",
+        "ratio to it",
+        "own + sensors ms",
+        "ratio to it",
+    ):
+        table.add_column(col, justify="right")
+    for r in rows:
+        table.add_row(
+            r["scenario"],
+            f"{r['samples']} x {r['horizon']}",
+            f"{r['hz']:.1f}",
+            f"{r['iteration_ms']:.2f}",
+            f"{r['rollout_ms']:.2f}",
+            f"{r['ratio_to_rollout']:.2f}",
+            f"{r['own_rollout_ms']:.2f}",
+            f"{r['ratio_to_own_rollout']:.2f}",
+            f"{r['sensor_rollout_ms']:.2f}",
+            f"{r['ratio_to_sensor_rollout']:.2f}",
         )
-        table = Table(title=f"planner speed ({where}, median of {iterations})")
-        for col in (
-            "scenario",
-            "samples x horizon",
-            "planner Hz",
-            "iteration ms",
-            "world rollout ms",
-            "ratio",
-            "own rollout ms",
-            "ratio to it",
-            "own + sensors ms",
-            "ratio to it",
-        ):
-            table.add_column(col, justify="right")
-        for r in rows:
-            table.add_row(
-                r["scenario"],
-                f"{r['samples']} x {r['horizon']}",
-                f"{r['hz']:.1f}",
-                f"{r['iteration_ms']:.2f}",
-                f"{r['rollout_ms']:.2f}",
-                f"{r['ratio_to_rollout']:.2f}",
-                f"{r['own_rollout_ms']:.2f}",
-                f"{r['ratio_to_own_rollout']:.2f}",
-                f"{r['sensor_rollout_ms']:.2f}",
-                f"{r['ratio_to_sensor_rollout']:.2f}",
-            )
-        Console().print(table)
+    Console().print(table)
 
 
 if __name__ == "__main__":

@@ -254,36 +254,30 @@ def mean_std(xs: list[float], fmt: str) -> str:
     )
 
 
-def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    parser.add_argument("--seeds", type=int, default=5)
-    parser.add_argument("--threads", type=int, default=1, help="torch intra-op threads")
-    args = parser.parse_args()
-    torch.set_num_threads(args.threads)
-    console = Console(width=100)
-    console.print(
-        f"torch {torch.__version__}, {args.threads} thread(s), float64, {args.seeds} seeds"
+def closed_loop_table(task: Task, seeds: int) -> Table:
+    """Every planner of :data:`PLANNERS` in closed loop on ``task``, over ``seeds`` seeds."""
+    table = Table(
+        title=f"{task.name}: K={task.samples} T={task.horizon} λ={task.lam} "
+        f"σ={task.sigma} |u|≤{task.u_max}, {task.steps} steps"
     )
-
-    for task in TASKS:
-        table = Table(
-            title=f"{task.name}: K={task.samples} T={task.horizon} λ={task.lam} "
-            f"σ={task.sigma} |u|≤{task.u_max}, {task.steps} steps"
+    for col in ("planner", "episode cost", "final cost", "ms / step", "planner ms / step"):
+        table.add_column(col, justify="right" if col != "planner" else "left")
+    for name, make in PLANNERS.items():
+        runs = [episode(task, make, seed) for seed in range(seeds)]
+        own = statistics.mean(r.planner_s * 1e3 for r in runs)
+        table.add_row(
+            name,
+            mean_std([r.total for r in runs], ".1f"),
+            mean_std([r.last for r in runs], ".3f"),
+            f"{statistics.mean(r.wall_s * 1e3 for r in runs):.2f}",
+            "—" if math.isnan(own) else f"{own:.3f}",
         )
-        for col in ("planner", "episode cost", "final cost", "ms / step", "planner ms / step"):
-            table.add_column(col, justify="right" if col != "planner" else "left")
-        for name, make in PLANNERS.items():
-            runs = [episode(task, make, seed) for seed in range(args.seeds)]
-            own = statistics.mean(r.planner_s * 1e3 for r in runs)
-            table.add_row(
-                name,
-                mean_std([r.total for r in runs], ".1f"),
-                mean_std([r.last for r in runs], ".3f"),
-                f"{statistics.mean(r.wall_s * 1e3 for r in runs):.2f}",
-                "—" if math.isnan(own) else f"{own:.3f}",
-            )
-        console.print(table)
+    return table
 
+
+def overhead_table() -> Table:
+    """This package's planners' own time per iteration (:func:`overhead_us`) in several
+    configurations, on one problem size."""
     table = Table(
         title="planner overhead per iteration (sample + update, no rollout), S=200 T=15 nu=2"
     )
@@ -314,9 +308,12 @@ def main() -> None:
         ),
     ]:
         table.add_row(name, f"{overhead_us(planner):.0f}")
-    console.print(table)
+    return table
 
-    task = TASKS[1]
+
+def sampling_table(task: Task, seeds: int) -> Table:
+    """The sampling choices of ``sampling.py`` (fixed or rotated Halton set, Gaussian) for
+    M3P2I in closed loop on ``task``, over ``seeds`` seeds."""
     table = Table(title=f"sampling on the {task.name} (M3P2I, 1 mode, η ∈ [3, 10], no smoothing)")
     for col in ("noise", "episode cost", "final position error", "Σ|Δu0|²"):
         table.add_column(col, justify="right" if col != "noise" else "left")
@@ -330,14 +327,30 @@ def main() -> None:
                 config(task, seed, eta_bounds=(3.0, 10.0), **kw), [ModeSpec("go", task.samples)]
             )
         )
-        runs = [episode(task, make, seed) for seed in range(args.seeds)]
+        runs = [episode(task, make, seed) for seed in range(seeds)]
         table.add_row(
             name,
             mean_std([r.total for r in runs], ".2f"),
             mean_std([float((r.x[:2] - GOAL).norm()) for r in runs], ".4f"),
             mean_std([r.jitter for r in runs], ".1f"),
         )
-    console.print(table)
+    return table
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser.add_argument("--seeds", type=int, default=5)
+    parser.add_argument("--threads", type=int, default=1, help="torch intra-op threads")
+    args = parser.parse_args()
+    torch.set_num_threads(args.threads)
+    console = Console(width=100)
+    console.print(
+        f"torch {torch.__version__}, {args.threads} thread(s), float64, {args.seeds} seeds"
+    )
+    for task in TASKS:
+        console.print(closed_loop_table(task, args.seeds))
+    console.print(overhead_table())
+    console.print(sampling_table(TASKS[1], args.seeds))
 
 
 if __name__ == "__main__":

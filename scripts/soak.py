@@ -14,6 +14,7 @@ import json
 import signal
 import time
 from pathlib import Path
+from typing import Annotated
 
 import typer
 
@@ -27,62 +28,96 @@ def _interrupt(signum, frame) -> None:
     raise KeyboardInterrupt(f"signal {signum}")
 
 
-@app.command()
-def main(
-    duration: float = typer.Option(
-        600.0,
+Duration = Annotated[
+    float,
+    typer.Option(
         help="Seconds of episodes and faults (the run ends "
         "at most a minute later, letting the last episode finish).",
     ),
-    seed: int = typer.Option(
-        0,
+]
+Seed = Annotated[
+    int,
+    typer.Option(
         help="Seed of the fault schedule (moments, order, pauses, "
         "garbage) and of the worlds' and planners' seeds.",
     ),
-    scenario: str = typer.Option("navigation", help="Scenario name or YAML path."),
-    command_timeout: float = typer.Option(0.5, help="The world's --command-timeout (s)."),
-    takeover: float = typer.Option(
-        3.0,
+]
+ScenarioName = Annotated[str, typer.Option(help="Scenario name or YAML path.")]
+CommandTimeout = Annotated[float, typer.Option(help="The world's --command-timeout (s).")]
+Takeover = Annotated[
+    float,
+    typer.Option(
         help="Bound (s) to the first step driven by a new "
         "command: from a planner's SIGKILL (its hot spare is told to "
         "go at once), a SIGCONT, a new world's start, a flood's end.",
     ),
-    rss_bound: float = typer.Option(
-        50.0,
+]
+RssBound = Annotated[
+    float,
+    typer.Option(
         help="Allowed resident-memory growth per process "
         "(MiB), from 5 s (a planner) or 1 s (a world) after it first "
         "drove the robot, or was driven, to its end.",
     ),
-    gap_min: float = typer.Option(4.0, help="Least seconds between two faults."),
-    gap_max: float = typer.Option(10.0, help="Most seconds between two faults."),
-    netns: bool = typer.Option(
-        False,
+]
+GapMin = Annotated[float, typer.Option(help="Least seconds between two faults.")]
+GapMax = Annotated[float, typer.Option(help="Most seconds between two faults.")]
+NetNs = Annotated[
+    bool,
+    typer.Option(
         "--netns",
         help="Two hosts on one machine: the worlds in one network "
         "namespace, the planners in another, joined by a veth pair made for the run and "
         "removed at its end; CURVE on (keys made into OUT/keys). Adds the `cut` fault (the "
         "link down for --cut s mid-episode). Needs root and iproute2's `ip` (else exit 2).",
     ),
-    cut: float = typer.Option(2.0, help="Seconds the link is down in a `cut` (--netns)."),
-    faults: str | None = typer.Option(
-        None,
+]
+Cut = Annotated[float, typer.Option(help="Seconds the link is down in a `cut` (--netns).")]
+FaultKinds = Annotated[
+    str | None,
+    typer.Option(
         help="Comma-separated fault kinds to inject, of kill, restart, flood, pause and cut "
         "(default: all; cut only with --netns).",
     ),
-    out: Path | None = typer.Option(
-        None, help="Folder for the episode logs and process outputs (default runs/soak-<time>)."
+]
+Out = Annotated[
+    Path | None,
+    typer.Option(
+        help="Folder for the episode logs and process outputs (default runs/soak-<time>)."
     ),
-    results: Path | None = typer.Option(None, help="Results JSON (default OUT/soak.json)."),
-    report: Path | None = typer.Option(
-        None, help="Only print the table of this results file (no run)."
-    ),
-    update_file: Path | None = typer.Option(
-        None,
+]
+Results = Annotated[Path | None, typer.Option(help="Results JSON (default OUT/soak.json).")]
+Report = Annotated[
+    Path | None, typer.Option(help="Only print the table of this results file (no run).")
+]
+UpdateFile = Annotated[
+    Path | None,
+    typer.Option(
         "--update",
         help="Regenerate the "
         "'<!-- soak PATH -->' blocks of this Markdown "
         "file from their results files (no run).",
     ),
+]
+
+
+@app.command()
+def main(
+    duration: Duration = 600.0,
+    seed: Seed = 0,
+    scenario: ScenarioName = "navigation",
+    command_timeout: CommandTimeout = 0.5,
+    takeover: Takeover = 3.0,
+    rss_bound: RssBound = 50.0,
+    gap_min: GapMin = 4.0,
+    gap_max: GapMax = 10.0,
+    netns: NetNs = False,
+    cut: Cut = 2.0,
+    faults: FaultKinds = None,
+    out: Out = None,
+    results: Results = None,
+    report: Report = None,
+    update_file: UpdateFile = None,
 ) -> None:
     """Run real-time episodes back to back under injected faults (planner SIGKILL and
     replacement, world restart, command-socket garbage, planner SIGSTOP past the command
@@ -93,11 +128,7 @@ def main(
     Example: nice -n 10 python scripts/soak.py --duration 600 --results docs/soak/soak-600s.json;
     then python scripts/soak.py --report docs/soak/soak-600s.json --update docs/reliability.md"""
     if report is not None or update_file is not None:
-        if update_file is not None:
-            update_file.write_text(update(update_file.read_text(), update_file.parent))
-            typer.echo(f"updated {update_file}")
-        if report is not None:
-            print_table(json.loads(report.read_text()))
+        _regenerate_or_show(report, update_file)
         return
     cfg = SoakConfig(
         duration=duration,
@@ -109,28 +140,52 @@ def main(
         gap=(gap_min, gap_max),
         netns=netns,
         cut_s=cut,
-        faults=None if faults is None else tuple(k.strip() for k in faults.split(",") if k.strip()),
+        faults=_fault_kinds(faults),
     )
     cfg.check()
     if netns:
-        reason = unavailable()
-        if reason:
-            typer.echo(f"--netns: {reason}", err=True)
-            raise typer.Exit(2)
-        # a SIGTERM ends the run as Ctrl-C does: processes stopped, namespaces removed
-        signal.signal(signal.SIGTERM, _interrupt)
+        _prepare_netns()
     out = out or Path("runs") / f"soak-{time.strftime('%Y%m%d-%H%M%S')}"
-    try:
-        res = Soak(cfg, out).run()
-    except Unavailable as exc:
-        typer.echo(f"--netns: {exc}", err=True)
-        raise typer.Exit(2) from None
+    res = _run_or_exit(cfg, out)
     path = results or out / "soak.json"
     path.parent.mkdir(parents=True, exist_ok=True)
     path.write_text(json.dumps(res, indent=1) + "\n")
     print_table(res)
     typer.echo(f"results: {path}; logs: {out}")
     raise typer.Exit(0 if res["ok"] else 1)
+
+
+def _regenerate_or_show(report: Path | None, update_file: Path | None) -> None:
+    """No run: --update's soak blocks regenerated, then --report's table printed."""
+    if update_file is not None:
+        update_file.write_text(update(update_file.read_text(), update_file.parent))
+        typer.echo(f"updated {update_file}")
+    if report is not None:
+        print_table(json.loads(report.read_text()))
+
+
+def _fault_kinds(faults: str | None) -> tuple[str, ...] | None:
+    """--faults' kinds (None: every kind that applies)."""
+    return None if faults is None else tuple(k.strip() for k in faults.split(",") if k.strip())
+
+
+def _prepare_netns() -> None:
+    """Exit 2 where network namespaces cannot be made; else let SIGTERM end the run as
+    Ctrl-C does: processes stopped, namespaces removed."""
+    reason = unavailable()
+    if reason:
+        typer.echo(f"--netns: {reason}", err=True)
+        raise typer.Exit(2)
+    signal.signal(signal.SIGTERM, _interrupt)
+
+
+def _run_or_exit(cfg: SoakConfig, out: Path) -> dict:
+    """The soak's results, its logs in ``out``; exit 2 when its namespaces fail."""
+    try:
+        return Soak(cfg, out).run()
+    except Unavailable as exc:
+        typer.echo(f"--netns: {exc}", err=True)
+        raise typer.Exit(2) from None
 
 
 if __name__ == "__main__":

@@ -85,6 +85,16 @@ class Check:
     detail: str
 
 
+# what each kind of fault must be followed by, in the order the checks are listed
+_RECOVERIES = {
+    "kill": "killed planner replaced",
+    "restart": "planner found the restarted world",
+    "pause": "paused planner resumed",
+    "flood": "planner drove on after a flood",
+    "cut": "planner drove again after a link cut",
+}
+
+
 def evaluate(
     cfg: SoakConfig,
     faults: list[Fault],
@@ -94,21 +104,36 @@ def evaluate(
 ) -> list[Check]:
     """The soak's verdicts from what it did (``faults``) and what the logs say (``worlds``:
     per world process its records, exit code and whether it was stopped on purpose)."""
-    checks = []
     all_steps = [s for w in worlds for s in w["steps"]]
     driven = [s for s in all_steps if not s.get("safe")]
+    return [
+        _stale_check(cfg, all_steps, driven),
+        _outage_check(cfg, faults, all_steps),
+        *(
+            _recovery_check(cfg, kind, faults, driven, worlds)
+            for kind in sorted(cfg.kinds, key=list(_RECOVERIES).index)
+        ),
+        _died_check(worlds),
+        _logs_check(worlds),
+        _garbage_check(all_steps, worlds, floods_sent),
+        _memory_check(cfg, planners + worlds),
+    ]
 
+
+def _stale_check(cfg: SoakConfig, all_steps: list[dict], driven: list[dict]) -> Check:
+    """No step driven by a command older than the world's command time-out."""
     stale = stale_steps(all_steps, cfg.command_timeout)
     worst = max((s["cmd_age"] for s in driven if s.get("cmd_age") is not None), default=0.0)
-    checks.append(
-        Check(
-            "no stale command applied",
-            not stale and bool(driven),
-            f"{len(stale)} of {len(driven)} driven steps had a command older than "
-            f"{cfg.command_timeout:g} s (oldest driving: {worst:.3f} s)",
-        )
+    return Check(
+        "no stale command applied",
+        not stale and bool(driven),
+        f"{len(stale)} of {len(driven)} driven steps had a command older than "
+        f"{cfg.command_timeout:g} s (oldest driving: {worst:.3f} s)",
     )
 
+
+def _outage_check(cfg: SoakConfig, faults: list[Fault], all_steps: list[dict]) -> Check:
+    """Only safe steps while a planner was down, from its time-out until it recovered."""
     held, bad, windows = 0, [], 0
     for f in faults:
         if f.outage is None:
@@ -118,81 +143,83 @@ def evaluate(
         n, v = outage_violations(all_steps, f.outage + cfg.command_timeout + cfg.slack, end)
         held += n
         bad += v
-    checks.append(
-        Check(
-            "safe control while the planner was down",
-            not bad and (held > 0 or not windows),
-            f"{held} steps logged in {windows} outages (from fault + "
-            f"{cfg.command_timeout:g} s + {cfg.slack:g} s), {len(bad)} not safe",
-        )
+    return Check(
+        "safe control while the planner was down",
+        not bad and (held > 0 or not windows),
+        f"{held} steps logged in {windows} outages (from fault + "
+        f"{cfg.command_timeout:g} s + {cfg.slack:g} s), {len(bad)} not safe",
     )
 
-    labels = {
-        "kill": "killed planner replaced",
-        "restart": "planner found the restarted world",
-        "pause": "paused planner resumed",
-        "flood": "planner drove on after a flood",
-        "cut": "planner drove again after a link cut",
-    }
-    for kind in sorted(cfg.kinds, key=("kill", "restart", "pause", "flood", "cut").index):
-        label = labels[kind]
-        mine = [f for f in faults if f.kind == kind]
-        times = [f.recovery for f in mine if f.recovery is not None]
-        late = [f for f in mine if f.recovery is None or f.recovery > cfg.takeover]
-        worst_s = f"max {max(times):.2f} s" if times else "none measured"
-        checks.append(
-            Check(
-                f"{label} within {cfg.takeover:g} s",
-                not late,
-                f"{len(mine) - len(late)}/{len(mine)} ({worst_s})" + _after_cuts(mine, driven),
-            )
-        )
 
+def _recovery_check(
+    cfg: SoakConfig, kind: str, faults: list[Fault], driven: list[dict], worlds: list[dict]
+) -> Check:
+    """Every fault of ``kind`` recovered from within the takeover bound."""
+    mine = [f for f in faults if f.kind == kind]
+    times = [f.recovery for f in mine if f.recovery is not None]
+    late = [f for f in mine if f.recovery is None or f.recovery > cfg.takeover]
+    worst_s = f"max {max(times):.2f} s" if times else "none measured"
+    detail = f"{len(mine) - len(late)}/{len(mine)} ({worst_s})" + _after_cuts(mine, driven)
+    if kind == "restart":
+        detail += _cold_starts(worlds)
+    return Check(f"{_RECOVERIES[kind]} within {cfg.takeover:g} s", not late, detail)
+
+
+def _cold_starts(worlds: list[dict]) -> str:
+    """For the restart row: how long a new world takes to serve, which its recovery (timed
+    from the world's serving) leaves out; empty when no world measured it."""
     cold = [w["serving_after_s"] for w in worlds if w.get("serving_after_s") is not None]
-    restart = next((c for c in checks if c.name.startswith("planner found the restarted")), None)
-    if cold and restart is not None:  # the world's own start-up, which recovery leaves out
-        restart.detail += (
-            f" from its serving; a new world serves {np.median(cold):.2f} s "
-            f"(median, max {max(cold):.2f} s) after its start"
-        )
+    if not cold:
+        return ""
+    return (
+        f" from its serving; a new world serves {np.median(cold):.2f} s "
+        f"(median, max {max(cold):.2f} s) after its start"
+    )
+
+
+def _died_check(worlds: list[dict]) -> Check:
+    """Every world process ended with its episode or by the soak's deliberate stop."""
     died = [w for w in worlds if not w["stopped_on_purpose"] and w["returncode"] not in (0, 1)]
-    checks.append(
-        Check(
-            "the world never died",
-            not died,
-            f"{len(worlds)} world processes, {len(died)} ended otherwise than by "
-            f"their episode's end or the deliberate stop"
-            + (f" (codes {[w['returncode'] for w in died]})" if died else ""),
-        )
+    return Check(
+        "the world never died",
+        not died,
+        f"{len(worlds)} world processes, {len(died)} ended otherwise than by "
+        f"their episode's end or the deliberate stop"
+        + (f" (codes {[w['returncode'] for w in died]})" if died else ""),
     )
 
+
+def _logs_check(worlds: list[dict]) -> Check:
+    """Every episode log parses, from its header to its summary."""
     incomplete = [w["log"] for w in worlds if not w["complete"]]
-    checks.append(
-        Check(
-            "every episode log complete with its summary",
-            not incomplete and bool(worlds),
-            f"{len(worlds) - len(incomplete)}/{len(worlds)} logs parse, start with the "
-            f"header and end with the summary (steps = summary.steps)"
-            + (f"; not: {incomplete[:3]}" if incomplete else ""),
-        )
+    return Check(
+        "every episode log complete with its summary",
+        not incomplete and bool(worlds),
+        f"{len(worlds) - len(incomplete)}/{len(worlds)} logs parse, start with the "
+        f"header and end with the summary (steps = summary.steps)"
+        + (f"; not: {incomplete[:3]}" if incomplete else ""),
     )
 
+
+def _garbage_check(all_steps: list[dict], worlds: list[dict], floods_sent: dict) -> Check:
+    """The floods' frames rejected by the worlds, and no forged control ever applied."""
     forged = [s for s in all_steps if is_forged(s["ctrl"])]
     rejected = sum(w["rejected"] for w in worlds)
     expected = floods_sent.get("rejectable", 0)
-    checks.append(
-        Check(
-            "garbage rejected, none applied",
-            not forged and rejected >= expected,
-            f"{floods_sent.get('frames', 0)} frames in {floods_sent.get('floods', 0)} "
-            f"floods: {rejected} logged as rejected (>= {expected} expected), "
-            f"{floods_sent.get('wrong_session', 0)} of a wrong session, "
-            f"{len(forged)} steps with a forged control",
-        )
+    return Check(
+        "garbage rejected, none applied",
+        not forged and rejected >= expected,
+        f"{floods_sent.get('frames', 0)} frames in {floods_sent.get('floods', 0)} "
+        f"floods: {rejected} logged as rejected (>= {expected} expected), "
+        f"{floods_sent.get('wrong_session', 0)} of a wrong session, "
+        f"{len(forged)} steps with a forged control",
     )
 
+
+def _memory_check(cfg: SoakConfig, processes: list[dict]) -> Check:
+    """Each role's processes grew their resident memory by at most the bound."""
     growths = {}
-    for p in planners + worlds:
+    for p in processes:
         g = p.get("rss_growth")
         if g is not None:
             growths.setdefault(p["role"], []).append(g)
@@ -204,14 +231,11 @@ def evaluate(
         )
         or "no process lived long enough"
     )
-    checks.append(
-        Check(
-            f"memory growth <= {cfg.rss_bound:g} MiB per process",
-            not over and "planner" in growths,
-            text,
-        )
+    return Check(
+        f"memory growth <= {cfg.rss_bound:g} MiB per process",
+        not over and "planner" in growths,
+        text,
     )
-    return checks
 
 
 def markdown(results: dict, source: str) -> str:
