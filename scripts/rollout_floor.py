@@ -1,6 +1,6 @@
 """What a planner's rollout costs, part by part: its bare ``mujoco.rollout`` with parts of the
 physics switched off, and the planner rates those times allow (what is timed:
-:mod:`scripts.measure.rollout_floor`).
+:mod:`scripts.measure.rollout_parts`).
 
     python scripts/rollout_floor.py -s navigation -s push_pull_fast --samples 400 --horizon 15
 """
@@ -12,7 +12,7 @@ import os
 import typer
 from rich.console import Console
 
-from measure.rollout_floor import floor_table
+from measure.rollout_parts import floor_table
 
 app = typer.Typer(add_completion=False)
 

@@ -1,5 +1,5 @@
 """Soak and fault test: real-time episodes back to back while faults are injected, then checks
-(what is injected and checked: :mod:`scripts.measure.soak`, which this command runs).
+(what is injected and checked: :mod:`scripts.measure.soak_episodes`, which this command runs).
 
     nice -n 10 python scripts/soak.py --duration 600 --results docs/soak/soak-600s.json
     python scripts/soak.py --report docs/soak/soak-600s.json --update docs/reliability.md
@@ -19,7 +19,7 @@ from typing import Annotated
 import typer
 
 from measure.netns import Unavailable, unavailable
-from measure.soak import Soak, SoakConfig, print_table, update
+from measure.soak_episodes import Soak, SoakConfig, print_table, update
 
 app = typer.Typer(add_completion=False)
 

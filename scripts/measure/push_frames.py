@@ -1,4 +1,4 @@
-"""Push frames at a world's command socket: the soak's flood (:mod:`scripts.measure.soak`).
+"""Push frames at a world's command socket: the soak's flood (:mod:`scripts.measure.soak_episodes`).
 
 On loopback the soak calls :func:`push` itself; with ``--netns`` it starts this module once in
 the planner's namespace (``python scripts/measure/push_frames.py ENDPOINT KEYS``, :func:`serve`)

@@ -1,6 +1,6 @@
-"""The soak's verdicts and its report (:mod:`scripts.measure.soak` runs it): pure checks of what
-the soak did (its faults) against what the logs say (each world's steps, each planner's memory),
-and the reliability table of docs/reliability.md regenerated from a results file."""
+"""The soak's verdicts and its report (:mod:`scripts.measure.soak_episodes` runs it): pure checks
+of what the soak did (its faults) against what the logs say (each world's steps, each planner's
+memory), and the reliability table of docs/reliability.md regenerated from a results file."""
 
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""scripts.measure.rollout_floor (scripts/rollout_floor.py): the bare rollout of a planner's own
+"""scripts.measure.rollout_parts (scripts/rollout_floor.py): the bare rollout of a planner's own
 model, with parts of its physics switched off, really runs those models (what it prints is
 timing, not tested here)."""
 
@@ -11,7 +11,7 @@ from pathlib import Path
 import mujoco
 from rich.console import Console
 
-from scripts.measure import rollout_floor as floor
+from scripts.measure import rollout_parts as floor
 from tests.helpers import ENV
 
 ROOT = Path(__file__).resolve().parents[2]

@@ -1,6 +1,6 @@
-"""The soak and fault test (scripts.measure.soak, run by scripts/soak.py): its checks catch each
-fault they claim to, the world closes its log on SIGTERM (how the soak restarts it), and a 30 s
-soak of real-time episodes under every kind of fault passes every check."""
+"""The soak and fault test (scripts.measure.soak_episodes, run by scripts/soak.py): its checks
+catch each fault they claim to, the world closes its log on SIGTERM (how the soak restarts it),
+and a 30 s soak of real-time episodes under every kind of fault passes every check."""
 
 from __future__ import annotations
 
@@ -13,7 +13,7 @@ from pathlib import Path
 
 import pytest
 
-from scripts.measure import netns, soak
+from scripts.measure import netns, soak_checks, soak_episodes
 from server.app import ServerOptions, WorldServer
 from server.episode_log import read_log
 from shared.endpoints import Endpoints
@@ -23,7 +23,7 @@ from tests.helpers import ENV, StateWatcher, free_port_block, start_server, stop
 ROOT = Path(__file__).resolve().parents[2]
 
 
-CFG = soak.SoakConfig(command_timeout=0.5, takeover=3.0, slack=0.25, rss_bound=50.0)
+CFG = soak_episodes.SoakConfig(command_timeout=0.5, takeover=3.0, slack=0.25, rss_bound=50.0)
 
 
 def _step(wall, safe=False, cmd_age=0.05, ctrl=(0.5, 0.5)):
@@ -48,15 +48,17 @@ def _clean():
         "rejected": 150,
         "rss_growth": 1.0,
     }
-    kill = soak.Fault("kill", at=100.0, world=1, outage=100.0, resumed=100.01, recovered=101.5)
-    flood = soak.Fault("flood", at=102.0, world=1, resumed=102.1, recovered=102.2)
+    kill = soak_episodes.Fault(
+        "kill", at=100.0, world=1, outage=100.0, resumed=100.01, recovered=101.5
+    )
+    flood = soak_episodes.Fault("flood", at=102.0, world=1, resumed=102.1, recovered=102.2)
     planners = [{"role": "planner", "rss_growth": 2.0}]
     sent = {"floods": 1, "frames": 200, "rejectable": 150, "wrong_session": 50}
     return [kill, flood], [world], planners, sent
 
 
 def _verdicts(faults, worlds, planners, sent):
-    return {c.name: c.ok for c in soak.evaluate(CFG, faults, worlds, planners, sent)}
+    return {c.name: c.ok for c in soak_checks.evaluate(CFG, faults, worlds, planners, sent)}
 
 
 def test_soak_checks_pass_a_clean_run():
@@ -91,7 +93,7 @@ def _torn_log(faults, worlds, planners, sent):
 
 
 def _forged_applied(faults, worlds, planners, sent):
-    worlds[0]["steps"][3]["ctrl"] = list(soak.FORGED_CTRL)
+    worlds[0]["steps"][3]["ctrl"] = list(soak_checks.FORGED_CTRL)
 
 
 def _garbage_unlogged(faults, worlds, planners, sent):
@@ -127,7 +129,7 @@ def test_soak_checks_catch_each_violation(fault, check):
 def test_soak_table_is_rendered_into_its_markers(tmp_path):
     faults, worlds, planners, sent = _clean()
     results = {
-        "checks": [c.__dict__ for c in soak.evaluate(CFG, faults, worlds, planners, sent)],
+        "checks": [c.__dict__ for c in soak_checks.evaluate(CFG, faults, worlds, planners, sent)],
         "faults": {"kill": {"injected": 1, "survived": 1}},
         "episodes": {"success": 1},
         "config": {"scenario": "navigation", "seed": 0},
@@ -140,12 +142,12 @@ def test_soak_table_is_rendered_into_its_markers(tmp_path):
     }
     (tmp_path / "soak.json").write_text(json.dumps(results))
     text = "intro\n<!-- soak soak.json -->\nold table\n<!-- end of soak -->\nrest\n"
-    new = soak.update(text, tmp_path)
+    new = soak_checks.update(text, tmp_path)
     assert "old table" not in new and new.startswith("intro\n") and new.endswith("rest\n")
     assert "| no stale command applied | yes |" in new and "kill 1/1" in new
-    assert soak.update(new, tmp_path) == new  # regenerating changes nothing
+    assert soak_checks.update(new, tmp_path) == new  # regenerating changes nothing
     with pytest.raises(Exception, match="no '<!-- soak PATH -->'"):
-        soak.update("no markers here", tmp_path)
+        soak_checks.update("no markers here", tmp_path)
 
 
 def test_world_writes_its_summary_on_sigterm(tmp_path):
@@ -274,11 +276,14 @@ def test_thirty_second_soak_passes_every_check(tmp_path):
 def test_netns_config_needs_a_link_for_the_cut():
     """``cut`` is a fault of ``--netns`` only; ``--faults`` names known kinds; with ``--netns``
     every kind is injected by default, without it the four that need no link."""
-    assert soak.SoakConfig().kinds == ("kill", "restart", "flood", "pause")
-    assert soak.SoakConfig(netns=True).kinds == soak.FAULTS
-    assert soak.SoakConfig(netns=True, faults=("cut",)).kinds == ("cut",)
-    soak.SoakConfig(netns=True, faults=("cut", "flood")).check()
-    for bad in (soak.SoakConfig(faults=("cut",)), soak.SoakConfig(faults=("crash",))):
+    assert soak_episodes.SoakConfig().kinds == ("kill", "restart", "flood", "pause")
+    assert soak_episodes.SoakConfig(netns=True).kinds == soak_episodes.FAULTS
+    assert soak_episodes.SoakConfig(netns=True, faults=("cut",)).kinds == ("cut",)
+    soak_episodes.SoakConfig(netns=True, faults=("cut", "flood")).check()
+    for bad in (
+        soak_episodes.SoakConfig(faults=("cut",)),
+        soak_episodes.SoakConfig(faults=("crash",)),
+    ):
         with pytest.raises(Exception, match=r"cut|--faults"):
             bad.check()
 
@@ -288,13 +293,15 @@ def test_a_link_cut_is_checked_as_an_outage():
     steps from its time-out to the recovery must be the safe control, and the planner must
     drive again within the takeover bound of the link's return."""
     faults, worlds, planners, sent = _clean()
-    faults[0] = soak.Fault("cut", at=100.0, world=1, outage=100.0, resumed=101.4, recovered=101.5)
-    cfg = soak.SoakConfig(netns=True, faults=("cut", "flood"))
-    verdicts = {c.name: c.ok for c in soak.evaluate(cfg, faults, worlds, planners, sent)}
+    faults[0] = soak_episodes.Fault(
+        "cut", at=100.0, world=1, outage=100.0, resumed=101.4, recovered=101.5
+    )
+    cfg = soak_episodes.SoakConfig(netns=True, faults=("cut", "flood"))
+    verdicts = {c.name: c.ok for c in soak_checks.evaluate(cfg, faults, worlds, planners, sent)}
     assert all(verdicts.values()) and "planner drove again after a link cut within 3 s" in verdicts
     worlds[0]["steps"][30].update(safe=False, cmd_age=0.05)  # driven while the link was down
     faults[0].recovered = 105.0
-    verdicts = {c.name: c.ok for c in soak.evaluate(cfg, faults, worlds, planners, sent)}
+    verdicts = {c.name: c.ok for c in soak_checks.evaluate(cfg, faults, worlds, planners, sent)}
     assert not verdicts["safe control while the planner was down"]
     assert not verdicts["planner drove again after a link cut within 3 s"]
 
