@@ -35,10 +35,13 @@ def name_checks(
     """The names the planner looks up: its objectives' cost terms, frames and actuators, its
     observers' frames."""
     guide = None
-    if scenario.guide is not None:  # site:guide is added to the planner's model, not the world's
+    # site:guide is added to the planner's model, not the world's; a faulty guide: section
+    # (its own error already reported) still declares it, for the terms that name it
+    if scenario.guide is not None or "guide" in scenario.raw:
         spec = build_spec(scenario)
         add_site(spec)
         resolve = FrameResolver(compile_model(scenario, spec), resolve.robot_frame)
+    if scenario.guide is not None:
         guide = GuideState(scenario.guide, scenario)
         errors.call(resolve.checked, scenario.guide.for_, scenario.source, "guide.for")
         errors.call(resolve.checked, scenario.guide.goal, scenario.source, "guide.goal")

@@ -222,6 +222,11 @@ def _check_mjcf(spec: RobotSpec, s: Section) -> None:
             list(spec.ctrl_names),
             listed,
         )
+    try:
+        compiled = model.compile()
+    except Exception as exc:  # a robot MJCF is a complete model: it must compile alone
+        raise s.error("mjcf", f"MuJoCo cannot compile it: {exc}", spec.mjcf) from None
+    _check_actuators(spec, s, compiled)
     kind, frame = (
         ("site", spec.frame[5:]) if spec.frame.startswith("site:") else ("body", spec.frame)
     )
@@ -233,6 +238,66 @@ def _check_mjcf(spec: RobotSpec, s: Section) -> None:
             spec.frame,
             f"one of its {kind}s: {', '.join(n for n in names if n) or '(none)'}",
         )
+
+
+# the units each kind of actuator takes: a velocity servo a speed, a position servo a place
+# (or a gripper's opening), a motor a force (or a share of one, as suction)
+UNITS_OF = {
+    "velocity servo": ("m/s", "rad/s", "ignored"),
+    "position servo": ("m", "rad", "fraction", "ignored"),
+    "motor": ("N", "N·m", "fraction", "ignored"),
+}
+
+
+def actuator_kind(model: mujoco.MjModel, i: int) -> str | None:
+    """What actuator ``i`` of ``model`` is, from its bias (MuJoCo's shortcuts ``velocity``,
+    ``position`` and ``motor`` set it so): a key of :data:`UNITS_OF`, or None for any other
+    (filtered, general with both gains), whose unit is the robot file's to say."""
+    bias = model.actuator_biasprm[i]
+    if model.actuator_dyntype[i] != mujoco.mjtDyn.mjDYN_NONE:
+        return None
+    if model.actuator_biastype[i] == mujoco.mjtBias.mjBIAS_NONE:
+        return "motor"
+    if model.actuator_biastype[i] == mujoco.mjtBias.mjBIAS_AFFINE:
+        if bias[1] == 0 and bias[2] != 0:
+            return "velocity servo"
+        if bias[1] != 0:
+            return "position servo"
+    return None
+
+
+def _check_actuators(spec: RobotSpec, s: Section, model: mujoco.MjModel) -> None:
+    """Every control has a finite, non-empty range that MuJoCo enforces (the planner samples
+    within it and the world clips to it: without one, a NaN or an unbounded control reaches the
+    robot), ``safe_ctrl`` lies within it, and its unit fits its actuator's kind."""
+    for i, name in enumerate(spec.ctrl_names):
+        lo, hi = (float(v) for v in model.actuator_ctrlrange[i])
+        where = f"actuator {name!r} of {spec.path}"
+        expected = 'ctrlrange="LOW HIGH", finite, LOW < HIGH (and ctrllimited not false)'
+        if not (np.isfinite(lo) and np.isfinite(hi)):
+            raise s.error(f"controls.{name}", f"{where}: ctrlrange not finite", [lo, hi], expected)
+        if not lo < hi:
+            raise s.error(f"controls.{name}", f"{where}: empty ctrlrange", [lo, hi], expected)
+        if not model.actuator_ctrllimited[i]:
+            raise s.error(
+                f"controls.{name}", f"{where}: its ctrlrange is not enforced", [lo, hi], expected
+            )
+        if not lo <= spec.safe_ctrl[i] <= hi:
+            raise s.error(
+                f"safe_ctrl[{i}]",
+                f"outside the ctrlrange of {where}",
+                spec.safe_ctrl[i],
+                f"a value in [{lo:g}, {hi:g}]",
+            )
+        kind = actuator_kind(model, i)
+        unit = spec.ctrl_units[i]
+        if kind is not None and unit not in UNITS_OF[kind]:
+            raise s.error(
+                f"controls.{name}",
+                f"{where} is a {kind}, not driven in {unit}",
+                unit,
+                f"one of: {', '.join(UNITS_OF[kind])}",
+            )
 
 
 class _Robots(Mapping[str, RobotSpec]):

@@ -4,9 +4,17 @@ the planner keeps up to date and its cost terms follow (planner_client/guide.py;
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 from shared.config import Section, non_negative, one_of, positive, string_list
+
+# the most cells of the guide's grid: its A* (planner_client/global_path.py) runs in Python,
+# beside the planner (about 1 s across a 500 x 500 grid with a wall to go round, on 2 cores of
+# an AMD EPYC); resolution: 0.0001 over a 10 m arena asked for 32.7 GiB
+GUIDE_MAX_CELLS = 250_000
+# room the grid keeps around what it covers, each side (planner_client.global_path.Grid.around)
+GRID_ROOM = 1.0
 
 # the planners a guide may use (planner_client.guide.METHODS implements each)
 GUIDE_METHODS = ("astar",)
@@ -43,7 +51,8 @@ def parse_guide(s: Section, objects: dict[str, bool]) -> GuideConfig:
     for_ = s.req("for", str, "robot or a free object's name")
     if for_ != "robot" and not objects.get(for_, False):
         free = [n for n, f in objects.items() if f]
-        raise s.error("for", "not the robot or a free object", for_, "robot, " + ", ".join(free))
+        expected = ", ".join(["robot", *free]) if free else "robot (the world has no free object)"
+        raise s.error("for", "not the robot or a free object", for_, expected)
     cfg = GuideConfig(
         for_=for_,
         goal=s.req("goal", str, "a frame name"),
@@ -66,3 +75,24 @@ def parse_guide(s: Section, objects: dict[str, bool]) -> GuideConfig:
         )
     s.done()
     return cfg
+
+
+def grid_cells(resolution: float, span: tuple[float, float]) -> int:
+    """Cells of a guide's grid of ``resolution`` m over a world ``span`` m wide and deep (the
+    arena and the objects), with :data:`GRID_ROOM` around it."""
+    nx, ny = (math.ceil((s + 2 * GRID_ROOM) / resolution) + 1 for s in span)
+    return nx * ny
+
+
+def check_grid(s: Section, cfg: GuideConfig, span: tuple[float, float]) -> None:
+    """The guide's grid over the world ``span`` holds at most :data:`GUIDE_MAX_CELLS` cells."""
+    cells = grid_cells(cfg.resolution, span)
+    if cells <= GUIDE_MAX_CELLS:
+        return
+    finest = (max(span) + 2 * GRID_ROOM) / (math.sqrt(GUIDE_MAX_CELLS) - 1)
+    raise s.error(
+        "resolution",
+        f"a grid of {cells:,} cells over the world's {span[0]:g} x {span[1]:g} m",
+        cfg.resolution,
+        f"at most {GUIDE_MAX_CELLS:,} cells: metres >= {finest:.3f}",
+    )

@@ -19,6 +19,7 @@ from shared.scenario.common import STEP_SECONDS, step_seconds
 from shared.scenario.model import PlanningModel, read_planning_model
 from shared.scenario.mppi import MppiSettings, read_mppi
 from shared.scenario.tracking import TrackingConfig, read_tracking
+from shared.scenario.variants import MAX_VARIANT_ROLLOUTS
 from shared.scenario.world import WorldConfig
 
 # Rollout backends (planner.backend): "mujoco" is mujoco.rollout's thread pool on the CPU, the
@@ -124,6 +125,14 @@ def _check_variants(s: Section, cfg: PlannerConfig) -> None:
             f"the {cfg.backend} backend rolls out one model for all samples",
             v.as_dict(),
             "backend: mujoco (mujoco.rollout takes a model per rollout), or no variants",
+        )
+    if v.spread == "all" and v.count * cfg.samples > MAX_VARIANT_ROLLOUTS:
+        raise s.error(
+            f"{path}.count",
+            f"{v.count} variants x planner.samples = {cfg.samples}: "
+            f"{v.count * cfg.samples:,} rollouts per mode and iteration",
+            v.count,
+            f"count x samples <= {MAX_VARIANT_ROLLOUTS:,} with spread: all",
         )
     if v.spread == "split" and v.count > cfg.samples:
         raise s.error(

@@ -23,7 +23,7 @@ from shared.config_files import find, shipped
 from shared.robots import RobotSpec
 from shared.scenario.episode import EpisodeConfig, MetricsConfig, read_episode, read_metrics
 from shared.scenario.faults import NOMINAL, OLD_NAME, FaultConfig, parse_faults, read_old_name
-from shared.scenario.guide import GuideConfig, parse_guide
+from shared.scenario.guide import GuideConfig, check_grid, parse_guide
 from shared.scenario.objectives import ObjectiveConfig, read_includes, read_objectives
 from shared.scenario.planner import PlannerConfig, read_planner
 from shared.scenario.robot import RobotConfig, read_robot
@@ -451,11 +451,7 @@ def _read_guide(
     source = top.source
     guide = None
     if top.has("guide") and world is not None:
-        guide = errors.call(
-            lambda: parse_guide(
-                top.section("guide"), {o.name: not o.fixed for o in world.objects if not o.visual}
-            )
-        )
+        guide = errors.call(lambda: _guide_in(top.section("guide"), world))
     elif top.has("guide"):  # the world's own errors are reported; the guide's would repeat them
         top.section("guide", required=False)
     if guide is not None and planner is not None and planner.backend != "mujoco":
@@ -469,6 +465,13 @@ def _read_guide(
                 "planner.backend: mujoco, or no guide",
             )
         )
+    return guide
+
+
+def _guide_in(s: Section, world: WorldConfig) -> GuideConfig:
+    """``guide`` against the world's objects, its grid sized against the world's span."""
+    guide = parse_guide(s, {o.name: not o.fixed for o in world.objects if not o.visual})
+    check_grid(s, guide, world.span())
     return guide
 
 

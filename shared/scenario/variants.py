@@ -90,9 +90,22 @@ def _fraction(value: Any) -> float:
 _FRACTION = "a fraction in [0, 1) (0.3: factors within ±30 %)"
 
 
+# the most copies of the planner's model: each is a whole MjModel the planner holds (and, with
+# spread: all, rolls every sample out in); count: 1000000 ran the planner out of memory
+MAX_VARIANTS = 256
+# spread: all rolls out count x planner.samples per mode and iteration
+MAX_VARIANT_ROLLOUTS = 50_000
+
 # the longest prediction the identifier scores, in world steps: the controller keeps the plans
 # sent over that span (planner_client.controller)
 MAX_IDENTIFY_WINDOW = 20
+
+
+def _count(value: Any) -> int:
+    v = positive_int(value)
+    if v > MAX_VARIANTS:
+        raise ValueError(f"more than {MAX_VARIANTS} copies of the planner's model")
+    return v
 
 
 def _window(value: Any) -> int:
@@ -114,7 +127,7 @@ def read_variants(s: Section) -> VariantsConfig:
             "at least one of " + ", ".join(f"{k}: f" for k in VARIANT_PARAMS) + f" ({_FRACTION})",
         )
     cfg = VariantsConfig(
-        count=s.opt("count", 8, positive_int, "an integer >= 1 (models)"),
+        count=s.opt("count", 8, _count, f"an integer in [1, {MAX_VARIANTS}] (models)"),
         seed=s.opt("seed", 0, count_of, "an integer >= 0"),
         spread=_spread(s),
         aggregate=s.opt("aggregate", "mean", one_of(VARIANT_AGGREGATES)),

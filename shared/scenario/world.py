@@ -111,6 +111,21 @@ class WorldConfig:
     randomize: tuple[RandomizeConfig, ...] = ()
     disturbances: tuple[MoveConfig | PathConfig, ...] = ()
 
+    def span(self) -> tuple[float, float]:
+        """Width and depth (m, x and y) of what the world declares: its arena and its objects,
+        each object as the square its largest half-size bounds."""
+        xs, ys = [], []
+        if self.arena is not None:
+            xs += [-self.arena.half_size, self.arena.half_size]
+            ys += [-self.arena.half_size, self.arena.half_size]
+        for o in self.objects:
+            r = max(o.size)
+            xs += [o.pos[0] - r, o.pos[0] + r]
+            ys += [o.pos[1] - r, o.pos[1] + r]
+        if not xs:
+            return (0.0, 0.0)
+        return (max(xs) - min(xs), max(ys) - min(ys))
+
 
 def read_world(s: Section, errors: ErrorLog) -> WorldConfig | None:
     """The world, or None when a fault of it was recorded in ``errors`` (the model of a faulty
@@ -126,6 +141,16 @@ def read_world(s: Section, errors: ErrorLog) -> WorldConfig | None:
         obj = errors.call(_object, o)
         if obj is None:
             continue
+        if arena is not None and max(abs(obj.pos[0]), abs(obj.pos[1])) > arena.half_size:
+            # a goal out there passed every check, and the episode timed out
+            errors.add(
+                o.error(
+                    "pos",
+                    f"outside the arena, whose walls stand at ±{arena.half_size:g} m",
+                    list(obj.pos),
+                    f"|x| and |y| <= {arena.half_size:g} (or a larger world.arena.half_size)",
+                )
+            )
         if obj.name in names or obj.name == "robot":
             errors.add(
                 o.error("name", "duplicate or reserved object name", obj.name, "a unique name")

@@ -16,7 +16,7 @@ from server.inprocess import run_episode
 from shared.config import ConfigError
 from shared.robots import ROBOT_DIR, ROBOTS, get_robot, load_robot
 from shared.scenario import load_scenario, read_scenario
-from tests.user_folder import TWO_LINK, reach, user_folder
+from tests.user_folder import TWO_LINK, TWO_LINK_XML, reach, user_folder
 
 
 @pytest.fixture
@@ -141,3 +141,47 @@ def test_the_shipped_robots_are_files_beside_their_mjcf():
         get_robot("ur5e")
     with pytest.raises(ConfigError):
         load_robot(ROBOT_DIR / "panda.xml")  # an MJCF is not a robot file
+
+
+def _with_mjcf(root, xml: str, robot: dict | None = None) -> str:
+    """The errors of the reach scenario whose arm's MJCF is ``xml``."""
+    path = user_folder(root, robot)
+    (path.parent.parent / "robots" / "two_link.xml").write_text(xml)
+    return "\n".join(str(e) for e in read_scenario(path).errors)
+
+
+@pytest.mark.parametrize(
+    "old, new, fault",
+    [
+        ('ctrlrange="-1.5 1.5"', 'ctrlrange="1.5 -1.5"', "empty ctrlrange"),
+        ('ctrlrange="-1.5 1.5"', 'ctrlrange="nan 1"', "ctrlrange not finite"),
+        ('ctrlrange="-1.5 1.5"', 'ctrlrange="0 0"', "empty ctrlrange"),
+        ('ctrlrange="-1.5 1.5"', 'ctrlrange="-inf inf"', "ctrlrange not finite"),
+        ('ctrlrange="-1.5 1.5"', 'ctrlrange="-1.5 1.5" ctrllimited="false"', "not enforced"),
+    ],
+)
+def test_a_control_without_a_usable_range_is_refused_naming_robot_file_and_actuator(
+    tmp_path, old, new, fault
+):
+    # the planner samples within ctrlrange and the world clips to it: without a range, NaN
+    # controls reached the world, or the planner sent zeros until the episode timed out
+    text = _with_mjcf(tmp_path, TWO_LINK_XML.replace(old, new))
+    assert "robots/two_link.yaml: controls.shoulder_vel: actuator 'shoulder_vel'" in text, text
+    assert "two_link.xml" in text and fault in text and "LOW < HIGH" in text, text
+    assert "noise_sigma" not in text
+
+
+def test_a_safe_control_outside_the_range_is_refused(tmp_path):
+    text = _errors(tmp_path, {**TWO_LINK, "safe_ctrl": [0.0, 2.0]})
+    assert "two_link.yaml: safe_ctrl[1]: outside the ctrlrange of actuator 'elbow_vel'" in text
+    assert "[-1.5, 1.5]" in text, text
+
+
+def test_a_unit_that_does_not_fit_the_actuator_is_refused(tmp_path):
+    # a position servo is not driven in rad/s, a velocity servo not in rad
+    xml = TWO_LINK_XML.replace('<velocity name="elbow_vel"', '<position kp="5" name="elbow_vel"')
+    text = _with_mjcf(tmp_path, xml)
+    assert "controls.elbow_vel: actuator 'elbow_vel'" in text
+    assert "is a position servo, not driven in rad/s" in text and "m, rad, fraction" in text
+    robot = {**TWO_LINK, "controls": {"shoulder_vel": "rad", "elbow_vel": "rad/s"}}
+    assert "is a velocity servo, not driven in rad" in _errors(tmp_path, robot)

@@ -119,7 +119,7 @@ _AGG = "variants.aggregate"
         ({"params": {"mass": 1.5}}, {}, "variants.params.mass", "a fraction in [0, 1)"),
         ({"params": {"inertia": 0.2}}, {}, "variants.params", "unknown key"),
         ({"params": {}}, {}, "variants.params", "at least one of"),
-        ({"params": {"mass": 0.5}, "count": 0}, {}, "variants.count", "an integer >= 1"),
+        ({"params": {"mass": 0.5}, "count": 0}, {}, "variants.count", "an integer in [1, 256]"),
         ({"params": {"mass": 0.5}, "aggregate": "median"}, {}, "variants.aggregate", "one of"),
         ({"params": {"mass": 0.5}, "aggregate": "cvar"}, {}, "variants.aggregate", "spread: all"),
         ({"params": {"mass": 0.5}, "spread": "some"}, {}, "variants.spread", "all, identified"),
@@ -127,7 +127,7 @@ _AGG = "variants.aggregate"
         ({**_MASS, "spread": "identified", "identify": {}, "aggregate": "cvar"}, {}, _AGG, "all"),
         ({**_MASS, "identify": {"window": 21}}, {}, "variants.identify.window", "[1, 20]"),
         ({**_MASS, "identify": {"window": 0}}, {}, "variants.identify.window", "[1, 20]"),
-        ({"params": {"mass": 0.5}, "count": 300}, {}, "variants.count", "count <= 200"),
+        ({"params": {"mass": 0.5}, "count": 250}, {}, "variants.count", "count <= 200"),
         ({"params": {"mass": 0.5}}, {"backend": "warp"}, "variants", "backend: mujoco"),
         (
             {"params": {"mass": 0.5}, "identify": {"forget": 0}},
