@@ -24,7 +24,14 @@ from m3p2i.cli_support import (
     plugin_args,
     terminate_as_interrupt,
 )
-from m3p2i.launch import EpisodeLaunch, free_port_block, mode_conflicts, run_episode
+from m3p2i.launch import (
+    EpisodeLaunch,
+    died,
+    free_port_block,
+    log_tail,
+    mode_conflicts,
+    run_episode,
+)
 from m3p2i.new import new_scenario
 from server.evaluation.plan_ages import describe_timing
 from shared.cli_common import (
@@ -192,7 +199,8 @@ def run(
     viewer: OldWindow = False,
     estimate_delays: OldMeasureDelays = False,
 ) -> None:
-    """Run one episode of SCENARIO with server and planner; exit 0 on success."""
+    """Run one episode of SCENARIO with server and planner; exit 0 on success, 1 otherwise (a
+    process that died is named, with the last lines of its log), 2 on a configuration error."""
     faults = renamed(faults, hardware, "--faults", "--hardware", None)
     window = renamed(window, viewer, "--window", "--viewer", False)
     measure_delays = renamed(
@@ -282,11 +290,20 @@ def _report_run(
     elif result.reason == "interrupted":
         typer.echo("interrupted")
     elif result.reason:
-        log_file = run_dir / "planner.log"
-        # the planner's own messages first: the log file is the place to look only for more
-        for message in error_blocks(log_file.read_text()) if log_file.is_file() else []:
+        log_file = run_dir / f"{died(result.reason) or 'planner'}.log"
+        # the process's own messages first: the log file is the place to look only for more
+        blocks = error_blocks(log_file.read_text()) if log_file.is_file() else []
+        for message in blocks:
             typer.echo(f"error: {message}", err=True)
-        typer.echo(f"error: the {result.reason}; see {log_file}", err=True)
+        said = {line for m in blocks for line in m.splitlines()}
+        tail = [line for line in log_tail(log_file) if line.removeprefix("error: ") not in said]
+        typer.echo(
+            f"error: the {result.reason}; "
+            + (f"the last lines of {log_file}:" if tail else f"see {log_file}"),
+            err=True,
+        )
+        for line in tail:
+            typer.echo(f"  {line}", err=True)
     summary = result.summary
     if summary is None:
         typer.echo(f"error: no episode summary in {result.log_path}", err=True)
@@ -705,6 +722,14 @@ def new(
     typer.echo(f"edit it, then: m3p2i run {name}")
 
 
+def _episode_seconds(value: float | None) -> float | None:
+    """``--timeout`` of ``m3p2i tune``: a finite number of seconds > 0 (or not given)."""
+    # NaN fails both comparisons, so it is refused with the negative numbers and inf
+    if value is not None and not 0 < value < float("inf"):
+        raise typer.BadParameter(f"{value:g}: expected a finite number of seconds > 0")
+    return value
+
+
 @app.command("tune")
 def tune(
     target: str = typer.Argument(
@@ -724,11 +749,15 @@ def tune(
     ),
     out: Path = typer.Option(..., "--out", help="Output folder; rerun with it to resume."),
     workers: int = typer.Option(
-        1, help="Seeds at once, each a server + planner pair (0: one per core)."
+        1, min=0, help="Seeds at once, each a server + planner pair (0: one per core)."
     ),
-    sampler_seed: int = typer.Option(0, help="Seed of the TPE sampler: same seed, same study."),
+    sampler_seed: int = typer.Option(
+        0, min=0, help="Seed of the TPE sampler: same seed, same study."
+    ),
     timeout: float | None = typer.Option(
-        None, help="Wall-clock seconds per episode (default: the bench file's, else 600)."
+        None,
+        callback=_episode_seconds,
+        help="Wall-clock seconds per episode, > 0 (default: the bench file's, else 600).",
     ),
     ray: bool = typer.Option(
         False, "--ray", help="Run the episodes as Ray tasks on a local instance of --workers CPUs."

@@ -119,10 +119,20 @@ def mode_conflicts(
     return out
 
 
+# The planner's exit codes (planner_client/cli.py): 0 and 1 end an episode (success, not); 2 a
+# configuration error, 3 a refused handshake, 4 an uncaught error; a negative one, a signal.
+PLANNER_EPISODE_ENDS = (0, 1)
+WORLD_ENDS_WITHIN = 20.0
+"""Seconds a world may take to end its episode (final states, summary) after its planner ended
+it: a planner gone for longer while the world runs left it waiting (lock-step: for ever)."""
+
+
 @dataclass(frozen=True)
 class EpisodeRun:
     """How a launched episode ended. ``reason`` is empty when the world ended it by itself;
-    otherwise ``timeout`` (wall clock), ``planner exited with code N`` or ``interrupted``."""
+    otherwise ``timeout`` (wall clock), ``planner exited with code N`` (a crash, or an end of
+    episode the world never followed), ``server exited with code N`` or ``interrupted``.
+    :func:`died` names the process of the latter two."""
 
     log_path: Path
     summary: dict | None
@@ -262,18 +272,27 @@ def run_episode(
             procs[name] = subprocess.Popen(
                 cmd, stdout=out, stderr=subprocess.STDOUT if out else None
             )
+        planner_ended = None  # when the planner exited as at an episode's end
         while procs["server"].poll() is None:
             if time.monotonic() - started > launch.timeout:
                 reason = "timeout"
                 break
-            # 0 and 1 are the planner's normal exits (episode over); anything else is a crash
-            if procs["planner"].poll() not in (None, 0, 1):
-                reason = f"planner exited with code {procs['planner'].returncode}"
+            code = procs["planner"].poll()
+            if code is not None and code not in PLANNER_EPISODE_ENDS:
+                reason = f"planner exited with code {code}"
                 break
+            if code is not None:
+                planner_ended = planner_ended or time.monotonic()
+                if time.monotonic() - planner_ended > WORLD_ENDS_WITHIN:
+                    reason = f"planner exited with code {code}"
+                    break
             if stop is not None and stop.is_set():
                 reason = "interrupted"
                 break
             time.sleep(0.1)
+        code = procs["server"].poll()
+        if not reason and code not in (None, 0, 1):  # 0, 1: its episode's end (success, not)
+            reason = f"server exited with code {code}"
         if launch.view and launch.view_keep and not reason and procs["view"].poll() is None:
             stop_processes([procs["server"], procs["planner"]])
             kept = EpisodeRun(
@@ -302,6 +321,23 @@ def run_episode(
         reason=reason,
         wall_time=time.monotonic() - started,
     )
+
+
+def died(reason: str) -> str | None:
+    """The process an :class:`EpisodeRun`'s ``reason`` names as exited (``planner`` or
+    ``server``), None for a time-out or an interruption."""
+    name = reason.split(" ", 1)[0]
+    return name if name in ("planner", "server") and " exited with code " in reason else None
+
+
+def log_tail(path: Path, lines: int = 12) -> list[str]:
+    """The last ``lines`` non-empty lines of a process's log (none when it has no log file)."""
+    if not path.is_file():
+        return []
+    with path.open("rb") as f:
+        f.seek(max(0, f.seek(0, 2) - 64 * 1024))  # a traceback's end, not a long log's all
+        text = f.read().decode("utf-8", "replace")
+    return [line for line in text.splitlines() if line.strip()][-lines:]
 
 
 def wait_served(url: str, proc: subprocess.Popen, log_file: Path, timeout: float = 120.0) -> None:

@@ -6,7 +6,7 @@ import dataclasses
 import logging
 import sys
 from pathlib import Path
-from typing import Annotated
+from typing import Annotated, NoReturn
 
 import typer
 
@@ -39,7 +39,9 @@ HELP = (
     "authenticated and encrypted. "
     "Exit code: 0 when the episode ends in success, 1 otherwise, 2 on a configuration error, "
     "3 when the server refuses the handshake (scenario, protocol version or key) or its first "
-    "state has other sizes than the scenario's model (`m3p2i layout SCENARIO` prints them)."
+    "state has other sizes than the scenario's model (`m3p2i layout SCENARIO` prints them), "
+    "4 when the planner itself fails (an uncaught error, e.g. a cost term that raises: its "
+    "traceback is printed)."
 )
 
 log = logging.getLogger("m3p2i.planner")
@@ -162,6 +164,9 @@ def main(
     _checked_or_exit(scenario, plugins, check)
     device = _rollouts_or_exit(backend, device)
     from planner_client.build import build_client
+    from planner_client.mujoco_warnings import count_mujoco_warnings
+
+    warned = count_mujoco_warnings()  # each said once in the log, then counted
 
     try:
         sc = with_delays(
@@ -184,7 +189,9 @@ def main(
     except ConfigError as exc:
         typer.echo(f"error: {exc}", err=True)
         raise typer.Exit(2) from None
-    _plan(client, scenario)
+    except Exception as exc:
+        _failed(exc, "building the planner")
+    _plan(client, scenario, warned)
 
 
 def _checked_or_exit(scenario: str, plugins: list[str] | None, check: bool) -> None:
@@ -221,9 +228,10 @@ def _rollouts_or_exit(backend: str | None, device: str | None) -> str | None:
         raise typer.Exit(2) from None
 
 
-def _plan(client, scenario: str) -> None:
+def _plan(client, scenario: str, warned) -> None:
     """Plan until the episode (or, kept running, the world) ends; print the planner's
-    statistics and exit 0 on success, 1 otherwise, 3 when the world refuses this planner."""
+    statistics and exit 0 on success, 1 otherwise, 3 when the world refuses this planner, 4
+    when planning fails."""
     from planner_client.controller import LayoutMismatch
     from planner_client.loop import HandshakeRefused
 
@@ -237,6 +245,8 @@ def _plan(client, scenario: str) -> None:
         raise typer.Exit(3) from None
     except KeyboardInterrupt:
         stats = client.stats
+    except Exception as exc:
+        _failed(exc, "planning")
     finally:
         client.close()
     fallbacks = (
@@ -244,11 +254,23 @@ def _plan(client, scenario: str) -> None:
         if stats.safe_fallbacks
         else ""
     )
+    dropped = (
+        f", {client.dropped_states} bad state messages dropped" if client.dropped_states else ""
+    )
+    mujoco = f", {warned.total} MuJoCo warnings" if warned.total else ""
     typer.echo(
         f"planner: {stats.iterations} iterations, {stats.hz:.1f} Hz, "
-        f"episode {stats.final_status or 'not finished'}{fallbacks}"
+        f"episode {stats.final_status or 'not finished'}{fallbacks}{dropped}{mujoco}"
     )
     raise typer.Exit(0 if stats.final_status == "success" else 1)
+
+
+def _failed(exc: Exception, during: str) -> NoReturn:
+    """An uncaught error (a bug, or a user's cost term that raises): its traceback, one
+    ``error:`` line, and exit 4, which a launcher tells apart from an episode's end (0, 1)."""
+    log.error("the planner failed while %s", during, exc_info=exc)
+    typer.echo(f"error: the planner failed: {type(exc).__name__}: {exc}", err=True)
+    raise typer.Exit(4) from None
 
 
 def with_delays(sc, actuation_ms: float | None, state_ms: float | None, measure: bool = False):

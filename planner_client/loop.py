@@ -110,6 +110,7 @@ class PlannerClient:
         self._answer = b""
         self._handshake_failures = 0  # in a row, since the last reply
         self._layout_checked = False  # whether a state since the last handshake was checked
+        self.dropped_states = 0  # states refused by the decoder (docs/protocol.md, "Bad input")
 
     # ------------------------------------------------------------------ handshake
 
@@ -141,9 +142,12 @@ class PlannerClient:
                     # handshake in milliseconds
                     self._count_handshake_failure("connected, but no handshake completed")
                 elif not answered and self._handshake_failures and not monitor.events:
-                    # after failed handshakes a world can stop taking connections at all (seen
-                    # under load: 15 failures, then new sockets silent for minutes); a world
-                    # that is up with our keys would have answered, so this counts as well
+                    # after failed handshakes, no connection at all: the world that refused us
+                    # is gone (its episode ended and it exited: seen under load, 15 failures,
+                    # then no listener on its port), so this counts as well. Before any failed
+                    # handshake the same silence is a world not started yet, which the planner
+                    # waits for (either may start first): a keyless planner that only comes up
+                    # after a CURVE world exited cannot tell and waits
                     self._count_handshake_failure("no connection since the handshakes failed")
             except HandshakeRefused:
                 req.close(0)  # an open socket would block the context's termination
@@ -291,7 +295,11 @@ class PlannerClient:
             try:
                 state = P.decode(self.sub.recv(), expect="state", versions=P.VERSIONS)
             except P.ProtocolError as exc:
-                log.warning("dropped a bad state message: %s", exc)
+                self.dropped_states += 1  # said for the first ten, then every hundredth
+                if self.dropped_states <= 10 or self.dropped_states % 100 == 0:
+                    log.warning(
+                        "dropped a bad state message (%d so far): %s", self.dropped_states, exc
+                    )
                 continue
             last_state_at = time.monotonic()
             if state.session != self.welcome.session:

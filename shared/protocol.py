@@ -34,6 +34,11 @@ MIN_PLAN_DT = 1e-6
 """Seconds: a command's ``plan_dt`` below this is refused (a microsecond is far under any
 world's control period; a subnormal one would make the plan's index overflow)."""
 
+MAX_WORLD_TIME = 1e9
+"""Seconds: a ``state.time`` outside ``[0, MAX_WORLD_TIME]`` (about 31 years of world time) is
+refused. A world's time counts from its episode's start; one near float64's top would make the
+planner's step counts (time / dt) overflow every integer."""
+
 _DTYPES = {"<f8", "<f4", "<i4", "<i8", "|u1", "|b1"}
 _MAX_ARRAY_ELEMENTS = 4_000_000
 _MAX_ARRAY_DIMS = 4
@@ -387,10 +392,16 @@ def decode_versioned(
     known = version in versions and version in _SCHEMAS
     if not known and not readable_error:
         offered = obj.get("versions") if kind == "hello" else None
-        if _is_intlist(offered):
+        if _is_intlist(offered) and not set(offered) & set(versions):
             raise ProtocolError(
                 f"no common protocol version: the peer speaks "
                 f"{_names(offered)}, this side speaks {_names(versions)}"
+            )
+        if _is_intlist(offered):  # a version in common: the frame's own v is what is wrong
+            raise ProtocolError(
+                f"hello written in protocol version {version!r}, which this side does not "
+                f"read: a hello offering {_names(offered)} is written in one this side "
+                f"speaks ({_names(versions)}), the oldest it offers"
             )
         raise ProtocolError(
             f"protocol version {version!r} not supported (this side speaks {_names(versions)})"
@@ -514,6 +525,11 @@ def _check_values(msg: Any) -> None:
         )
     if isinstance(msg, State) and msg.lag < 0:
         raise ProtocolError("state.lag must be >= 0")
+    if isinstance(msg, State) and not 0 <= msg.time <= MAX_WORLD_TIME:
+        raise ProtocolError(
+            f"state.time: {msg.time} s (expected world seconds since the episode's start, "
+            f"in [0, {MAX_WORLD_TIME:g}])"
+        )
     if isinstance(msg, State):
         _check_state_shapes(msg)
     if isinstance(msg, Diagnostics):

@@ -20,6 +20,11 @@ def shift(seq: Tensor, steps: float = 1.0) -> Tensor:
     An integer shift is an exact copy of the kept steps.
     """
     horizon = seq.shape[-2]
+    if not math.isfinite(steps):
+        raise ValueError(f"shift by {steps} steps: expected a finite number")
+    # a shift past either end keeps only the held end step: beyond the horizon every shift is
+    # the same, so a huge one (a world time far off) is clamped before it becomes an index
+    steps = min(max(steps, -float(horizon)), float(horizon))
     whole = math.floor(steps)
     frac = steps - whole
     lo_idx, hi_idx = shift_index(horizon, whole, seq.device)

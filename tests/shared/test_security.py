@@ -6,6 +6,7 @@ from __future__ import annotations
 import shutil
 import stat
 import threading
+import time
 from pathlib import Path
 
 import pytest
@@ -287,6 +288,10 @@ def test_navigation_over_curve_reaches_the_goal_while_a_planner_with_another_key
     port = free_port_block()
     log = tmp_path / "episode.jsonl"
     server = start_server("navigation", port, log, "--keys", str(keys))
+    # paused until both refused planners gave up: a world whose episode ends exits, and a
+    # planner that finds no world waits for one (as when started first), so one whose start-up
+    # took longer than the keyed planner's episode (seen under load) would wait for ever
+    _control(port, keys, "pause")
     # the diagnostics go to subscribers with the planner's keys only
     recorders = {
         "keyed": DiagnosticsRecorder(port, tmp_path / "keyed.jsonl", keys=load_planner_keys(keys)),
@@ -302,6 +307,7 @@ def test_navigation_over_curve_reaches_the_goal_while_a_planner_with_another_key
     try:
         refused_out, _ = refused.communicate(timeout=120)
         keyless_out, _ = keyless.communicate(timeout=120)
+        _control(port, keys, "resume")
         out = wait_episode(server, planner, timeout=240)
         planner_out, _ = planner.communicate(timeout=30)
     finally:
@@ -321,6 +327,29 @@ def test_navigation_over_curve_reaches_the_goal_while_a_planner_with_another_key
     assert any(r.get("what") == "peer_refused" for r in records)
     assert len(read_tops(tmp_path / "keyed.jsonl")) > 10
     assert read_tops(tmp_path / "keyless.jsonl") == {}
+
+
+def _control(port: int, keys: Path, op: str, timeout: float = 60.0) -> None:
+    """Send the control ``op`` with the planner's keys until the world echoes it (it may still
+    be starting)."""
+    ctx = zmq.Context()
+    try:
+        end = time.monotonic() + timeout
+        while time.monotonic() < end:
+            req = ctx.socket(zmq.REQ)
+            req.setsockopt(zmq.LINGER, 0)
+            planner_keys = load_planner_keys(keys)
+            curve_client(req, planner_keys.own, planner_keys.world)
+            req.connect(Endpoints(port=port).control)
+            req.send(P.encode(P.Control(op=op)))
+            answered = req.poll(2000)
+            reply = P.decode(req.recv(), expect="control") if answered else None
+            req.close(0)
+            if reply is not None and reply.op == op:
+                return
+        raise AssertionError(f"the world did not take {op!r} within {timeout:.0f} s")
+    finally:
+        ctx.term()
 
 
 def test_m3p2i_run_passes_the_keys_to_both_processes(tmp_path, keys):

@@ -111,6 +111,19 @@ def test_a_hello_of_an_unknown_version_offering_versions_names_both_sides():
         P.decode(frame, versions=P.VERSIONS)
 
 
+def test_a_hello_of_an_unknown_version_offering_a_common_one_is_refused_for_its_v():
+    # the offer is fine (2 is common): the frame's own v is what is wrong, and the reason
+    # must not claim that no version is common
+    frame = msgpack.packb(
+        {"type": "hello", "v": 9, "scenario": "n", "scenario_hash": "h", "versions": [2]}
+    )
+    with pytest.raises(P.ProtocolError) as info:
+        P.decode(frame, versions=P.VERSIONS)
+    reason = str(info.value)
+    assert "hello written in protocol version 9, which this side does not read" in reason
+    assert "no common protocol version" not in reason
+
+
 # ------------------------------------------------------------------ a current world
 
 
