@@ -121,8 +121,21 @@ def plot_episode(series: EpisodeSeries, out: Path, title: str = "") -> Path:
     fig = Figure(figsize=(5.2 * panels, 4.4), layout="constrained")
     axes = fig.subplots(1, panels)
     fig.suptitle(title or series.name)
+    _draw_trajectories(axes[0], series)
+    _draw_distances(axes[1], series)
+    if series.obj is not None:
+        _draw_angle(axes[2], series)
+    if series.model:
+        _draw_model(axes[-1], series)
+    _mark_actions(axes[1:], series.actions)
+    out = Path(out)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(out, dpi=110)
+    return out
 
-    ax = axes[0]
+
+def _draw_trajectories(ax, series: EpisodeSeries) -> None:
+    """The object's and the robot's paths in the plane from their start (o), and the goal."""
     if series.obj is not None:
         ax.plot(series.obj[:, 0], series.obj[:, 1], color=OBJECT, label=series.object_name)
         ax.plot(*series.obj[0, :2], "o", color=OBJECT)
@@ -136,7 +149,9 @@ def plot_episode(series: EpisodeSeries, out: Path, title: str = "") -> Path:
     ax.set(xlabel="x [m]", ylabel="y [m]", title="trajectories (o: start)")
     ax.legend(loc="best", fontsize="small")
 
-    ax = axes[1]
+
+def _draw_distances(ax, series: EpisodeSeries) -> None:
+    """Robot-object and object-goal distances over time (robot-goal without an object)."""
     tracked = series.robot if series.obj is None else series.obj
     if series.obj is not None:
         ax.plot(
@@ -154,34 +169,39 @@ def plot_episode(series: EpisodeSeries, out: Path, title: str = "") -> Path:
     ax.set(xlabel="time [s]", ylabel="distance [m]", title="distances")
     ax.legend(loc="best", fontsize="small")
 
-    if series.obj is not None:
-        ax = axes[2]
-        ax.plot(series.time, cos_rog(series.robot, series.obj, series.goal), color="black")
-        ax.axhline(0.0, color="grey", linewidth=0.5)
-        ax.set_ylim(-1.05, 1.05)
-        ax.set(
-            xlabel="time [s]",
-            ylabel=r"cos $\theta_{ROG}$",
-            title="robot-object-goal angle (-1: pushing, 1: pulling)",
-        )
 
-    if series.model:
-        ax = axes[-1]
-        for i, (label, values) in enumerate(series.model.items()):
-            colour = f"C{i % 10}"
-            ax.plot(series.time, values, color=colour, label=label)
-            if label in series.truth:
-                ax.axhline(series.truth[label], color=colour, linestyle="--", linewidth=0.8)
-        ax.axhline(1.0, color="grey", linewidth=0.5)
-        ax.set(
-            xlabel="time [s]",
-            ylabel="factor of the nominal model",
-            title="identified model (dashed: the world's)",
-        )
-        ax.legend(loc="best", fontsize="small")
+def _draw_angle(ax, series: EpisodeSeries) -> None:
+    """cos of the robot-object-goal angle over time (paper Eq. 16)."""
+    ax.plot(series.time, cos_rog(series.robot, series.obj, series.goal), color="black")
+    ax.axhline(0.0, color="grey", linewidth=0.5)
+    ax.set_ylim(-1.05, 1.05)
+    ax.set(
+        xlabel="time [s]",
+        ylabel=r"cos $\theta_{ROG}$",
+        title="robot-object-goal angle (-1: pushing, 1: pulling)",
+    )
 
-    for ax in axes[1:]:
-        for t, action in series.actions:
+
+def _draw_model(ax, series: EpisodeSeries) -> None:
+    """Each factor the planner identified over time, dashed at the world's true one."""
+    for i, (label, values) in enumerate(series.model.items()):
+        colour = f"C{i % 10}"
+        ax.plot(series.time, values, color=colour, label=label)
+        if label in series.truth:
+            ax.axhline(series.truth[label], color=colour, linestyle="--", linewidth=0.8)
+    ax.axhline(1.0, color="grey", linewidth=0.5)
+    ax.set(
+        xlabel="time [s]",
+        ylabel="factor of the nominal model",
+        title="identified model (dashed: the world's)",
+    )
+    ax.legend(loc="best", fontsize="small")
+
+
+def _mark_actions(axes, actions: list[tuple[float, str]]) -> None:
+    """A dotted line where the planner's action changed, named, on every panel over time."""
+    for ax in axes:
+        for t, action in actions:
             ax.axvline(t, color="grey", linestyle=":", linewidth=0.8)
             ax.annotate(
                 action,
@@ -193,8 +213,3 @@ def plot_episode(series: EpisodeSeries, out: Path, title: str = "") -> Path:
                 fontsize="x-small",
                 color="grey",
             )
-
-    out = Path(out)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(out, dpi=110)
-    return out

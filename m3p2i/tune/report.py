@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import json
-from collections.abc import Sequence
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -12,8 +12,15 @@ from m3p2i.bench_report import seed_ranges, wilson
 from m3p2i.provenance import machine, versions
 from m3p2i.tune.holdout import Held
 from m3p2i.tune.space import Space
-from m3p2i.tune.study import Score, TuneOptions, best_values, cell_number, finished_trials
-from m3p2i.tune.target import Target, run_options, values_id
+from m3p2i.tune.study import (
+    Score,
+    TuneOptions,
+    best_values,
+    cell_number,
+    finished_trials,
+    trial_score,
+)
+from m3p2i.tune.target import Target, run_options
 
 
 def cell_text(v: Any) -> str:
@@ -37,6 +44,24 @@ def importances(study) -> dict[str, float] | str:
         return str(exc).splitlines()[0] if str(exc) else type(exc).__name__
 
 
+@dataclass(frozen=True)
+class _Sources:
+    """What the report is written from: the study, its episodes in ``results.csv``, its best
+    trial and the overlay written for it."""
+
+    target: Target
+    space: Space
+    opts: TuneOptions
+    study: Any  # optuna.Study
+    rows: list[dict]
+    best: Any  # the best complete optuna FrozenTrial
+    overlay_path: Path
+
+    def score(self, trial) -> Score:
+        """The trial's latest episode on each training seed."""
+        return trial_score(trial, self.target, self.rows, self.opts.seeds)
+
+
 def report(
     target: Target,
     space: Space,
@@ -47,18 +72,27 @@ def report(
 ) -> str:
     """``report.md``: the study's history, importances, best trial per seed, held-out
     comparison."""
-    from optuna.trial import TrialState
-
-    keys = [p.key for p in space.params]
-    finished = [t for t in study.get_trials(deepcopy=False) if t.state != TrialState.WAITING]
     best, _ = best_values(study)
     rows = B.ResultsFile(opts.out / "results.csv").rows()
-    wall = sum(cell_number(r.get("trial_wall")) or 0.0 for r in rows)
-    max_time = target.scenario.episode.max_time
+    src = _Sources(target, space, opts, study, rows, best, overlay_path)
     lines = [
-        f"# m3p2i tune: {target.scenario.name}",
+        *_summary(src),
+        *_trials_table(src),
+        *_importances_section(study),
+        *_best_per_seed(src),
+        *_held_out_section(src, held),
+    ]
+    return "\n".join(lines) + "\n"
+
+
+def _summary(src: _Sources) -> list[str]:
+    """The title and what was tuned, how, on which seeds and machine, and the best trial."""
+    opts, space, overlay_path = src.opts, src.space, src.overlay_path
+    wall = sum(cell_number(r.get("trial_wall")) or 0.0 for r in src.rows)
+    return [
+        f"# m3p2i tune: {src.target.scenario.name}",
         "",
-        f"- target: {target.label}",
+        f"- target: {src.target.label}",
         f"- space: `{space.source}`: "
         + "; ".join(f"`{p.key}` {p.describe()}" for p in space.params),
         f"- objective (maximised): {space.objective.formula()}",
@@ -66,115 +100,138 @@ def report(
         f"{seed_ranges(opts.holdout) if opts.holdout else 'none'}; TPE seed {opts.sampler_seed}, "
         f"{space.startup(opts.trials)} random proposals first; pruning "
         f"{'on' if space.prune else 'off'}",
-        f"- {len(finished_trials(study))} trials finished; episodes' wall time {wall:.0f} s "
-        f"(sum over {len(rows)} episodes in `results.csv`, on {machine()}, {versions()})",
-        f"- best: trial {best.number}; overlay `{overlay_path}` "
-        f"(`m3p2i run {overlay_path}{run_options(target.case)}`)",
+        f"- {len(finished_trials(src.study))} trials finished; episodes' wall time {wall:.0f} s "
+        f"(sum over {len(src.rows)} episodes in `results.csv`, on {machine()}, {versions()})",
+        f"- best: trial {src.best.number}; overlay `{overlay_path}` "
+        f"(`m3p2i run {overlay_path}{run_options(src.target.case)}`)",
         "",
+    ]
+
+
+def _trials_table(src: _Sources) -> list[str]:
+    """A row per trial that was proposed (waiting ones are not), the best marked."""
+    from optuna.trial import TrialState
+
+    keys = [p.key for p in src.space.params]
+    proposed = [t for t in src.study.get_trials(deepcopy=False) if t.state != TrialState.WAITING]
+    return [
         "## Trials",
         "",
         "| trial | state | " + " | ".join(f"`{k}`" for k in keys) + " | success | time [s] | "
         "objective |",
         "|---:|---|" + "---:|" * len(keys) + "---:|---:|---:|",
-    ]
-    for t in finished:
-        vals = t.user_attrs.get("values", {})
-        state = t.state.name.lower() + (" (original)" if t.user_attrs.get("original") else "")
-        ran = t.user_attrs.get("seeds_run")
-        succ = f"{t.user_attrs['successes']}/{ran}" if ran else "—"
-        objective = (
-            t.value
-            if t.value is not None
-            else (
-                t.intermediate_values[max(t.intermediate_values)] if t.intermediate_values else None
-            )
-        )
-        tstats = _trial_score(t, target, rows, opts.seeds).time_stats() if ran else None
-        lines.append(
-            f"| {t.number}{' **best**' if t.number == best.number else ''} | {state} | "
-            + " | ".join(cell_text(vals.get(k, "—")) for k in keys)
-            + f" | {succ} | {f'{tstats[0]:.2f}' if tstats else '—'} | "
-            + (f"{objective:.4f}" if objective is not None else "—")
-            + " |"
-        )
-    lines += [
+        *(_trial_row(src, t, keys) for t in proposed),
         "",
         "A pruned trial stopped once it could no longer beat the best complete one, even with "
         "every seed left succeeding; its objective is over the seeds it ran. Failed: "
         "interrupted, proposed again.",
         "",
-        "## Parameter importances",
-        "",
     ]
+
+
+def _trial_row(src: _Sources, trial, keys: list[str]) -> str:
+    vals = trial.user_attrs.get("values", {})
+    state = trial.state.name.lower() + (" (original)" if trial.user_attrs.get("original") else "")
+    ran = trial.user_attrs.get("seeds_run")
+    succ = f"{trial.user_attrs['successes']}/{ran}" if ran else "—"
+    objective = _last_objective(trial)
+    tstats = src.score(trial).time_stats() if ran else None
+    return (
+        f"| {trial.number}{' **best**' if trial.number == src.best.number else ''} | {state} | "
+        + " | ".join(cell_text(vals.get(k, "—")) for k in keys)
+        + f" | {succ} | {f'{tstats[0]:.2f}' if tstats else '—'} | "
+        + (f"{objective:.4f}" if objective is not None else "—")
+        + " |"
+    )
+
+
+def _last_objective(trial) -> float | None:
+    """A trial's objective; a pruned trial has none of its own, but reported one at its last
+    step (over the seeds it ran)."""
+    if trial.value is not None:
+        return trial.value
+    if trial.intermediate_values:
+        return trial.intermediate_values[max(trial.intermediate_values)]
+    return None
+
+
+def _importances_section(study) -> list[str]:
+    """Optuna's importance of each key, or why it is not computable."""
+    lines = ["## Parameter importances", ""]
     imp = importances(study)
     if isinstance(imp, str):
-        lines.append(f"Not computable: {imp}")
-    else:
-        lines += ["| key | importance |", "|---|---:|"]
-        lines += [f"| `{k}` | {v:.3f} |" for k, v in imp.items()]
-        lines += ["", "Optuna's default evaluator over the complete trials; few trials, rough."]
-    score = _trial_score(best, target, rows, opts.seeds)
-    lines += [
+        return [*lines, f"Not computable: {imp}"]
+    return [
+        *lines,
+        "| key | importance |",
+        "|---|---:|",
+        *(f"| `{k}` | {v:.3f} |" for k, v in imp.items()),
         "",
-        f"## Best trial ({best.number}) per seed",
+        "Optuna's default evaluator over the complete trials; few trials, rough.",
+    ]
+
+
+def _best_per_seed(src: _Sources) -> list[str]:
+    """The best trial's episode on each training seed, with its log."""
+    return [
+        "",
+        f"## Best trial ({src.best.number}) per seed",
         "",
         "| seed | status | reason | time [s] | position error [m] | collisions | log |",
         "|---:|---|---|---:|---:|---:|---|",
-    ]
-    for r in score.rows:
-        lines.append(
+        *(
             f"| {r['seed']} | {r['status']} | {r.get('reason') or ''} | {_fmt(r.get('time'))} | "
             f"{_fmt(r.get('position_error'), 3)} | {r.get('collisions') or '—'} | "
             f"`{r.get('log', '')}` |"
-        )
-    lines += ["", "## Held-out evaluation", ""]
+            for r in src.score(src.best).rows
+        ),
+    ]
+
+
+def _held_out_section(src: _Sources, held: Held | None) -> list[str]:
+    """The original against the tuned overlay on the held-out seeds, or why there is none."""
+    lines = ["", "## Held-out evaluation", ""]
     if held is None:
-        lines.append(
-            "No held-out seeds (--holdout): the tuned set is judged on its own seeds only."
-        )
-    else:
-        ran = sorted(int(r["seed"]) for r in held.original.rows)
-        left = seed_ranges(sorted(set(opts.holdout) - set(ran)))
-        lines += [
-            f"Seeds {seed_ranges(ran) if ran else 'none yet'}, none tuned on; "
-            f"{target.case.mode_label}."
-            + (
-                ""
-                if held.complete
-                else f" Interrupted before seeds {left}: rerun the same command to finish."
-            ),
-            "",
-            "| scenario | success (95 % Wilson interval) | time [s] | position error [m] | "
-            "failed seeds | objective |",
-            "|---|---:|---:|---:|---|---:|",
+        return [
+            *lines,
+            "No held-out seeds (--holdout): the tuned set is judged on its own seeds only.",
         ]
-        for name, s in zip(
-            (f"original ({target.base})", f"tuned (`{overlay_path}`)"), (held.original, held.tuned)
-        ):
-            if not s.trials:
-                continue
-            lo, hi = wilson(s.successes, s.trials)
-            ts = s.time_stats()
-            lines.append(
-                f"| {name} | {s.successes}/{s.trials} ({100 * lo:.0f}-{100 * hi:.0f} %) | "
-                f"{f'{ts[0]:.2f} ({ts[1]:.2f})' if ts else '—'} | "
-                f"{s.mean('position_error', max_time):.3f} | "
-                f"{', '.join(map(str, s.failed_seeds())) or 'none'} | "
-                f"{s.value(space.objective, max_time):.4f} |"
-            )
-        lines += [
-            "",
-            "time: mean (std) simulated seconds to success over the successful trials.",
-        ]
-    return "\n".join(lines) + "\n"
+    ran = sorted(int(r["seed"]) for r in held.original.rows)
+    left = seed_ranges(sorted(set(src.opts.holdout) - set(ran)))
+    sides = zip(
+        (f"original ({src.target.base})", f"tuned (`{src.overlay_path}`)"),
+        (held.original, held.tuned),
+    )
+    return [
+        *lines,
+        f"Seeds {seed_ranges(ran) if ran else 'none yet'}, none tuned on; "
+        f"{src.target.case.mode_label}."
+        + (
+            ""
+            if held.complete
+            else f" Interrupted before seeds {left}: rerun the same command to finish."
+        ),
+        "",
+        "| scenario | success (95 % Wilson interval) | time [s] | position error [m] | "
+        "failed seeds | objective |",
+        "|---|---:|---:|---:|---|---:|",
+        *(_held_out_row(src, name, score) for name, score in sides if score.trials),
+        "",
+        "time: mean (std) simulated seconds to success over the successful trials.",
+    ]
 
 
-def _trial_score(trial, target: Target, rows: list[dict], seeds: Sequence[int]) -> Score:
-    values = trial.user_attrs.get("values", {})
-    case = f"{target.case.case}@{values_id(values)}"
-    mine = [r for r in rows if r["case"] == case and int(r["seed"]) in seeds]
-    latest = {int(r["seed"]): r for r in mine}
-    return Score(tuple(latest[s] for s in sorted(latest)))
+def _held_out_row(src: _Sources, name: str, score: Score) -> str:
+    max_time = src.target.scenario.episode.max_time
+    lo, hi = wilson(score.successes, score.trials)
+    ts = score.time_stats()
+    return (
+        f"| {name} | {score.successes}/{score.trials} ({100 * lo:.0f}-{100 * hi:.0f} %) | "
+        f"{f'{ts[0]:.2f} ({ts[1]:.2f})' if ts else '—'} | "
+        f"{score.mean('position_error', max_time):.3f} | "
+        f"{', '.join(map(str, score.failed_seeds())) or 'none'} | "
+        f"{score.value(src.space.objective, max_time):.4f} |"
+    )
 
 
 def _fmt(cell: Any, digits: int = 2) -> str:

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -32,6 +32,12 @@ class Score:
     @property
     def successes(self) -> int:
         return sum(_won(r) for r in self.rows)
+
+    @property
+    def ended(self) -> int:
+        """Episodes that reached their outcome, a success or a failure: not those the bench
+        stopped with a reason (its wall-clock time-out, a process that died)."""
+        return sum(not r.get("reason") for r in self.rows)
 
     def failed_seeds(self) -> list[int]:
         return sorted(int(r["seed"]) for r in self.rows if not _won(r))
@@ -321,6 +327,16 @@ def run_study(
             TrialOutcome(trial.number, values, score, "pruned" if pruned else "complete", objective)
         )
     return study
+
+
+def trial_score(trial, target: Target, rows: list[dict], seeds: Sequence[int]) -> Score:
+    """A study trial's score from ``rows`` (``results.csv``): the latest row of each of
+    ``seeds`` for its values, in seed order."""
+    values = trial.user_attrs.get("values", {})
+    case = f"{target.case.case}@{values_id(values)}"
+    mine = [r for r in rows if r["case"] == case and int(r["seed"]) in seeds]
+    latest = {int(r["seed"]): r for r in mine}
+    return Score(tuple(latest[s] for s in sorted(latest)))
 
 
 def best_values(study) -> tuple[Any, dict[str, Any]]:

@@ -10,6 +10,8 @@ per-world contact and constraint capacities.
 
 from __future__ import annotations
 
+from types import ModuleType
+
 import mujoco
 import numpy as np
 
@@ -36,6 +38,21 @@ def warp_limits(model: mujoco.MjModel) -> list[str]:
     # supported MuJoCo values (put_model checks against the same ones)
     from mujoco_warp._src import types as T
 
+    return [
+        *_unsupported_types(model, T),
+        *_unsupported_wraps(model, T),
+        *_unsupported_options(model, T),
+        *_unsupported_flags(model, T),
+        *_plugins(model),
+        *_dense_jacobian(model),
+        *_adhesion_with_distance_sensors(model),
+        *_uncopied_state(model),
+    ]
+
+
+def _unsupported_types(model: mujoco.MjModel, T: ModuleType) -> list[str]:
+    """Geoms, sensors, actuators (transmission, dynamics, gain, bias) and equalities of a type
+    outside MJWarp's table ``T`` of that type."""
     Obj = mujoco.mjtObj
     problems: list[str] = []
     per_object = (
@@ -80,10 +97,22 @@ def warp_limits(model: mujoco.MjModel) -> list[str]:
         for i, v in enumerate(np.asarray(values).ravel()):
             if int(v) not in ok:
                 problems.append(f"{_name(model, objtype, i, kind)} has {what} {enum(int(v)).name}")
+    return problems
+
+
+def _unsupported_wraps(model: mujoco.MjModel, T: ModuleType) -> list[str]:
+    """Tendon wraps of a type MJWarp lacks (wraps have no names: by index)."""
     ok_wrap = {int(v) for v in T.WrapType}
-    for i, v in enumerate(model.wrap_type):
-        if int(v) not in ok_wrap:
-            problems.append(f"tendon wrap #{i} has type {mujoco.mjtWrap(int(v)).name}")
+    return [
+        f"tendon wrap #{i} has type {mujoco.mjtWrap(int(v)).name}"
+        for i, v in enumerate(model.wrap_type)
+        if int(v) not in ok_wrap
+    ]
+
+
+def _unsupported_options(model: mujoco.MjModel, T: ModuleType) -> list[str]:
+    """An integrator, friction cone or solver MJWarp lacks."""
+    problems = []
     for value, supported, enum, what in (
         (model.opt.integrator, T.IntegratorType, mujoco.mjtIntegrator, "integrator"),
         (model.opt.cone, T.ConeType, mujoco.mjtCone, "cone"),
@@ -91,6 +120,12 @@ def warp_limits(model: mujoco.MjModel) -> list[str]:
     ):
         if int(value) not in {int(v) for v in supported}:
             problems.append(f"option {what} {enum(int(value)).name}")
+    return problems
+
+
+def _unsupported_flags(model: mujoco.MjModel, T: ModuleType) -> list[str]:
+    """Each disable or enable flag set in the model that MJWarp's flag tables lack."""
+    problems = []
     for flags, supported, enum, what in (
         (model.opt.disableflags, T.DisableBit, mujoco.mjtDisableBit, "disable flag"),
         (model.opt.enableflags, T.EnableBit, mujoco.mjtEnableBit, "enable flag"),
@@ -101,6 +136,13 @@ def warp_limits(model: mujoco.MjModel) -> list[str]:
             if int(flags) & bit and not bit & known:
                 problems.append(f"option {what} {enum(bit).name}")
             bit <<= 1
+    return problems
+
+
+def _plugins(model: mujoco.MjModel) -> list[str]:
+    """Bodies, actuators and sensors that use an engine plugin (MJWarp runs none)."""
+    Obj = mujoco.mjtObj
+    problems = []
     for values, objtype, kind in (
         (model.body_plugin, Obj.mjOBJ_BODY, "body"),
         (model.actuator_plugin, Obj.mjOBJ_ACTUATOR, "actuator"),
@@ -108,12 +150,23 @@ def warp_limits(model: mujoco.MjModel) -> list[str]:
     ):
         for i in np.flatnonzero(np.asarray(values) != -1):
             problems.append(f"{_name(model, objtype, int(i), kind)} uses a plugin")
+    return problems
+
+
+def _dense_jacobian(model: mujoco.MjModel) -> list[str]:
+    """A dense constraint Jacobian past the size MJWarp computes densely."""
     if model.nv > 60 and model.opt.jacobian == mujoco.mjtJacobian.mjJAC_DENSE:
-        problems.append(
+        return [
             f"option jacobian mjJAC_DENSE with nv = {model.nv} (MJWarp: dense only "
             "up to nv = 60; use sparse or auto)"
-        )
-    problems += _adhesion_with_distance_sensors(model)
+        ]
+    return []
+
+
+def _uncopied_state(model: mujoco.MjModel) -> list[str]:
+    """State the warp backend cannot copy into its worlds (:data:`_UNCOPIED_STATE`): a
+    rollout would start without it."""
+    problems = []
     for part in _UNCOPIED_STATE:
         n = mujoco.mj_stateSize(model, getattr(mujoco.mjtState, f"mjSTATE_{part}"))
         if n:

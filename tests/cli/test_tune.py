@@ -53,11 +53,13 @@ def write_space(tmp_path, data, name="space.yaml"):
 class StandIn:
     """A runner that scores a parameter set from its scenario instead of running episodes:
     success needs 40 samples or more on odd seeds; time grows with the contact weight. Records
-    what it was asked to run; ``stop_after`` rows, it reports an interruption (Ctrl-C)."""
+    what it was asked to run; ``stop_after`` rows, it reports an interruption (Ctrl-C). With a
+    ``reason`` (``timeout``) every episode ends as the bench records one killed: no outcome."""
 
-    def __init__(self, stop_after: int | None = None):
+    def __init__(self, stop_after: int | None = None, reason: str = ""):
         self.ran: list[tuple[str, int]] = []
         self.stop_after = stop_after
+        self.reason = reason
 
     def __call__(self, trials, results, on_done):
         for t in trials:
@@ -66,15 +68,15 @@ class StandIn:
             raw = t.scenario.raw
             samples = raw["planner"]["samples"]
             weight = raw["objectives"]["navigate"]["terms"][1]["weight"]
-            won = samples >= 40 or t.seed % 2 == 0
+            won = (samples >= 40 or t.seed % 2 == 0) and not self.reason
             row = {
                 "case": t.case.case,
                 "scenario": t.scenario.name,
                 "scenario_hash": t.scenario.hash,
                 "seed": t.seed,
                 "success": won,
-                "status": "success" if won else "timeout",
-                "reason": "",
+                "status": "success" if won else "unfinished" if self.reason else "timeout",
+                "reason": self.reason,
                 "time": 3.0 + 10 * weight if won else 30.0,
                 "position_error": 0.05,
                 "trial_wall": 1.0,
@@ -164,6 +166,68 @@ def test_the_overlay_is_a_base_plus_the_tuned_keys_and_loads(tmp_path):
     text = report(target, space, opts, s, path, held)
     for part in ("## Trials", "## Parameter importances", "per seed", "Wilson", "overlay.yaml"):
         assert part in text
+
+
+def tune_cli(tmp_path, monkeypatch, runner, *options):
+    """``m3p2i tune navigation`` (2 trials on seeds 0-1 unless ``options`` say otherwise) with
+    ``runner`` for the bench and no processes' ``--check``: the command in a second."""
+    monkeypatch.setattr("m3p2i.process_checks.scenario_errors", lambda source: [])
+    monkeypatch.setattr("m3p2i.tune.run.make_runner", lambda *args, **kwargs: runner)
+    space = write_space(tmp_path, SPACE)
+    args = ["tune", "navigation", "--space", str(space), "--out", str(tmp_path / "out")]
+    result = CliRunner().invoke(app, [*args, "--trials", "2", "--seeds", "0-1", *options])
+    return result, " ".join(result.output.replace("│", " ").split())  # unwrapped from its box
+
+
+def test_the_command_writes_the_overlay_the_report_and_the_held_out_rows(tmp_path, monkeypatch):
+    runner = StandIn()
+    result, output = tune_cli(tmp_path, monkeypatch, runner, "--holdout", "5")
+    assert result.exit_code == 0, result.output
+    assert "best: trial" in output and "held-out tuned: " in output
+    assert len(runner.ran) == 2 * 2 + 2
+    for name in ("overlay.yaml", "report.md", "holdout.csv"):
+        assert (tmp_path / "out" / name).is_file()
+
+
+@pytest.mark.parametrize(
+    "option, value, expected",
+    [
+        ("--workers", "-1", "greater than or equal to 0"),
+        ("--timeout", "-5", "-5: expected a finite number of seconds > 0"),
+        ("--timeout", "0", "0: expected a finite number of seconds > 0"),
+        ("--timeout", "nan", "nan: expected a finite number of seconds > 0"),
+        ("--timeout", "inf", "inf: expected a finite number of seconds > 0"),
+        ("--sampler-seed", "-1", "greater than or equal to 0"),
+        ("--trials", "0", "greater than or equal to 1"),
+        ("--cpus-per-trial", "0", "greater than or equal to 1"),
+        ("--seeds", "-1-3", "not a seed range (got '-1-3'; expected A-B (A <= B)"),
+        ("--holdout", "9-5", "not a seed range (got '9-5'; expected A-B (A <= B)"),
+    ],
+)
+def test_a_numeric_option_out_of_range_is_refused_before_anything_runs(
+    tmp_path, monkeypatch, option, value, expected
+):
+    """Not ``--workers -1`` running nothing and dividing by zero, nor ``--timeout -5`` timing
+    every episode out: exit 2 naming the option and what it takes (typer's range messages
+    leave the value out)."""
+    runner = StandIn()
+    result, output = tune_cli(tmp_path, monkeypatch, runner, option, value)
+    assert result.exit_code == 2, result.output
+    assert option in output and expected in output, output
+    assert runner.ran == [] and not (tmp_path / "out").exists()
+
+
+def test_a_study_in_which_no_trial_finished_names_no_best_trial(tmp_path, monkeypatch):
+    """Every episode past its time-out (no outcome): the study says so and exits 1, with no
+    best trial, overlay or report made from no data."""
+    runner = StandIn(reason="timeout")
+    result, output = tune_cli(tmp_path, monkeypatch, runner, "--holdout", "5")
+    assert result.exit_code == 1, result.output
+    assert "no trial finished" in output and "timeout: 4" in output, output
+    assert "best: trial" not in output
+    assert len(runner.ran) == 2 * 2  # the study ran; the held-out seeds did not
+    for name in ("overlay.yaml", "report.md", "holdout.csv"):
+        assert not (tmp_path / "out" / name).exists()
 
 
 def test_a_bad_scenario_key_is_the_loaders_error_before_any_trial(tmp_path):
