@@ -17,7 +17,7 @@ from planner_client.loop import PlannerClient
 from planner_client.mirror import Mirror
 from planner_client.motion import MotionPlanner
 from planner_client.observers import SymbolicObserver
-from planner_client.problem import build_problem, mppi_config
+from planner_client.problem import build_problem, check_terms, mppi_config
 from planner_client.task import ActiveInferenceTask, FixedModes, TaskLayer
 from planner_client.variants import Identifier, VariantModels
 from shared.config import ConfigError
@@ -71,6 +71,8 @@ def build_motion_planner(
             njmax=pc.njmax,
             source=scenario.source,
         )
+    # a term that returns the wrong thing stops the planner here, named, before it connects
+    check_terms(problem, engine.device if engine is not None else "cpu")
     return MotionPlanner(
         problem, cfg, pc.samples, modes, nthread=nthread, backend=engine, variants=variants
     )

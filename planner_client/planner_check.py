@@ -1,7 +1,7 @@
 """What the planner checks before it starts: the scenario file, and every name in it that only
 the compiled model or the planner's registries can confirm (cost terms and their frames and
 actuators, pinned controls, observers' frames, ``planner.mppi``'s lengths against the
-actuators, ``planner.model``'s bodies).
+actuators, ``planner.model``'s bodies), and what each cost term returns.
 
 ``m3p2i-planner --check`` prints them all; ``m3p2i check`` / ``m3p2i run`` merge them with the
 world's.
@@ -19,6 +19,7 @@ from planner_client.problem import (
     apply_planning_model,
     build_objectives,
     build_problem,
+    check_terms,
     mppi_config,
 )
 from shared.config import ConfigError, ErrorLog
@@ -58,8 +59,17 @@ def model_checks(
     name_checks(scenario, model, resolve, errors)
     errors.call(mppi_config, scenario, model)
     errors.call(apply_planning_model, build_spec(scenario), scenario.planner.model, scenario.source)
+    if not errors.errors:  # the terms are built and the planner's model compiles: run them
+        errors.call(value_checks, scenario)
     if scenario.planner.backend == "warp" and not errors.errors:
         errors.call(warp_checks, scenario)
+
+
+def value_checks(scenario: Scenario) -> None:
+    """Each cost term evaluated once on a small batch, as the planner does at start-up
+    (:func:`~planner_client.problem.check_terms`): one that raises or returns anything but a
+    float64 tensor ``[S, T]`` is an error naming the term, its module and its objective."""
+    check_terms(build_problem(scenario))
 
 
 def warp_checks(scenario: Scenario) -> None:

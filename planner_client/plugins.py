@@ -71,7 +71,7 @@ def import_plugin(ref: str, folder: Path, source: str, key: str) -> ModuleType:
         if isinstance(exc, KeyboardInterrupt):
             raise
         raise ConfigError(
-            source, key, f"importing the plugin failed: {_summary(exc)}", ref
+            source, key, f"importing the plugin failed: {exception_summary(exc)}", ref
         ) from None
 
 
@@ -113,7 +113,17 @@ def _import_file(path: Path) -> ModuleType:
     return module
 
 
-def _summary(exc: BaseException) -> str:
+def origin(cls: type) -> str:
+    """Where a class comes from, for messages: ``Name in plugin /path/file.py`` for one of a
+    plugin file (its module's name is made up by :func:`_import_file`: the file says more),
+    ``Name in module.name`` otherwise."""
+    module = sys.modules.get(cls.__module__)
+    if cls.__module__.startswith("m3p2i_plugin_") and getattr(module, "__file__", None):
+        return f"{cls.__qualname__} in plugin {module.__file__}"
+    return f"{cls.__qualname__} in {cls.__module__}"
+
+
+def exception_summary(exc: BaseException) -> str:
     """``Type: message (at FILE:LINE in FUNCTION: code)``: the exception and the last frame of
     its traceback in the user's code (outside m3p2i and the import machinery), where the
     plugin failed; the last frame of all when none is."""

@@ -12,9 +12,11 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import mujoco
+import torch
 
 from planner_client.attach import add_attach_welds
-from planner_client.costs import JointInfo, Objective, TermContext, build_objective
+from planner_client.costs import JointInfo, Objective, RolloutBatch, TermContext, build_objective
+from planner_client.costs.objective import check_term_values
 from planner_client.guide import GuideState, add_site
 from planner_client.mppi import MPPIConfig
 from planner_client.plugins import import_plugins
@@ -91,6 +93,34 @@ def build_problem(scenario: Scenario, extra_sensors: list[SensorRequest] = ()) -
         FrameResolver(model, robot.frame),
         guide,
     )
+
+
+def check_terms(problem: PlanningProblem, device: torch.device | str = "cpu") -> None:
+    """Every term of the problem's objectives evaluated once, and a ConfigError naming each one
+    that raises or returns anything but a float64 tensor ``[S, T]`` on ``device``
+    (:func:`~planner_client.costs.objective.check_term_values`): at the planner's start-up and
+    by its check, before anything plans.
+
+    The batch is 2 samples over the planner's horizon, every step the sensor values of the
+    scenario's start state (``initial_data``: the planning model's own, its sensors computed)
+    and the robot's safe control: real values, so a term that divides by a distance sees the
+    start's, not zeros; a horizon of the planner's, since a term may depend on it (a step's
+    time); 2 samples and not 1, so that a value of shape ``[T]`` or ``[1, T]`` does not pass.
+    Not a rollout: that would cost one, run the backend before its first iteration and, on a
+    GPU, compile kernels for this batch size; this reads the model's data once and draws
+    nothing from the planner's sampler, so a seeded episode plans as it would without it."""
+    samples, steps = 2, problem.scenario.planner.horizon
+    data = initial_data(problem.scenario, problem.model)
+    start = torch.as_tensor(data.sensordata, dtype=torch.float64, device=device)
+    safe = torch.as_tensor(problem.robot.safe_stop(), dtype=torch.float64, device=device)
+    batch = RolloutBatch(
+        start.repeat(samples, steps, 1),  # contiguous like a rollout's, which an expanded
+        # tensor is not: in-place operations on its views would fail here and not in a rollout
+        safe.repeat(samples, steps, 1),
+        problem.columns,
+        float(problem.model.opt.timestep),
+    )
+    check_term_values(problem.objectives, batch)
 
 
 _SOLVERS = {

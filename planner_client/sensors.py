@@ -25,6 +25,7 @@ _KINDS: dict[str, tuple[int, int]] = {
     "distance": (mujoco.mjtSensor.mjSENS_GEOMDIST, 1),
     "contactforce": (mujoco.mjtSensor.mjSENS_CONTACT, 3),
     "jointpos": (mujoco.mjtSensor.mjSENS_JOINTPOS, 1),
+    "jointvel": (mujoco.mjtSensor.mjSENS_JOINTVEL, 1),
 }
 
 # CONTACT sensor settings (intprm = data fields, reduction, slots): only the force field, all
@@ -39,8 +40,9 @@ class SensorRequest(NamedTuple):
     as ``cutoff`` when farther apart (MuJoCo's GEOMDIST sensor). ``contactforce`` is the net
     contact force [3] between the subtree of body ``obj`` (a robot with all its links) and the
     geoms of body ``ref`` (MuJoCo's CONTACT sensor, zero when they do not touch). ``jointpos``
-    is the position of the joint named ``obj`` (a joint name, not a frame). A frame quantity
-    (``frame*``) with a ``ref`` is expressed in the frame ``ref`` instead of the world's.
+    and ``jointvel`` are the position and velocity of the hinge or slide joint named ``obj`` (a
+    joint name, not a frame). A frame quantity (``frame*``) with a ``ref`` is expressed in the
+    frame ``ref`` instead of the world's.
 
     A named tuple, not a dataclass: terms look their requests up in :class:`SensorColumns`
     every iteration (pick_place 25 times), and a tuple's hash and equality run in C: 0.09 µs
@@ -72,7 +74,7 @@ def add_sensors(spec: mujoco.MjSpec, requests: list[SensorRequest], resolve: Fra
     """Add each distinct request to ``spec`` (before compiling the rollout model)."""
     for req in dict.fromkeys(requests):
         stype, _ = _KINDS[req.kind]
-        if req.kind == "jointpos":
+        if req.kind in ("jointpos", "jointvel"):
             spec.add_sensor(
                 name=req.name, type=stype, objtype=mujoco.mjtObj.mjOBJ_JOINT, objname=req.obj
             )

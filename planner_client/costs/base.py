@@ -112,6 +112,8 @@ class TermContext:
         return self.actuators.index(name)
 
     def channels(self, s: Section, key: str, names: tuple[str, ...]) -> tuple[int, ...]:
+        """The control channels (indices in the last axis of ``batch.controls``) of actuator
+        ``names``, the list parameter ``key``: each checked by :meth:`channel`."""
         return tuple(self.channel(n, s, key) for n in names)
 
 
@@ -143,7 +145,8 @@ class CostTerm(ABC):
 
     @abstractmethod
     def __call__(self, batch: RolloutBatch) -> torch.Tensor:
-        """Unweighted per-step cost ``[S, T]``."""
+        """Unweighted per-step cost ``[S, T]``, of the dtype of ``batch.sensordata`` on its
+        device (checked once at start-up: :func:`~planner_client.problem.check_terms`)."""
 
     def norms(self) -> list[Norm] | None:
         """This term as a sum of Euclidean norms of affine maps of the sensors (the same values

@@ -8,8 +8,9 @@ import torch
 
 from planner_client.costs.base import TERMS, CostTerm, RolloutBatch, TermContext
 from planner_client.costs.norms import NormObjective, fusable
+from planner_client.plugins import exception_summary, origin
 from planner_client.sensors import SensorRequest
-from shared.config import ErrorLog, Section, one_of
+from shared.config import ConfigError, ErrorLog, Section, one_of
 from shared.scenario import ObjectiveConfig, TermConfig
 
 _WHEN = ("all", "running", "terminal")
@@ -20,6 +21,8 @@ class WeightedTerm:
     term: CostTerm
     weight: float
     when: str  # all steps, running steps only (t < T-1), or the terminal step only (paper Eq. 4)
+    source: str = ""  # the YAML file and key path of the entry, for messages about the term
+    path: str = ""
 
 
 @dataclass
@@ -147,4 +150,56 @@ def _weighted_term(tc: TermConfig, ctx: TermContext) -> WeightedTerm:
     when = s.opt("when", "all", one_of(_WHEN))
     term = TERMS[tc.term].from_params(s, ctx)
     s.done()
-    return WeightedTerm(term, tc.weight, when)
+    return WeightedTerm(term, tc.weight, when, s.source, s.path)
+
+
+def check_term_values(objectives: dict[str, Objective], batch: RolloutBatch) -> None:
+    """Evaluate each distinct term of ``objectives`` once on ``batch`` and raise, every term's
+    fault at once, a :class:`ConfigError` at the term's YAML entry naming the term, its class
+    and module (a plugin's file) and its objective, for a term that raised or whose value is
+    not a ``torch.Tensor [S, T]`` of the dtype of ``batch.sensordata``, on its device: what
+    would otherwise stop the planner mid-episode with a bare torch error naming none of them.
+
+    NaN and inf pass: they are what a diverged rollout costs, and the planner already deals
+    with them at run time: such a sample gets zero weight, and with no finite sample the robot
+    gets its safe control and the fault names the objective
+    (:meth:`~planner_client.motion.MotionPlanner.iterate`)."""
+    errors = ErrorLog()
+    seen = set()
+    for name, objective in objectives.items():
+        for wt in objective.terms:
+            if wt.term.key not in seen:
+                seen.add(wt.term.key)
+                errors.call(_check_value, wt, name, batch)
+    errors.raise_if_any()
+
+
+def _check_value(wt: WeightedTerm, objective: str, batch: RolloutBatch) -> None:
+    """:func:`check_term_values` of one term."""
+    sd = batch.sensordata
+    samples, steps = batch.controls.shape[:2]
+    dtype = str(sd.dtype).removeprefix("torch.")
+    expected = (
+        f"a torch.Tensor [S, T] = [{samples}, {steps}] of {dtype} on {sd.device}: "
+        "one cost per sample and step"
+    )
+    what = f"cost term {wt.term.name!r} of objective {objective!r} ({origin(type(wt.term))})"
+    try:
+        value = wt.term(batch)
+    except Exception as exc:  # the term's own code failed: say where
+        raise ConfigError(
+            wt.source, wt.path, f"{what} raised {exception_summary(exc)}", expected=expected
+        ) from None
+    if not isinstance(value, torch.Tensor):
+        kind = type(value)
+        name = f"{kind.__module__}.{kind.__qualname__}".removeprefix("builtins.")
+        fault = f"returned a {name}, not a torch.Tensor"
+    elif tuple(value.shape) != (samples, steps):
+        fault = f"returned a tensor of shape {list(value.shape)}"
+    elif value.dtype != sd.dtype:
+        fault = f"returned a tensor of dtype {str(value.dtype).removeprefix('torch.')}"
+    elif value.device != sd.device:
+        fault = f"returned a tensor on {value.device}"
+    else:
+        return
+    raise ConfigError(wt.source, wt.path, f"{what} {fault}", expected=expected)
