@@ -59,7 +59,14 @@ def _checked(ok: Callable[[Any], bool], why: str) -> Callable[[Any], Any]:
 
 
 def _real(v: Any) -> bool:
-    return isinstance(v, (int, float)) and not isinstance(v, bool)
+    """A YAML number a float holds (an integer such as 10**400 does not)."""
+    if isinstance(v, bool) or not isinstance(v, (int, float)):
+        return False
+    try:
+        float(v)
+    except OverflowError:
+        return False
+    return True
 
 
 def _reals(v: Any, finite: bool = True) -> bool:

@@ -84,3 +84,11 @@ def test_guide_for_names_what_it_may_be_without_a_dangling_comma():
     raw["guide"]["for"] = "table"
     text = _refused(raw, r"guide.for: not the robot or a free object")
     assert "expected robot (the world has no free object))" in text, text
+
+
+@pytest.mark.parametrize("key", ["eta_bounds", "u_max", "noise_sigma"])
+def test_an_integer_no_float_holds_is_refused_in_the_mppi_section(key):
+    # 10**400 reached math.isnan and raised OverflowError (found by tests/shared/test_fuzz.py)
+    raw = _raw("navigation")
+    raw["planner"].setdefault("mppi", {})[key] = [10**400, 10**400]
+    _refused(raw, rf"s.yaml: planner.mppi.{key}")
