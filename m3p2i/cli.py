@@ -17,8 +17,12 @@ import typer
 
 from m3p2i.bench_command import bench
 from m3p2i.cli_support import (
+    RunDir,
+    ScenarioArgument,
+    Timeout,
     declared_delays_or_exit,
     faults_or_exit,
+    flow_help,
     keys_or_exit,
     load_or_exit,
     plugin_args,
@@ -47,15 +51,11 @@ from shared.cli_common import (
     Plugins,
     Port,
     RealtimeFactor,
-    RunDir,
-    ScenarioArgument,
     Seed,
-    Timeout,
     Verbose,
     Window,
     default_run_dir,
     error_blocks,
-    flow_help,
     renamed,
     summary_line,
 )

@@ -4,14 +4,51 @@ starts, ``--faults``, ``--compensate`` and ``--keys`` checked likewise, the plan
 
 from __future__ import annotations
 
+import inspect
 import signal
 from pathlib import Path
+from typing import Annotated
 
 import typer
 
 from m3p2i.process_checks import scenario_errors
+from shared.cli_common import SCENARIO_HELP
 from shared.config import ConfigError
 from shared.scenario import find_scenario, load_scenario
+
+# --- options of m3p2i's own commands ------------------------------------------------------
+
+ScenarioArgument = Annotated[str, typer.Argument(help=SCENARIO_HELP)]
+RunDir = Annotated[
+    Path | None,
+    typer.Option("--run-dir", help="Where the episode's logs go (default runs/<scenario>-<time>)."),
+]
+Timeout = Annotated[
+    float, typer.Option("--timeout", help="Wall-clock seconds before the run is abandoned.")
+]
+
+
+# --- help text ------------------------------------------------------------------------------
+
+
+def flowing(text: str) -> str:
+    """``text`` dedented, each paragraph on one line (paragraphs stay apart by a blank line).
+
+    Typer's rich help rewraps only a command's first paragraph and keeps the hard line breaks
+    of the others, which then break sentences wherever the source lines ended."""
+    paragraphs = inspect.cleandoc(text).split("\n\n")
+    return "\n\n".join(" ".join(p.split()) for p in paragraphs if p.strip())
+
+
+def flow_help(app: typer.Typer) -> None:
+    """Every help text of ``app`` (its own and each command's, from ``help=`` or the
+    docstring) as :func:`flowing` paragraphs. Call it once the commands are registered."""
+    if isinstance(app.info.help, str):
+        app.info.help = flowing(app.info.help)
+    for command in app.registered_commands:
+        text = command.help or inspect.getdoc(command.callback)
+        if text:
+            command.help = flowing(text)
 
 
 def load_or_exit(scenario: str, plugins: tuple[str, ...] = ()):

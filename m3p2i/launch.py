@@ -255,52 +255,17 @@ def run_episode(
     try:
         if launch.view:
             view_port = launch.view_port or free_port_block(count=1)
-            out = None if launch.verbose else (launch.run_dir / "view.log").open("w")
-            outs["view"] = out
-            procs["view"] = subprocess.Popen(
-                launch.view_command(port, view_port),
-                stdout=out,
-                stderr=subprocess.STDOUT if out else None,
-            )
+            _start(launch, "view", launch.view_command(port, view_port), outs, procs)
             url = f"http://{DEFAULT_HOST}:{view_port}/"
             wait_served(url, procs["view"], launch.run_dir / "view.log")
             if on_view is not None:
                 on_view(url)
         for name, cmd in launch.commands(port).items():
-            out = None if launch.verbose else (launch.run_dir / f"{name}.log").open("w")
-            outs[name] = out
-            procs[name] = subprocess.Popen(
-                cmd, stdout=out, stderr=subprocess.STDOUT if out else None
-            )
-        planner_ended = None  # when the planner exited as at an episode's end
-        while procs["server"].poll() is None:
-            if time.monotonic() - started > launch.timeout:
-                reason = "timeout"
-                break
-            code = procs["planner"].poll()
-            if code is not None and code not in PLANNER_EPISODE_ENDS:
-                reason = f"planner exited with code {code}"
-                break
-            if code is not None:
-                planner_ended = planner_ended or time.monotonic()
-                if time.monotonic() - planner_ended > WORLD_ENDS_WITHIN:
-                    reason = f"planner exited with code {code}"
-                    break
-            if stop is not None and stop.is_set():
-                reason = "interrupted"
-                break
-            time.sleep(0.1)
-        code = procs["server"].poll()
-        if not reason and code not in (None, 0, 1):  # 0, 1: its episode's end (success, not)
-            reason = f"server exited with code {code}"
+            _start(launch, name, cmd, outs, procs)
+        reason = _watch(procs, started + launch.timeout, stop)
         if launch.view and launch.view_keep and not reason and procs["view"].poll() is None:
             stop_processes([procs["server"], procs["planner"]])
-            kept = EpisodeRun(
-                log_path=log_path,
-                summary=read_summary(log_path),
-                reason="",
-                wall_time=time.monotonic() - started,
-            )
+            kept = EpisodeRun(log_path, read_summary(log_path), "", time.monotonic() - started)
             procs["view"].send_signal(signal.SIGUSR1)  # the page replays the episode
             if on_kept is not None:
                 on_kept(kept, url)
@@ -315,12 +280,40 @@ def run_episode(
                 out.close()
     if kept is not None:
         return kept
-    return EpisodeRun(
-        log_path=log_path,
-        summary=read_summary(log_path),
-        reason=reason,
-        wall_time=time.monotonic() - started,
-    )
+    return EpisodeRun(log_path, read_summary(log_path), reason, time.monotonic() - started)
+
+
+def _start(launch: EpisodeLaunch, name: str, cmd: list[str], outs: dict, procs: dict) -> None:
+    """Process ``name`` started with ``cmd``, its output in ``RUN_DIR/NAME.log`` (on the
+    terminal with ``launch.verbose``)."""
+    out = None if launch.verbose else (launch.run_dir / f"{name}.log").open("w")
+    outs[name] = out
+    procs[name] = subprocess.Popen(cmd, stdout=out, stderr=subprocess.STDOUT if out else None)
+
+
+def _watch(procs: dict, deadline: float, stop: threading.Event | None) -> str:
+    """Wait for the world's end; the reason it ended otherwise ("" when it ended by itself
+    with its episode): the time-out, ``stop``, a planner that died (an exit code no episode
+    end has) or that ended while the world kept running past :data:`WORLD_ENDS_WITHIN`, or a
+    world that died."""
+    planner_ended = None  # when the planner exited as at an episode's end
+    while procs["server"].poll() is None:
+        if time.monotonic() > deadline:
+            return "timeout"
+        code = procs["planner"].poll()
+        if code is not None and code not in PLANNER_EPISODE_ENDS:
+            return f"planner exited with code {code}"
+        if code is not None:
+            planner_ended = planner_ended or time.monotonic()
+            if time.monotonic() - planner_ended > WORLD_ENDS_WITHIN:
+                return f"planner exited with code {code}"
+        if stop is not None and stop.is_set():
+            return "interrupted"
+        time.sleep(0.1)
+    code = procs["server"].poll()
+    if code not in (None, 0, 1):  # 0, 1: its episode's end (success, not)
+        return f"server exited with code {code}"
+    return ""
 
 
 def died(reason: str) -> str | None:

@@ -4,7 +4,6 @@ output can rewrap, logging, and the one-line summaries and error lines they prin
 
 from __future__ import annotations
 
-import inspect
 import logging
 import sys
 import time
@@ -21,7 +20,6 @@ from shared.scenario.faults import PROFILES
 
 SCENARIO_HELP = "Scenario name (m3p2i list) or YAML path."
 ScenarioOption = Annotated[str, typer.Option("--scenario", "-s", help=SCENARIO_HELP)]
-ScenarioArgument = Annotated[str, typer.Argument(help=SCENARIO_HELP)]
 
 Host = Annotated[
     str,
@@ -151,13 +149,6 @@ Seed = Annotated[
         "planner's sampling.",
     ),
 ]
-RunDir = Annotated[
-    Path | None,
-    typer.Option("--run-dir", help="Where the episode's logs go (default runs/<scenario>-<time>)."),
-]
-Timeout = Annotated[
-    float, typer.Option("--timeout", help="Wall-clock seconds before the run is abandoned.")
-]
 Plugins = Annotated[
     list[str] | None,
     typer.Option(
@@ -167,29 +158,6 @@ Plugins = Annotated[
         "(docs/cost_terms.md). Only the planner imports it.",
     ),
 ]
-
-
-# --- help text ------------------------------------------------------------------------------
-
-
-def flowing(text: str) -> str:
-    """``text`` dedented, each paragraph on one line (paragraphs stay apart by a blank line).
-
-    Typer's rich help rewraps only a command's first paragraph and keeps the hard line breaks
-    of the others, which then break sentences wherever the source lines ended."""
-    paragraphs = inspect.cleandoc(text).split("\n\n")
-    return "\n\n".join(" ".join(p.split()) for p in paragraphs if p.strip())
-
-
-def flow_help(app: typer.Typer) -> None:
-    """Every help text of ``app`` (its own and each command's, from ``help=`` or the
-    docstring) as :func:`flowing` paragraphs. Call it once the commands are registered."""
-    if isinstance(app.info.help, str):
-        app.info.help = flowing(app.info.help)
-    for command in app.registered_commands:
-        text = command.help or inspect.getdoc(command.callback)
-        if text:
-            command.help = flowing(text)
 
 
 def setup_logging(verbose: bool, name: str) -> None:

@@ -4,7 +4,7 @@ declaration (shared.cli_common).
 Typer's rich help rewraps an option's help and a command's first paragraph, but keeps the hard
 line breaks of a command's later paragraphs: a docstring wrapped at 100 columns in the source
 then breaks sentences in the middle on any terminal. Every help text is therefore paragraphs
-without line breaks (``shared.cli_common.flowing``), and rich markup must not eat any of it
+without line breaks (``m3p2i.cli_support.flowing``), and rich markup must not eat any of it
 (``m3p2i[view]`` is a markup tag unless escaped).
 """
 
