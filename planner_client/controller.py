@@ -23,6 +23,7 @@ the delay estimates and the plans already sent. One
 from __future__ import annotations
 
 import logging
+import math
 import time
 from collections import deque
 from collections.abc import Callable
@@ -144,6 +145,7 @@ class Controller:
         # what the world plays, oldest first: enough plans to cover a lead plus declared delays
         self._sent: deque[TimedPlan] = deque(maxlen=16)
         self._lead: LeadEstimate | None = None
+        self._lead_capped = False  # whether the lead was last held at the plan's span
         self._actuation: ActuationDelayEstimate | None = None  # planner.delays.measure
         self.identifier: Identifier | None = None  # planner.model.variants.identify
         self._acting_logged: int | None = None  # the delays last logged, in world steps
@@ -162,7 +164,9 @@ class Controller:
             self._new_episode(seed)
         self.mode, self.dt = mode, dt
         # a lock-step world reports its state delay in state.lag too (0 without one)
-        self._lead = LeadEstimate(dt) if mode == "realtime" or self.delays.measure else None
+        span = math.ceil(self.motion.dt * self.motion.problem.scenario.planner.horizon / dt)
+        measured = mode == "realtime" or self.delays.measure
+        self._lead = LeadEstimate(dt, max_steps=span) if measured else None
         self._actuation = None
         self.identifier = self.parts.identifier(dt)
         if self.delays.measure:
@@ -324,6 +328,15 @@ class Controller:
         if self._lead is not None:
             self._lead.observe(state.lag)
             ahead = self._lead.steps()
+            if ahead == self._lead.max_steps and not self._lead_capped:
+                log.warning(
+                    "t=%.2f s: commands arrive %.2f s late, after the plan's whole span: "
+                    "planning %d world steps ahead (the span), not more",
+                    state.time,
+                    state.lag,
+                    ahead,
+                )
+            self._lead_capped = ahead == self._lead.max_steps
         if lockstep and ahead and ahead != self._ahead_logged:
             log.info(
                 "t=%.2f s: state delay measured at %d world steps (%.0f ms)",

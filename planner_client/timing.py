@@ -37,8 +37,9 @@ class LeadEstimate:
     (the previous one plays on, as predicted), while one that arrives late loses its first knots
     and starts from a state it did not predict."""
 
-    def __init__(self, world_dt: float, window: int = 10):
+    def __init__(self, world_dt: float, window: int = 10, max_steps: int | None = None):
         self.world_dt = world_dt
+        self.max_steps = max_steps  # a lead beyond the plan's span predicts nothing it plays
         self._lags: deque[float] = deque(maxlen=window)
 
     def observe(self, lag: float) -> None:
@@ -49,7 +50,10 @@ class LeadEstimate:
         """World steps to predict ahead (0 until a lag was observed)."""
         if not self._lags:
             return 0
-        return math.ceil(max(self._lags) / self.world_dt - 1e-6)
+        steps = max(self._lags) / self.world_dt - 1e-6
+        if self.max_steps is not None and steps > self.max_steps:
+            return self.max_steps
+        return math.ceil(steps)
 
 
 @contextmanager

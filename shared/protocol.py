@@ -523,8 +523,8 @@ def _check_values(msg: Any) -> None:
             f"diagnostics.guide: expected shape [N, 3] (the path's corners), "
             f"got {list(msg.guide.shape)}"
         )
-    if isinstance(msg, State) and msg.lag < 0:
-        raise ProtocolError("state.lag must be >= 0")
+    if isinstance(msg, State) and not 0 <= msg.lag <= MAX_WORLD_TIME:
+        raise ProtocolError(f"state.lag: {msg.lag} s (expected world seconds in [0, 1e9])")
     if isinstance(msg, State) and not 0 <= msg.time <= MAX_WORLD_TIME:
         raise ProtocolError(
             f"state.time: {msg.time} s (expected world seconds since the episode's start, "

@@ -171,7 +171,7 @@ def _arr(a):
                 mocap_quat=_arr([]),
                 lag=-0.1,
             ),
-            "lag must be >= 0",
+            "state.lag: -0.1 s (expected world seconds in [0, 1e9])",
         ),
     ],
 )
