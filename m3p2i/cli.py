@@ -112,8 +112,8 @@ def layout(
 
     from rich.console import Console
 
+    from m3p2i.bridge_layout import bridge_layout, frame_names
     from m3p2i.layout_table import print_frames, print_layout
-    from shared.layout import bridge_layout, frame_names
     from shared.scene import compile_model
 
     try:

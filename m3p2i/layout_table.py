@@ -1,12 +1,12 @@
-"""``m3p2i layout``'s tables: a scenario's :class:`~shared.layout.BridgeLayout` for a person,
-and the frame names its YAML may use (:func:`shared.layout.frame_names`)."""
+"""``m3p2i layout``'s tables: a scenario's :class:`~m3p2i.bridge_layout.BridgeLayout` for a person,
+and the frame names its YAML may use (:func:`m3p2i.bridge_layout.frame_names`)."""
 
 from __future__ import annotations
 
 from rich.console import Console
 from rich.table import Table
 
-from shared.layout import BridgeLayout, Coordinate, FrameName
+from m3p2i.bridge_layout import BridgeLayout, Coordinate, FrameName
 
 
 def _vector(values) -> str:

@@ -40,10 +40,9 @@ from planner_client.task import TaskDecision, TaskLayer
 from planner_client.timing import LeadEstimate, predict, steps_between
 from planner_client.variants import Identifier
 from shared import protocol as P
-from shared.layout import StateSizes
 from shared.scenario import DelayConfig
 from shared.scenario.faults import steps_of
-from shared.scene import STATE_FIELDS, get_full_state
+from shared.scene import STATE_FIELDS, StateSizes, get_full_state
 from shared.timed_plan import TimedPlan, held, mean_hz
 
 log = logging.getLogger("m3p2i.planner")

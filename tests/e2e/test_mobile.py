@@ -11,9 +11,9 @@ import numpy as np
 import pytest
 from typer.testing import CliRunner
 
+from m3p2i.bridge_layout import bridge_layout
 from m3p2i.cli import app as m3p2i
 from planner_client.aip import ActiveInferencePlanner
-from shared.layout import bridge_layout
 from shared.robots import get_robot
 from shared.scenario import load_scenario
 from shared.scene import compile_model, initial_data

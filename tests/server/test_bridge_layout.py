@@ -1,5 +1,6 @@
-"""What a bridge must send and accept (shared/layout.py, ``m3p2i layout``), checked against the
-compiled models, and the planner stopping at a world whose first state has another layout."""
+"""What a bridge must send and accept (m3p2i/bridge_layout.py, ``m3p2i layout``), checked
+against the compiled models, and the planner stopping at a world whose first state has another
+layout."""
 
 from __future__ import annotations
 
@@ -13,16 +14,16 @@ import pytest
 import zmq
 from typer.testing import CliRunner
 
+from m3p2i.bridge_layout import bridge_layout, frame_names
 from m3p2i.cli import app as m3p2i
 from m3p2i.cli import free_port_block
 from server.world import SimWorld
 from shared import protocol as P
 from shared.endpoints import Endpoints, socket
 from shared.frames import FrameResolver
-from shared.layout import StateSizes, bridge_layout, frame_names
 from shared.robots import ROBOTS, get_robot
 from shared.scenario import load_scenario
-from shared.scene import STATE_FIELDS, compile_model
+from shared.scene import STATE_FIELDS, StateSizes, compile_model
 
 
 @pytest.fixture(scope="module")

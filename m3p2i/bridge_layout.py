@@ -5,22 +5,20 @@ of the scenario's compiled model. :func:`bridge_layout` names every index of the
 component and unit of each ``qpos`` and ``qvel`` entry, the body of each mocap slot, the
 actuator, range, unit and safe value of each ``ctrl`` entry, and the ``extras`` the world
 simulates. ``m3p2i layout SCENARIO`` prints it; the planner checks a world's first state against
-the same sizes (:meth:`StateSizes.mismatches`). Beside it, :func:`frame_names` lists the frames
+the same sizes (:class:`shared.scene.StateSizes`). Beside it, :func:`frame_names` lists the frames
 a scenario may name (cost terms, observers, the success test, metrics): the robot's bodies and
 sites, the objects, the arena's walls.
 """
 
 from __future__ import annotations
 
-from collections.abc import Mapping
 from dataclasses import asdict, dataclass
 from typing import Any
 
 import mujoco
-import numpy as np
 
 from shared.scenario import Scenario
-from shared.scene import WALL_NAMES, compile_model
+from shared.scene import WALL_NAMES, StateSizes, compile_model
 
 _FREE, _BALL, _SLIDE, _HINGE = (
     mujoco.mjtJoint.mjJNT_FREE,
@@ -112,41 +110,6 @@ class Extra:
     unit: str
     range: tuple[float, float]
     description: str
-
-
-@dataclass(frozen=True)
-class StateSizes:
-    """The array sizes of a ``state`` that fits a model."""
-
-    nq: int
-    nv: int
-    na: int
-    nmocap: int
-
-    @classmethod
-    def of(cls, model: mujoco.MjModel) -> StateSizes:
-        return cls(nq=model.nq, nv=model.nv, na=model.na, nmocap=model.nmocap)
-
-    def mismatches(self, values: Mapping[str, Any]) -> list[str]:
-        """One message per array of ``values`` (``qpos``, ``qvel``, ``act``, ``mocap_pos``,
-        ``mocap_quat``) whose size differs from these sizes, naming both; empty when all fit."""
-        out = []
-        for name, size, what in (
-            ("qpos", self.nq, "nq"),
-            ("qvel", self.nv, "nv"),
-            ("act", self.na, "na"),
-        ):
-            got = np.asarray(values[name]).size
-            if got != size:
-                out.append(f"{name} has {got} values, the scenario's model has {what} = {size}")
-        for name, width in (("mocap_pos", 3), ("mocap_quat", 4)):
-            shape = list(np.shape(values[name]))
-            if int(np.prod(shape)) != self.nmocap * width:
-                out.append(
-                    f"{name} has shape {shape}, the scenario's model has nmocap = "
-                    f"{self.nmocap} (shape [{self.nmocap}, {width}])"
-                )
-        return out
 
 
 @dataclass(frozen=True)
