@@ -4,7 +4,9 @@ The wire carries bare arrays (``state.qpos [nq]``, ``command.ctrl [nu]``, ...) i
 of the scenario's compiled model. :func:`bridge_layout` names every index of them: the joint,
 component and unit of each ``qpos`` and ``qvel`` entry, the body of each mocap slot, the
 actuator, range, unit and safe value of each ``ctrl`` entry, and the ``extras`` the world
-simulates. ``m3p2i layout SCENARIO`` prints it; the planner checks a world's first state against
+simulates, the sensors whose readings ``state.scans`` carries. The model is the planner's: the
+world's without its perceived objects, whose poses never travel. ``m3p2i layout SCENARIO``
+prints it; the planner checks a world's first state against
 the same sizes (:class:`shared.scene.StateSizes`). Beside it, :func:`frame_names` lists the frames
 a scenario may name (cost terms, observers, the success test, metrics): the robot's bodies and
 sites, the objects, the arena's walls.
@@ -18,7 +20,8 @@ from typing import Any
 import mujoco
 
 from shared.scenario import Scenario
-from shared.scene import WALL_NAMES, StateSizes, compile_model
+from shared.scenario.sensors import LidarConfig
+from shared.scene import WALL_NAMES, StateSizes, compile_model, planner_scenario
 
 _FREE, _BALL, _SLIDE, _HINGE = (
     mujoco.mjtJoint.mjJNT_FREE,
@@ -113,6 +116,23 @@ class Extra:
 
 
 @dataclass(frozen=True)
+class Sensor:
+    """A sensor whose readings ``state.scans`` carries (docs/protocol.md, "Scans"): ``shape``
+    of its ``ranges`` (a lidar's ``[rays]``, a depth camera's ``[height, width]``), readings per
+    world second, where it sits (``pos`` in ``frame``), its band of ranges (m) and its field of
+    view (degrees: a lidar's sweep, a depth camera's vertical)."""
+
+    name: str
+    kind: str  # lidar | depth
+    shape: tuple[int, ...]
+    rate: float
+    frame: str
+    pos: tuple[float, float, float]
+    range: tuple[float, float]
+    fov: float
+
+
+@dataclass(frozen=True)
 class BridgeLayout:
     """Every index of what a world sends (``state``) and accepts (``command``), by name."""
 
@@ -128,6 +148,8 @@ class BridgeLayout:
     mocap: tuple[MocapSlot, ...]
     ctrl: tuple[Control, ...]
     extras: tuple[Extra, ...]
+    sensors: tuple[Sensor, ...] = ()
+    perceived: tuple[str, ...] = ()  # objects of the world the state does not carry
 
     def to_dict(self) -> dict[str, Any]:
         """Plain lists, dicts, strings and numbers (``--json``, for bridges in other languages)."""
@@ -135,9 +157,9 @@ class BridgeLayout:
 
 
 def bridge_layout(scenario: Scenario, model: mujoco.MjModel | None = None) -> BridgeLayout:
-    """The layout of ``scenario``'s state and command, from its compiled world model (compiled
-    here unless given)."""
-    model = model if model is not None else compile_model(scenario)
+    """The layout of ``scenario``'s state and command, from the model they fit (compiled here
+    unless given): the planner's, the world's without its perceived objects."""
+    model = model if model is not None else compile_model(planner_scenario(scenario))
     robot = scenario.robot.spec
     objects = {o.name for o in scenario.world.objects}
     qpos, qvel = [], []
@@ -199,6 +221,20 @@ def bridge_layout(scenario: Scenario, model: mujoco.MjModel | None = None) -> Br
         mocap=tuple(mocap),
         ctrl=ctrl,
         extras=extras,
+        sensors=tuple(
+            Sensor(
+                c.name,
+                c.kind,
+                (c.rays,) if isinstance(c, LidarConfig) else (c.height, c.width),
+                c.rate,
+                c.frame,
+                c.pos,
+                c.range,
+                c.fov if isinstance(c, LidarConfig) else c.fovy,
+            )
+            for c in scenario.sensors
+        ),
+        perceived=tuple(o.name for o in scenario.world.objects if o.perceived),
     )
 
 

@@ -96,14 +96,15 @@ def layout(
         "--json",
         help="Print one JSON object instead of "
         "tables (keys: scenario, scenario_hash, robot, dt, sizes, nu, "
-        "qpos, qvel, act, mocap, ctrl, extras, frames), for bridges "
+        "qpos, qvel, act, mocap, ctrl, extras, sensors, perceived, frames), for bridges "
         "and tools in other languages.",
     ),
 ) -> None:
     """Print what a world (a hardware bridge) must send and accept for SCENARIO, by name:
     each index of state.qpos and state.qvel with its joint, component, unit and frame; each
     row of mocap_pos/mocap_quat with its body; each index of command.ctrl with its actuator,
-    unit, range and safe value; the state.extras the scenario needs. Then the frames the
+    unit, range and safe value; the state.extras the scenario needs; the sensors of state.scans
+    (name, kind, rays or image size, rate, frame). Then the frames the
     scenario's YAML may name: the robot's bodies and sites (site:NAME), the objects, the walls.
 
     The planner stops (exit code 3) when a world's first state has other sizes than these."""
@@ -119,7 +120,9 @@ def layout(
     try:
         sc = load_scenario(scenario)
         model = compile_model(sc)
-        found, frames = bridge_layout(sc, model), frame_names(sc, model)
+        # the state's layout is the planner's model (without perceived objects), the frames
+        # the world's
+        found, frames = bridge_layout(sc), frame_names(sc, model)
     except (ConfigError, ValueError) as exc:
         typer.echo(f"error: {exc}", err=True)
         raise typer.Exit(2) from None

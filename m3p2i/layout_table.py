@@ -106,6 +106,38 @@ def print_layout(layout: BridgeLayout, console: Console) -> None:
         console.print(table)
     else:
         console.print("state.extras: none needed by this scenario")
+    _print_sensors(layout, console)
+
+
+def _print_sensors(layout: BridgeLayout, console: Console) -> None:
+    """The sensors of ``state.scans``, and the objects only they show."""
+    if layout.perceived:
+        console.print(
+            f"perceived objects (not in the state: only the sensors show them): "
+            f"{', '.join(layout.perceived)}",
+            highlight=False,
+        )
+    if not layout.sensors:
+        console.print("state.scans: none (the scenario declares no sensors)")
+        return
+    table = Table(
+        title="state.scans: the sensors' readings (protocol 3; docs/protocol.md, Scans)",
+        title_justify="left",
+    )
+    for column in ("name", "kind", "ranges", "rate (Hz)", "frame", "pos (m)", "band (m)", "fov"):
+        table.add_column(column)
+    for s in layout.sensors:
+        table.add_row(
+            s.name,
+            s.kind,
+            f"[{', '.join(map(str, s.shape))}]",
+            f"{s.rate:g}",
+            s.frame,
+            _vector(s.pos),
+            _vector(s.range),
+            f"{s.fov:g}°" + (" vertical" if s.kind == "depth" else ""),
+        )
+    console.print(table)
 
 
 def print_frames(frames: tuple[FrameName, ...], console: Console) -> None:

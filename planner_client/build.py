@@ -57,7 +57,8 @@ def build_motion_planner(
                 expected="--backend mujoco (mujoco.rollout takes a model per rollout), "
                 "or a scenario without variants",
             )
-        variants = VariantModels(problem.model, scenario.world.objects, pc.model.variants)
+        # the objects of the planner's model: its perceived ones are not there
+        variants = VariantModels(problem.model, problem.scenario.world.objects, pc.model.variants)
     if (backend or pc.backend) != "mujoco":
         # every mode rolls out planner.samples: the worlds are allocated for all of them now
         engine = make_backend(
@@ -108,9 +109,9 @@ def build_parts(motion: MotionPlanner, task: TaskLayer) -> Parts:
         planar=[n for n, o in pc.model.objects.items() if o.planar],
     )
     attachments = Attachments(problem.model, pc.model.attach, held_filter=pc.tracking.held_filter)
-    guide = (
-        Guide(problem.guide, problem.model, problem.resolve) if problem.guide is not None else None
-    )
+    guide = None
+    if problem.guide is not None:  # it plans on the planner's map too, once there is one
+        guide = Guide(problem.guide, problem.model, problem.resolve, problem.field_source)
     parts = Parts(motion, task, mirror, attachments, guide)
     variants = motion.variants
     if variants is not None and variants.cfg.identify is not None:

@@ -1,5 +1,6 @@
 """Global paths in the plane for the guide (planner_client/guide.py): obstacles as 2-D signed
-distance functions, an occupancy grid of a body's centre, grid A* and the path's simplification.
+distance functions (and those only a map knows, as its signed distance field), an occupancy grid
+of a body's centre, grid A* and the path's simplification.
 
 Pure functions of numpy arrays; nothing here knows MuJoCo. The local planner's horizon is short
 (0.75 s): a path over the whole scene, computed here, gives it a sub-goal it can reach without
@@ -14,6 +15,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.ndimage import map_coordinates
 
 # the 8 grid moves (di, dj) = (rows: y, columns: x) with their lengths in cells
 MOVES = tuple((di, dj) for di in (-1, 0, 1) for dj in (-1, 0, 1) if di or dj)
@@ -36,10 +38,42 @@ class Shape:
         return None if self.kind == "halfplane" else math.hypot(*self.half)
 
 
-def signed_distance(shapes: list[Shape], points: np.ndarray) -> np.ndarray:
-    """Signed distance ``[N]`` of ``points [N, 2]`` to the union of ``shapes`` (negative
-    inside); +inf without shapes."""
-    out = np.full(points.shape[0], np.inf)
+@dataclass(frozen=True)
+class MapObstacles:
+    """Obstacles only a map knows (the planner's perception), as its 2-D signed distance field:
+    ``values [H, W]`` (m, negative inside), cell (i, j) centred at ``origin + (j, i) ·
+    resolution``; a point off the grid is ``outside`` m from them."""
+
+    values: np.ndarray
+    origin: tuple[float, float]
+    resolution: float
+    outside: float = 1e3
+
+    def distance(self, points: np.ndarray) -> np.ndarray:
+        """``[N]`` at ``points [N, 2]``, bilinear between cell centres."""
+        rc = (points[:, ::-1] - np.asarray(self.origin)[::-1]) / self.resolution  # (row, col)
+        d = map_coordinates(self.values, rc.T, order=1, mode="nearest")
+        top = np.asarray(self.values.shape) - 1
+        inside = np.all((rc >= 0) & (rc <= top), axis=1)
+        return np.where(inside, d, self.outside)
+
+    def extent(self, below: float) -> list[np.ndarray]:
+        """Two corners (x, y) of the box holding every cell closer than ``below`` to an
+        obstacle; none when no cell is."""
+        rows, cols = np.nonzero(self.values < below)
+        if not len(rows):
+            return []
+        lo = np.array([cols.min(), rows.min()]) * self.resolution + self.origin
+        hi = np.array([cols.max(), rows.max()]) * self.resolution + self.origin
+        return [lo, hi]
+
+
+def signed_distance(
+    shapes: list[Shape], points: np.ndarray, field: MapObstacles | None = None
+) -> np.ndarray:
+    """Signed distance ``[N]`` of ``points [N, 2]`` to the union of ``shapes`` and the map's
+    obstacles ``field`` (negative inside); +inf without either."""
+    out = np.full(points.shape[0], np.inf) if field is None else field.distance(points)
     for s in shapes:
         d = points - np.asarray(s.centre)
         c, si = math.cos(s.yaw), math.sin(s.yaw)
@@ -213,15 +247,17 @@ class Room:
     gap: float = 0.0
 
 
-def room_moves(grid: Grid, shapes: list[Shape], room: Room) -> np.ndarray:
+def room_moves(
+    grid: Grid, shapes: list[Shape], room: Room, field: MapObstacles | None = None
+) -> np.ndarray:
     """``[8, rows, cols]``: whether the object may leave each cell by move k with the robot
-    where ``room`` says, clear of ``shapes`` by its radius: behind the cell for a push, ahead
-    of the next cell or beside it for a pull."""
+    where ``room`` says, clear of ``shapes`` and ``field`` by its radius: behind the cell for a
+    push, ahead of the next cell or beside it for a pull."""
     centres = grid.centres().reshape(-1, 2)
     rows, cols = grid.shape
 
     def clear_at(offset: np.ndarray) -> np.ndarray:
-        clear = signed_distance(shapes, centres + offset) > room.radius + room.gap
+        clear = signed_distance(shapes, centres + offset, field) > room.radius + room.gap
         return clear.reshape(rows, cols)
 
     out = np.zeros((8, rows, cols), dtype=bool)
@@ -239,12 +275,14 @@ def room_moves(grid: Grid, shapes: list[Shape], room: Room) -> np.ndarray:
     return out
 
 
-def handles(cells_xy: np.ndarray, shapes: list[Shape], room: Room) -> np.ndarray:
+def handles(
+    cells_xy: np.ndarray, shapes: list[Shape], room: Room, field: MapObstacles | None = None
+) -> np.ndarray:
     """``[M, 2]``: where the robot's centre stands, relative to the object's, at each point of
-    a dense path ``cells_xy [M, 2]``, clear of ``shapes`` by the robot's radius: behind the
-    move for a push; for a pull ahead of it, else at the side with more room, else behind it
-    (a diagonal move into a corner leaves neither: :func:`room_moves` lets A* plan no such
-    move, but does not check a path's first cell, where the object starts). Chosen from the
+    a dense path ``cells_xy [M, 2]``, clear of ``shapes`` and ``field`` by the robot's radius:
+    behind the move for a push; for a pull ahead of it, else at the side with more room, else
+    behind it (a diagonal move into a corner leaves neither: :func:`room_moves` lets A* plan no
+    such move, but does not check a path's first cell, where the object starts). Chosen from the
     goal backwards, keeping the place of the next point while it is still clear (and, for a
     push, still behind the move). A pull keeps it on any side of the move: the robot holds the
     box by suction and cannot go round it without dragging it along, so a robot that must end
@@ -256,7 +294,7 @@ def handles(cells_xy: np.ndarray, shapes: list[Shape], room: Room) -> np.ndarray
     out = np.full(cells_xy.shape, np.nan)
 
     def clear(p: np.ndarray) -> float:
-        return float(signed_distance(shapes, p[None])[0])
+        return float(signed_distance(shapes, p[None], field)[0])
 
     def allowed(offset: np.ndarray, dm: np.ndarray) -> bool:
         return room.mode != "push" or float(offset @ dm) / room.reach < -0.7
@@ -306,19 +344,23 @@ def plan(
     resolution: float,
     radius: float,
     room: Room | None = None,
+    field: MapObstacles | None = None,
 ) -> PathResult:
-    """Grid A* for a body of ``radius`` (its centre stays ``radius`` clear of every shape)
-    from ``start`` to ``goal`` (x, y), with ``room`` for a robot beside it when it is an object
-    moved by one. A start or goal inside the inflated obstacles (an object pressed into a
-    corner) is moved to the nearest free cell; the path then begins or ends there."""
+    """Grid A* for a body of ``radius`` (its centre stays ``radius`` clear of every shape and
+    of the map's obstacles ``field``) from ``start`` to ``goal`` (x, y), with ``room`` for a
+    robot beside it when it is an object moved by one. A start or goal inside the inflated
+    obstacles (an object pressed into a corner) is moved to the nearest free cell; the path
+    then begins or ends there. The grid holds the map's cells closer than ``radius`` to an
+    obstacle as it holds the shapes."""
     start, goal = np.asarray(start, float)[:2], np.asarray(goal, float)[:2]
-    grid = Grid.around([start, goal], shapes, resolution)
-    clearance = signed_distance(shapes, grid.centres().reshape(-1, 2)).reshape(grid.shape)
+    seen = field.extent(radius) if field is not None else []
+    grid = Grid.around([start, goal, *seen], shapes, resolution)
+    clearance = signed_distance(shapes, grid.centres().reshape(-1, 2), field).reshape(grid.shape)
     free = clearance > radius
     s, g = nearest_free(free, grid.cell(start)), nearest_free(free, grid.cell(goal))
     if s is None or g is None:
         return PathResult(None, "no free cell: the body does not fit anywhere")
-    move_ok = room_moves(grid, shapes, room) if room is not None else None
+    move_ok = room_moves(grid, shapes, room, field) if room is not None else None
     cells = astar(free, s, g, move_ok)
     if cells is None:
         return PathResult(None, "the goal cannot be reached")
@@ -327,7 +369,7 @@ def plan(
         cells = simplify(cells, lambda a, b: line_free(free, a, b))
     else:  # a straight line may cross cells without room: only runs of one move are merged
         dense = np.array([grid.point(c) for c in cells])
-        hands = handles(dense, shapes, room)
+        hands = handles(dense, shapes, room, field)
         cells = corners(cells)
     points = [grid.point(c) for c in cells]
     # the path starts and ends at the exact points when their cells were free

@@ -12,6 +12,11 @@ guided body leaves the path. In real time an iteration never waits for it: a new
 from the first iteration after it is ready. In lock-step the path requested at one iteration is
 used from the next, waiting for it if need be, so an episode stays the same for its seed; the
 first path is computed before the first iteration plans.
+
+Given the planner's map (a field source, :class:`~planner_client.costs.base.FieldSource`), the
+guide plans on it too: cells closer than the body's radius plus ``inflate`` to an obstacle of
+its newest 2-D signed distance field are blocked as the declared obstacles' are, and a new field
+that the current path passes through (closer than the body's radius) is planned on again.
 """
 
 from __future__ import annotations
@@ -21,24 +26,28 @@ import math
 import threading
 from collections.abc import Callable
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import mujoco
 import numpy as np
 import torch
 
 from planner_client import global_path
-from planner_client.global_path import PathResult, Room, Shape
+from planner_client.global_path import MapObstacles, PathResult, Room, Shape
 from shared.frames import FrameResolver
 from shared.scenario import Scenario
 from shared.scenario.guide import GuideConfig
 from shared.scene import WALL_NAMES
+
+if TYPE_CHECKING:  # the cost terms import the guide: a type only
+    from planner_client.costs.base import FieldSource
 
 log = logging.getLogger(__name__)
 
 SITE = "guide"  # the sub-goal's site in the planner's model; YAML frame ``site:guide``
 SITE_BODY = "guide_subgoal"  # the body that carries it
 
-# a guide's planner: (shapes, start, goal, resolution, radius, room) -> a path
+# a guide's planner: (shapes, start, goal, resolution, radius, room, field) -> a path
 METHODS: dict[str, Callable[..., PathResult]] = {"astar": global_path.plan}
 
 
@@ -146,6 +155,14 @@ def project_point(p: np.ndarray, points: np.ndarray) -> tuple[float, float]:
     return float(dist[i]), float(seg[:i].sum() + t[i] * seg[i])
 
 
+def resample(points: np.ndarray, step: float) -> np.ndarray:
+    """Points ``[K, 2]`` along the polyline ``points [N, 2]``, at most ``step`` apart, its ends
+    included."""
+    s = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(points, axis=0), axis=1))])
+    t = np.linspace(0.0, s[-1], int(s[-1] / step) + 2)
+    return np.stack([np.interp(t, s, points[:, 0]), np.interp(t, s, points[:, 1])], axis=1)
+
+
 def point_at(points: np.ndarray, s: float) -> np.ndarray:
     """The point ``s`` metres along the polyline ``points [N, 2]`` (clamped to its ends)."""
     seg = np.linalg.norm(np.diff(points, axis=0), axis=1)
@@ -175,11 +192,12 @@ class GuideState:
 @dataclass(frozen=True)
 class Snapshot:
     """The scene as a guide plans on it: the obstacle geoms' poses ``[G, 3]`` (x, y, yaw), the
-    guided body and the goal (x, y)."""
+    guided body and the goal (x, y), and the map's newest field (None: no map)."""
 
     poses: np.ndarray
     start: np.ndarray
     goal: np.ndarray
+    field: MapObstacles | None = None
 
     def moved(self, other: Snapshot, reach: np.ndarray, tol: float) -> bool:
         """Whether an obstacle (a point ``reach [G]`` m from its centre, turning with it) or the
@@ -272,11 +290,20 @@ class ObstacleGeoms:
 
 class Guide:
     """Keeps a :class:`GuideState`'s path up to date from the mirrored scene (module docstring):
-    :meth:`update` once per iteration, before the task layer and the rollouts."""
+    :meth:`update` once per iteration, before the task layer and the rollouts. ``field_source``:
+    the planner's map, planned on too (None: the declared obstacles only)."""
 
-    def __init__(self, state: GuideState, model: mujoco.MjModel, resolve: FrameResolver):
+    def __init__(
+        self,
+        state: GuideState,
+        model: mujoco.MjModel,
+        resolve: FrameResolver,
+        field_source: FieldSource | None = None,
+    ):
         cfg, scenario = state.cfg, state.scenario
         self.state, self.model, self.cfg = state, model, cfg
+        self.field_source = field_source
+        self._map: tuple[object, MapObstacles] | None = None  # the newest field, converted
         self.body = resolve(cfg.for_)
         self.goal = resolve(cfg.goal)
         self.site_body = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, SITE_BODY)
@@ -317,8 +344,24 @@ class Guide:
     def snapshot(self, data: mujoco.MjData) -> Snapshot:
         """The scene in ``data`` (the mirror's, its kinematics done) as the guide plans on it."""
         return Snapshot(
-            self.geoms.poses(data), self.body.pos(data)[:2].copy(), self.goal.pos(data)[:2].copy()
+            self.geoms.poses(data),
+            self.body.pos(data)[:2].copy(),
+            self.goal.pos(data)[:2].copy(),
+            self._latest_map(),
         )
+
+    def _latest_map(self) -> MapObstacles | None:
+        """The map's newest field as the guide reads it, converted once per field; None without
+        one, or for a 3-D field (an arm's workspace: the guide plans in the plane)."""
+        latest = self.field_source.latest() if self.field_source is not None else None
+        if latest is None or latest.dims != 2:
+            return None
+        if self._map is None or self._map[0] is not latest:
+            values = latest.values.detach().cpu().numpy()
+            origin = (float(latest.origin[0]), float(latest.origin[1]))
+            obstacles = MapObstacles(values, origin, float(latest.resolution), latest.outside)
+            self._map = (latest, obstacles)
+        return self._map[1]
 
     def update(self, data: mujoco.MjData, wait: bool) -> None:
         """Take a finished path (``wait``: lock-step, waiting for the one requested last), ask
@@ -363,11 +406,22 @@ class Guide:
         last = self._planned
         if last is None or snap.moved(last, self._reach, self.cfg.replan_move):
             return True
+        if snap.field is not last.field and self._crossed(snap.field):
+            return True
         if self.state.points is None:  # blocked: again once the body has moved two cells on
             moved = float(np.linalg.norm(snap.start - last.start))
             return moved > 2 * self.cfg.resolution
         off, _ = project_point(snap.start, self.state.points)
         return off > self.cfg.replan_distance
+
+    def _crossed(self, field: MapObstacles | None) -> bool:
+        """Whether the path may change on a new map ``field``: it passes closer than the body's
+        radius to an obstacle of it, or there is no path or no map (a map may clear the way)."""
+        points = self.state.points
+        if field is None or points is None:
+            return True
+        dense = resample(points, self.cfg.resolution / 2)
+        return bool((field.distance(dense) < self.radius).any())
 
     def _submit(self, snap: Snapshot) -> None:
         with self._cv:
@@ -416,6 +470,7 @@ class Guide:
                 self.cfg.resolution,
                 self.radius + self.cfg.inflate,
                 self.room,
+                snap.field,
             )
             with self._cv:
                 self._result = (snap, result)

@@ -213,9 +213,10 @@ class PlannerClient:
         raise HandshakeRefused(error.reason)
 
     def _speak(self, version: int) -> None:
-        """Commands from now on in ``version``, the world's choice; an older one is said once."""
+        """Commands from now on in ``version``, the world's choice; version 1 (commands without
+        a plan) is said once. A version-2 world only sends no scans."""
         self.version = version
-        if version < P.PROTOCOL_VERSION and self._warned_version != version:
+        if version == 1 and self._warned_version != version:
             self._warned_version = version
             log.warning(
                 "the world speaks protocol version %d only: commands carry no plan, and "

@@ -27,7 +27,19 @@ from shared.frames import FrameResolver
 from shared.predicates import check_frames
 from shared.scenario import Scenario
 from shared.scenario_check import scenario_errors as _scenario_errors
-from shared.scene import build_spec, compile_model
+from shared.scene import build_spec, compile_model, planner_scenario
+
+
+def _planner_side(
+    scenario: Scenario, model: mujoco.MjModel, resolve: FrameResolver
+) -> tuple[Scenario, mujoco.MjModel, FrameResolver]:
+    """The scenario, model and names as the planner has them: without the perceived objects
+    (a cost term or observer naming one is an error: the planner's model lacks it)."""
+    known = planner_scenario(scenario)
+    if known is scenario:
+        return scenario, model, resolve
+    model = build_spec(known).compile()
+    return known, model, FrameResolver(model, resolve.robot_frame)
 
 
 def name_checks(
@@ -35,6 +47,7 @@ def name_checks(
 ) -> None:
     """The names the planner looks up: its objectives' cost terms, frames and actuators, its
     observers' frames."""
+    scenario, model, resolve = _planner_side(scenario, model, resolve)
     guide = None
     # site:guide is added to the planner's model, not the world's; a faulty guide: section
     # (its own error already reported) still declares it, for the terms that name it
@@ -56,6 +69,7 @@ def model_checks(
     scenario: Scenario, model: mujoco.MjModel, resolve: FrameResolver, errors: ErrorLog
 ) -> None:
     """What the planner resolves against its compiled model and registries."""
+    scenario, model, resolve = _planner_side(scenario, model, resolve)
     name_checks(scenario, model, resolve, errors)
     errors.call(mppi_config, scenario, model)
     errors.call(apply_planning_model, build_spec(scenario), scenario.planner.model, scenario.source)

@@ -8,7 +8,7 @@ compiled. :class:`~planner_client.mirror.Mirror` copies each received state into
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import mujoco
@@ -16,16 +16,25 @@ import torch
 
 from planner_client.attach import add_attach_welds
 from planner_client.costs import JointInfo, Objective, RolloutBatch, TermContext, build_objective
+from planner_client.costs.base import FieldSlot, FieldSource
 from planner_client.costs.objective import check_term_values
 from planner_client.guide import GuideState, add_site
 from planner_client.mppi import MPPIConfig
 from planner_client.plugins import import_plugins
 from planner_client.sensors import SensorColumns, SensorRequest, add_sensors
+from planner_client.spheres import SITE_PREFIX, add_sphere_sites, robot_spheres
 from shared.config import ConfigError, ErrorLog
 from shared.frames import FrameResolver
 from shared.robots import RobotSpec
 from shared.scenario import PlanningModel, Scenario
-from shared.scene import build_spec, compile_model, free_joint, initial_data, obstacle_names
+from shared.scene import (
+    build_spec,
+    compile_model,
+    free_joint,
+    initial_data,
+    obstacle_names,
+    planner_scenario,
+)
 
 
 @dataclass
@@ -39,6 +48,8 @@ class PlanningProblem:
     actuators: list[str]
     resolve: FrameResolver
     guide: GuideState | None = None  # the scenario's guide: its path and sub-goal site
+    # the planner's map as its terms and guide read it: connect the map updater to it
+    field_source: FieldSlot = field(default_factory=FieldSlot)
 
 
 def robot_joints(scenario: Scenario, model: mujoco.MjModel) -> dict[str, JointInfo]:
@@ -60,6 +71,10 @@ def robot_joints(scenario: Scenario, model: mujoco.MjModel) -> dict[str, JointIn
 
 
 def build_problem(scenario: Scenario, extra_sensors: list[SensorRequest] = ()) -> PlanningProblem:
+    """The planner's model of ``scenario`` and its objectives, its perceived objects left out
+    (:func:`shared.scene.planner_scenario`: only the scans show them); ``problem.scenario`` is
+    that view of the scenario."""
+    scenario = planner_scenario(scenario)
     robot = scenario.robot.spec
     spec = build_spec(scenario)
     # planner.timestep: the rollouts step (and hold each control) this long; the world's
@@ -76,9 +91,13 @@ def build_problem(scenario: Scenario, extra_sensors: list[SensorRequest] = ()) -
         resolve.checked(guide.cfg.for_, scenario.source, "guide.for")
         resolve.checked(guide.cfg.goal, scenario.source, "guide.goal")
     actuators = actuator_names(base)
-    objectives = build_objectives(scenario, resolve, actuators, guide)
+    field_source = FieldSlot()
+    objectives = build_objectives(scenario, resolve, actuators, guide, field_source)
     robot_pos = SensorRequest("framepos", "robot")
     requests = [robot_pos, *extra_sensors] + [r for o in objectives.values() for r in o.sensors()]
+    frames = {r.obj for r in requests}
+    if any(f.startswith(f"site:{SITE_PREFIX}") for f in frames):  # a term reads the spheres
+        add_sphere_sites(spec, robot_spheres(base, resolve, robot), frames)
     add_sensors(spec, requests, resolve)
     model = compile_model(scenario, spec)
     tune_planning_model(model, scenario.planner.model)
@@ -92,6 +111,7 @@ def build_problem(scenario: Scenario, extra_sensors: list[SensorRequest] = ()) -
         actuators,
         FrameResolver(model, robot.frame),
         guide,
+        field_source,
     )
 
 
@@ -240,10 +260,11 @@ def build_objectives(
     resolve: FrameResolver,
     actuators: list[str],
     guide: GuideState | None = None,
+    field_source: FieldSource | None = None,
 ) -> dict[str, Objective]:
     """Every objective of the scenario, checked against the term registry (the scenario's
     ``plugins:`` imported first) and the model; the errors of all objectives are raised
-    together."""
+    together. ``field_source``: the planner's map, for the terms that read it."""
     import_plugins(scenario.plugins, Path(scenario.source).parent, scenario.source)
     ctx = TermContext(
         scenario.source,
@@ -252,6 +273,8 @@ def build_objectives(
         actuators,
         robot_joints(scenario, resolve.model),
         guide=guide,
+        robot=scenario.robot.spec,
+        field_source=field_source,
     )
     errors = ErrorLog()
     objectives = {

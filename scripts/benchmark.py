@@ -67,7 +67,13 @@ from planner_client.problem import apply_planning_model, tune_planning_model
 from shared import protocol as P
 from shared.config import ConfigError
 from shared.scenario import Scenario, load_scenario
-from shared.scene import build_spec, compile_model, get_full_state, initial_data
+from shared.scene import (
+    build_spec,
+    compile_model,
+    get_full_state,
+    initial_data,
+    planner_scenario,
+)
 
 SCENARIOS = ("navigation", "push_pull", "push_pull_fast", "pick_place")
 
@@ -76,8 +82,8 @@ app = typer.Typer(add_completion=False)
 
 def _own_model(scenario: Scenario, timestep: float) -> mujoco.MjModel:
     """The planner's own model (its options, with steps of ``timestep``) without the sensors
-    its costs read."""
-    own_spec = build_spec(scenario)
+    its costs read: without the perceived objects, as the planner builds it."""
+    own_spec = build_spec(planner_scenario(scenario))
     own_spec.option.timestep = timestep
     apply_planning_model(own_spec, scenario.planner.model, scenario.source)
     own = compile_model(scenario, own_spec)

@@ -5,7 +5,9 @@ A subclass implements two methods: :meth:`Bridge.actuate` sends a control to the
 ``qpos``/``qvel``/``mocap_pos``/``mocap_quat``, SI units, world frame). Everything else the
 server needs comes from here: the scenario's start state for whatever is not measured, the
 clock (periods of ``dt``), the success test and time-out of the scenario's ``episode`` section
-judged on the measured state, the safe stop. ``m3p2i-server --world package.module:Class``
+judged on the measured state, the safe stop. A bridge whose scenario declares ``sensors:``
+overrides :meth:`server.interface.World.scans` too: its real lidar's and cameras' readings
+(docs/bridge.md, "Sensors"). ``m3p2i-server --world package.module:Class``
 serves it with the handshake, sessions, watchdog, rate loop and episode log of the simulated
 world (docs/bridge.md has a worked example).
 """

@@ -29,6 +29,7 @@ from server.world import SimWorld
 from shared import protocol as P
 from shared.scenario import Scenario
 from shared.scenario.faults import FaultConfig
+from shared.scene import published_mocap
 from shared.timed_plan import PlanPlayer, TimedPlan, held, mean_hz
 
 log = logging.getLogger("m3p2i.server")
@@ -68,6 +69,9 @@ class Episode:
                 realtime_factor=realtime_factor,
             )
         self.world.reset()
+        # the mocap rows a state carries: the perceived objects' are only the sensors' to show
+        self._mocap_rows = published_mocap(scenario, self.world.model)
+        self._scans: tuple[int, list] = (-1, [])  # the newest seq published and its readings
         self.metrics = MetricsEvaluator(scenario, self.world.model)  # bad frames fail here
         self.session = secrets.token_hex(4)
         self.seq = 0  # the newest state's number: world steps and ops
@@ -118,8 +122,12 @@ class Episode:
     def publish(self) -> P.State | None:
         """The world's current state as state ``seq``, its time kept for the age of the
         commands answering it; None when the world's link loses it (:meth:`World.drop_state`,
-        asked once per ``seq``: the same state asked for again is delivered)."""
+        asked once per ``seq``: the same state asked for again is delivered). It carries the
+        world's sensor readings since the previous ``seq`` (the same again when re-published)."""
         s = self.world.state()
+        if self._scans[0] != self.seq:
+            self._scans = (self.seq, self.world.scans())
+        rows = slice(None) if self._mocap_rows is None else self._mocap_rows
         state = P.State(
             session=self.session,
             seq=self.seq,
@@ -127,11 +135,12 @@ class Episode:
             qpos=s.qpos,
             qvel=s.qvel,
             act=s.act,
-            mocap_pos=s.mocap_pos,
-            mocap_quat=s.mocap_quat,
+            mocap_pos=s.mocap_pos[rows],
+            mocap_quat=s.mocap_quat[rows],
             status=self.world.status,
             extras=dict(self.world.extras),
             lag=self.lag,
+            scans=self._scans[1],
         )
         self._state_times[self.seq] = state.time
         self._state_times.pop(self.seq - _KEEP_STATE_TIMES, None)

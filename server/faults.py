@@ -10,7 +10,9 @@ docs/faults.md).
 - binary gripper: the gripper's command snapped to open or closed;
 - model mismatch: the inner simulation's masses, frictions and actuator gains scaled by
   factors drawn from the seed (the planner builds its model from the YAML: the nominal one);
-- drops: :meth:`FaultyWorld.drop_state` tells the server to lose a state message.
+- drops: :meth:`FaultyWorld.drop_state` tells the server to lose a state message;
+- scans: the sensors' ranges with Gaussian noise and rays without a return, each reading
+  delivered ``scan_latency_ms`` after its measurement, stamped with its measurement's time.
 
 Lock-step: delays count world steps (``ms / dt`` rounded up) and every draw comes from generators
 seeded by the episode seed, so a faulty episode repeats exactly. Real-time: delays are world
@@ -21,6 +23,7 @@ delays twice as long in wall time), so they are the world steps a planner declar
 
 from __future__ import annotations
 
+import dataclasses
 import time
 from collections import deque
 from collections.abc import Callable
@@ -31,11 +34,12 @@ import numpy as np
 
 from server.interface import Outcome, World, WorldError, WorldState
 from server.world import SimWorld
+from shared.scans import Scan, no_return
 from shared.scenario.faults import FaultConfig, steps_of
 from shared.scene import contact_friction
 
 # independent generator streams per fault, so that turning one fault on leaves the others' draws
-_NOISE, _DROPS, _MISMATCH = 1, 2, 3
+_NOISE, _DROPS, _MISMATCH, _SCANS = 1, 2, 3, 4
 
 
 class DelayLine:
@@ -146,6 +150,10 @@ class FaultyWorld(World):
             self._actuation = DelayLine(steps_of(config.actuation_delay_ms, dt))
             self._states = DelayLine(steps_of(config.state_delay_ms, dt), oldest_first=True)
         self.period_steps = max(1, steps_of(config.control_period_ms, dt))
+        # world seconds from a reading's measurement to its delivery (lock-step: whole steps)
+        self.scan_latency = config.scan_latency_ms / 1000.0
+        if not realtime:
+            self.scan_latency = steps_of(config.scan_latency_ms, dt) * dt
         self.mismatch: dict[str, dict[str, float]] = {}
         if config.mismatch.active:
             if not isinstance(inner, SimWorld):
@@ -214,6 +222,8 @@ class FaultyWorld(World):
         self._steps = 0
         self._noise = np.random.default_rng([self.seed, _NOISE])
         self._drops = np.random.default_rng([self.seed, _DROPS])
+        self._scan_noise = np.random.default_rng([self.seed, _SCANS])
+        self._scan_line: list[Scan] = []  # readings measured, not yet delivered
         self._actuation.clear()
         self._states.clear()
         self._held: np.ndarray | None = None
@@ -291,6 +301,34 @@ class FaultyWorld(World):
 
     def drop_state(self) -> bool:
         return bool(self.config.drop_rate) and self._drops.random() < self.config.drop_rate
+
+    def scans(self) -> list[Scan]:
+        """The inner world's readings with the scan faults, drawn once each as they are taken
+        from it (in lock-step, at each published state: repeatable), delivered once
+        ``scan_latency`` world seconds have passed since their measurement."""
+        self._scan_line += [self._degrade(scan) for scan in self.inner.scans()]
+        due = self.time - self.scan_latency + 1e-9
+        out = [scan for scan in self._scan_line if scan.time <= due]
+        self._scan_line = [scan for scan in self._scan_line if scan.time > due]
+        return out
+
+    def _degrade(self, scan: Scan) -> Scan:
+        """``scan`` with Gaussian noise (σ ``scan_noise_m``) on its returns, kept within its
+        band, and a share ``scan_dropout`` of its rays without a return; every ray draws, so a
+        reading's draws do not depend on what it saw."""
+        c = self.config
+        if not (c.scan_noise_m or c.scan_dropout):
+            return scan
+        ranges = np.array(scan.ranges, dtype=float)
+        if c.scan_noise_m:
+            noisy = ranges + self._scan_noise.normal(0.0, c.scan_noise_m, ranges.shape)
+            hits = scan.hits()
+            ranges[hits] = np.clip(noisy[hits], scan.range_min, scan.range_max)
+        if c.scan_dropout:
+            ranges[self._scan_noise.random(ranges.shape) < c.scan_dropout] = no_return(
+                scan.range_max
+            )
+        return dataclasses.replace(scan, ranges=ranges)
 
     def outcome(self) -> Outcome:
         return self.inner.outcome()

@@ -19,9 +19,11 @@ How the server uses a world, per episode:
    ``dt``. Lock-step: one step per command. Real-time: the server's rate loop keeps the time,
    calling ``step`` every ``dt`` of wall-clock time, so ``step`` must return well within the
    period (send the command, read the newest measurement: never sleep out the period).
-   Between steps a control holds (zero-order hold). The episode log records ``true_state()``
-   (by default ``state()``; :class:`server.faults.FaultyWorld`'s noisy, late ``state()`` is
-   only what the planner is sent), and a state for which ``drop_state()`` is true is lost.
+   Between steps a control holds (zero-order hold). ``scans()`` once per published state: the
+   sensors' readings since the previous one, which that state carries. The episode log records
+   ``true_state()`` (by default ``state()``; :class:`server.faults.FaultyWorld`'s noisy, late
+   ``state()`` is only what the planner is sent), and a state for which ``drop_state()`` is
+   true is lost.
 4. ``status`` is read after each step (``running``, ``success``, ``timeout``; the server sets
    ``stopped``); ``events`` are logged and cleared by the server; ``extras`` are published.
 5. ``stop()`` when the episode ends, on pause, Ctrl-C or SIGTERM: hold the robot still now.
@@ -40,6 +42,7 @@ from dataclasses import dataclass
 import mujoco
 import numpy as np
 
+from shared.scans import Scan
 from shared.scenario import Scenario
 from shared.scene import compile_model
 
@@ -140,6 +143,14 @@ class World(ABC):
         planner is sent. They differ only in a world that simulates measurement faults
         (:class:`server.faults.FaultyWorld`: noise, delay)."""
         return self.state()
+
+    def scans(self) -> list[Scan]:
+        """The readings of the scenario's ``sensors:`` measured since the last call, oldest
+        first, each stamped with its measurement's world time and the sensor's pose then
+        (:class:`shared.scans.Scan`): the server publishes them once, with the next state. None
+        by default; :class:`server.world.SimWorld` simulates them, a bridge returns its
+        lidar's and cameras' (docs/bridge.md)."""
+        return []
 
     def drop_state(self) -> bool:
         """Whether the link loses the state about to be published (asked once per state;

@@ -13,8 +13,10 @@ import numpy as np
 from server.disturbances import Disturbances, ObjectHandle
 from server.interface import Outcome, World, WorldState
 from server.judge import EpisodeJudge
+from server.sensors import RangeSensors
 from shared.frames import FrameResolver
 from shared.geometry import select_axes
+from shared.scans import Scan
 from shared.scenario import Scenario
 from shared.scene import reset_data
 
@@ -36,6 +38,7 @@ class SimWorld(World):
         self.disturbances = Disturbances(
             self.model, resolve, scenario.world.randomize, scenario.world.disturbances
         )
+        self.sensors = RangeSensors(scenario, self.model) if scenario.sensors else None
         self.reset()
 
     @property
@@ -56,6 +59,9 @@ class SimWorld(World):
         self.judge.reset()
         if self.battery:
             self.extras["battery"] = self.battery.initial
+        if self.sensors:
+            self.sensors.reset()
+            self.sensors.update(self.model, self.data)
 
     def move_object(self, name: str, pos, quat=None) -> dict:
         """Put scenario object ``name`` at ``pos`` (and ``quat``, w x y z) now, as a user's
@@ -99,6 +105,8 @@ class SimWorld(World):
         mujoco.mj_kinematics(self.model, self.data)
         if self.battery:
             self._step_battery()
+        if self.sensors:
+            self.sensors.update(self.model, self.data)
         self._check_episode()
 
     def _step_battery(self) -> None:
@@ -121,6 +129,10 @@ class SimWorld(World):
             mocap_pos=d.mocap_pos.copy(),
             mocap_quat=d.mocap_quat.copy(),
         )
+
+    def scans(self) -> list[Scan]:
+        """The sensors' readings since the last call (server/sensors.py), oldest first."""
+        return self.sensors.take() if self.sensors else []
 
     def outcome(self) -> Outcome:
         """Status and the success predicates' measures (e.g. final distance to the goal)."""

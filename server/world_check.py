@@ -1,5 +1,6 @@
 """What the world checks before it starts: the scenario file, and every name in it that only
-the compiled model can confirm (success-test frames, disturbance conditions, metrics frames).
+the compiled model can confirm (success-test frames, disturbance conditions, metrics frames,
+the sensors' frames).
 
 ``m3p2i-server --check`` prints them all; ``m3p2i check`` / ``m3p2i run`` merge them with the
 planner's.
@@ -16,6 +17,7 @@ from shared.config import ConfigError, ErrorLog
 from shared.frames import FrameResolver
 from shared.predicates import check_frames
 from shared.scenario import MoveConfig, Scenario
+from shared.scenario.sensors import WORLD_FRAME
 from shared.scenario_check import scenario_errors as _scenario_errors
 
 
@@ -23,8 +25,8 @@ def model_checks(
     scenario: Scenario, model: mujoco.MjModel, resolve: FrameResolver, errors: ErrorLog
 ) -> None:
     """The names the world resolves against its compiled model: the frames of its success test
-    and disturbances, the frames and bodies of its metrics. Only names: the same checks serve
-    on the stand-in model of a file whose own model cannot be built."""
+    and disturbances, the frames and bodies of its metrics, its sensors' frames. Only names: the
+    same checks serve on the stand-in model of a file whose own model cannot be built."""
     for i, pred in enumerate(scenario.episode.success):
         errors.call(check_frames, pred, resolve, scenario.source, f"episode.success[{i}]")
     for i, d in enumerate(scenario.world.disturbances):
@@ -32,6 +34,9 @@ def model_checks(
             errors.call(
                 check_frames, d.when, resolve, scenario.source, f"world.disturbances[{i}].move.when"
             )
+    for i, sensor in enumerate(scenario.sensors):
+        if sensor.frame != WORLD_FRAME:
+            errors.call(resolve.checked, sensor.frame, scenario.source, f"sensors[{i}].frame")
     errors.call(MetricsEvaluator, scenario, model)
 
 

@@ -19,13 +19,17 @@ from typing import Any
 import msgpack
 import numpy as np
 
-PROTOCOL_VERSION = 2
-"""2 added the time-indexed plan of a command (``plan_*``), ``state.lag`` and the diagnostics'
-timing; a peer of another version is refused with both versions named (docs/protocol.md)."""
-VERSIONS = (1, 2)
+from shared.scans import SCAN_KINDS, Scan, check_scan
+
+PROTOCOL_VERSION = 3
+"""3 added the sensors' readings of a state (``state.scans``); 2 the time-indexed plan of a
+command (``plan_*``), ``state.lag`` and the diagnostics' timing; a peer of another version is
+refused with both versions named (docs/protocol.md)."""
+VERSIONS = (1, 2, 3)
 """The versions this code speaks. The planner's ``hello`` offers them (``versions``), the world
 answers in the highest both speak, and each side then encodes with that one (docs/protocol.md,
-"Version negotiation"). 1: commands without a plan, held by the world."""
+"Version negotiation"). 1: commands without a plan, held by the world; 2: states without
+scans."""
 VERSIONS_TEXT = ", ".join(map(str, VERSIONS))
 MAX_MESSAGE_BYTES = 8 * 1024 * 1024
 """Frames above this are refused before decoding (ZMQ_MAXMSGSIZE is set to the same value)."""
@@ -33,6 +37,9 @@ MAX_MESSAGE_BYTES = 8 * 1024 * 1024
 MIN_PLAN_DT = 1e-6
 """Seconds: a command's ``plan_dt`` below this is refused (a microsecond is far under any
 world's control period; a subnormal one would make the plan's index overflow)."""
+
+MAX_SCANS = 64
+"""Readings one state may carry (a sensor's every reading since the previous state)."""
 
 MAX_WORLD_TIME = 1e9
 """Seconds: a ``state.time`` outside ``[0, MAX_WORLD_TIME]`` (about 31 years of world time) is
@@ -147,6 +154,7 @@ class State:
     status: str = "running"
     extras: dict[str, float] = field(default_factory=dict)
     lag: float = 0.0  # world s from publishing the state a command answered to its arrival
+    scans: list[Scan] = field(default_factory=list)  # readings due since the previous state
     type = "state"
 
 
@@ -259,6 +267,7 @@ _SCHEMA: dict[str, dict[str, tuple[str, bool]]] = {
         "status": ("str", False),
         "extras": ("floatmap", False),
         "lag": ("float", False),
+        "scans": ("scans", False),
     },
     "command": {
         "session": ("str", True),
@@ -294,8 +303,9 @@ _SCHEMA: dict[str, dict[str, tuple[str, bool]]] = {
         "seed": ("int", False),
     },
 }
-# version 1 is version 2 without these fields (docs/protocol.md); hello.versions and
-# error.versions, the negotiation, are read in both
+# version 2 is version 3 without these fields, version 1 is version 2 without the next ones
+# (docs/protocol.md); hello.versions and error.versions, the negotiation, are read in all
+_NOT_IN_V2 = {"state": {"scans"}}
 _NOT_IN_V1 = {
     "welcome": {"seed"},
     "state": {"lag"},
@@ -304,11 +314,15 @@ _NOT_IN_V1 = {
     "control": {"object", "pos", "quat", "seed"},
 }
 _SCHEMAS = {
-    2: _SCHEMA,
-    1: {
-        kind: {name: spec for name, spec in fields.items() if name not in _NOT_IN_V1.get(kind, ())}
+    version: {
+        kind: {
+            name: spec
+            for name, spec in fields.items()
+            if not any(name in table.get(kind, ()) for table in left_out)
+        }
         for kind, fields in _SCHEMA.items()
-    },
+    }
+    for version, left_out in ((3, ()), (2, (_NOT_IN_V2,)), (1, (_NOT_IN_V2, _NOT_IN_V1)))
 }
 _STATUSES = {"running", "success", "timeout", "stopped"}
 _MODES = {"lockstep", "realtime"}
@@ -325,9 +339,11 @@ def encode(msg: Any, version: int = PROTOCOL_VERSION) -> bytes:
     out: dict[str, Any] = {"type": msg.type, "v": version}
     for name, (kind, required) in _SCHEMAS[version][msg.type].items():
         value = getattr(msg, name)
-        if value is None and not required:
+        if (value is None or (kind == "scans" and not value)) and not required:
             continue
-        if kind == "array":
+        if kind == "scans":
+            value = [_scan_map(scan) for scan in value]
+        elif kind == "array":
             value = encode_array(np.asarray(value))
         elif kind == "floatmap":
             value = {str(k): float(v) for k, v in value.items()}
@@ -479,6 +495,10 @@ def _check_field(kind: str, name: str, ftype: str, value: Any) -> Any:
         if not _is_intlist(value):
             raise ProtocolError(f"{what}: expected a list of 1 to 64 integers")
         return list(value)
+    if ftype == "scans":
+        if not isinstance(value, list) or len(value) > MAX_SCANS:
+            raise ProtocolError(f"{what}: expected a list of at most {MAX_SCANS} scan maps")
+        return [_decode_scan(item, f"{what}[{i}]") for i, item in enumerate(value)]
     if ftype == "floatmap":
         if not isinstance(value, dict) or not all(
             isinstance(k, str)
@@ -490,6 +510,56 @@ def _check_field(kind: str, name: str, ftype: str, value: Any) -> Any:
             raise ProtocolError(f"{what}: expected a map of names to finite numbers")
         return {k: float(v) for k, v in value.items()}
     raise AssertionError(ftype)
+
+
+# a scan's fields (docs/protocol.md, "Scans"), and those of each kind
+_SCAN_FIELDS = {
+    "name": "str",
+    "kind": "str",
+    "time": "float",
+    "pos": "array",
+    "quat": "array",
+    "ranges": "array",
+    "range_min": "float",
+    "range_max": "float",
+}
+_SCAN_KIND_FIELDS = {"lidar": ("angle_min", "angle_increment"), "depth": ("fovy",)}
+
+
+def _scan_map(scan: Scan) -> dict:
+    """A :class:`Scan` as the plain map a state carries: the common fields and its kind's."""
+    out = {
+        name: (
+            encode_array(np.asarray(getattr(scan, name), dtype=float))
+            if ftype == "array"
+            else getattr(scan, name)
+        )
+        for name, ftype in _SCAN_FIELDS.items()
+    }
+    return out | {name: float(getattr(scan, name)) for name in _SCAN_KIND_FIELDS[scan.kind]}
+
+
+def _decode_scan(obj: Any, what: str) -> Scan:
+    """One scan map -> a checked :class:`Scan` (:func:`shared.scans.check_scan`)."""
+    if not isinstance(obj, dict):
+        raise ProtocolError(f"{what}: expected a scan map, got {type(obj).__name__}")
+    kind = obj.get("kind")
+    if not isinstance(kind, str) or kind not in SCAN_KINDS:
+        raise ProtocolError(f"{what}.kind: {kind!r} (expected one of {', '.join(SCAN_KINDS)})")
+    schema = _SCAN_FIELDS | dict.fromkeys(_SCAN_KIND_FIELDS[kind], "float")
+    unknown = set(obj) - set(schema)
+    if unknown:
+        raise ProtocolError(
+            f"{what}: unknown field(s) for a {kind} scan {sorted(map(str, unknown))}"
+        )
+    missing = [name for name in schema if name not in obj]
+    if missing:
+        raise ProtocolError(f"{what}: missing field(s) {missing}")
+    fields = {name: _check_field(what, name, ftype, obj[name]) for name, ftype in schema.items()}
+    try:
+        return check_scan(Scan(**fields))
+    except ValueError as exc:
+        raise ProtocolError(f"{what}: {exc}") from None
 
 
 def _check_values(msg: Any) -> None:

@@ -1,12 +1,15 @@
 """Build a scenario's MuJoCo model with ``mujoco.MjSpec``.
 
 The server and the planner call the same builder on the same YAML, so they compile the same
-world. The planner then adds sensors to its own copy of the spec (what its costs need) before
-compiling; sensors do not change the dynamics, so the mirrored state stays valid.
+world, except for the perceived objects, which the planner builds without
+(:func:`planner_scenario`). The planner then adds sensors to its own copy of the spec (what its
+costs need) before compiling; sensors do not change the dynamics, so the mirrored state stays
+valid.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
@@ -47,6 +50,42 @@ def build_spec(scenario: Scenario) -> mujoco.MjSpec:
     for obj in scenario.world.objects:
         _add_object(world, obj)
     return spec
+
+
+def planner_scenario(scenario: Scenario) -> Scenario:
+    """The scenario as the planner knows it: its world without the perceived objects
+    (``world.objects[].perceived``), nor the randomised starts and disturbances that move them
+    (the world's own business); ``scenario`` itself when none is perceived. Its hash is the
+    file's: both processes still loaded the same scenario."""
+    perceived = {o.name for o in scenario.world.objects if o.perceived}
+    if not perceived:
+        return scenario
+    w = scenario.world
+    world = dataclasses.replace(
+        w,
+        objects=tuple(o for o in w.objects if not o.perceived),
+        randomize=tuple(r for r in w.randomize if r.object not in perceived),
+        disturbances=tuple(d for d in w.disturbances if d.object not in perceived),
+    )
+    return dataclasses.replace(scenario, world=world)
+
+
+def published_mocap(scenario: Scenario, model: mujoco.MjModel) -> np.ndarray | None:
+    """The rows of the world model's ``mocap_pos``/``mocap_quat`` that a state carries, in order:
+    all but the perceived objects' (nothing of theirs reaches the planner but scans, and its
+    model has no such rows); None when that is every row."""
+    perceived = {o.name for o in scenario.world.objects if o.perceived}
+    if not perceived:
+        return None
+    ids = model.body_mocapid
+    return np.array(
+        sorted(
+            int(ids[b])
+            for b in range(model.nbody)
+            if ids[b] >= 0 and model.body(b).name not in perceived
+        ),
+        dtype=int,
+    )
 
 
 def compile_model(scenario: Scenario, spec: mujoco.MjSpec | None = None) -> mujoco.MjModel:

@@ -19,7 +19,7 @@ from m3p2i.view.page import viser_server
 from shared import protocol as P
 from shared.endpoints import Endpoints, socket
 from shared.scenario import Scenario
-from shared.scene import compile_model, initial_data, set_state
+from shared.scene import compile_model, initial_data, published_mocap, set_state
 from shared.security import PlannerKeys, curve_client
 
 log = logging.getLogger("m3p2i.view")
@@ -118,6 +118,8 @@ class LiveView:
         self.scenario = scenario
         self.model = compile_model(scenario)
         self.data = initial_data(scenario, self.model)
+        # a state carries these mocap rows: perceived objects stay where the file puts them
+        self._mocap_rows = published_mocap(scenario, self.model)
         self.robot = robot_frame(scenario, self.model)
         self.controls = controls  # False: the page only shows (pause, reset, move: none)
         self.server = viser_server(host, port, f"m3p2i {scenario.name}")
@@ -257,8 +259,13 @@ class LiveView:
             return None
 
     def _state(self, state: P.State) -> None:
+        values = vars(state)
         try:
-            set_state(self.model, self.data, vars(state))
+            if self._mocap_rows is not None:
+                pos, quat = self.data.mocap_pos.copy(), self.data.mocap_quat.copy()
+                pos[self._mocap_rows], quat[self._mocap_rows] = state.mocap_pos, state.mocap_quat
+                values = {**values, "mocap_pos": pos, "mocap_quat": quat}
+            set_state(self.model, self.data, values)
         except ValueError as exc:
             self.info.note = (
                 f"**the world's state does not fit {self.scenario.name}'s model** "

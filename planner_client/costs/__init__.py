@@ -1,8 +1,9 @@
 """Cost terms (a registry YAML names them by) and objectives (weighted sums of terms).
 
 Terms live by concept: ``poses`` (distances, orientation, approach), ``contact`` (obstacles),
-``clearance``, ``path`` (the guide's), ``push_pull``, ``gripper``, ``control``, ``joints`` (limits,
-posture); what several of them use is public in ``helpers``.
+``clearance``, ``perceived`` (obstacles of the planner's map), ``path`` (the guide's),
+``push_pull``, ``gripper``, ``control``, ``joints`` (limits, posture); what several of them
+use is public in ``helpers``.
 """
 
 # importing the term modules registers their terms
@@ -13,6 +14,7 @@ from planner_client.costs import (  # noqa: F401
     gripper,
     joints,
     path,
+    perceived,
     poses,
     push_pull,
 )

@@ -11,13 +11,17 @@ from abc import ABC, abstractmethod
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from functools import cached_property
-from typing import ClassVar
+from typing import TYPE_CHECKING, ClassVar, Protocol
 
 import torch
 
 from planner_client.sensors import SensorColumns, SensorRequest
 from shared.config import Section, string_list
 from shared.frames import FrameResolver
+from shared.robots import RobotSpec
+
+if TYPE_CHECKING:
+    from planner_client.perception.field import DistanceField
 
 TERMS: dict[str, type[CostTerm]] = {}
 
@@ -80,6 +84,31 @@ class JointInfo:
     start: float
 
 
+class FieldSource(Protocol):
+    """Where terms and the guide read the planner's map: :meth:`latest` is the newest signed
+    distance field (:class:`~planner_client.perception.field.DistanceField`), or None while
+    there is none. Read at every evaluation: the map is updated beside the planner, between
+    iterations, never during one."""
+
+    def latest(self) -> DistanceField | None: ...
+
+
+class FieldSlot:
+    """The :class:`FieldSource` a planning problem owns from the start
+    (``PlanningProblem.field_source``), before its map exists: :meth:`latest` reads the source
+    :meth:`connect` gave it (the map updater), None while there is none."""
+
+    def __init__(self) -> None:
+        self._source: FieldSource | None = None
+
+    def connect(self, source: FieldSource | None) -> None:
+        """Read ``source`` from now on (None: no map)."""
+        self._source = source
+
+    def latest(self) -> DistanceField | None:
+        return self._source.latest() if self._source is not None else None
+
+
 @dataclass
 class TermContext:
     """What a term may check its parameters against at load time."""
@@ -90,6 +119,8 @@ class TermContext:
     actuators: list[str]
     joints: dict[str, JointInfo] = field(default_factory=dict)  # the robot's, in qpos order
     guide: object | None = None  # the scenario's GuideState (planner_client.guide), if any
+    robot: RobotSpec | None = None  # the scenario's robot: its collision spheres
+    field_source: FieldSource | None = None  # the planner's map, for terms that read it
 
     def frame(self, s: Section, key: str, default: str | None = None) -> str:
         """A frame name parameter, checked to exist in the model."""

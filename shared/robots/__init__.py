@@ -32,7 +32,10 @@ ROBOT_DIR = Path(__file__).parent
 # the units a bridge may meet in command.ctrl (m3p2i layout prints them per control)
 UNITS = ("m/s", "rad/s", "m", "rad", "fraction", "N", "N·m", "ignored")
 # the keys of a robot file, also accepted inline in a scenario's robot: section
-ROBOT_KEYS = ("mjcf", "frame", "description", "controls", "safe_ctrl", "hold_ctrl")
+ROBOT_KEYS = ("mjcf", "frame", "description", "controls", "safe_ctrl", "hold_ctrl", "spheres")
+
+# collision spheres by body: (body, ((x, y, z, r), ...)), m, in the body's frame
+Spheres = tuple[tuple[str, tuple[tuple[float, float, float, float], ...]], ...]
 
 
 @dataclass(frozen=True)
@@ -53,6 +56,8 @@ class RobotSpec:
         hold_ctrl: actuators a safe stop leaves at their last command instead: a gripper keeps
             its grip (closing could grab a cube just released; opening would drop a held one).
             Their ``safe_ctrl`` value applies only before any command was received.
+        spheres: collision spheres declared per body, replacing the ones the planner derives
+            from that body's collision geoms (``planner_client.spheres``); an empty list: none.
         folder: the folder ``mjcf`` is relative to: the robot file's (the package's for a robot
             registered in Python).
         source: the robot file (or scenario) that declared the robot, for error messages; empty
@@ -67,6 +72,7 @@ class RobotSpec:
     ctrl_units: tuple[str, ...]
     safe_ctrl: tuple[float, ...]
     hold_ctrl: tuple[str, ...] = ()
+    spheres: Spheres = ()
     folder: Path = field(default=ROBOT_DIR, compare=False)
     source: str = field(default="", compare=False)
 
@@ -189,11 +195,33 @@ def parse_robot(s: Section, name: str, folder: Path) -> RobotSpec:
         ctrl_units=tuple(controls.values()),
         safe_ctrl=safe,
         hold_ctrl=hold,
+        spheres=_read_spheres(s),
         folder=folder,
         source=s.source,
     )
     _check_mjcf(spec, s)
     return spec
+
+
+def _read_spheres(s: Section) -> Spheres:
+    """``spheres:``, body: a list of ``[x, y, z, r]`` (finite; r > 0, m, in the body's frame);
+    the bodies are checked against the MJCF by :func:`_check_mjcf`."""
+    raw = s.opt("spheres", {}, dict, "a mapping body: [[x, y, z, r], ...]")
+    out = []
+    for body, items in raw.items():
+        if not isinstance(items, list):
+            raise s.error(f"spheres.{body}", "wrong type", items, "a list of [x, y, z, r]")
+        spheres = []
+        for i, item in enumerate(items):
+            key = f"spheres.{body}[{i}]"
+            try:
+                spheres.append(vector(4)(item))
+            except ValueError as exc:
+                raise s.error(key, str(exc), item, "[x, y, z, r], m, r > 0") from None
+            if not spheres[-1][3] > 0:
+                raise s.error(key, "radius must be > 0", item, "[x, y, z, r], m, r > 0")
+        out.append((str(body), tuple(spheres)))
+    return tuple(out)
 
 
 def _check_mjcf(spec: RobotSpec, s: Section) -> None:
@@ -227,6 +255,15 @@ def _check_mjcf(spec: RobotSpec, s: Section) -> None:
     except Exception as exc:  # a robot MJCF is a complete model: it must compile alone
         raise s.error("mjcf", f"MuJoCo cannot compile it: {exc}", spec.mjcf) from None
     _check_actuators(spec, s, compiled)
+    bodies = [b.name for b in model.bodies if b.name and b.name != "world"]
+    for body, _ in spec.spheres:
+        if body not in bodies:
+            raise s.error(
+                f"spheres.{body}",
+                f"no body {body!r} in {path}",
+                body,
+                f"one of: {', '.join(bodies)}",
+            )
     kind, frame = (
         ("site", spec.frame[5:]) if spec.frame.startswith("site:") else ("body", spec.frame)
     )

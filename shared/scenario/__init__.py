@@ -4,8 +4,9 @@ checked in the handshake so that they can never silently plan for different worl
 
 The schema, key by key, is documented in ``docs/scenarios.md``.
 
-One module per section (``robot``, ``world``, ``episode``, ``objectives``, ``task``, ``planner``
-and its ``model``, ``variants``, ``estimate``, ``mppi``); ``reader`` reads a file whole. The names
+One module per section (``robot``, ``world``, ``sensors``, ``episode``, ``objectives``, ``task``,
+``planner`` and its ``model``, ``variants``, ``estimate``, ``mppi``); ``reader`` reads a file
+whole. The names
 both processes use are re-exported here; the rest are in their section's module."""
 
 from shared.scenario.episode import EpisodeConfig, MetricsConfig

@@ -71,6 +71,9 @@ class FaultConfig:
     control_period_ms: float = 0.0  # the actuators take a new command this often (0: every step)
     gripper: str = "continuous"  # binary: the gripper only opens or closes
     mismatch: MismatchConfig = MismatchConfig()
+    scan_noise_m: float = 0.0  # Gaussian σ on the sensors' ranges (their returns)
+    scan_dropout: float = 0.0  # fraction of the sensors' rays without a return
+    scan_latency_ms: float = 0.0  # a sensor reading is delivered this much after it was measured
 
     @property
     def delays(self) -> tuple[float, float] | None:
@@ -96,7 +99,8 @@ PROFILES: dict[str, FaultConfig] = {
     "nominal": NOMINAL,
     # a well-kept lab: 50 ms round trip, a tracker with 5 mm noise over Wi-Fi losing one state
     # in ten, arm encoders good to 0.001 rad, object velocities not measured, a parallel gripper
-    # that opens or closes, and a model whose masses and frictions are right within ±30 %
+    # that opens or closes, a model whose masses and frictions are right within ±30 %, and
+    # sensors good to 1 cm that miss one ray in fifty and deliver their readings 50 ms late
     "lab": FaultConfig(
         actuation_delay_ms=25.0,
         state_delay_ms=25.0,
@@ -108,9 +112,13 @@ PROFILES: dict[str, FaultConfig] = {
         control_period_ms=0.0,
         gripper="binary",
         mismatch=MismatchConfig(mass=0.3, friction=0.3, gain=0.1),
+        scan_noise_m=0.01,
+        scan_dropout=0.02,
+        scan_latency_ms=50.0,
     ),
     # a bad day: 150 ms round trip, 15 mm noise, a third of the states lost, a 50 Hz actuator
-    # loop, masses and frictions off by up to ±50 %, actuator gains by ±25 %
+    # loop, masses and frictions off by up to ±50 %, actuator gains by ±25 %, sensors good to
+    # 3 cm that miss one ray in ten and deliver their readings 100 ms late
     "harsh": FaultConfig(
         actuation_delay_ms=75.0,
         state_delay_ms=75.0,
@@ -122,6 +130,9 @@ PROFILES: dict[str, FaultConfig] = {
         control_period_ms=20.0,
         gripper="binary",
         mismatch=MismatchConfig(mass=0.5, friction=0.5, gain=0.25),
+        scan_noise_m=0.03,
+        scan_dropout=0.10,
+        scan_latency_ms=100.0,
     ),
     # model error alone: harsh's masses, frictions (of the objects' contacts) and gains, and
     # nothing else (no delay, noise or loss)
@@ -179,6 +190,11 @@ def parse_faults(data: Any, source: str, path: str = "faults") -> FaultConfig:
             "milliseconds >= 0 (0: every world step)",
         ),
         gripper=s.opt("gripper", base.gripper, one_of(GRIPPER_MODES), " or ".join(GRIPPER_MODES)),
+        scan_noise_m=s.opt(
+            "scan_noise_m", base.scan_noise_m, non_negative, "metres >= 0 (a standard deviation)"
+        ),
+        scan_dropout=s.opt("scan_dropout", base.scan_dropout, _fraction, "a fraction in [0, 1)"),
+        scan_latency_ms=s.opt("scan_latency_ms", base.scan_latency_ms, non_negative, ms),
     )
     m = s.section("mismatch", required=False)
     frac = "a fraction in [0, 1) (0.3: factors within ±30 %)"

@@ -27,6 +27,7 @@ from shared.scenario.guide import GuideConfig, check_grid, parse_guide
 from shared.scenario.objectives import ObjectiveConfig, read_includes, read_objectives
 from shared.scenario.planner import PlannerConfig, read_planner
 from shared.scenario.robot import RobotConfig, read_robot
+from shared.scenario.sensors import SensorConfig, read_sensors
 from shared.scenario.task import ObserverConfig, read_observers, read_plan
 from shared.scenario.world import WorldConfig, declared_world, read_world
 from shared.task_template import TaskTemplate, parse_task
@@ -58,6 +59,8 @@ class Scenario:
     plugins: tuple[str, ...] = ()
     raw: dict = field(repr=False, default_factory=dict)
     guide: GuideConfig | None = None  # a global path the planner's terms follow (guide.py)
+    # range sensors the world simulates; their readings travel with its states (protocol 3)
+    sensors: tuple[SensorConfig, ...] = ()
 
 
 def find_scenario(name_or_path: str | os.PathLike) -> Path:
@@ -235,6 +238,7 @@ def _read(raw: dict, source: str, errors: ErrorLog) -> ScenarioReading:
     robot = errors.call(lambda: read_robot(top.section("robot")))
     world = errors.call(lambda: read_world(top.section("world"), errors))
     model_ok = len(errors.errors) == n_before
+    sensors = read_sensors(top, errors)
     episode = errors.call(lambda: read_episode(top.section("episode"), errors))
     metrics = MetricsConfig()
     if episode is not None:
@@ -291,6 +295,7 @@ def _read(raw: dict, source: str, errors: ErrorLog) -> ScenarioReading:
         plugins=plugins,
         raw=raw,
         guide=guide,
+        sensors=sensors,
     )
     return ScenarioReading(scenario, errors.errors, model_ok)
 
@@ -470,7 +475,9 @@ def _read_guide(
 
 def _guide_in(s: Section, world: WorldConfig) -> GuideConfig:
     """``guide`` against the world's objects, its grid sized against the world's span."""
-    guide = parse_guide(s, {o.name: not o.fixed for o in world.objects if not o.visual})
+    # a perceived object is not the planner's to plan round by name: its scans show it
+    known = [o for o in world.objects if not o.visual and not o.perceived]
+    guide = parse_guide(s, {o.name: not o.fixed for o in known})
     check_grid(s, guide, world.span())
     return guide
 

@@ -41,6 +41,9 @@ class ObjectConfig:
     rgba: tuple[float, float, float, float] = (0.6, 0.6, 0.6, 1.0)
     visual: bool = False  # a marker: drawn, never collides
     obstacle: bool = True  # counted by collision cost terms (non-visual only)
+    # unknown to the planner: the world simulates it, the planner's model lacks it, and only
+    # the sensors' scans show it (shared.scene.planner_scenario)
+    perceived: bool = False
 
 
 @dataclass(frozen=True)
@@ -376,6 +379,15 @@ def _object(s: Section) -> ObjectConfig:
         rgba=s.opt("rgba", (0.6, 0.6, 0.6, 1.0), vector(4), "[r, g, b, a] in 0..1"),
         visual=visual,
         obstacle=s.opt("obstacle", not visual, bool),
+        perceived=s.opt("perceived", False, bool),
     )
+    if obj.perceived and (not obj.fixed or obj.visual):
+        # a free one would add qpos the planner's model lacks; a marker collides with nothing
+        raise s.error(
+            "perceived",
+            "a perceived object must be fixed (a mocap body the world may move) and not visual",
+            True,
+            "fixed: true and visual: false, or perceived: false",
+        )
     s.done()
     return obj

@@ -20,6 +20,7 @@ from planner_client.costs.helpers import norm, sparse_norm
 from planner_client.costs.norms import fusable
 from planner_client.guide import GuideState
 from planner_client.sensors import SensorColumns, SensorRequest, add_sensors
+from planner_client.spheres import add_sphere_sites, robot_spheres
 from shared.config import ConfigError, Section
 from shared.frames import FrameResolver
 from shared.scenario import ObjectiveConfig, TermConfig
@@ -663,6 +664,7 @@ EXAMPLES = {
     "joint_limits": dict(joints=["y"]),
     "posture": dict(joints=["x", "y"]),
     "clearance": dict(a="robot", margin=0.1),
+    "perceived_clearance": dict(margin=0.1),
     "guide_progress": dict(),
     "guide_distance": dict(),
     "guide_handle": dict(a="robot"),
@@ -677,6 +679,8 @@ def test_all_terms_together_compile_and_give_finite_costs_at_rest(model, ctx):
     terms = [make(ctx, name, **params) for name, params in EXAMPLES.items()]
     requests = [r for t in terms for r in t.sensors()]
     spec = mujoco.MjSpec.from_string(MJCF)
+    # perceived_clearance reads sites at its spheres, which the planner adds only for it
+    add_sphere_sites(spec, robot_spheres(model, ctx.resolve), {r.obj for r in requests})
     add_sensors(spec, requests, ctx.resolve)
     m = spec.compile()
     d = mujoco.MjData(m)

@@ -93,10 +93,12 @@ def test_the_world_chooses_the_highest_common_version():
     assert P.choose_version(hello, 1) == 2
     assert P.choose_version(P.Hello(scenario="n", scenario_hash="h", versions=[1]), 1) == 1
     assert P.choose_version(P.Hello(scenario="n", scenario_hash="h"), 2) == 2  # no offer: its v
+    assert P.choose_version(P.Hello(scenario="n", scenario_hash="h", versions=[1, 2, 3]), 1) == 3
     with pytest.raises(
-        P.ProtocolError, match="the planner speaks versions 3, 9, this world speaks versions 1, 2"
+        P.ProtocolError,
+        match="the planner speaks versions 4, 9, this world speaks versions 1, 2, 3",
     ):
-        P.choose_version(P.Hello(scenario="n", scenario_hash="h", versions=[3, 9]), 1)
+        P.choose_version(P.Hello(scenario="n", scenario_hash="h", versions=[4, 9]), 1)
 
 
 def test_a_hello_of_an_unknown_version_offering_versions_names_both_sides():
@@ -106,7 +108,7 @@ def test_a_hello_of_an_unknown_version_offering_versions_names_both_sides():
     with pytest.raises(
         P.ProtocolError,
         match="no common protocol version: the peer speaks "
-        "version 9, this side speaks versions 1, 2",
+        "version 9, this side speaks versions 1, 2, 3",
     ):
         P.decode(frame, versions=P.VERSIONS)
 
@@ -134,7 +136,7 @@ def test_negotiation_with_a_current_world(nav, planner, tmp_path):
     client = _client(planner, nav, port)
     try:
         welcome = client.handshake(give_up=60)
-        assert client.version == 2 and welcome.session
+        assert client.version == 3 and welcome.session
 
         def ask(**hello):
             req = ctx.socket(zmq.REQ)
@@ -162,9 +164,11 @@ def test_negotiation_with_a_current_world(nav, planner, tmp_path):
         sub.close()
         raw, (reply, version) = ask(v=2)  # a planner from before the negotiation
         assert raw["type"] == "welcome" and version == 2
+        raw, (reply, version) = ask(v=1, versions=[1, 2])  # a version-2 planner
+        assert raw["type"] == "welcome" and version == 2
         raw, (reply, version) = ask(v=1, versions=[9])
-        assert isinstance(reply, P.Error) and reply.versions == [1, 2]
-        assert "the planner speaks version 9, this world speaks versions 1, 2" in reply.reason
+        assert isinstance(reply, P.Error) and reply.versions == [1, 2, 3]
+        assert "the planner speaks version 9, this world speaks versions 1, 2, 3" in reply.reason
     finally:
         _close(client)
         ctx.term()
@@ -298,7 +302,7 @@ def test_a_version_1_world_is_served_with_one_warning(nav, planner, caplog):
         assert client.version == 1
         # the offer (hello v1 + versions) is refused by the strict old world, the plain one not
         assert [h["accepted"] for h in world.hellos] == [False, True, False, True]
-        assert world.hellos[0]["versions"] == [1, 2] and "versions" not in world.hellos[1]
+        assert world.hellos[0]["versions"] == [1, 2, 3] and "versions" not in world.hellos[1]
         time.sleep(0.2)
         assert len(world.commands) >= 8 and not world.refused, world.refused[:2]
         assert all(c["v"] == 1 for c in world.commands)
@@ -313,8 +317,8 @@ def test_a_version_1_world_is_served_with_one_warning(nav, planner, caplog):
 @pytest.mark.parametrize(
     "answer, reason",
     [
-        ("welcome", "protocol version 9 not supported (this side speaks versions 1, 2)"),
-        ("error", "the world speaks protocol version 9, this planner speaks versions 1, 2"),
+        ("welcome", "protocol version 9 not supported (this side speaks versions 1, 2, 3)"),
+        ("error", "the world speaks protocol version 9, this planner speaks versions 1, 2, 3"),
     ],
 )
 def test_a_world_of_an_unknown_version_is_refused_with_the_reason(nav, planner, answer, reason):
