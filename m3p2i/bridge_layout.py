@@ -19,9 +19,10 @@ from typing import Any
 
 import mujoco
 
+from planner_client.problem import planner_scenario
 from shared.scenario import Scenario
 from shared.scenario.sensors import LidarConfig
-from shared.scene import WALL_NAMES, StateSizes, compile_model, planner_scenario
+from shared.scene import WALL_NAMES, StateSizes, compile_model
 
 _FREE, _BALL, _SLIDE, _HINGE = (
     mujoco.mjtJoint.mjJNT_FREE,

@@ -631,7 +631,7 @@ def keys_command(
     Another planner: `m3p2i keys OTHER`, copy OTHER/planner/planner.key into
     FOLDER/world/planners/ (under a name of its own) and FOLDER/world/world.key over
     OTHER/planner/world.key; the world reads its allow list when it starts."""
-    from shared.security import make_keys
+    from m3p2i.keys import make_keys
 
     try:
         written = make_keys(folder)

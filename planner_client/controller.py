@@ -35,6 +35,7 @@ from planner_client.attach import Attachments
 from planner_client.delay_estimate import ActuationDelayEstimate
 from planner_client.guide import Guide
 from planner_client.mirror import Mirror, MocapState
+from planner_client.model_state import get_full_state
 from planner_client.motion import Iteration, MotionPlanner
 from planner_client.task import TaskDecision, TaskLayer
 from planner_client.timing import LeadEstimate, predict, steps_between
@@ -42,7 +43,7 @@ from planner_client.variants import Identifier
 from shared import protocol as P
 from shared.scenario import DelayConfig
 from shared.scenario.faults import steps_of
-from shared.scene import STATE_FIELDS, StateSizes, get_full_state
+from shared.scene import STATE_FIELDS, StateSizes
 from shared.timed_plan import TimedPlan, held, mean_hz
 
 log = logging.getLogger("m3p2i.planner")

@@ -13,10 +13,11 @@ from dataclasses import dataclass
 import mujoco
 import numpy as np
 
+from planner_client.model_state import free_joint, get_full_state
 from planner_client.tracking import FreeBodyEstimator, MocapEstimator, filters_poses
 from shared.protocol import State
 from shared.scenario import TrackingConfig
-from shared.scene import STATE_FIELDS, free_joint, get_full_state, set_state
+from shared.scene import STATE_FIELDS, set_state
 
 
 @dataclass

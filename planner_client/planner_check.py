@@ -21,13 +21,14 @@ from planner_client.problem import (
     build_problem,
     check_terms,
     mppi_config,
+    planner_scenario,
 )
 from shared.config import ConfigError, ErrorLog
 from shared.frames import FrameResolver
 from shared.predicates import check_frames
 from shared.scenario import Scenario
 from shared.scenario_check import scenario_errors as _scenario_errors
-from shared.scene import build_spec, compile_model, planner_scenario
+from shared.scene import build_spec, compile_model
 
 
 def _planner_side(

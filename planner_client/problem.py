@@ -7,6 +7,7 @@ compiled. :class:`~planner_client.mirror.Mirror` copies each received state into
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -19,6 +20,7 @@ from planner_client.costs import JointInfo, Objective, RolloutBatch, TermContext
 from planner_client.costs.base import FieldSlot, FieldSource
 from planner_client.costs.objective import check_term_values
 from planner_client.guide import GuideState, add_site
+from planner_client.model_state import free_joint
 from planner_client.mppi import MPPIConfig
 from planner_client.plugins import import_plugins
 from planner_client.sensors import SensorColumns, SensorRequest, add_sensors
@@ -27,14 +29,7 @@ from shared.config import ConfigError, ErrorLog
 from shared.frames import FrameResolver
 from shared.robots import RobotSpec
 from shared.scenario import PlanningModel, Scenario
-from shared.scene import (
-    build_spec,
-    compile_model,
-    free_joint,
-    initial_data,
-    obstacle_names,
-    planner_scenario,
-)
+from shared.scene import WALL_NAMES, build_spec, compile_model, initial_data
 
 
 @dataclass
@@ -72,7 +67,7 @@ def robot_joints(scenario: Scenario, model: mujoco.MjModel) -> dict[str, JointIn
 
 def build_problem(scenario: Scenario, extra_sensors: list[SensorRequest] = ()) -> PlanningProblem:
     """The planner's model of ``scenario`` and its objectives, its perceived objects left out
-    (:func:`shared.scene.planner_scenario`: only the scans show them); ``problem.scenario`` is
+    (:func:`planner_scenario`: only the scans show them); ``problem.scenario`` is
     that view of the scenario."""
     scenario = planner_scenario(scenario)
     robot = scenario.robot.spec
@@ -302,3 +297,28 @@ def mppi_config(sc: Scenario, m: mujoco.MjModel) -> MPPIConfig:
     except (ValueError, TypeError) as exc:  # what needs the model: lengths against its actuators
         raise ConfigError(sc.source, "planner.mppi", str(exc)) from None
     return cfg
+
+
+def obstacle_names(scenario: Scenario) -> list[str]:
+    """Bodies a collision cost should keep the robot away from: walls and non-visual obstacles."""
+    names = list(WALL_NAMES) if scenario.world.arena else []
+    names += [o.name for o in scenario.world.objects if o.obstacle and not o.visual]
+    return names
+
+
+def planner_scenario(scenario: Scenario) -> Scenario:
+    """The scenario as the planner knows it: its world without the perceived objects
+    (``world.objects[].perceived``), nor the randomised starts and disturbances that move them
+    (the world's own business); ``scenario`` itself when none is perceived. Its hash is the
+    file's: both processes still loaded the same scenario."""
+    perceived = {o.name for o in scenario.world.objects if o.perceived}
+    if not perceived:
+        return scenario
+    w = scenario.world
+    world = dataclasses.replace(
+        w,
+        objects=tuple(o for o in w.objects if not o.perceived),
+        randomize=tuple(r for r in w.randomize if r.object not in perceived),
+        disturbances=tuple(d for d in w.disturbances if d.object not in perceived),
+    )
+    return dataclasses.replace(scenario, world=world)

@@ -62,18 +62,13 @@ from m3p2i.provenance import machine, versions
 from measure.speed_report import update
 from planner_client.build import build_controller
 from planner_client.controller import Controller
+from planner_client.model_state import get_full_state
 from planner_client.motion import MotionPlanner
-from planner_client.problem import apply_planning_model, tune_planning_model
+from planner_client.problem import apply_planning_model, planner_scenario, tune_planning_model
 from shared import protocol as P
 from shared.config import ConfigError
 from shared.scenario import Scenario, load_scenario
-from shared.scene import (
-    build_spec,
-    compile_model,
-    get_full_state,
-    initial_data,
-    planner_scenario,
-)
+from shared.scene import build_spec, compile_model, initial_data
 
 SCENARIOS = ("navigation", "push_pull", "push_pull_fast", "pick_place")
 

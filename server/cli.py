@@ -9,6 +9,8 @@ import signal
 from pathlib import Path
 from typing import Annotated
 
+import mujoco
+import numpy as np
 import typer
 
 from server.app import ServerOptions, WorldServer
@@ -40,7 +42,6 @@ from shared.config import ConfigError
 from shared.endpoints import DEFAULT_HOST, DEFAULT_PORT, Endpoints
 from shared.scenario import load_scenario
 from shared.scenario.faults import load_faults
-from shared.scene import scene_framing
 from shared.security import ExposureError, keys_for_cli, load_world_keys
 
 app = typer.Typer(add_completion=False)
@@ -278,3 +279,25 @@ def _security(hosts: dict[str, str], keys: Path | None, insecure: bool):
     except (ExposureError, ConfigError) as exc:
         typer.echo(f"error: {exc}", err=True)
         raise typer.Exit(2) from None
+
+
+def scene_framing(model: mujoco.MjModel, data: mujoco.MjData) -> tuple[np.ndarray, float]:
+    """Centre ``[3]`` and radius of what a camera should frame, after kinematics: every geom
+    by its bounding sphere, a wall (a plane not facing up) by its drawn size; the ground (a
+    plane facing up) is left out, or a Panda on its table would be a speck on 10 m of floor."""
+    lo, hi = np.full(3, np.inf), np.full(3, -np.inf)
+    for g in range(model.ngeom):
+        pos, rot = data.geom_xpos[g], data.geom_xmat[g].reshape(3, 3)
+        if model.geom_type[g] == mujoco.mjtGeom.mjGEOM_PLANE:
+            if rot[2, 2] > 0.99:
+                continue
+            sx, sy = model.geom_size[g][:2]
+            corners = np.array([[x, y, 0.0] for x in (-sx, sx) for y in (-sy, sy)])
+            points = corners @ rot.T + pos
+        else:
+            r = model.geom_rbound[g]
+            points = np.array([pos - r, pos + r])
+        lo, hi = np.minimum(lo, points.min(0)), np.maximum(hi, points.max(0))
+    if not np.all(np.isfinite(lo)):
+        return np.zeros(3), 1.0
+    return (lo + hi) / 2, max(float(np.linalg.norm(hi - lo)) / 2, 0.1)

@@ -18,6 +18,7 @@ import secrets
 from collections.abc import Callable
 from pathlib import Path
 
+import mujoco
 import numpy as np
 
 from server.episode_log import EpisodeLog, read_log
@@ -29,7 +30,6 @@ from server.world import SimWorld
 from shared import protocol as P
 from shared.scenario import Scenario
 from shared.scenario.faults import FaultConfig
-from shared.scene import published_mocap
 from shared.timed_plan import PlanPlayer, TimedPlan, held, mean_hz
 
 log = logging.getLogger("m3p2i.server")
@@ -376,3 +376,21 @@ class Episode:
         """Release the world (and the log, when the episode did not finish)."""
         self.log.close()
         self.world.close()
+
+
+def published_mocap(scenario: Scenario, model: mujoco.MjModel) -> np.ndarray | None:
+    """The rows of the world model's ``mocap_pos``/``mocap_quat`` that a state carries, in order:
+    all but the perceived objects' (nothing of theirs reaches the planner but scans, and its
+    model has no such rows); None when that is every row."""
+    perceived = {o.name for o in scenario.world.objects if o.perceived}
+    if not perceived:
+        return None
+    ids = model.body_mocapid
+    return np.array(
+        sorted(
+            int(ids[b])
+            for b in range(model.nbody)
+            if ids[b] >= 0 and model.body(b).name not in perceived
+        ),
+        dtype=int,
+    )

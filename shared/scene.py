@@ -1,15 +1,13 @@
 """Build a scenario's MuJoCo model with ``mujoco.MjSpec``.
 
 The server and the planner call the same builder on the same YAML, so they compile the same
-world, except for the perceived objects, which the planner builds without
-(:func:`planner_scenario`). The planner then adds sensors to its own copy of the spec (what its
-costs need) before compiling; sensors do not change the dynamics, so the mirrored state stays
-valid.
+world, but for the perceived objects, which the planner leaves out (planner_client.problem).
+The planner adds sensors to its copy of the spec (what its costs need); sensors do not change
+the dynamics, so the mirrored state stays valid.
 """
 
 from __future__ import annotations
 
-import dataclasses
 import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
@@ -52,42 +50,6 @@ def build_spec(scenario: Scenario) -> mujoco.MjSpec:
     return spec
 
 
-def planner_scenario(scenario: Scenario) -> Scenario:
-    """The scenario as the planner knows it: its world without the perceived objects
-    (``world.objects[].perceived``), nor the randomised starts and disturbances that move them
-    (the world's own business); ``scenario`` itself when none is perceived. Its hash is the
-    file's: both processes still loaded the same scenario."""
-    perceived = {o.name for o in scenario.world.objects if o.perceived}
-    if not perceived:
-        return scenario
-    w = scenario.world
-    world = dataclasses.replace(
-        w,
-        objects=tuple(o for o in w.objects if not o.perceived),
-        randomize=tuple(r for r in w.randomize if r.object not in perceived),
-        disturbances=tuple(d for d in w.disturbances if d.object not in perceived),
-    )
-    return dataclasses.replace(scenario, world=world)
-
-
-def published_mocap(scenario: Scenario, model: mujoco.MjModel) -> np.ndarray | None:
-    """The rows of the world model's ``mocap_pos``/``mocap_quat`` that a state carries, in order:
-    all but the perceived objects' (nothing of theirs reaches the planner but scans, and its
-    model has no such rows); None when that is every row."""
-    perceived = {o.name for o in scenario.world.objects if o.perceived}
-    if not perceived:
-        return None
-    ids = model.body_mocapid
-    return np.array(
-        sorted(
-            int(ids[b])
-            for b in range(model.nbody)
-            if ids[b] >= 0 and model.body(b).name not in perceived
-        ),
-        dtype=int,
-    )
-
-
 def compile_model(scenario: Scenario, spec: mujoco.MjSpec | None = None) -> mujoco.MjModel:
     """Compile (a possibly extended copy of) the scenario spec; checks ``robot.qpos`` fits."""
     spec = spec or build_spec(scenario)
@@ -118,28 +80,6 @@ def initial_data(scenario: Scenario, model: mujoco.MjModel) -> mujoco.MjData:
     data = mujoco.MjData(model)
     reset_data(scenario, model, data)
     return data
-
-
-def scene_framing(model: mujoco.MjModel, data: mujoco.MjData) -> tuple[np.ndarray, float]:
-    """Centre ``[3]`` and radius of what a camera should frame, after kinematics: every geom
-    by its bounding sphere, a wall (a plane not facing up) by its drawn size; the ground (a
-    plane facing up) is left out, or a Panda on its table would be a speck on 10 m of floor."""
-    lo, hi = np.full(3, np.inf), np.full(3, -np.inf)
-    for g in range(model.ngeom):
-        pos, rot = data.geom_xpos[g], data.geom_xmat[g].reshape(3, 3)
-        if model.geom_type[g] == mujoco.mjtGeom.mjGEOM_PLANE:
-            if rot[2, 2] > 0.99:
-                continue
-            sx, sy = model.geom_size[g][:2]
-            corners = np.array([[x, y, 0.0] for x in (-sx, sx) for y in (-sy, sy)])
-            points = corners @ rot.T + pos
-        else:
-            r = model.geom_rbound[g]
-            points = np.array([pos - r, pos + r])
-        lo, hi = np.minimum(lo, points.min(0)), np.maximum(hi, points.max(0))
-    if not np.all(np.isfinite(lo)):
-        return np.zeros(3), 1.0
-    return (lo + hi) / 2, max(float(np.linalg.norm(hi - lo)) / 2, 0.1)
 
 
 def _add_arena(world, arena) -> None:
@@ -192,13 +132,6 @@ def _add_object(world, obj: ObjectConfig) -> None:
         geom.mass = obj.mass
 
 
-def obstacle_names(scenario: Scenario) -> list[str]:
-    """Bodies a collision cost should keep the robot away from: walls and non-visual obstacles."""
-    names = list(WALL_NAMES) if scenario.world.arena else []
-    names += [o.name for o in scenario.world.objects if o.obstacle and not o.visual]
-    return names
-
-
 # What a world state holds besides time: the fields of the protocol's ``state`` message and of
 # the episode log's ``step`` records, in MuJoCo's names.
 STATE_FIELDS = ("qpos", "qvel", "act", "mocap_pos", "mocap_quat")
@@ -220,29 +153,6 @@ def set_state(model: mujoco.MjModel, data: mujoco.MjData, values: Mapping[str, A
         if value.size != sizes[name]:
             raise ValueError(f"{name} has {value.size} values, the model needs {sizes[name]}")
         getattr(data, name).flat[:] = value
-
-
-def free_joint(model: mujoco.MjModel, body: str) -> int:
-    """The id of body ``body``'s free joint (StopIteration if it has none)."""
-    b = model.body(body).id
-    return next(
-        j
-        for j in range(model.njnt)
-        if model.jnt_bodyid[j] == b and model.jnt_type[j] == mujoco.mjtJoint.mjJNT_FREE
-    )
-
-
-def state_size(model: mujoco.MjModel) -> int:
-    return mujoco.mj_stateSize(model, mujoco.mjtState.mjSTATE_FULLPHYSICS)
-
-
-def get_full_state(
-    model: mujoco.MjModel, data: mujoco.MjData, out: np.ndarray | None = None
-) -> np.ndarray:
-    """The full physics state vector [nstate] (mjSTATE_FULLPHYSICS), as mujoco.rollout expects."""
-    out = np.empty(state_size(model)) if out is None else out
-    mujoco.mj_getState(model, data, out, mujoco.mjtState.mjSTATE_FULLPHYSICS)
-    return out
 
 
 def contact_friction(

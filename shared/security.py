@@ -28,8 +28,6 @@ from __future__ import annotations
 
 import ipaddress
 import logging
-import os
-import shutil
 import stat
 from collections import deque
 from dataclasses import dataclass
@@ -85,56 +83,11 @@ class PlannerKeys:
 # ------------------------------------------------------------------------------ key files
 
 
-def make_keys(folder: Path) -> list[Path]:
-    """Write a world and a planner key pair into ``folder`` in the layout above (secret keys
-    0600, the key folders 0700), the planner's public key already allowed by the world and the
-    world's public key already beside the planner's pair. Refuses to replace existing keys
-    (planners deployed with them would be locked out). Returns the files written."""
-    _require_curve()
-    folder = Path(folder)
-    world, planner = folder / WORLD, folder / PLANNER
-    for existing in (world / "world.key_secret", planner / "planner.key_secret"):
-        if existing.exists():
-            raise ConfigError(
-                str(existing),
-                "",
-                "keys already exist here; choose another "
-                "folder, or delete this one first to replace them (every side "
-                "that holds the old keys must then get the new ones)",
-            )
-    written = []
-    old_umask = os.umask(0o077)  # the secret files never exist with looser modes, not even briefly
-    try:
-        for side in (world, planner):
-            side.mkdir(parents=True, exist_ok=True)
-            os.chmod(side, 0o700)
-            zmq.auth.create_certificates(str(side), side.name)
-        for allow in (world / ALLOW_WORLD, planner / ALLOW_PLANNER):
-            allow.mkdir(exist_ok=True)
-    finally:
-        os.umask(old_umask)
-    for public, copy in (
-        (planner / "planner.key", world / ALLOW_WORLD / "planner.key"),
-        (world / "world.key", planner / "world.key"),
-    ):
-        shutil.copyfile(public, copy)
-    for side in (world, planner):
-        for path in sorted(side.rglob("*")):
-            if path.is_dir():
-                os.chmod(path, 0o755)  # public-key folders: readable, like the public keys
-            elif path.name.endswith(".key_secret"):
-                os.chmod(path, 0o600)
-            else:
-                os.chmod(path, 0o644)
-            written.append(path)
-    return [p for p in written if p.is_file()]
-
-
 def load_world_keys(folder: Path) -> WorldKeys:
     """The world's keys from ``folder`` (the DIR of ``m3p2i keys DIR``, or its ``world``
     sub-folder); a missing or malformed file, a secret key readable by others or an empty
     allow list is a ConfigError naming the file and the fix."""
-    _require_curve()
+    require_curve()
     side = _side(Path(folder), WORLD)
     own = _load_pair(side / "world.key_secret")
     allow_dir = side / ALLOW_WORLD
@@ -153,7 +106,7 @@ def load_world_keys(folder: Path) -> WorldKeys:
 def load_planner_keys(folder: Path) -> PlannerKeys:
     """The planner's keys from ``folder`` (the DIR of ``m3p2i keys DIR``, or its ``planner``
     sub-folder); errors as :func:`load_world_keys`."""
-    _require_curve()
+    require_curve()
     side = _side(Path(folder), PLANNER)
     own = _load_pair(side / "planner.key_secret")
     world = _load_public(side / "world.key")
@@ -174,7 +127,7 @@ def _side(folder: Path, name: str) -> Path:
     )
 
 
-def _require_curve() -> None:
+def require_curve() -> None:
     if not zmq.has("curve"):
         raise ConfigError(
             "libzmq",

@@ -9,9 +9,10 @@ from dataclasses import dataclass
 import mujoco
 import numpy as np
 
+from planner_client.model_state import get_full_state
 from planner_client.problem import PlanningProblem, build_problem
 from shared.scenario import load_scenario
-from shared.scene import get_full_state, initial_data
+from shared.scene import initial_data
 
 
 @dataclass

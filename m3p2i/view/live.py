@@ -16,10 +16,11 @@ import zmq
 
 from m3p2i.view.drawing import PANEL_HZ, PATH_STEP, SCENE_HZ, PanelInfo, SceneDrawing, robot_frame
 from m3p2i.view.page import viser_server
+from server.episode import published_mocap
 from shared import protocol as P
 from shared.endpoints import Endpoints, socket
 from shared.scenario import Scenario
-from shared.scene import compile_model, initial_data, published_mocap, set_state
+from shared.scene import compile_model, initial_data, set_state
 from shared.security import PlannerKeys, curve_client
 
 log = logging.getLogger("m3p2i.view")

@@ -20,7 +20,8 @@ import numpy as np
 
 from planner_client.perception.grid import GridSpec
 from planner_client.perception.raycast import crossed
-from shared.scans import Scan, world_rays
+from planner_client.perception.rays import world_rays
+from shared.scans import Scan
 
 
 @dataclass(frozen=True)

@@ -25,9 +25,10 @@ import numpy as np
 from mujoco import rollout as mj_rollout
 from rich.table import Table
 
+from planner_client.model_state import get_full_state
 from planner_client.problem import build_problem
 from shared.scenario import load_scenario
-from shared.scene import get_full_state, initial_data
+from shared.scene import initial_data
 
 _FLAGS = mujoco.mjtDisableBit
 VARIANTS = {

@@ -42,7 +42,7 @@ class ObjectConfig:
     visual: bool = False  # a marker: drawn, never collides
     obstacle: bool = True  # counted by collision cost terms (non-visual only)
     # unknown to the planner: the world simulates it, the planner's model lacks it, and only
-    # the sensors' scans show it (shared.scene.planner_scenario)
+    # the sensors' scans show it (planner_client.problem.planner_scenario)
     perceived: bool = False
 
 

@@ -284,8 +284,9 @@ def test_the_views_controls_pass_a_keyed_world(tmp_path):
     that allows only that key takes its ops."""
     import threading
 
+    from m3p2i.keys import make_keys
     from m3p2i.view import ControlClient
-    from shared.security import load_planner_keys, load_world_keys, make_keys
+    from shared.security import load_planner_keys, load_world_keys
 
     make_keys(tmp_path / "keys")
     port = free_port_block()

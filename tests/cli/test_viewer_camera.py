@@ -14,8 +14,9 @@ import numpy as np
 import pytest
 
 from m3p2i.launch import free_port_block
+from server.cli import scene_framing
 from shared.scenario import load_scenario
-from shared.scene import compile_model, initial_data, scene_framing
+from shared.scene import compile_model, initial_data
 from tests.browser import hue_share
 from tests.helpers import ENV, stop
 

@@ -11,12 +11,12 @@ import pytest
 import torch
 
 from planner_client.costs import TERMS, RolloutBatch, TermContext
-from planner_client.problem import build_problem
+from planner_client.problem import build_problem, obstacle_names
 from planner_client.sensors import SensorColumns, add_sensors
 from shared.config import ConfigError, Section
 from shared.frames import FrameResolver
 from shared.scenario import load_scenario
-from shared.scene import build_spec, compile_model, obstacle_names
+from shared.scene import build_spec, compile_model
 from tests.planner_client.test_cost_terms import MJCF  # the cost-term tests' small model
 
 F64 = torch.float64

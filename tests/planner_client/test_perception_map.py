@@ -21,10 +21,11 @@ from planner_client.perception.grid import GridSpec
 from planner_client.perception.grid2d import OccupancyGrid2D
 from planner_client.perception.occupancy import MapConfig
 from planner_client.perception.raycast import crossed
+from planner_client.perception.rays import world_rays
 from planner_client.perception.sdf import compose, distance_field, far, known_field
 from planner_client.perception.updater import MapUpdater
 from planner_client.perception.voxels import VoxelGrid
-from shared.scans import Scan, world_rays
+from shared.scans import Scan
 
 SCENE = """
 <mujoco>

@@ -20,11 +20,12 @@ from planner_client import plugins as P
 from planner_client.backends.mujoco_pool import MujocoPoolBackend
 from planner_client.build import build_controller
 from planner_client.costs import TERMS
+from planner_client.model_state import get_full_state
 from planner_client.problem import build_problem
 from planner_client.sensors import SensorRequest
 from server.inprocess import run_episode
 from shared.scenario import load_scenario
-from shared.scene import get_full_state, initial_data
+from shared.scene import initial_data
 from tests.user_folder import DISTANCE_TERMS, reach, user_folder
 
 ROOT = Path(__file__).resolve().parents[2]

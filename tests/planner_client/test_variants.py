@@ -15,6 +15,7 @@ import torch
 import yaml
 
 from planner_client.build import build_controller, build_motion_planner
+from planner_client.model_state import get_full_state
 from planner_client.problem import build_problem
 from planner_client.variants import (
     AGGREGATES,
@@ -32,7 +33,7 @@ from shared import protocol as P
 from shared.config import ConfigError
 from shared.scenario import SCENARIO_DIR, load_scenario, parse_scenario
 from shared.scenario.faults import PROFILES, load_faults
-from shared.scene import get_full_state, initial_data
+from shared.scene import initial_data
 from shared.timed_plan import TimedPlan
 
 VARIANTS = {"count": 4, "params": {"mass": 0.5, "friction": 0.5}, "identify": {}}

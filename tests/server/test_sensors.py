@@ -23,6 +23,7 @@ from m3p2i.bridge_layout import bridge_layout
 from m3p2i.launch import free_port_block
 from m3p2i.layout_table import print_layout
 from planner_client.build import build_controller
+from planner_client.perception.rays import rotation
 from planner_client.planner_check import scenario_errors as planner_errors
 from planner_client.problem import build_problem
 from server.episode import Episode
@@ -32,7 +33,7 @@ from server.world import SimWorld
 from server.world_check import scenario_errors as world_errors
 from shared import protocol as P
 from shared.endpoints import Endpoints
-from shared.scans import Scan, ray_directions, rotation
+from shared.scans import Scan, ray_directions
 from shared.scenario import parse_scenario
 from shared.scenario.faults import PROFILES, FaultConfig
 from tests.helpers import start_server, stop

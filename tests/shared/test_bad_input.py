@@ -263,7 +263,7 @@ def _view_cli(monkeypatch, *argv: str):
 def test_m3p2i_view_keys_needs_only_the_planners_pair(monkeypatch, tmp_path):
     import shutil
 
-    from shared.security import make_keys
+    from m3p2i.keys import make_keys
 
     make_keys(tmp_path / "keys")
     shutil.rmtree(tmp_path / "keys" / "world")  # a planner machine holds only DIR/planner

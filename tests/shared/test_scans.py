@@ -15,9 +15,10 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
+from planner_client.perception.rays import rotation, world_points
 from shared import protocol as P
 from shared.config import ConfigError
-from shared.scans import Scan, check_scan, rotation, world_points
+from shared.scans import Scan, check_scan
 from shared.scenario import parse_scenario
 from shared.scenario.sensors import DepthConfig, LidarConfig
 from tests.shared.test_fuzz import FUZZ, hostile

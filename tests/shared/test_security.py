@@ -14,6 +14,7 @@ import zmq
 from typer.testing import CliRunner
 
 from m3p2i.cli import app as m3p2i
+from m3p2i.keys import make_keys
 from m3p2i.launch import EpisodeLaunch
 from m3p2i.video import DiagnosticsRecorder, read_tops
 from server.app import ServerOptions, WorldServer
@@ -30,7 +31,6 @@ from shared.security import (
     keys_for_cli,
     load_planner_keys,
     load_world_keys,
-    make_keys,
 )
 from tests.helpers import (
     StateWatcher,
