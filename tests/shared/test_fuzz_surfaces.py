@@ -1,8 +1,8 @@
 """The newer surfaces a user's files reach, fuzzed (Hypothesis) at their edges: robot files and
-their MJCF's actuators (ranges, limits, safe control, units), ``planner.model.variants`` and
-``guide:``. Every case loads or raises ``ConfigError`` naming the file and a key; a robot that
-loads holds still on its safe control with finite controls and state, and the variants and the
-guide grid a loaded scenario asks for stay within the bounds their schema states.
+their MJCF's actuators (ranges, limits, safe control, units), ``planner.model.variants``,
+``guide:`` and ``sensors:``. Every case loads or raises ``ConfigError`` naming the file and a
+key; a robot that loads holds still on its safe control with finite controls and state, and the
+variants, guide grid and sensors a loaded scenario asks for stay within their stated bounds.
 
 Derandomized, no example database, sized to a few seconds."""
 
@@ -113,7 +113,10 @@ def _leaves(node: dict, prefix: tuple = ()) -> list[tuple]:
 def _mutated(name: str, section: tuple[str, ...], extra: list[str], data) -> dict:
     """Scenario ``name`` with one or two values under ``section`` (its own, or keys of
     ``extra`` it leaves at their defaults) replaced by edges or plain values."""
-    raw = copy.deepcopy(load_yaml(find_scenario(name)))
+    return _mutated_node(copy.deepcopy(load_yaml(find_scenario(name))), section, extra, data)
+
+
+def _mutated_node(raw: dict, section: tuple, extra: list[str], data) -> dict:
     node = raw
     for key in section:
         node = node[key]
@@ -163,3 +166,31 @@ def test_a_guide_at_its_edges_loads_within_its_grid_bound_or_names_the_key(tmp_p
     if sc is None:
         return
     assert grid_cells(sc.guide.resolution, sc.world.span()) <= GUIDE_MAX_CELLS
+
+
+SENSORS = [
+    {"name": "lidar", "type": "lidar", "pos": [0.0, 0.0, 0.25], "range": [0.05, 6.0]},
+    {"name": "camera", "type": "depth", "pos": [0.0, 0.0, 2.0], "look_at": [0.0, 0.0, 0.0]},
+]
+
+
+@FUZZ
+@given(data=st.data())
+def test_sensor_keys_at_their_edges_load_within_their_bounds_or_name_the_key(
+    tmp_path_factory, data
+):
+    raw = copy.deepcopy(load_yaml(find_scenario("navigation")))
+    raw["sensors"] = copy.deepcopy(SENSORS)
+    extra = ["rays", "fov", "rate", "frame", "width", "height", "fovy", "euler"]
+    raw = _mutated_node(raw, ("sensors", data.draw(st.sampled_from([0, 1]))), extra, data)
+    path = tmp_path_factory.mktemp("sensors") / "s.yaml"
+    path.write_text(yaml.safe_dump(raw))
+    sc = _load_or_named_error(path)
+    if sc is None:
+        return
+    for s in sc.sensors:
+        assert 0 <= s.range[0] < s.range[1] and 0 < s.rate <= 100
+        if s.kind == "lidar":
+            assert 1 <= s.rays <= 4096 and 0 < s.fov <= 360
+        else:
+            assert s.width * s.height <= 320 * 240 and 0 < s.fovy < 180
