@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+import functools
 from collections.abc import Callable
 from pathlib import Path
 
@@ -14,6 +15,7 @@ from planner_client.backends import make_backend
 from planner_client.controller import Controller, Parts
 from planner_client.guide import Guide
 from planner_client.loop import PlannerClient
+from planner_client.maps import build_map, lidar_names, map_config
 from planner_client.mirror import Mirror
 from planner_client.motion import MotionPlanner
 from planner_client.observers import SymbolicObserver
@@ -99,8 +101,9 @@ def build_task(scenario: Scenario, motion: MotionPlanner) -> TaskLayer:
 def build_parts(motion: MotionPlanner, task: TaskLayer) -> Parts:
     """The collaborators a :class:`Controller` drives for ``motion`` and ``task``: the mirror
     (with ``planner.tracking``'s filters), the attachments of ``planner.model.attach``, the
-    guide of ``guide``, and, with ``planner.model.variants.identify``, the maker of the
-    identifier that reweights the motion planner's variants."""
+    guide of ``guide``, the maker of the map of the scenario's lidars (:mod:`planner_client.maps`)
+    and, with ``planner.model.variants.identify``, the maker of the identifier that reweights
+    the motion planner's variants."""
     problem = motion.problem
     pc = problem.scenario.planner
     mirror = Mirror(
@@ -113,6 +116,10 @@ def build_parts(motion: MotionPlanner, task: TaskLayer) -> Parts:
     if problem.guide is not None:  # it plans on the planner's map too, once there is one
         guide = Guide(problem.guide, problem.model, problem.resolve, problem.field_source)
     parts = Parts(motion, task, mirror, attachments, guide)
+    if lidar_names(problem.scenario):
+        map_config(problem.scenario)  # a faulty planner.map stops the planner here, not later
+        # made at Controller.begin: whether it runs a thread depends on the world's mode
+        parts.map = functools.partial(build_map, problem)
     variants = motion.variants
     if variants is not None and variants.cfg.identify is not None:
         estimator = mirror.estimator

@@ -258,9 +258,15 @@ def _plan(client, scenario: str, warned) -> None:
         f", {client.dropped_states} bad state messages dropped" if client.dropped_states else ""
     )
     mujoco = f", {warned.total} MuJoCo warnings" if warned.total else ""
+    m = stats.map
+    mapped = (
+        f", map: {m['fields']:.0f} fields, {m['rate_hz']:.1f} Hz, {m['update_s'] * 1e3:.1f} ms each"
+        if m
+        else ""
+    )
     typer.echo(
         f"planner: {stats.iterations} iterations, {stats.hz:.1f} Hz, "
-        f"episode {stats.final_status or 'not finished'}{fallbacks}{dropped}{mujoco}"
+        f"episode {stats.final_status or 'not finished'}{fallbacks}{dropped}{mujoco}{mapped}"
     )
     raise typer.Exit(0 if stats.final_status == "success" else 1)
 

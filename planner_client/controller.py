@@ -37,6 +37,7 @@ from planner_client.guide import Guide
 from planner_client.mirror import Mirror, MocapState
 from planner_client.model_state import get_full_state
 from planner_client.motion import Iteration, MotionPlanner
+from planner_client.perception.updater import MapUpdater
 from planner_client.task import TaskDecision, TaskLayer
 from planner_client.timing import LeadEstimate, predict, steps_between
 from planner_client.variants import Identifier
@@ -75,6 +76,7 @@ class LoopStats:
 
     iterations: int = 0
     plan_times: list[float] = field(default_factory=list)
+    map: dict[str, float] | None = None  # the lidar map's MapUpdater.stats(), at its close
     action_changes: list[tuple[float, str, tuple[str, ...]]] = field(default_factory=list)
     final_status: str = ""
     safe_fallbacks: int = 0  # commands that were the safe control because there was no plan
@@ -102,8 +104,10 @@ class Parts:
     """One episode's collaborators of a :class:`Controller`, built together from one scenario
     (``planner_client.build.build_parts``): the motion planner, the task layer, the mirror of
     the world in the planner's model, the attachments (welds of held objects), the global
-    guide, and the maker of the model identifier, which needs the world's step (known at
-    :meth:`Controller.begin`) and reweights the planner's own variants."""
+    guide, the maker of the lidars' map (threaded or not: the world's mode is known at
+    :meth:`Controller.begin`; None without a lidar), and the maker of the model identifier,
+    which needs the world's step (known at :meth:`Controller.begin`) and reweights the
+    planner's own variants."""
 
     motion: MotionPlanner
     task: TaskLayer
@@ -111,6 +115,7 @@ class Parts:
     attachments: Attachments
     guide: Guide | None = None
     identifier: Callable[[float], Identifier | None] = lambda dt: None
+    map: Callable[[bool], MapUpdater | None] = lambda threaded: None
 
 
 Renew = Callable[[int | None], Parts]
@@ -152,6 +157,8 @@ class Controller:
         self._ahead_logged = 0
         self._last_start: tuple[float, int] | None = None  # (t_eff, state seq) of the last plan
         self._faults = 0  # consecutive iterations without a plan (Iteration.fault)
+        self.map: MapUpdater | None = None  # the lidars' map, made at begin
+        self._map_threaded = False
 
     def begin(
         self, mode: str, dt: float, seed: int | None = None, new_episode: bool = False
@@ -179,6 +186,15 @@ class Controller:
             reach = max(reach, self.identifier.reach)
         self._sent = deque(maxlen=max(16, reach + 8))
         self._last_start = None
+        self._open_map(threaded=mode == "realtime")
+
+    def _open_map(self, threaded: bool) -> None:
+        """Make the lidars' map, or keep the one made for this mode (a reconnection keeps
+        what it has seen)."""
+        if self.map is not None and self._map_threaded == threaded:
+            return
+        self._close_map()
+        self.map, self._map_threaded = self.parts.map(threaded), threaded
 
     def _new_episode(self, seed: int | None) -> None:
         """Start over for a new episode of the world (``renew``), sampling with the world's
@@ -243,6 +259,10 @@ class Controller:
                 self.robot.safe_stop(self._last_ctrl),
                 self._acting_steps() * self.dt,
             )
+        if self.map is not None and state.scans:  # the map fused before anything reads it
+            self.map.submit(state.scans)
+            if self.mode != "realtime":  # lock-step: here, so the episode stays its seed's
+                self.map.update_now()
         extras = state.extras
         if self.guide is not None:  # the global path, recomputed beside the planner
             self.guide.update(self.mirror.data, wait=self.mode != "realtime")
@@ -420,7 +440,17 @@ class Controller:
         self.stats.safe_fallbacks += 1
 
     def close(self) -> None:
-        """Release the motion planner's rollout workers and the guide's thread."""
+        """Release the motion planner's rollout workers, the guide's thread and the map's."""
         self.motion.close()
         if self.guide is not None:
             self.guide.close()
+        self._close_map()
+
+    def _close_map(self) -> None:
+        """Stop the map (its figures kept in :attr:`stats`) and empty the field slot."""
+        if self.map is None:
+            return
+        self.map.close()
+        self.stats.map = self.map.stats()
+        self.motion.problem.field_source.connect(None)
+        self.map = None

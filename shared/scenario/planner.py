@@ -75,6 +75,7 @@ class PlannerConfig:
     # the mirror's filters for the free bodies
     tracking: TrackingConfig = field(default_factory=TrackingConfig)
     delays: DelayConfig = DelayConfig()  # the robot's unseen delays, compensated by prediction
+    map: dict = field(default_factory=dict)  # the lidar map's keys, read by planner_client.maps
 
     def step(self, world: WorldConfig) -> float:
         """Seconds per planned control step: ``timestep``, or the world's."""
@@ -106,6 +107,7 @@ def read_planner(s: Section) -> PlannerConfig:
         model=read_planning_model(s.section("model", required=False)),
         tracking=read_tracking(s.section(s.renamed("estimate", "tracking"), required=False)),
         delays=_delays(s.section("delays", required=False)),
+        map=s.opt("map", {}, dict, "{resolution: m, rate: Hz}"),
     )
     s.done()
     _check_variants(s, cfg)
