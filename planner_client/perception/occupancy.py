@@ -14,6 +14,7 @@ about ``(l_max - threshold) / -l_free`` scans that see through it
 from __future__ import annotations
 
 import math
+from abc import ABC, abstractmethod
 from dataclasses import dataclass
 
 import numpy as np
@@ -83,7 +84,7 @@ class Rays:
     hit: np.ndarray
 
 
-class OccupancyMap:
+class OccupancyMap(ABC):
     """Log-odds ``logodds`` (float32, ``spec.shape``) over ``spec``, updated by :meth:`insert`;
     ``time`` is the world time of the newest scan in it, ``scans`` how many it fused. A
     subclass says which scans it reads (:meth:`accepts`) and which of their rays
@@ -97,13 +98,13 @@ class OccupancyMap:
         self.time = -math.inf
         self.scans = 0
 
+    @abstractmethod
     def accepts(self, scan: Scan) -> bool:
         """Whether this map reads scans of ``scan``'s kind."""
-        raise NotImplementedError
 
+    @abstractmethod
     def rays(self, scan: Scan) -> Rays:
         """The rays of ``scan`` this map fuses, in its dimensions."""
-        raise NotImplementedError
 
     def insert(self, scan: Scan) -> None:
         """Fuse one scan (module docstring); a ``ValueError`` for one it does not read."""
