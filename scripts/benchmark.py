@@ -62,9 +62,11 @@ from m3p2i.provenance import machine, versions
 from measure.speed_report import update
 from planner_client.build import build_controller
 from planner_client.controller import Controller
+from planner_client.maps import map_config
 from planner_client.model_state import get_full_state
 from planner_client.motion import MotionPlanner
 from planner_client.problem import apply_planning_model, planner_scenario, tune_planning_model
+from server.sensors import RangeSensors
 from shared import protocol as P
 from shared.config import ConfigError
 from shared.scenario import Scenario, load_scenario
@@ -94,6 +96,33 @@ def _variant_copies(planner: MotionPlanner) -> int:
         if planner.variants is not None and planner.variants.cfg.spread == "all"
         else 1
     )
+
+
+@dataclasses.dataclass
+class _Sensing:
+    """The scenario's range sensors read off the world the controller drives: the world's
+    full model (with the objects only the sensors show; they stand still here) posed as the
+    planner's copy of the world, so the map is fed as a lock-step world feeds it."""
+
+    world: mujoco.MjModel
+    data: mujoco.MjData
+    sensors: RangeSensors
+
+    @classmethod
+    def of(cls, scenario: Scenario) -> _Sensing | None:
+        """None for a scenario without sensors."""
+        if not scenario.sensors:
+            return None
+        world = compile_model(scenario)
+        return cls(world, initial_data(scenario, world), RangeSensors(scenario, world))
+
+    def scans(self, data: mujoco.MjData) -> list:
+        """The readings due at ``data``'s time (the planner's model: the same joints, as its
+        perceived objects are fixed)."""
+        self.data.qpos[:], self.data.time = data.qpos, data.time
+        mujoco.mj_kinematics(self.world, self.data)
+        self.sensors.update(self.world, self.data)
+        return self.sensors.take()
 
 
 def _lockstep_state(data: mujoco.MjData, seq: int) -> P.State:
@@ -127,10 +156,12 @@ class _Bench:
     block: int  # timed calls per block
     world_data: list[mujoco.MjData]  # one per rollout thread
     own_data: list[mujoco.MjData]
+    sensing: _Sensing | None
     work: list[tuple[np.ndarray, np.ndarray]] = dataclasses.field(default_factory=list)
     times: dict[str, list[float]] = dataclasses.field(
         default_factory=lambda: {"plan": [], "world": [], "own": [], "sensors": []}
     )
+    map_times: list[float] = dataclasses.field(default_factory=list)  # s per map update
     seq: Iterator[int] = dataclasses.field(default_factory=itertools.count)
     replayed: Iterator[int] = dataclasses.field(default_factory=itertools.count)
 
@@ -156,6 +187,7 @@ class _Bench:
             block=block,
             world_data=[mujoco.MjData(world) for _ in range(nthread)],
             own_data=[mujoco.MjData(own) for _ in range(nthread)],
+            sensing=_Sensing.of(scenario),
         )
 
     def run_round(self, pool: mj_rollout.Rollout) -> None:
@@ -180,7 +212,9 @@ class _Bench:
     def _plan_step(self) -> float:
         """One controller step, timed by itself (the command's ``plan_time``): the world's
         step and the copies kept for the replays around it are the harness's work, not the
-        planner's (60 µs of navigation's)."""
+        planner's (60 µs of navigation's). The map is updated before it, timed apart: a
+        real-time planner updates it beside its iterations (planner_client/perception)."""
+        self._update_map()
         cmd = self.controller.step(_lockstep_state(self.data, next(self.seq)))
         # the start state the iteration rolled out from: the mirror's (no delays: no prediction)
         x0 = get_full_state(self.model, self.controller.mirror.data).copy()
@@ -189,6 +223,18 @@ class _Bench:
         self.data.ctrl[:] = cmd.ctrl
         mujoco.mj_step(self.model, self.data)
         return cmd.plan_time
+
+    def _update_map(self) -> None:
+        """Feed the map the scans due now and update it, as a lock-step controller does at a
+        state that brings scans; its time goes to ``map_times``."""
+        if self.sensing is None or self.controller.map is None:
+            return
+        scans = self.sensing.scans(self.data)
+        if scans:
+            self.controller.map.submit(scans)
+            t = time.perf_counter()
+            self.controller.map.update_now()
+            self.map_times.append(time.perf_counter() - t)
 
     def _world_rollout(self, pool: mj_rollout.Rollout) -> None:
         # sensors add no state, so the planner's x0 is a valid world state
@@ -263,6 +309,22 @@ def _row(scenario: Scenario, bench: _Bench, nthread: int, backend: str, device: 
         "threads": nthread,
         "backend": backend,
         "device": device if backend == "warp" else "cpu",
+        **_map_figures(scenario, bench),
+    }
+
+
+def _map_figures(scenario: Scenario, bench: _Bench) -> dict:
+    """A scenario with sensors: the map's median update (fusing the scans due and its signed
+    distance field), the rate it is updated at (the slower of the fastest sensor and
+    ``planner.map.rate``) and the share of one core that takes."""
+    if not bench.map_times:
+        return {}
+    update = float(np.median(bench.map_times))
+    rate = min(max(s.rate for s in scenario.sensors), map_config(scenario).rate_hz)
+    return {
+        "map_update_ms": round(update * 1e3, 3),
+        "map_rate_hz": rate,
+        "map_core_share": round(update * rate, 4),
     }
 
 

@@ -42,6 +42,7 @@ def markdown(results: dict, source: str) -> str:
             f"{spread(col('ratio_to_own_rollout'), 2)} | "
             f"{spread(col('ratio_to_sensor_rollout'), 2)} |"
         )
+    lines += perception(results)
     lines += [
         "",
         f"Median (min-max) over {results['runs']} runs of `{results['command']}`, "
@@ -51,6 +52,44 @@ def markdown(results: dict, source: str) -> str:
         f"median of {results['iterations']} iterations per run; from `{source}`.",
     ]
     return "\n".join(lines)
+
+
+# a scenario that sees its obstacles only through sensors -> the same obstacles declared
+DECLARED = {"navigation_seen": "navigation_clear"}
+
+
+def perception(results: dict) -> list[str]:
+    """The map's figures of the cases with sensors (their rows carry ``map_*``), and each
+    one's iteration against the same obstacles declared (:data:`DECLARED`), run by run; no
+    lines for a file without such cases."""
+    by_run: dict[tuple, dict] = {}
+    for row in results["rows"]:
+        by_run[(row["scenario"], row.get("run", 0))] = row
+    seen = sorted({name for (name, _), row in by_run.items() if "map_update_ms" in row})
+    if not seen:
+        return []
+    lines = [
+        "",
+        "| scenario | iteration ms | against its obstacles declared | map update ms | "
+        "map updates / s | share of a core |",
+        "|---|---:|---:|---:|---:|---:|",
+    ]
+    for name in seen:
+        rows = [r for (n, _), r in by_run.items() if n == name]
+        ref = DECLARED.get(name)
+        ratios = [
+            r["iteration_ms"] / by_run[(ref, r.get("run", 0))]["iteration_ms"]
+            for r in rows
+            if (ref, r.get("run", 0)) in by_run
+        ]
+        against = f"{spread(ratios, 2)} × `{ref}`" if ratios else "–"
+        col = lambda key, rows=rows: [r[key] for r in rows]  # noqa: E731 - one table's columns
+        lines.append(
+            f"| `{name}` | {spread(col('iteration_ms'), 2)} | {against} | "
+            f"{spread(col('map_update_ms'), 2)} | {rows[0]['map_rate_hz']:g} | "
+            f"{spread(col('map_core_share'), 3)} |"
+        )
+    return lines
 
 
 def update(text: str, base: Path) -> str:

@@ -47,3 +47,30 @@ def test_the_speed_table_gives_median_and_range_over_the_runs(tmp_path):
     assert speed_report.update(new, tmp_path) == new
     with pytest.raises(typer.BadParameter, match="no '<!-- benchmark PATH -->'"):
         speed_report.update("no block here", tmp_path)
+
+
+def test_a_seen_scenario_is_set_against_its_declared_obstacles_run_by_run():
+    def case(name: str, run: int, ms: float, **extra) -> dict:
+        return {**_row(run, 1000 / ms, 1.5), "scenario": name, **extra}
+
+    mapped = {"map_rate_hz": 10.0}
+    results = {
+        "command": "c",
+        "date": "d",
+        "machine": "m",
+        "threads": 2,
+        "iterations": 200,
+        "runs": 2,
+        "rows": [
+            case("navigation_clear", 0, 2.0),
+            case("navigation_seen", 0, 2.2, map_update_ms=3.0, map_core_share=0.03, **mapped),
+            case("navigation_clear", 1, 4.0),  # a slow run: the ratio pairs runs, not medians
+            case("navigation_seen", 1, 4.0, map_update_ms=5.0, map_core_share=0.05, **mapped),
+        ],
+    }
+    text = speed_report.markdown(results, "x.json")
+    row = next(line for line in text.splitlines() if line.startswith("| `navigation_seen` | 3.10"))
+    assert "1.05 (1.00-1.10) × `navigation_clear`" in row
+    assert "| 4.00 (3.00-5.00) | 10 | 0.040 (0.030-0.050) |" in row
+    plain = {**results, "rows": [case("navigation", 0, 2.0)]}
+    assert "map update" not in speed_report.markdown(plain, "x.json")
