@@ -240,6 +240,8 @@ class Controller:
         with the whole plan dated for when it takes effect; None (logged) when ``state`` does
         not fit the planner's model. :attr:`last` keeps the tick for :meth:`diagnostics`."""
         t0 = time.perf_counter()
+        phases = self.motion.phases
+        phases.start()
         try:
             x0 = self.mirror.apply(state)  # 1. mirror
         except ValueError as exc:
@@ -247,6 +249,7 @@ class Controller:
             return None
         if self.attachments.track(self.mirror.data, self.mirror.received_qpos):
             x0 = self.mirror.refresh()
+        phases.mark("mirror")
         if self._actuation is not None:  # 2. estimate
             self._actuation.observe(
                 self.mirror.data, list(self._sent), self.robot.safe_stop(self._last_ctrl)
@@ -259,19 +262,24 @@ class Controller:
                 self.robot.safe_stop(self._last_ctrl),
                 self._acting_steps() * self.dt,
             )
+        phases.mark("estimate")
         if self.map is not None and state.scans:  # the map fused before anything reads it
             self.map.submit(state.scans)
             if self.mode != "realtime":  # lock-step: here, so the episode stays its seed's
                 self.map.update_now()
+        phases.mark("map")
         extras = state.extras
         if self.guide is not None:  # the global path, recomputed beside the planner
             self.guide.update(self.mirror.data, wait=self.mode != "realtime")
             extras = {**extras, **self.guide.extras()}
+        phases.mark("guide")
         decision = self.task.decide(self.mirror.data, extras, state.time)  # 3. task
         if self.attachments.welds:
             self.attachments.update(self.mirror.data, self.task.last_observation, state.time)
         self.motion.set_modes(decision.modes)  # 4. modes
+        phases.mark("task")
         start, x0, mocap = self._plan_start(state, x0)  # 5. plan start
+        phases.mark("start")
         it = self.motion.iterate(x0, mocap)  # 6. M3P2I
         self._note_fault(it, state.time)
         if decision.stop or it.fault is not None:  # 7. command
@@ -307,6 +315,7 @@ class Controller:
             log.info(
                 "t=%.2f s: action %s, modes %s", state.time, decision.action, list(decision.modes)
             )
+        phases.mark("command")
         return command
 
     def diagnostics(self) -> P.Diagnostics:

@@ -23,6 +23,7 @@ from planner_client.backends.mujoco_pool import MujocoPoolBackend
 from planner_client.costs import CostTerm, RolloutBatch
 from planner_client.mirror import MocapState
 from planner_client.mppi import M3P2I, ModeSpec, MPPIConfig, PlanResult
+from planner_client.phases import PhaseClock
 from planner_client.problem import PlanningProblem
 from planner_client.variants import AGGREGATES, VariantModels
 
@@ -85,6 +86,7 @@ class MotionPlanner:
         self.samples = samples
         self.top_k = top_k
         self.engine = backend if backend is not None else MujocoPoolBackend(problem.model, nthread)
+        self.phases = PhaseClock()  # the iteration's split, with the controller's phases
         self.device = self.engine.device
         self.mppi = M3P2I(
             cfg, [self._mode(m) for m in modes], dtype=torch.float64, device=self.device
@@ -136,6 +138,7 @@ class MotionPlanner:
 
     def _iterate(self, x0: np.ndarray, mocap: MocapState | None) -> Iteration:
         V = self.mppi.sample()  # [S, T, nu]
+        self.phases.mark("sampling")
         self._last_V = V
         path = None
         if mocap is not None:
@@ -145,9 +148,12 @@ class MotionPlanner:
                 path = mocap.pos[None] + mocap.vel[None] * steps  # [T, nmocap, 3]
         if self.variants is None:
             sd = self.engine.sensors(x0, V, path)  # [S, T, nsensordata]
+            self.phases.mark("rollout")
             self._step_costs = self._costs(sd, V)  # [S, T]
-        else:
+            self.phases.mark("costs")
+        else:  # each variant's rollout and costs in turn: one phase
             sd = self._variant_costs(x0, V, path)
+            self.phases.mark("rollout")
         result = self.mppi.update(self._step_costs)
         self._generation += 1
         top_of = functools.partial(
@@ -155,6 +161,7 @@ class MotionPlanner:
         )
         if self.device.type != "cpu":
             result = _to_host(result)
+        self.phases.mark("update")
         dominant = (
             self.modes[0]
             if len(self.modes) == 1

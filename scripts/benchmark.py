@@ -281,8 +281,10 @@ def measure(
     controller.begin("lockstep", bench.model.opt.timestep)
     try:
         with mj_rollout.Rollout(nthread=nthread) as pool:
-            for _ in range(rounds):
+            for i in range(rounds):
                 bench.run_round(pool)
+                if i == 0:  # the split over warm iterations only, as the medians
+                    bench.planner.phases.reset()
     finally:
         controller.close()
     return _row(scenario, bench, nthread, backend, device)
@@ -309,6 +311,7 @@ def _row(scenario: Scenario, bench: _Bench, nthread: int, backend: str, device: 
         "threads": nthread,
         "backend": backend,
         "device": device if backend == "warp" else "cpu",
+        "phases_ms": {k: round(v, 4) for k, v in bench.planner.phases.per_step_ms().items()},
         **_map_figures(scenario, bench),
     }
 
@@ -535,6 +538,13 @@ def _print_table(rows: list[dict], opts: Options) -> None:
             f"{r['ratio_to_sensor_rollout']:.2f}",
         )
     Console().print(table)
+    split = Table(title="where an iteration's time goes (mean ms per iteration)")
+    phases = list(dict.fromkeys(p for r in rows for p in r.get("phases_ms", {})))
+    for col in ("scenario", *phases):
+        split.add_column(col, justify="right")
+    for r in rows:
+        split.add_row(r["scenario"], *(f"{r['phases_ms'].get(p, 0.0):.3f}" for p in phases))
+    Console().print(split)
 
 
 if __name__ == "__main__":

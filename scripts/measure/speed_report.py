@@ -43,6 +43,7 @@ def markdown(results: dict, source: str) -> str:
             f"{spread(col('ratio_to_sensor_rollout'), 2)} |"
         )
     lines += perception(results)
+    lines += phase_split(results)
     lines += [
         "",
         f"Median (min-max) over {results['runs']} runs of `{results['command']}`, "
@@ -89,6 +90,30 @@ def perception(results: dict) -> list[str]:
             f"{spread(col('map_update_ms'), 2)} | {rows[0]['map_rate_hz']:g} | "
             f"{spread(col('map_core_share'), 3)} |"
         )
+    return lines
+
+
+def phase_split(results: dict) -> list[str]:
+    """Where an iteration's time goes (``phases_ms``): per case the median over the runs of
+    each phase's mean ms per iteration, and its share of their sum; no lines for a file
+    without the split."""
+    cases: dict[str, list[dict]] = {}
+    for row in results["rows"]:
+        if "phases_ms" in row:
+            cases.setdefault(row["scenario"], []).append(row["phases_ms"])
+    if not cases:
+        return []
+    phases = list(dict.fromkeys(p for runs in cases.values() for r in runs for p in r))
+    lines = [
+        "",
+        "| scenario | " + " | ".join(phases) + " |",
+        "|---|" + "---:|" * len(phases),
+    ]
+    for name, runs in cases.items():
+        med = {p: statistics.median(r.get(p, 0.0) for r in runs) for p in phases}
+        total = sum(med.values()) or 1.0
+        cells = [f"{med[p]:.3f} ({100 * med[p] / total:.0f} %)" for p in phases]
+        lines.append(f"| `{name}` | " + " | ".join(cells) + " |")
     return lines
 
 

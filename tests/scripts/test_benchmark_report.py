@@ -74,3 +74,15 @@ def test_a_seen_scenario_is_set_against_its_declared_obstacles_run_by_run():
     assert "| 4.00 (3.00-5.00) | 10 | 0.040 (0.030-0.050) |" in row
     plain = {**results, "rows": [case("navigation", 0, 2.0)]}
     assert "map update" not in speed_report.markdown(plain, "x.json")
+
+
+def test_the_phase_split_is_the_median_of_each_phase_and_its_share():
+    rows = [
+        {**_row(0, 200.0, 1.3), "phases_ms": {"mirror": 0.1, "rollout": 3.0, "costs": 0.9}},
+        {**_row(1, 200.0, 1.3), "phases_ms": {"mirror": 0.3, "rollout": 4.0, "costs": 1.1}},
+        {**_row(2, 200.0, 1.3), "phases_ms": {"mirror": 0.2, "rollout": 5.0, "costs": 1.0}},
+    ]
+    results = {"command": "c", "date": "d", "machine": "m", "threads": 2, "iterations": 9}
+    text = speed_report.markdown({**results, "runs": 3, "rows": rows}, "x.json")
+    assert "| scenario | mirror | rollout | costs |" in text
+    assert "| `navigation` | 0.200 (4 %) | 4.000 (77 %) | 1.000 (19 %) |" in text
