@@ -264,9 +264,16 @@ def _plan(client, scenario: str, warned) -> None:
         if m
         else ""
     )
+    shed = stats.budget_changes
+    budget = (
+        f", samples per mode changed {len(shed)} times (fewest {min(c[2] for c in shed)})"
+        if shed
+        else ""
+    )
     typer.echo(
         f"planner: {stats.iterations} iterations, {stats.hz:.1f} Hz, "
         f"episode {stats.final_status or 'not finished'}{fallbacks}{dropped}{mujoco}{mapped}"
+        f"{budget}"
     )
     raise typer.Exit(0 if stats.final_status == "success" else 1)
 

@@ -32,6 +32,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from planner_client.attach import Attachments
+from planner_client.budget import SampleBudget, budget_config
 from planner_client.delay_estimate import ActuationDelayEstimate
 from planner_client.guide import Guide
 from planner_client.mirror import Mirror, MocapState
@@ -80,6 +81,8 @@ class LoopStats:
     action_changes: list[tuple[float, str, tuple[str, ...]]] = field(default_factory=list)
     final_status: str = ""
     safe_fallbacks: int = 0  # commands that were the safe control because there was no plan
+    # the anytime planner's changes of the samples per mode: (world s, before, after, why)
+    budget_changes: list[tuple[float, int, int, str]] = field(default_factory=list)
 
     @property
     def hz(self) -> float:
@@ -158,6 +161,7 @@ class Controller:
         self._last_start: tuple[float, int] | None = None  # (t_eff, state seq) of the last plan
         self._faults = 0  # consecutive iterations without a plan (Iteration.fault)
         self.map: MapUpdater | None = None  # the lidars' map, made at begin
+        self.budget: SampleBudget | None = None  # planner.budget: the anytime planner, at begin
         self._map_threaded = False
 
     def begin(
@@ -186,6 +190,7 @@ class Controller:
             reach = max(reach, self.identifier.reach)
         self._sent = deque(maxlen=max(16, reach + 8))
         self._last_start = None
+        self._open_budget()
         self._open_map(threaded=mode == "realtime")
 
     def _open_map(self, threaded: bool) -> None:
@@ -210,6 +215,45 @@ class Controller:
         self._action = None
         self._last_ctrl = self.robot.safe_stop()
         self._faults = 0
+
+    def _open_budget(self) -> None:
+        """The anytime planner (``planner.budget``) from the full samples per mode, or none."""
+        scenario = self.motion.problem.scenario
+        cfg = budget_config(scenario)
+        self.budget = None if cfg is None else SampleBudget(cfg, scenario.planner.samples)
+        if cfg is not None:
+            self.motion.set_samples(scenario.planner.samples)
+
+    def _spend(self, plan_time: float, now: float) -> None:
+        """The anytime planner sees the iteration's time and may change the samples."""
+        change = self.budget.observe(plan_time) if self.budget is not None else None
+        if change is None:
+            return
+        self.motion.set_samples(change.after)
+        self.stats.budget_changes.append((now, change.before, change.after, change.reason))
+        log.info(
+            "t=%.2f s: samples per mode %d -> %d: %s",
+            now,
+            change.before,
+            change.after,
+            change.reason,
+        )
+
+    def _estimate(self) -> None:
+        """The estimators read the transition the mirror just received: the actuation delay,
+        and the model variants' weights."""
+        if self._actuation is not None:
+            self._actuation.observe(
+                self.mirror.data, list(self._sent), self.robot.safe_stop(self._last_ctrl)
+            )
+        if self.identifier is not None:
+            self.identifier.observe(
+                self.mirror.data,
+                self.mirror.received_qpos,
+                list(self._sent),
+                self.robot.safe_stop(self._last_ctrl),
+                self._acting_steps() * self.dt,
+            )
 
     def _take(self, parts: Parts) -> None:
         """Drive ``parts`` from now on."""
@@ -250,18 +294,7 @@ class Controller:
         if self.attachments.track(self.mirror.data, self.mirror.received_qpos):
             x0 = self.mirror.refresh()
         phases.mark("mirror")
-        if self._actuation is not None:  # 2. estimate
-            self._actuation.observe(
-                self.mirror.data, list(self._sent), self.robot.safe_stop(self._last_ctrl)
-            )
-        if self.identifier is not None:  # 2. the model variants reweighted by this transition
-            self.identifier.observe(
-                self.mirror.data,
-                self.mirror.received_qpos,
-                list(self._sent),
-                self.robot.safe_stop(self._last_ctrl),
-                self._acting_steps() * self.dt,
-            )
+        self._estimate()  # 2. estimate
         phases.mark("estimate")
         if self.map is not None and state.scans:  # the map fused before anything reads it
             self.map.submit(state.scans)
@@ -308,6 +341,7 @@ class Controller:
         self.last = Tick(state, decision, it, plan_time, start, steps)
         self.stats.iterations += 1
         self.stats.plan_times.append(plan_time)
+        self._spend(plan_time, state.time)
         key = (decision.action, tuple(decision.modes))
         if key != self._action:
             self._action = key

@@ -114,6 +114,13 @@ class MotionPlanner:
             self.modes = list(modes)
             self._shared = self._shared_terms()
 
+    def set_samples(self, samples: int) -> None:
+        """Roll out ``samples`` per mode from the next iteration on (the anytime planner:
+        planner_client.budget); the modes keep their means and temperatures."""
+        if samples != self.samples:
+            self.samples = samples
+            self.mppi.set_modes([self._mode(m) for m in self.modes])
+
     def _shared_terms(self) -> list[CostTerm]:
         """The terms of every mode's objective (by :attr:`CostTerm.key`), when there are several
         modes: evaluated once on all S rows instead of once per mode (push and pull share their

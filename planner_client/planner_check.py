@@ -14,6 +14,7 @@ import os
 import mujoco
 
 from planner_client.guide import GuideState, add_site
+from planner_client.budget import budget_config
 from planner_client.maps import map_config
 from planner_client.problem import (
     actuator_names,
@@ -75,6 +76,7 @@ def model_checks(
     name_checks(scenario, model, resolve, errors)
     errors.call(mppi_config, scenario, model)
     errors.call(map_config, scenario)  # planner.map's keys are the planner's to read
+    errors.call(budget_config, scenario)  # so are planner.budget's
     errors.call(apply_planning_model, build_spec(scenario), scenario.planner.model, scenario.source)
     if not errors.errors:  # the terms are built and the planner's model compiles: run them
         errors.call(value_checks, scenario)

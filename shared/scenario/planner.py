@@ -76,6 +76,7 @@ class PlannerConfig:
     tracking: TrackingConfig = field(default_factory=TrackingConfig)
     delays: DelayConfig = DelayConfig()  # the robot's unseen delays, compensated by prediction
     map: dict = field(default_factory=dict)  # the lidar map's keys, read by planner_client.maps
+    budget: dict = field(default_factory=dict)  # the anytime planner's: planner_client.budget
 
     def step(self, world: WorldConfig) -> float:
         """Seconds per planned control step: ``timestep``, or the world's."""
@@ -108,6 +109,7 @@ def read_planner(s: Section) -> PlannerConfig:
         tracking=read_tracking(s.section(s.renamed("estimate", "tracking"), required=False)),
         delays=_delays(s.section("delays", required=False)),
         map=s.opt("map", {}, dict, "{resolution: m, rate: Hz}"),
+        budget=s.opt("budget", {}, dict, "{rate: Hz, min_samples: n, patience: n}"),
     )
     s.done()
     _check_variants(s, cfg)

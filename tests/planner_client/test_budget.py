@@ -1,0 +1,114 @@
+"""The anytime planner's sample budget (planner_client/budget.py): it sheds samples when
+iterations overrun the budget, never below the floor, and takes them back when there is room."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import pytest
+
+from planner_client.budget import BudgetConfig, SampleBudget, budget_config
+from planner_client.build import build_controller
+from server.inprocess import build_episode
+from shared.config import ConfigError
+from shared.scenario import load_scenario
+
+
+def _machine(per_sample: float, fixed: float = 0.0):
+    """An iteration's seconds on a machine: a fixed part and a part per sample."""
+    return lambda n: fixed + per_sample * n
+
+
+def test_an_overrun_sheds_samples_to_what_fits_and_no_further_than_the_floor():
+    budget = SampleBudget(BudgetConfig(rate=20.0, min_samples=40), full=200)
+    slow = _machine(0.5e-3)  # 200 samples: 100 ms, twice the 50 ms budget
+    change = budget.observe(slow(budget.samples))
+    assert change is not None and change.before == 200 and change.after < 100
+    assert "over the budget of 50 ms" in change.reason
+    for _ in range(20):
+        budget.observe(slow(budget.samples))
+    assert slow(budget.samples) <= 0.05 and budget.samples >= 40
+    crawl = _machine(5e-3)  # even the floor overruns: it stays at the floor
+    for _ in range(20):
+        budget.observe(crawl(budget.samples))
+    assert budget.samples == 40
+
+
+def test_samples_come_back_when_the_machine_is_free_again_but_not_at_once():
+    budget = SampleBudget(BudgetConfig(rate=20.0, min_samples=40, patience=5), full=200)
+    for _ in range(10):
+        budget.observe(_machine(0.5e-3)(budget.samples))
+    shed = budget.samples
+    fast = _machine(0.05e-3)
+    changes = [budget.observe(fast(budget.samples)) for _ in range(4)]
+    assert changes == [None] * 4 and budget.samples == shed  # patience: not yet
+    for _ in range(400):
+        budget.observe(fast(budget.samples))
+    assert budget.samples == 200  # all back, never above the full count
+
+
+def test_a_machine_within_the_budget_keeps_every_sample():
+    budget = SampleBudget(BudgetConfig(rate=20.0, min_samples=40), full=200)
+    assert all(budget.observe(0.03) is None for _ in range(50))
+    assert budget.samples == 200
+    assert budget.observe(float("nan")) is None and budget.observe(0.0) is None
+
+
+def _with_budget(name: str, budget: dict):
+    sc = load_scenario(name)
+    return dataclasses.replace(sc, planner=dataclasses.replace(sc.planner, budget=budget))
+
+
+def test_a_controller_over_its_budget_sheds_samples_and_keeps_planning():
+    # a budget no machine meets (10 µs an iteration): every iteration sheds, down to the floor
+    sc = _with_budget("navigation", {"rate": 1e5, "min_samples": 40})
+    controller = build_controller(sc, seed=0, threads=1)
+    episode = build_episode(sc, seed=0)
+    try:
+        controller.begin("lockstep", episode.dt)
+        state = episode.publish()
+        for _ in range(30):
+            command = controller.step(state)
+            assert command is not None and command.plan_ctrl is not None  # still plans
+            episode.play(command)
+            state = episode.publish()
+        changes = controller.stats.budget_changes
+        assert changes and all(after < before for _, before, after, _ in changes)
+        assert controller.motion.samples == 40 == controller.motion.mppi.num_samples
+        assert "over the budget" in changes[0][3]
+        controller.begin("lockstep", episode.dt, seed=1, new_episode=True)
+        assert controller.motion.samples == sc.planner.samples  # a new episode: all back
+    finally:
+        controller.close()
+        episode.close()
+
+
+def test_without_a_budget_the_samples_stay():
+    controller = build_controller("navigation", seed=0, threads=1)
+    episode = build_episode(load_scenario("navigation"), seed=0)
+    try:
+        controller.begin("lockstep", episode.dt)
+        state = episode.publish()
+        for _ in range(5):
+            episode.play(controller.step(state))
+            state = episode.publish()
+        assert controller.budget is None and controller.motion.samples == 200
+    finally:
+        controller.close()
+        episode.close()
+
+
+@pytest.mark.parametrize(
+    "budget, key",
+    [
+        ({"min_samples": 40}, r"planner\.budget\.rate"),
+        ({"rate": 0}, r"planner\.budget\.rate"),
+        ({"rate": 20, "min_samples": 2}, r"planner\.budget\.min_samples.*\[3, planner"),
+        ({"rate": 20, "min_samples": 201}, r"planner\.budget\.min_samples"),
+        ({"rate": 20, "patience": 0}, r"planner\.budget\.patience"),
+        ({"rate": 20, "rat": 1}, r"planner\.budget\.rat"),
+    ],
+)
+def test_a_faulty_budget_is_refused_naming_its_key(budget, key):
+    with pytest.raises(ConfigError, match=key):
+        budget_config(_with_budget("navigation", budget))
