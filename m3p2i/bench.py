@@ -75,6 +75,8 @@ FIELDS = (
     "position_error",
     "orientation_error",
     "collisions",
+    "perceived_contacts",
+    "perceived_clearance_min",
     "time",
     "wall_time",
     "planner_hz",
@@ -543,6 +545,9 @@ def run_trial(
         "position_error": metrics["position_error"],
         "orientation_error": metrics["orientation_error"],
         "collisions": metrics["collisions"],
+        # only a scenario with perceived objects measures them (server.evaluation.clearance)
+        "perceived_contacts": metrics.get("perceived_contacts"),
+        "perceived_clearance_min": metrics.get("perceived_clearance_min"),
         "time": metrics["time"],
         "wall_time": metrics["wall_time"],
         "planner_hz": metrics["planner_hz"],

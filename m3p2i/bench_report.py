@@ -4,7 +4,8 @@ figures of ``configs/paper_results.yaml``; printed with rich and written as Mark
 Statistics (population std, as the paper's: 3 collisions in 60 trials give 0.0500 (0.2179)):
 success over all trials; position/orientation error and collisions over the trials that ended by
 themselves (not killed at the time-out, where the final state is arbitrary); completion time over
-the successful trials only (the others all last ``max_time``).
+the successful trials only (the others all last ``max_time``). A table whose cases have perceived
+objects adds their contacts and closest approach, over the trials that ended by themselves.
 """
 
 from __future__ import annotations
@@ -25,6 +26,8 @@ from shared.config_files import shipped
 PAPER_RESULTS = shipped("paper_results.yaml")
 TIME_OUT = "time-out"
 METRICS = ("position_error", "orientation_error", "collisions", "time")
+# of a scenario with perceived objects only (server.evaluation.clearance); no paper figures
+PERCEIVED = ("perceived_contacts", "perceived_clearance_min")
 
 
 @dataclass(frozen=True)
@@ -32,6 +35,7 @@ class Stat:
     mean: float
     std: float
     n: int
+    low: float = math.nan  # the smallest value
 
     def __str__(self) -> str:
         return f"{self.mean:.4f} ({self.std:.4f})"
@@ -127,7 +131,7 @@ def _stat(values: list[float | None]) -> Stat | None:
     vals = [v for v in values if v is not None]
     if not vals:
         return None
-    return Stat(float(np.mean(vals)), float(np.std(vals)), len(vals))
+    return Stat(float(np.mean(vals)), float(np.std(vals)), len(vals), float(np.min(vals)))
 
 
 def summarize(rows: list[dict[str, str]], order: list[str]) -> list[CaseSummary]:
@@ -142,6 +146,8 @@ def summarize(rows: list[dict[str, str]], order: list[str]) -> list[CaseSummary]
         stats = {m: _stat([_number(r[m]) for r in ended]) for m in METRICS if m != "time"}
         stats["time"] = _stat([_number(r["time"]) for r in won])
         stats["planner_hz"] = _stat([_number(r["planner_hz"]) for r in ended])
+        for m in PERCEIVED:  # rows written before the columns have none
+            stats[m] = _stat([_number(r.get(m)) for r in ended])
         out.append(
             CaseSummary(
                 case=case,
@@ -186,10 +192,18 @@ HEADERS = (
 )
 
 
+PERCEIVED_HEADERS = ("perceived contacts", "perceived clearance [m]")
+
 _LEFT = ("case", "variant", "seeds")
 
 
-def table_rows(summaries: list[CaseSummary], paper: dict[str, PaperRow]) -> list[list[str]]:
+def table_rows(
+    summaries: list[CaseSummary], paper: dict[str, PaperRow], perceived: bool | None = None
+) -> list[list[str]]:
+    """One row of :data:`HEADERS` per case; with ``perceived`` (default: when any case
+    measured them) each followed by :data:`PERCEIVED_HEADERS`' cells."""
+    if perceived is None:
+        perceived = any(s.stats.get(m) for s in summaries for m in PERCEIVED)
     rows = []
     for s in summaries:
         p = paper.get(s.case)
@@ -200,13 +214,22 @@ def table_rows(summaries: list[CaseSummary], paper: dict[str, PaperRow]) -> list
             cells.append(p.cell(m) if p else "—")
         hz = s.stats["planner_hz"]
         cells.append(f"{hz.mean:.1f}" if hz else "—")
+        if perceived:
+            contacts, clear = (s.stats.get(m) for m in PERCEIVED)
+            cells.append(str(contacts) if contacts else "—")
+            cells.append(f"{clear}, min {clear.low:.4f}" if clear else "—")
         rows.append(cells)
     return rows
 
 
+def headers(rows: list[list[str]]) -> tuple[str, ...]:
+    """The columns of ``rows`` (:func:`table_rows`): the perceived ones where they have them."""
+    return HEADERS + (PERCEIVED_HEADERS if rows and len(rows[0]) > len(HEADERS) else ())
+
+
 def rich_table(rows: list[list[str]], title: str) -> Table:
     table = Table(title=title, header_style="bold")
-    for h in HEADERS:
+    for h in headers(rows):
         table.add_column(h, justify="left" if h in _LEFT else "right")
     for r in rows:
         table.add_row(*r)
@@ -214,9 +237,10 @@ def rich_table(rows: list[list[str]], title: str) -> Table:
 
 
 def markdown_table(rows: list[list[str]]) -> str:
+    columns = headers(rows)
     lines = [
-        "| " + " | ".join(HEADERS) + " |",
-        "|" + "|".join("---" if h in _LEFT else "---:" for h in HEADERS) + "|",
+        "| " + " | ".join(columns) + " |",
+        "|" + "|".join("---" if h in _LEFT else "---:" for h in columns) + "|",
     ]
     lines += ["| " + " | ".join(r) + " |" for r in rows]
     return "\n".join(lines)
@@ -228,11 +252,21 @@ LEGEND = (
     "themselves, time over the successful ones (time-out: none succeeded). *paper*: "
     "configs/paper_results.yaml (Tables I-III)."
 )
+PERCEIVED_LEGEND = (
+    " Perceived contacts: contact onsets of the robot (and the free objects) with the objects "
+    "only its sensors show; perceived clearance: the smallest signed distance to them in each "
+    "trial (MuJoCo's, every step, at most 1 m): mean (std), and the smallest of all."
+)
+
+
+def legend(rows: list[list[str]]) -> str:
+    """:data:`LEGEND`, and what the perceived columns mean where ``rows`` have them."""
+    return LEGEND + (PERCEIVED_LEGEND if len(headers(rows)) > len(HEADERS) else "")
 
 
 def markdown_report(rows: list[list[str]], skipped: list[tuple[str, str]], header: str) -> str:
     """``summary.md``: the table, how it was made, and the cases that were skipped."""
-    parts = [header, "", markdown_table(rows), "", LEGEND]
+    parts = [header, "", markdown_table(rows), "", legend(rows)]
     if skipped:
         parts += ["", "Skipped cases:", ""] + [f"- `{c}`: {why}" for c, why in skipped]
     return "\n".join(parts) + "\n"
@@ -357,15 +391,17 @@ def results_report(results: list[Results], paper: dict[str, PaperRow]) -> str:
     swept = [r for res in results for r in res.rows if swept_keys([r])]
     if swept:  # a sweep: one table per key; its failures are what the rates count
         return sweep_report(swept) + _trials_ran_on(swept)
-    for res in results:
-        rows += table_rows(summarize(res.rows, res.cases), paper)
+    summaries = [summarize(res.rows, res.cases) for res in results]
+    perceived = any(s.stats.get(m) for part in summaries for s in part for m in PERCEIVED)
+    for res, part in zip(results, summaries):
+        rows += table_rows(part, paper, perceived)
         failures += _failure_lines(res.rows, res.notes)
         machines |= {_machine(r) for r in res.rows}
         dates |= {r.get("date") or "date not recorded" for r in res.rows}
     parts = [
         markdown_table(rows),
         "",
-        LEGEND + f" Trials ran on {'; '.join(sorted(machines))}, {', '.join(sorted(dates))}.",
+        legend(rows) + f" Trials ran on {'; '.join(sorted(machines))}, {', '.join(sorted(dates))}.",
     ]
     if failures:
         parts += ["", "Failures:", ""] + failures

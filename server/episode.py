@@ -16,6 +16,7 @@ from __future__ import annotations
 import logging
 import secrets
 from collections.abc import Callable
+from dataclasses import dataclass
 from pathlib import Path
 
 import mujoco
@@ -25,7 +26,7 @@ from server.episode_log import EpisodeLog, read_log
 from server.evaluation.metrics import MetricsEvaluator, describe
 from server.evaluation.plan_ages import describe_timing, timing_summary
 from server.faults import FaultyWorld
-from server.interface import Outcome, World, world_name
+from server.interface import Outcome, World, WorldState, world_name
 from server.world import SimWorld
 from shared import protocol as P
 from shared.scenario import Scenario
@@ -69,8 +70,8 @@ class Episode:
                 realtime_factor=realtime_factor,
             )
         self.world.reset()
-        # the mocap rows a state carries: the perceived objects' are only the sensors' to show
-        self._mocap_rows = published_mocap(scenario, self.world.model)
+        # the rows a state carries: the perceived objects' are only the sensors' to show
+        self._rows = Published.of(scenario, self.world.model)
         self._scans: tuple[int, list] = (-1, [])  # the newest seq published and its readings
         self.metrics = MetricsEvaluator(scenario, self.world.model)  # bad frames fail here
         self.session = secrets.token_hex(4)
@@ -127,16 +128,16 @@ class Episode:
         s = self.world.state()
         if self._scans[0] != self.seq:
             self._scans = (self.seq, self.world.scans())
-        rows = slice(None) if self._mocap_rows is None else self._mocap_rows
+        rows = vars(s) if self._rows is None else self._rows.of_state(s)
         state = P.State(
             session=self.session,
             seq=self.seq,
             time=s.time,
-            qpos=s.qpos,
-            qvel=s.qvel,
+            qpos=rows["qpos"],
+            qvel=rows["qvel"],
             act=s.act,
-            mocap_pos=s.mocap_pos[rows],
-            mocap_quat=s.mocap_quat[rows],
+            mocap_pos=rows["mocap_pos"],
+            mocap_quat=rows["mocap_quat"],
             status=self.world.status,
             extras=dict(self.world.extras),
             lag=self.lag,
@@ -378,19 +379,55 @@ class Episode:
         self.world.close()
 
 
-def published_mocap(scenario: Scenario, model: mujoco.MjModel) -> np.ndarray | None:
-    """The rows of the world model's ``mocap_pos``/``mocap_quat`` that a state carries, in order:
-    all but the perceived objects' (nothing of theirs reaches the planner but scans, and its
-    model has no such rows); None when that is every row."""
-    perceived = {o.name for o in scenario.world.objects if o.perceived}
-    if not perceived:
-        return None
-    ids = model.body_mocapid
-    return np.array(
-        sorted(
-            int(ids[b])
-            for b in range(model.nbody)
-            if ids[b] >= 0 and model.body(b).name not in perceived
-        ),
-        dtype=int,
-    )
+@dataclass(frozen=True)
+class Published:
+    """The rows of the world model's state arrays that a state carries, in order: all but the
+    perceived objects' (nothing of theirs reaches the planner but scans, and its model has no
+    such rows). A free perceived object's joint leaves its 7 ``qpos`` and 6 ``qvel`` rows out,
+    a fixed one its ``mocap`` row; what is left is the planner's model's layout, as its joints
+    and mocap bodies keep their order without them. ``qpos [nq']``, ``qvel [nv']``, ``mocap
+    [nmocap']``: indices into the world's arrays."""
+
+    qpos: np.ndarray
+    qvel: np.ndarray
+    mocap: np.ndarray
+
+    @classmethod
+    def of(cls, scenario: Scenario, model: mujoco.MjModel) -> Published | None:
+        """The rows of ``scenario``'s world ``model`` that a state carries; None when that is
+        every row (no perceived object)."""
+        perceived = {o.name for o in scenario.world.objects if o.perceived}
+        if not perceived:
+            return None
+        hidden = [model.body(name).id for name in perceived]
+        qpos, qvel = np.ones(model.nq, bool), np.ones(model.nv, bool)
+        for j in np.flatnonzero(np.isin(model.jnt_bodyid, hidden)):  # free joints, 7 + 6 rows
+            qpos[model.jnt_qposadr[j] : model.jnt_qposadr[j] + 7] = False
+            qvel[model.jnt_dofadr[j] : model.jnt_dofadr[j] + 6] = False
+        mocap = np.ones(model.nmocap, bool)
+        mocap[[int(model.body_mocapid[b]) for b in hidden if model.body_mocapid[b] >= 0]] = False
+        return cls(np.flatnonzero(qpos), np.flatnonzero(qvel), np.flatnonzero(mocap))
+
+    def of_state(self, s: WorldState) -> dict[str, np.ndarray]:
+        """``s``'s carried rows: ``qpos``, ``qvel``, ``mocap_pos``, ``mocap_quat``."""
+        return {
+            "qpos": s.qpos[self.qpos],
+            "qvel": s.qvel[self.qvel],
+            "mocap_pos": s.mocap_pos[self.mocap],
+            "mocap_quat": s.mocap_quat[self.mocap],
+        }
+
+    def into(self, data: mujoco.MjData, state: P.State) -> dict[str, np.ndarray]:
+        """The world's arrays of a received ``state``: its rows where they belong, the others
+        (the perceived objects') as ``data`` has them (where the file puts them)."""
+        out = {}
+        for name, rows in (
+            ("qpos", self.qpos),
+            ("qvel", self.qvel),
+            ("mocap_pos", self.mocap),
+            ("mocap_quat", self.mocap),
+        ):
+            full = getattr(data, name).copy()
+            full[rows] = getattr(state, name)
+            out[name] = full
+        return out

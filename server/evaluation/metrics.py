@@ -3,6 +3,8 @@
 Success, final position error and orientation error (paper Eq. 33) between two frames, number of
 collisions (contact onsets), completion time (simulated seconds), wall time and mean planner rate.
 Which frames is the scenario's ``metrics:`` section (:class:`shared.scenario.MetricsConfig`).
+A scenario with perceived objects adds the contacts with them and the closest approach to them
+(:mod:`server.evaluation.clearance`).
 Kinematics are recomputed by replaying logged states into the scenario's model
 (:mod:`server.evaluation.replay`), so the same function serves the server's summary, ``m3p2i bench``
 and any log on disk. The maths are the small pure functions at the top.
@@ -17,6 +19,7 @@ import mujoco
 import numpy as np
 
 from server.evaluation import log_reader
+from server.evaluation.clearance import DIST_MAX, PerceivedClearance
 from server.evaluation.replay import load_step, replay, resolve_frame
 from shared.config import ErrorLog
 from shared.frames import Frame
@@ -41,9 +44,19 @@ class EpisodeMetrics:
     wall_time: float  # wall seconds from the planner's handshake to the last step
     planner_hz: float  # 1 / mean planning time of the commands that drove the steps
     steps: int
+    # with perceived objects: contact onsets of the robot (and the free objects) with them, and
+    # the smallest signed distance to them, m (server.evaluation.clearance)
+    perceived_contacts: int | None = None
+    perceived_clearance_min: float | None = None
 
     def as_dict(self) -> dict:
-        return asdict(self)
+        """Every field; the perceived ones only where measured (a summary of a scenario
+        without perceived objects keeps the keys it always had)."""
+        out = asdict(self)
+        for key in ("perceived_contacts", "perceived_clearance_min"):
+            if out[key] is None:
+                del out[key]
+        return out
 
 
 # ---------------------------------------------------------------------------------------- maths
@@ -108,6 +121,10 @@ class MetricsEvaluator:
                 self._geom_mask, cfg.collisions.with_, "metrics.collisions.with"
             )
         errors.raise_if_any()
+        self.perceived = None
+        if any(o.perceived for o in scenario.world.objects):
+            robot = self._geom_mask(["robot"], "robot")
+            self.perceived = PerceivedClearance(scenario, self.model, robot)
 
     def _frames(self, pair, key: str, errors: ErrorLog) -> tuple[Frame, Frame] | None:
         a = errors.call(resolve_frame, self.scenario, self.model, pair.a, f"{key}.a")
@@ -121,6 +138,7 @@ class MetricsEvaluator:
         status = status or (summary["status"] if summary else "unfinished")
         steps = log_reader.steps(records)
         pos_err = ori_err = collisions = None
+        contacts, clearance = self._replayed(steps)
         if steps:
             data = mujoco.MjData(self.model)
             load_step(self.model, data, steps[-1])
@@ -131,10 +149,8 @@ class MetricsEvaluator:
             if self.orientation:
                 a, b = self.orientation
                 ori_err = orientation_error(a.rot(data), b.rot(data))
-            if self._geoms_a is not None:
-                collisions = contact_onsets([self.touching(d) for d in replay(self.model, steps)])
-        elif self._geoms_a is not None:
-            collisions = 0
+        if self._geoms_a is not None:
+            collisions = contact_onsets(contacts)
         return EpisodeMetrics(
             status=status,
             success=status == "success",
@@ -145,7 +161,23 @@ class MetricsEvaluator:
             wall_time=wall_time(records),
             planner_hz=mean_hz([s.get("plan_time", 0.0) for s in steps]),
             steps=len(steps),
+            perceived_contacts=None if clearance is None else contact_onsets(clearance <= 0.0),
+            perceived_clearance_min=(
+                None if clearance is None else float(np.min(clearance, initial=DIST_MAX))
+            ),
         )
+
+    def _replayed(self, steps: list[dict]) -> tuple[list[bool], np.ndarray | None]:
+        """Per logged step, in one replay: whether the ``metrics.collisions`` bodies touch,
+        and the clearance to the perceived objects ``[steps]`` (None without any)."""
+        touching, clearance = [], []
+        if self._geoms_a is not None or self.perceived is not None:
+            for data in replay(self.model, steps):
+                if self._geoms_a is not None:
+                    touching.append(self.touching(data))
+                if self.perceived is not None:
+                    clearance.append(self.perceived.clearance(data))
+        return touching, None if self.perceived is None else np.array(clearance)
 
     def touching(self, data: mujoco.MjData) -> bool:
         """Whether any contact (penetration or touch, not the collision margin) joins a geom of
@@ -195,5 +227,9 @@ def describe(m: EpisodeMetrics) -> str:
         parts.append(f"orientation error {m.orientation_error:.4f}")
     if m.collisions is not None:
         parts.append(f"collisions {m.collisions}")
+    if m.perceived_contacts is not None:
+        parts.append(
+            f"perceived contacts {m.perceived_contacts}, closest {m.perceived_clearance_min:.3f} m"
+        )
     parts += [f"time {m.time:.2f} s", f"wall {m.wall_time:.1f} s", f"planner {m.planner_hz:.1f} Hz"]
     return ", ".join(parts)

@@ -404,7 +404,7 @@ def _check_planning_model(
     """``planner.model``'s objects are the world's free ones; what it attaches, and a filter of
     held poses, need each other."""
     if planner is not None and planner.model.objects and world is not None:
-        free = [o.name for o in world.objects if not o.fixed]
+        free = [o.name for o in world.objects if not (o.fixed or o.perceived)]
         for obj in planner.model.objects:
             if obj not in free:
                 errors.add(
@@ -475,9 +475,8 @@ def _read_guide(
 
 def _guide_in(s: Section, world: WorldConfig) -> GuideConfig:
     """``guide`` against the world's objects, its grid sized against the world's span."""
-    # a perceived object is not the planner's to plan round by name: its scans show it
-    known = [o for o in world.objects if not o.visual and not o.perceived]
-    guide = parse_guide(s, {o.name: not o.fixed for o in known})
+    # a perceived object is not the planner's to guide by name: its scans show it
+    guide = parse_guide(s, {o.name: not (o.fixed or o.visual) for o in world.objects})
     check_grid(s, guide, world.span())
     return guide
 
@@ -492,7 +491,8 @@ def _check_attach(
     """An attachment needs a task state to follow, a free object, and the CPU rollouts (the
     warp backend's model is not changed between iterations)."""
     states = [st for f in task.factors for st in f.states] if task is not None else []
-    free = [o.name for o in world.objects if not o.fixed] if world is not None else None
+    # a perceived object is not in the planner's model: nothing of it to attach
+    free = [o.name for o in world.objects if not (o.fixed or o.perceived)] if world else None
     for i, a in enumerate(planner.model.attach):
         path = f"planner.model.attach[{i}]"
         if a.state not in states:

@@ -41,8 +41,8 @@ class ObjectConfig:
     rgba: tuple[float, float, float, float] = (0.6, 0.6, 0.6, 1.0)
     visual: bool = False  # a marker: drawn, never collides
     obstacle: bool = True  # counted by collision cost terms (non-visual only)
-    # unknown to the planner: the world simulates it, the planner's model lacks it, and only
-    # the sensors' scans show it (planner_client.problem.planner_scenario)
+    # unknown to the planner: the world simulates it (fixed or free), the planner's model lacks
+    # it, and only the sensors' scans show it (planner_client.problem.planner_scenario)
     perceived: bool = False
 
 
@@ -381,13 +381,7 @@ def _object(s: Section) -> ObjectConfig:
         obstacle=s.opt("obstacle", not visual, bool),
         perceived=s.opt("perceived", False, bool),
     )
-    if obj.perceived and (not obj.fixed or obj.visual):
-        # a free one would add qpos the planner's model lacks; a marker collides with nothing
-        raise s.error(
-            "perceived",
-            "a perceived object must be fixed (a mocap body the world may move) and not visual",
-            True,
-            "fixed: true and visual: false, or perceived: false",
-        )
+    if obj.perceived and obj.visual:  # a marker collides with nothing: no sensor sees it
+        raise s.error("perceived", "a visual object cannot be perceived", True, "visual: false")
     s.done()
     return obj

@@ -302,12 +302,11 @@ def test_a_sensor_key_beyond_its_edge_is_refused_naming_file_key_and_value(senso
         assert repr(value) in text, text
 
 
-def test_two_sensors_of_one_name_and_a_perceived_free_object_are_refused():
+def test_two_sensors_of_one_name_and_a_perceived_marker_are_refused():
     with pytest.raises(ConfigError, match=r"sensors\[1\]\.name: two sensors of one name"):
         scenario([{"name": "s", "type": "lidar"}, {"name": "s", "type": "depth"}])
-    free = {"name": "box", "shape": "box", "size": [0.1, 0.1, 0.1], "pos": [1, 1, 0.1]}
-    with pytest.raises(ConfigError, match=r"world\.objects\[0\]\.perceived: a perceived object"):
-        scenario(objects=[free | {"fixed": False, "perceived": True}])
-    with pytest.raises(ConfigError, match=r"world\.objects\[0\]\.perceived"):
-        scenario(objects=[free | {"visual": True, "perceived": True}])
-    assert scenario(objects=[free | {"perceived": True}]).world.objects[0].perceived
+    box = {"name": "box", "shape": "box", "size": [0.1, 0.1, 0.1], "pos": [1, 1, 0.1]}
+    with pytest.raises(ConfigError, match=r"world\.objects\[0\]\.perceived: a visual object"):
+        scenario(objects=[box | {"visual": True, "perceived": True}])
+    assert scenario(objects=[box | {"perceived": True}]).world.objects[0].perceived
+    assert scenario(objects=[box | {"fixed": False, "perceived": True}]).world.objects[0].perceived
