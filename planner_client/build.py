@@ -15,7 +15,7 @@ from planner_client.backends import make_backend
 from planner_client.controller import Controller, Parts
 from planner_client.guide import Guide
 from planner_client.loop import PlannerClient
-from planner_client.maps import build_map, lidar_names, map_config
+from planner_client.maps import build_map, map_sensors
 from planner_client.mirror import Mirror
 from planner_client.motion import MotionPlanner
 from planner_client.observers import SymbolicObserver
@@ -101,7 +101,7 @@ def build_task(scenario: Scenario, motion: MotionPlanner) -> TaskLayer:
 def build_parts(motion: MotionPlanner, task: TaskLayer) -> Parts:
     """The collaborators a :class:`Controller` drives for ``motion`` and ``task``: the mirror
     (with ``planner.tracking``'s filters), the attachments of ``planner.model.attach``, the
-    guide of ``guide``, the maker of the map of the scenario's lidars (:mod:`planner_client.maps`)
+    guide of ``guide``, the maker of the map of the scenario's sensors (:mod:`planner_client.maps`)
     and, with ``planner.model.variants.identify``, the maker of the identifier that reweights
     the motion planner's variants."""
     problem = motion.problem
@@ -116,8 +116,8 @@ def build_parts(motion: MotionPlanner, task: TaskLayer) -> Parts:
     if problem.guide is not None:  # it plans on the planner's map too, once there is one
         guide = Guide(problem.guide, problem.model, problem.resolve, problem.field_source)
     parts = Parts(motion, task, mirror, attachments, guide)
-    if lidar_names(problem.scenario):
-        map_config(problem.scenario)  # a faulty planner.map stops the planner here, not later
+    # map_sensors reads planner.map: a faulty one stops the planner here, not later
+    if map_sensors(problem.scenario):
         # made at Controller.begin: whether it runs a thread depends on the world's mode
         parts.map = functools.partial(build_map, problem)
     variants = motion.variants

@@ -297,7 +297,7 @@ class Controller:
         self._estimate()  # 2. estimate
         phases.mark("estimate")
         if self.map is not None and state.scans:  # the map fused before anything reads it
-            self.map.submit(state.scans)
+            self.map.submit(state.scans, self.mirror.data)  # the state's scene: self-filter
             if self.mode != "realtime":  # lock-step: here, so the episode stays its seed's
                 self.map.update_now()
         phases.mark("map")

@@ -22,6 +22,7 @@ import numpy as np
 from planner_client.perception.grid import GridSpec
 from planner_client.perception.raycast import crossed
 from planner_client.perception.rays import world_rays
+from planner_client.perception.self_filter import clip_rays
 from shared.scans import Scan
 
 
@@ -106,11 +107,17 @@ class OccupancyMap(ABC):
     def rays(self, scan: Scan) -> Rays:
         """The rays of ``scan`` this map fuses, in its dimensions."""
 
-    def insert(self, scan: Scan) -> None:
-        """Fuse one scan (module docstring); a ``ValueError`` for one it does not read."""
+    def insert(self, scan: Scan, exclude: np.ndarray | None = None) -> None:
+        """Fuse one scan (module docstring); a ``ValueError`` for one it does not read.
+        ``exclude [n, 4]``: spheres (centre, radius, m) of what the planner models at the
+        scan's time, its rays cut where they enter one
+        (:func:`planner_client.perception.self_filter.clip_rays`)."""
         if not self.accepts(scan):
             raise ValueError(f"a {type(self).__name__} does not read {scan.kind} scans")
-        self.integrate(self.rays(scan))
+        rays = self.rays(scan)
+        if exclude is not None:
+            rays = clip_rays(rays, exclude)
+        self.integrate(rays)
         self.time = max(self.time, float(scan.time))
         self.scans += 1
 

@@ -1,7 +1,8 @@
 """Signed distance fields on a :class:`GridSpec`: from an occupancy map (an exact Euclidean
 distance transform, ``scipy.ndimage.distance_transform_edt``), from the scenario's known
-obstacle shapes (:func:`planner_client.global_path.signed_distance`, exact), and their union
-(:func:`compose`, the elementwise min). Each is a :class:`DistanceField`.
+obstacle footprints (:func:`planner_client.global_path.signed_distance`, exact) or solids in
+3-D (:func:`solid_field`, exact), and their union (:func:`compose`, the elementwise min). Each is
+a :class:`DistanceField`.
 
 An occupied cell stands for a square (cube) of one cell: a free cell's distance is the one to
 the nearest occupied cell's centre less half a cell, an occupied cell's is minus the one to the
@@ -14,6 +15,7 @@ margin keeps the robot away from).
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 
 import numpy as np
 import torch
@@ -77,6 +79,67 @@ def known_field(
     out = np.hypot(np.maximum(d2, 0.0), np.maximum(dz, 0.0))
     values = out + np.minimum(np.maximum(d2, dz), 0.0)
     return _field(np.minimum(values, limit), spec, time)
+
+
+@dataclass(frozen=True)
+class Solid:
+    """A known obstacle's geom in the world frame: ``kind`` (``box``, ``sphere``, ``capsule``,
+    ``cylinder`` or ``plane``), MuJoCo's half-sizes ``size [3]``, centre ``pos [3]`` and axes
+    ``rot [3, 3]`` (columns, the geom's x, y, z in the world frame). A plane is the half-space
+    below it (behind its z axis)."""
+
+    kind: str
+    size: tuple[float, float, float]
+    pos: tuple[float, float, float]
+    rot: tuple[tuple[float, float, float], ...]
+
+    def distance(self, points: np.ndarray) -> np.ndarray:
+        """Signed distance ``[N]`` of ``points [N, 3]`` (world frame, m), negative inside."""
+        local = (points - np.asarray(self.pos)) @ np.asarray(self.rot)  # [N, 3] in its axes
+        a, b, h = self.size
+        if self.kind == "plane":
+            return local[:, 2]
+        if self.kind == "sphere":
+            return np.linalg.norm(local, axis=1) - a
+        if self.kind == "capsule":
+            axial = local[:, 2] - np.clip(local[:, 2], -b, b)
+            return np.hypot(np.hypot(local[:, 0], local[:, 1]), axial) - a
+        if self.kind == "cylinder":
+            q = np.stack([np.hypot(local[:, 0], local[:, 1]) - a, np.abs(local[:, 2]) - b], 1)
+        elif self.kind == "box":
+            q = np.abs(local) - np.array([a, b, h])
+        else:
+            raise ValueError(f"a solid is a box, sphere, capsule, cylinder or plane: {self.kind}")
+        outside = np.linalg.norm(np.maximum(q, 0.0), axis=1)
+        return outside + np.minimum(q.max(axis=1), 0.0)
+
+    def bounds(self) -> tuple[np.ndarray, np.ndarray]:
+        """The low and high corners ``[3]`` of its axis-aligned bounding box (a plane's is
+        the whole space), m."""
+        rot, (a, b, h) = np.abs(np.asarray(self.rot)), self.size
+        if self.kind == "plane":
+            return np.full(3, -np.inf), np.full(3, np.inf)
+        if self.kind == "box":
+            half = rot @ np.array([a, b, h])
+        elif self.kind == "sphere":
+            half = np.full(3, a)
+        elif self.kind == "capsule":  # its segment and a ball round it
+            half = b * rot[:, 2] + a
+        else:  # a cylinder: its axis' reach and its end discs'
+            half = b * rot[:, 2] + a * np.sqrt(np.clip(1.0 - rot[:, 2] ** 2, 0.0, 1.0))
+        return np.asarray(self.pos) - half, np.asarray(self.pos) + half
+
+
+def solid_field(solids: list[Solid], spec: GridSpec, time: float = 0.0) -> DistanceField:
+    """The signed distance of the union of ``solids`` at the cell centres of a 3-D grid, exact
+    (each solid's own distance, their min), at most :func:`far`."""
+    if spec.dims != 3:
+        raise ValueError("solids are measured on a 3-D grid")
+    points = spec.centres().reshape(-1, 3)
+    values = np.full(points.shape[0], far(spec))
+    for s in solids:
+        np.minimum(values, s.distance(points), out=values)
+    return _field(values.reshape(spec.shape), spec, time)
 
 
 def compose(*fields: DistanceField) -> DistanceField:

@@ -4,7 +4,9 @@ arm's workspace), fuses the scans it is given, turns the map into a signed dista
 composed with the known geometry, and publishes it.
 
 The controller hands it each state's scans with :meth:`MapUpdater.submit`, from the network
-loop: that only queues them. Where they are fused depends on the mode, as for the guide
+loop: that only queues them, each with the spheres its ``self_filter`` reads from the state's
+mirrored scene then (:mod:`planner_client.perception.self_filter`: the robot and what the
+planner models, not fused as obstacles). Where they are fused depends on the mode, as for the guide
 (:mod:`planner_client.guide`):
 
 - **real time** (``threaded=True``): a thread of its own fuses whatever is queued and
@@ -27,7 +29,10 @@ import collections
 import logging
 import threading
 import time
-from collections.abc import Iterable
+from collections.abc import Callable, Iterable
+from typing import Any
+
+import numpy as np
 
 from planner_client.perception.field import DistanceField
 from planner_client.perception.occupancy import OccupancyMap
@@ -43,6 +48,8 @@ class MapUpdater:
     """Fuses scans into ``occupancy`` and publishes its signed distance field, composed with
     ``known`` (a field on the same grid: the declared walls and objects) when given (module
     docstring). ``sensors``: the names of the sensors it reads (all the map accepts when None).
+    ``self_filter``: the spheres ``[n, 4]`` (centre, radius, m) that a state's mirrored scene
+    holds what the planner models in, cut out of the scans that came with it (None: none).
     """
 
     def __init__(
@@ -51,6 +58,7 @@ class MapUpdater:
         known: DistanceField | None = None,
         sensors: Iterable[str] | None = None,
         threaded: bool = False,
+        self_filter: Callable[[Any], np.ndarray] | None = None,
     ):
         spec = occupancy.spec
         if known is not None and (
@@ -61,7 +69,9 @@ class MapUpdater:
             raise ValueError("the known field must lie on the map's grid")
         self.map, self.known, self.cfg = occupancy, known, occupancy.cfg
         self.sensors = None if sensors is None else frozenset(sensors)
-        self._queue: collections.deque[Scan] = collections.deque()
+        self.self_filter = self_filter
+        # each scan with the spheres cut out of it (None: nothing)
+        self._queue: collections.deque[tuple[Scan, np.ndarray | None]] = collections.deque()
         self._cv = threading.Condition()
         self._work = threading.Lock()  # one fusion at a time: the thread's or update_now's
         self._field: DistanceField | None = None
@@ -75,10 +85,14 @@ class MapUpdater:
             self._thread = threading.Thread(target=self._run, name="map-updater", daemon=True)
             self._thread.start()
 
-    def submit(self, scans: Iterable[Scan]) -> None:
+    def submit(self, scans: Iterable[Scan], scene: Any = None) -> None:
         """Queue scans for the map (cheap: the network loop calls it with each state's). The
         oldest are dropped past ``cfg.max_queue``; scans of other sensors or kinds are
-        ignored."""
+        ignored. ``scene``: the planner's mirror of the state they came with (its kinematics
+        done), which the self-filter reads now (None: the scans are fused unfiltered)."""
+        spheres = None
+        if self.self_filter is not None and scene is not None:
+            spheres = self.self_filter(scene)
         with self._cv:
             for scan in scans:
                 if not self._reads(scan):
@@ -87,7 +101,7 @@ class MapUpdater:
                 if len(self._queue) >= self.cfg.max_queue:
                     self._queue.popleft()
                     self._counts["dropped"] += 1
-                self._queue.append(scan)
+                self._queue.append((scan, spheres))
                 self._counts["submitted"] += 1
             self._cv.notify_all()
 
@@ -135,18 +149,18 @@ class MapUpdater:
         named = self.sensors is None or scan.name in self.sensors
         return named and self.map.accepts(scan)
 
-    def _take(self) -> list[Scan]:
+    def _take(self) -> list[tuple[Scan, np.ndarray | None]]:
         with self._cv:
             scans = list(self._queue)
             self._queue.clear()
         return scans
 
-    def _fuse(self, scans: list[Scan]) -> None:
+    def _fuse(self, scans: list[tuple[Scan, np.ndarray | None]]) -> None:
         if not scans:
             return
         start = time.perf_counter()
-        for scan in scans:
-            self.map.insert(scan)
+        for scan, spheres in scans:
+            self.map.insert(scan, spheres)
         spent = time.perf_counter() - start
         with self._cv:
             self._times["fuse_s"] = spent

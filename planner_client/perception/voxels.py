@@ -1,7 +1,8 @@
 """A 3-D occupancy map of an arm's workspace from depth cameras (and lidars): a box of the
 world in voxels ``[D, H, W]`` (:mod:`occupancy` fuses; this module chooses the rays: all of
 them, in 3-D). A camera sees the table or floor it looks at: a box that starts above it leaves
-them out (the known geometry holds them better, :func:`planner_client.perception.sdf.known_field`).
+them out (the planner's model holds them, and its contacts keep the arm off them;
+:func:`planner_client.maps.default_box`).
 """
 
 from __future__ import annotations

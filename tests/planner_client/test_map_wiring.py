@@ -133,5 +133,6 @@ def test_m3p2i_check_names_a_bad_map_key(tmp_path):
     path.write_text(yaml.safe_dump(raw))
     errors = [str(e) for e in scenario_errors(path)]
     assert errors == [
-        f"{path}: planner.map.rat: unknown key (expected one of: rate, resolution)"
+        f"{path}: planner.map.rat: unknown key"
+        " (expected one of: box, dims, padding, rate, resolution)"
     ], errors
