@@ -310,13 +310,15 @@ class Guide:
         self.data = mujoco.MjData(
             model
         )  # the reference pose: which planes face up, the goal height
+        # an object the robot moves, not the robot or one of its bodies (a mobile base)
+        guided = any(o.name == cfg.for_ and not o.fixed for o in scenario.world.objects)
         names = cfg.obstacles
         if names is None:
             names = list(WALL_NAMES) if scenario.world.arena else []
             names += [
                 o.name
                 for o in scenario.world.objects
-                if not o.visual and o.name != cfg.for_ and (o.obstacle or cfg.for_ != "robot")
+                if not o.visual and o.name != cfg.for_ and (o.obstacle or guided)
             ]
         bodies = [resolve(n).id for n in names if n != cfg.for_]
         mujoco.mj_kinematics(model, self.data)
@@ -325,7 +327,6 @@ class Guide:
         self._goal_z = float(self.goal.pos(self.data)[2])
         robot_body = resolve("robot")
         robot_r = footprint(model, robot_body.id, inscribed=False)
-        guided = cfg.for_ != "robot"
         self.radius = (
             cfg.radius if cfg.radius is not None else footprint(model, self.body.id, guided)
         )

@@ -23,14 +23,14 @@ ROOM_MODES = ("none", "push", "pull", "any")
 
 @dataclass(frozen=True)
 class GuideConfig:
-    """``guide:``: a path for body ``for_`` (``robot`` or a free object) to frame ``goal``,
-    planned by ``method`` on a grid of ``resolution`` m around the obstacles, each grown by the
-    body's footprint ``radius`` (None: from its geoms) plus ``inflate``. For an object, ``room``
-    asks for room for the robot beside it at each step (``push``: behind, ``pull``: ahead or at
-    its side, ``any``: either), touching it and ``gap`` m clear of the obstacles. The sub-goal
-    ``site:guide`` sits ``lookahead`` m along the path beyond the body; the path is planned
-    again when an obstacle moves more than ``replan_move`` m or the body is more than
-    ``replan_distance`` m off it."""
+    """``guide:``: a path for body ``for_`` (``robot``, a body of the robot, e.g. a mobile base,
+    or a free object) to frame ``goal``, planned by ``method`` on a grid of ``resolution`` m
+    around the obstacles, each grown by the body's footprint ``radius`` (None: from its geoms)
+    plus ``inflate``. For an object, ``room`` asks for room for the robot beside it at each step
+    (``push``: behind, ``pull``: ahead or at its side, ``any``: either), touching it and ``gap``
+    m clear of the obstacles. The sub-goal ``site:guide`` sits ``lookahead`` m along the path
+    beyond the body; the path is planned again when an obstacle moves more than ``replan_move``
+    m or the body is more than ``replan_distance`` m off it."""
 
     for_: str
     goal: str
@@ -47,9 +47,10 @@ class GuideConfig:
 
 
 def parse_guide(s: Section, objects: dict[str, bool]) -> GuideConfig:
-    """``objects``: the world's non-visual objects by name, True for the free ones."""
-    for_ = s.req("for", str, "robot or a free object's name")
-    if for_ != "robot" and not objects.get(for_, False):
+    """``objects``: the world's objects by name, True for the free ones (any other name is the
+    robot's body, checked against the planner's model when it is built)."""
+    for_ = s.req("for", str, "robot, a body of the robot or a free object's name")
+    if for_ in objects and not objects[for_]:
         free = [n for n, f in objects.items() if f]
         expected = ", ".join(["robot", *free]) if free else "robot (the world has no free object)"
         raise s.error("for", "not the robot or a free object", for_, expected)
@@ -67,7 +68,7 @@ def parse_guide(s: Section, objects: dict[str, bool]) -> GuideConfig:
         replan_move=s.opt("replan_move", 0.05, positive, "metres > 0"),
         obstacles=s.opt("obstacles", None, string_list, "a list of body names"),
     )
-    if cfg.room != "none" and for_ == "robot":
+    if cfg.room != "none" and not objects.get(for_, False):
         raise s.error("room", "is for an object the robot moves", cfg.room, "none for the robot")
     if cfg.resolution > 1.0:
         raise s.error(

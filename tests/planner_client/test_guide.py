@@ -127,7 +127,7 @@ def _with_guide(guide, **more) -> dict:
 @pytest.mark.parametrize(
     "guide, key, message",
     [
-        ({"for": "table", "goal": "goal"}, "guide.for", "not the robot or a free object"),
+        ({"for": "goal", "goal": "goal"}, "guide.for", "not the robot or a free object"),
         ({"for": "u_back", "goal": "goal"}, "guide.for", "not the robot or a free object"),
         ({"for": "robot", "goal": "goal", "method": "rrt"}, "guide.method", "one of: astar"),
         ({"for": "robot", "goal": "goal", "room": "push"}, "guide.room", "object the robot"),

@@ -81,7 +81,7 @@ def test_a_faulty_guide_is_reported_once(tmp_path):
 
 def test_guide_for_names_what_it_may_be_without_a_dangling_comma():
     raw = _raw("navigation_trap_guided")
-    raw["guide"]["for"] = "table"
+    raw["guide"]["for"] = "goal"  # a marker: fixed
     text = _refused(raw, r"guide.for: not the robot or a free object")
     assert "expected robot (the world has no free object))" in text, text
 
