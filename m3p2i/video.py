@@ -115,7 +115,8 @@ def read_tops(path: Path) -> dict[int, np.ndarray]:
     """seq -> ``[M, T, 3]`` best sampled trajectories, from a diagnostics file (empty if none)."""
     if not path.is_file():
         return {}
-    return {r["seq"]: np.asarray(r["top"], dtype=float) for r in log_reader.read_log(path)}
+    records = log_reader.read_log(path)  # a view's records of scans and fields have a kind
+    return {r["seq"]: np.asarray(r["top"], dtype=float) for r in records if "kind" not in r}
 
 
 # ------------------------------------------------------------------------------ rendering (child)

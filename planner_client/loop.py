@@ -27,6 +27,7 @@ import time
 import zmq
 
 from planner_client.controller import Controller, LoopStats
+from planner_client.perception.field_message import FIELD_TOPIC, FieldPublisher
 from shared import protocol as P
 from shared.endpoints import Endpoints, socket
 from shared.security import (
@@ -40,6 +41,7 @@ from shared.security import (
 
 log = logging.getLogger("m3p2i.planner")
 
+STATE_QUEUE = 256  # states a planner holds unread: 2.5 s of a 100 Hz world
 _HANDSHAKE_FAILURES = 20  # failed handshakes in a row, no reply between: a key problem (a
 # wrong key fails ~10 times a second; a restarting world not so)
 
@@ -82,7 +84,11 @@ class PlannerClient:
         self.min_period = 1.0 / max_rate if max_rate > 0 else 0.0
         self.keys = keys
         self.ctx = zmq.Context()
-        self.sub = socket(self.ctx, zmq.SUB, conflate=True)  # only the newest state matters
+        # not conflated: a real-time world's states carry each sensor reading once, so the
+        # loop drains every state waiting, plans on the newest and keeps the readings of the
+        # others (_newest); the queue is bounded, and a world that overruns it drops states
+        self.sub = socket(self.ctx, zmq.SUB)
+        self.sub.setsockopt(zmq.RCVHWM, STATE_QUEUE)
         self.sub.setsockopt(zmq.SUBSCRIBE, b"")
         self._secure(self.sub)
         self.sub.connect(endpoints.state)
@@ -92,6 +98,8 @@ class PlannerClient:
         self.diag = None
         self.auth = None
         self._listeners = 0  # distinct subscriptions to the diagnostics (see _listened)
+        self._field_listeners = 0  # of them, to the map's field (a browser view's)
+        self._fields = FieldPublisher()
         if diagnostics:
             # XPUB, not PUB: it tells when someone subscribes, so that the diagnostics (the
             # viewer's top trajectories: a tenth of navigation's planning work) are made only
@@ -293,14 +301,8 @@ class PlannerClient:
                     self.handshake()
                     last_state_at = time.monotonic()
                 continue
-            try:
-                state = P.decode(self.sub.recv(), expect="state", versions=P.VERSIONS)
-            except P.ProtocolError as exc:
-                self.dropped_states += 1  # said for the first ten, then every hundredth
-                if self.dropped_states <= 10 or self.dropped_states % 100 == 0:
-                    log.warning(
-                        "dropped a bad state message (%d so far): %s", self.dropped_states, exc
-                    )
+            state = self._newest()
+            if state is None:
                 continue
             last_state_at = time.monotonic()
             if state.session != self.welcome.session:
@@ -331,13 +333,45 @@ class PlannerClient:
                 time.sleep(max(0.0, began + self.min_period - time.monotonic()))
         return self.stats
 
+    def _newest(self) -> P.State | None:
+        """The newest state waiting (None: only bad messages), carrying the sensor readings of
+        the states it overtook that were never answered, oldest first: a planner slower than
+        the world plans on the newest state, and its map still gets every reading."""
+        states = []
+        while True:
+            try:
+                raw = self.sub.recv(zmq.NOBLOCK)
+            except zmq.Again:
+                break
+            try:
+                states.append(P.decode(raw, expect="state", versions=P.VERSIONS))
+            except P.ProtocolError as exc:
+                self.dropped_states += 1  # said for the first ten, then every hundredth
+                if self.dropped_states <= 10 or self.dropped_states % 100 == 0:
+                    log.warning(
+                        "dropped a bad state message (%d so far): %s", self.dropped_states, exc
+                    )
+        if not states:
+            return None
+        newest = states[-1]
+        answered = self._answered[1] if self._answered else -1
+        # a re-published state (same seq) carries the same readings: each seq's once
+        seqs, carried = {newest.seq}, []
+        for s in states[:-1]:
+            if s.session == newest.session and s.seq > answered and s.seq not in seqs:
+                seqs.add(s.seq)
+                carried += s.scans
+        if not carried:
+            return newest
+        return dataclasses.replace(newest, scans=carried + list(newest.scans))
+
     @property
     def stats(self) -> LoopStats:
         return self.controller.stats
 
     def _step(self, state: P.State) -> None:
         """Answer ``state`` with the controller's command, then publish its diagnostics when
-        someone listens."""
+        someone listens (and the map's newest field when a view does)."""
         command = self.controller.step(state)
         if command is None:
             return
@@ -346,21 +380,29 @@ class PlannerClient:
         self.push.send(self._answer)
         if self.diag is not None and self._listened():
             self.diag.send(P.encode(self.controller.diagnostics()))
+            if self._field_listeners and self.controller.map is not None:
+                frame = self._fields.frame(self.controller.map.latest())
+                if frame is not None:
+                    self.diag.send(frame)
 
     def _listened(self) -> bool:
         """Whether anyone subscribes to the diagnostics now. XPUB hands up each distinct
         subscription when it is first made (a message starting with byte 1) and when its last
-        subscriber leaves or disconnects (byte 0); only that first byte is read, and at most
-        64 messages an iteration (the rest wait for the next)."""
+        subscriber leaves or disconnects (byte 0), then the subscription's topic: only
+        :data:`FIELD_TOPIC`'s is told apart (the map's field is made for it alone); at most 64
+        messages an iteration (the rest wait for the next)."""
         for _ in range(64):
             try:
                 msg = self.diag.recv(zmq.NOBLOCK)
             except zmq.Again:
                 break
+            field = msg[1:] == FIELD_TOPIC
             if msg[:1] == b"\x01":
                 self._listeners += 1
+                self._field_listeners += field
             elif msg[:1] == b"\x00":
                 self._listeners = max(0, self._listeners - 1)
+                self._field_listeners = max(0, self._field_listeners - field)
         return self._listeners > 0
 
     def close(self) -> None:

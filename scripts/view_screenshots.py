@@ -4,6 +4,8 @@ headless chromium (WebGL on the CPU); then the same episode's replay page at its
 
     python scripts/view_screenshots.py pick_place --at 1.8
     python scripts/view_screenshots.py push_pull_corner2 --at 3.0
+    python scripts/view_screenshots.py navigation_seen --at 2.0
+    python scripts/view_screenshots.py pick_place_seen --at 2.0
 
 Needs m3p2i[view], chromium (apt-get install chromium) and a clone: the photographs are taken
 by the tests' headless browser (tests/browser.py; no command of the product needs one). Prints
@@ -67,6 +69,9 @@ def main() -> None:
     ap.add_argument("--out", type=Path, default=Path("docs/media"), help="folder of the PNGs")
     ap.add_argument("--width", type=int, default=1000)
     ap.add_argument("--height", type=int, default=700)
+    ap.add_argument(
+        "--wait", type=float, default=6.0, help="wall seconds a page loads before its photograph"
+    )
     args = ap.parse_args()
     args.out.mkdir(parents=True, exist_ok=True)
     run_dir = Path(tempfile.mkdtemp(prefix="view-")) / "run"
@@ -97,7 +102,7 @@ def main() -> None:
         # the world holds still while the page is photographed (a loaded machine takes a while)
         control.send(Control(op="pause"))
         live = args.out / f"view_{args.scenario}.png"
-        chromium_screenshot(url, live, args.width, args.height)
+        chromium_screenshot(url, live, args.width, args.height, int(args.wait * 1000))
         print(f"wrote {live}")
         control.send(Control(op="resume"))
         run.wait()
@@ -124,7 +129,7 @@ def main() -> None:
     try:
         url = _url(replay)
         out = args.out / f"view_{args.scenario}_replay.png"
-        chromium_screenshot(url, out, args.width, args.height)
+        chromium_screenshot(url, out, args.width, args.height, int(args.wait * 1000))
         print(f"wrote {out}")
     finally:
         replay.send_signal(signal.SIGINT)

@@ -10,7 +10,8 @@ the wheel, so the page loads with no network beyond the machine serving it. The 
 :mod:`m3p2i.view_scene` (pure: the model's geoms as meshes, their poses).
 
 Modules: ``page`` (the web server and its origin guard), ``drawing`` (scene, trajectories,
-panel), ``live`` (the live page and its controls), ``playback`` (the replay page)."""
+panel), ``perception`` (the sensors' points and the planner's distance map, and their records),
+``live`` (the live page and its controls), ``playback`` (the replay page)."""
 
 from m3p2i.view.drawing import (
     MODE_COLOURS,

@@ -16,14 +16,25 @@ import zmq
 
 from m3p2i.view.drawing import PANEL_HZ, PATH_STEP, SCENE_HZ, PanelInfo, SceneDrawing, robot_frame
 from m3p2i.view.page import viser_server
-from server.episode import published_mocap
+from m3p2i.view.perception import (
+    RECORD_PERIOD,
+    PerceptionDrawing,
+    field_record,
+    scan_points,
+    scan_record,
+)
+from planner_client.perception.field_message import FIELD_TOPIC, FieldSlice, decode_field
+from server.episode import Published
 from shared import protocol as P
 from shared.endpoints import Endpoints, socket
+from shared.scans import Scan
 from shared.scenario import Scenario
 from shared.scene import compile_model, initial_data, set_state
 from shared.security import PlannerKeys, curve_client
 
 log = logging.getLogger("m3p2i.view")
+
+_DRAIN = 256  # states read at most per poll where their scans matter (the newest is drawn)
 
 
 class ControlClient:
@@ -63,7 +74,9 @@ class ControlClient:
 
 class DiagnosticsLog:
     """Appends the planner's diagnostics to a JSON-lines file for the replay, at most ``hz``
-    messages per wall second (the replay draws trajectories, it does not need every one)."""
+    messages per wall second (the replay draws trajectories, it does not need every one);
+    and, with a ``kind``, the planner's fields as they come (2 Hz at most) and each sensor's
+    points every :data:`RECORD_PERIOD` world seconds (m3p2i.view.perception)."""
 
     def __init__(self, path: Path, hz: float = 20.0):
         self.path = Path(path)
@@ -71,6 +84,7 @@ class DiagnosticsLog:
         self._f = self.path.open("w", buffering=1)
         self._period = 1.0 / hz
         self._last = -np.inf
+        self._scan_times: dict[str, float] = {}
 
     def write(self, msg: P.Diagnostics) -> None:
         now = time.monotonic()
@@ -78,6 +92,17 @@ class DiagnosticsLog:
             return
         self._last = now
         self._f.write(json.dumps(diagnostics_record(msg)) + "\n")
+
+    def write_scan(self, name: str, time: float, points: np.ndarray) -> None:
+        """A sensor's points, unless one of its was recorded less than
+        :data:`RECORD_PERIOD` world seconds before (an episode reset starts afresh)."""
+        if 0 <= time - self._scan_times.get(name, -np.inf) < RECORD_PERIOD:
+            return
+        self._scan_times[name] = time
+        self._f.write(json.dumps(scan_record(name, time, points)) + "\n")
+
+    def write_field(self, fs: FieldSlice) -> None:
+        self._f.write(json.dumps(field_record(fs)) + "\n")
 
     def close(self) -> None:
         self._f.close()
@@ -119,25 +144,40 @@ class LiveView:
         self.scenario = scenario
         self.model = compile_model(scenario)
         self.data = initial_data(scenario, self.model)
-        # a state carries these mocap rows: perceived objects stay where the file puts them
-        self._mocap_rows = published_mocap(scenario, self.model)
+        # a state carries these rows: perceived objects stay where the file puts them
+        self._rows = Published.of(scenario, self.model)
         self.robot = robot_frame(scenario, self.model)
         self.controls = controls  # False: the page only shows (pause, reset, move: none)
         self.server = viser_server(host, port, f"m3p2i {scenario.name}")
         self.drawing = SceneDrawing(self.server, self.model, self.data)
         self.info = PanelInfo(scenario=scenario.name)
+        sensors = [s.name for s in scenario.sensors]
+        self.perception = (
+            PerceptionDrawing(self.server, sensors, self.drawing.scale) if sensors else None
+        )
+        self._scans: dict[str, Scan] = {}  # each sensor's newest reading, not yet drawn
+        self._scan_times: dict[str, float] = {}
         self.ctx = zmq.Context()
-        self.state_sub = socket(self.ctx, zmq.SUB, conflate=True)
+        # with sensors, every state is read: a reading travels in one state only (or in one
+        # re-published lock-step state), and the newest state seldom carries one
+        self.state_sub = socket(self.ctx, zmq.SUB, conflate=not sensors)
         self.state_sub.setsockopt(zmq.SUBSCRIBE, b"")
         self.diag_sub = socket(self.ctx, zmq.SUB, conflate=True)
         self.diag_sub.setsockopt(zmq.SUBSCRIBE, b"")
+        # the planner makes its map's fields only for a subscriber of their topic
+        self.field_sub = socket(self.ctx, zmq.SUB, conflate=True) if sensors else None
+        subs = [s for s in (self.diag_sub, self.field_sub) if s is not None]
+        if self.field_sub is not None:
+            self.field_sub.setsockopt(zmq.SUBSCRIBE, FIELD_TOPIC)
         if keys is not None:
             # CURVE, as a tool beside the planner: the planner's pair; the world's key checked
             # on the state socket, the planner's own on its diagnostics socket
             curve_client(self.state_sub, keys.own, keys.world)
-            curve_client(self.diag_sub, keys.own, keys.own.public)
+            for sub in subs:
+                curve_client(sub, keys.own, keys.own.public)
         self.state_sub.connect(endpoints.state)
-        self.diag_sub.connect(endpoints.diagnostics)
+        for sub in subs:
+            sub.connect(endpoints.diagnostics)
         self.control = ControlClient(self.ctx, endpoints, keys=keys)
         self.record = DiagnosticsLog(record) if record else None
         self._path: list[np.ndarray] = []
@@ -156,6 +196,8 @@ class LiveView:
         gui = self.server.gui
         self.panel = gui.add_markdown(self.info.markdown())
         self.buttons, self.gizmos = {}, {}
+        if self.perception is not None:
+            self.perception.add_toggles(gui)
         if not self.controls:
             gui.add_markdown("*controls off* (a `--public` view without `--public-controls`)")
             return
@@ -227,13 +269,17 @@ class LiveView:
         poller = zmq.Poller()
         poller.register(self.state_sub, zmq.POLLIN)
         poller.register(self.diag_sub, zmq.POLLIN)
+        if self.field_sub is not None:
+            poller.register(self.field_sub, zmq.POLLIN)
         end = None if duration is None else time.monotonic() + duration
         last_scene = last_panel = 0.0
         state = diag = None
         while not self.stop.is_set() and (end is None or time.monotonic() < end):
             events = dict(poller.poll(20))
             if self.state_sub in events:
-                state = self._receive(self.state_sub, "state") or state
+                state = self._states() or state
+            if self.field_sub is not None and self.field_sub in events:
+                self._field(self.field_sub.recv())
             if self.diag_sub in events:
                 got = self._receive(self.diag_sub, "diagnostics")
                 if got is not None:
@@ -242,6 +288,7 @@ class LiveView:
             now = time.monotonic()
             if state is not None and now - last_scene >= 1 / SCENE_HZ:
                 self._state(state)
+                self._draw_scans()
                 if diag is not None:
                     self.drawing.set_top(diag.top, diag.top_modes)
                     self.drawing.set_guide(diag.guide)
@@ -252,20 +299,59 @@ class LiveView:
                 self.panel.content = self.info.markdown()
                 last_panel = now
 
-    def _receive(self, sock, kind: str):
+    def _receive(self, sock, kind: str, frame: bytes | None = None):
+        frame = sock.recv() if frame is None else frame
+        if frame.startswith(FIELD_TOPIC):  # a field on the diagnostics' socket: field_sub's
+            return None
         try:
-            return P.decode(sock.recv(), expect=kind)
+            return P.decode(frame, expect=kind)
         except P.ProtocolError as exc:
             log.warning("ignored a %s message: %s", kind, exc)
             return None
 
+    def _states(self) -> P.State | None:
+        """The newest waiting state, each sensor's newest reading kept from all of them."""
+        state = None
+        for _ in range(_DRAIN):
+            try:
+                frame = self.state_sub.recv(zmq.NOBLOCK)
+            except zmq.Again:
+                break
+            got = self._receive(self.state_sub, "state", frame)
+            if got is None:
+                continue
+            state = got
+            for scan in got.scans:  # a re-published state repeats its readings
+                if scan.time != self._scan_times.get(scan.name):
+                    self._scan_times[scan.name] = scan.time
+                    self._scans[scan.name] = scan
+        return state
+
+    def _draw_scans(self) -> None:
+        if self.perception is None or not self._scans:
+            return
+        points = {name: scan_points(scan) for name, scan in self._scans.items()}
+        self.perception.set_scans(points)
+        if self.record is not None:
+            for name, scan in self._scans.items():
+                self.record.write_scan(name, scan.time, points[name])
+        self._scans.clear()
+
+    def _field(self, frame: bytes) -> None:
+        try:
+            fs = decode_field(frame)
+        except P.ProtocolError as exc:
+            log.warning("ignored a field message: %s", exc)
+            return
+        self.perception.set_field(fs)
+        if self.record is not None:
+            self.record.write_field(fs)
+
     def _state(self, state: P.State) -> None:
         values = vars(state)
         try:
-            if self._mocap_rows is not None:
-                pos, quat = self.data.mocap_pos.copy(), self.data.mocap_quat.copy()
-                pos[self._mocap_rows], quat[self._mocap_rows] = state.mocap_pos, state.mocap_quat
-                values = {**values, "mocap_pos": pos, "mocap_quat": quat}
+            if self._rows is not None:
+                values = {**values, **self._rows.into(self.data, state)}
             set_state(self.model, self.data, values)
         except ValueError as exc:
             self.info.note = (
@@ -308,8 +394,9 @@ class LiveView:
         :class:`ReplayView` to take over (``m3p2i run --view`` once its episode is over)."""
         self.stop.set()
         if not self.ctx.closed:
-            for s in (self.state_sub, self.diag_sub):
-                s.close(0)
+            for s in (self.state_sub, self.diag_sub, self.field_sub):
+                if s is not None:
+                    s.close(0)
             self.ctx.term()
             if self.record is not None:
                 self.record.close()

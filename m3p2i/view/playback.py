@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import threading
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import mujoco
@@ -13,6 +13,7 @@ import numpy as np
 
 from m3p2i.view.drawing import PanelInfo, SceneDrawing, robot_frame
 from m3p2i.view.page import viser_server
+from m3p2i.view.perception import PerceptionDrawing, PerceptionTrack
 from server.evaluation import log_reader
 from shared.scenario import Scenario
 from shared.scene import compile_model, initial_data
@@ -21,7 +22,8 @@ from shared.scene import compile_model, initial_data
 @dataclass
 class Replay:
     """An episode log ready to draw: its step records, action changes, metrics and, when
-    recorded, the planner's diagnostics by state seq."""
+    recorded, the planner's diagnostics by state seq and the scans and fields the view
+    recorded (m3p2i.view.perception)."""
 
     scenario: Scenario
     steps: list[dict]
@@ -29,6 +31,7 @@ class Replay:
     summary: dict | None
     diagnostics: dict[int, dict]
     disturbances: list[dict]
+    perception: PerceptionTrack = field(default_factory=PerceptionTrack)
 
     @property
     def times(self) -> np.ndarray:
@@ -64,10 +67,10 @@ def load_replay(log_path: Path, scenario: str | None = None) -> Replay:
         r for r in records if r.get("kind") == "event" and r.get("what") == "disturbance"
     ]
     diag_path = path.parent / "diagnostics.jsonl"
-    diags = (
-        {int(r["seq"]): r for r in log_reader.read_log(diag_path)} if diag_path.is_file() else {}
-    )
-    return Replay(sc, steps, actions, summary, diags, disturbances)
+    recorded = log_reader.read_log(diag_path) if diag_path.is_file() else []
+    diags = {int(r["seq"]): r for r in recorded if "kind" not in r}
+    track = PerceptionTrack.of([r for r in recorded if "kind" in r])
+    return Replay(sc, steps, actions, summary, diags, disturbances, track)
 
 
 def action_timeline(actions: list[tuple[float, str]], now: float) -> str:
@@ -116,11 +119,17 @@ class ReplayView:
             server.gui.reset()
         self.server = server or viser_server(host, port, f"m3p2i replay {sc.name}")
         self.drawing = SceneDrawing(self.server, self.model, self.data)
+        sensors = [s.name for s in sc.sensors]
+        self.perception = (
+            PerceptionDrawing(self.server, sensors, self.drawing.scale) if sensors else None
+        )
         self.path = self._robot_path()
         times = replay.times
         self.stop = threading.Event()
         gui = self.server.gui
         self.panel = gui.add_markdown("")
+        if self.perception is not None:
+            self.perception.add_toggles(gui)
         self.slider = gui.add_slider(
             "time [s]",
             min=float(times[0]),
@@ -172,6 +181,9 @@ class ReplayView:
             None if d is None or "top_modes" not in d else np.asarray(d["top_modes"]),
         )
         self.drawing.set_guide(None if d is None or "guide" not in d else np.asarray(d["guide"]))
+        if self.perception is not None:
+            self.perception.set_scans(self.replay.perception.scans_at(float(step["time"])))
+            self.perception.set_field(self.replay.perception.field_at(float(step["time"])))
         info = PanelInfo(
             scenario=self.replay.scenario.name,
             time=float(step["time"]),
@@ -189,6 +201,9 @@ class ReplayView:
             info.model = d.get("model", {})
         elif not self.replay.diagnostics:
             info.note = "(no diagnostics.jsonl beside the log: no sampled trajectories to show)"
+        if self.perception is not None and not self.replay.perception:
+            note = "(no scans or map recorded: the run had no --view)"
+            info.note = f"{info.note} {note}" if info.note else note
         self.panel.content = info.markdown()
         self.timeline.content = action_timeline(self.replay.actions, float(step["time"]))
 

@@ -161,7 +161,7 @@ def test_diagnostics_are_made_only_while_someone_subscribes():
     ctx = zmq.Context()
     xpub = ctx.socket(zmq.XPUB)
     port = xpub.bind_to_random_port("tcp://127.0.0.1")
-    client = types.SimpleNamespace(diag=xpub, _listeners=0)
+    client = types.SimpleNamespace(diag=xpub, _listeners=0, _field_listeners=0)
     listened = lambda: PlannerClient._listened(client)  # noqa: E731
 
     def until(want: bool) -> bool:
