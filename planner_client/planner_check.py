@@ -13,8 +13,8 @@ import os
 
 import mujoco
 
-from planner_client.guide import GuideState, add_site
 from planner_client.budget import budget_config
+from planner_client.guide import GuideState, add_site
 from planner_client.maps import map_config
 from planner_client.problem import (
     actuator_names,

@@ -231,7 +231,7 @@ class _Bench:
             return
         scans = self.sensing.scans(self.data)
         if scans:
-            self.controller.map.submit(scans)
+            self.controller.map.submit(scans, self.data)  # the scene: the self-filter
             t = time.perf_counter()
             self.controller.map.update_now()
             self.map_times.append(time.perf_counter() - t)
