@@ -44,6 +44,8 @@ class EpisodeSeries:
     # "mass.box" -> [T] the planner's estimated factor at each step (NaN before it sent one)
     model: dict[str, np.ndarray] = field(default_factory=dict)
     truth: dict[str, float] = field(default_factory=dict)  # "mass.box" -> the world's factor
+    # [T] the anytime planner's samples per mode (planner.budget), None without a budget
+    samples: np.ndarray | None = None
 
 
 def cos_rog(robot: np.ndarray, obj: np.ndarray, goal: np.ndarray) -> np.ndarray:
@@ -100,7 +102,16 @@ def episode_series(scenario: Scenario, records: list[dict]) -> EpisodeSeries:
         arena=scenario.world.arena.half_size if scenario.world.arena else None,
         model=model_estimates(steps),
         truth={f"{k}.{n}": float(v) for k, names in truth.items() for n, v in names.items()},
+        samples=budget_samples(steps),
     )
+
+
+def budget_samples(steps: list[dict]) -> np.ndarray | None:
+    """``[T]`` the samples per mode of the command each step played (NaN before the first), or
+    None when the planner had no budget."""
+    if not any("samples" in s for s in steps):
+        return None
+    return np.array([float(s.get("samples", np.nan)) for s in steps])
 
 
 def model_estimates(steps: list[dict]) -> dict[str, np.ndarray]:
@@ -117,7 +128,7 @@ def plot_episode(series: EpisodeSeries, out: Path, title: str = "") -> Path:
     """One figure, three panels as in Figs. A.3-A.5 (two without an object); returns its path."""
     from matplotlib.figure import Figure
 
-    panels = (2 if series.obj is None else 3) + bool(series.model)
+    panels = (2 if series.obj is None else 3) + bool(series.model) + (series.samples is not None)
     fig = Figure(figsize=(5.2 * panels, 4.4), layout="constrained")
     axes = fig.subplots(1, panels)
     fig.suptitle(title or series.name)
@@ -126,7 +137,9 @@ def plot_episode(series: EpisodeSeries, out: Path, title: str = "") -> Path:
     if series.obj is not None:
         _draw_angle(axes[2], series)
     if series.model:
-        _draw_model(axes[-1], series)
+        _draw_model(axes[-1 - (series.samples is not None)], series)
+    if series.samples is not None:
+        _draw_samples(axes[-1], series)
     _mark_actions(axes[1:], series.actions)
     out = Path(out)
     out.parent.mkdir(parents=True, exist_ok=True)
@@ -196,6 +209,18 @@ def _draw_model(ax, series: EpisodeSeries) -> None:
         title="identified model (dashed: the world's)",
     )
     ax.legend(loc="best", fontsize="small")
+
+
+def _draw_samples(ax, series: EpisodeSeries) -> None:
+    """The anytime planner's samples per mode over time: where it shed them to keep its
+    budget (planner.budget) and took them back."""
+    ax.step(series.time, series.samples, where="post", color="C3")
+    ax.set(
+        xlabel="time [s]",
+        ylabel="samples per mode",
+        title="samples under the budget",
+        ylim=(0, np.nanmax(series.samples) * 1.1),
+    )
 
 
 def _mark_actions(axes, actions: list[tuple[float, str]]) -> None:

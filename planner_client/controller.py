@@ -335,6 +335,7 @@ class Controller:
             plan_t0=None if plan is None else start,
             plan_dt=None if plan is None else self.motion.dt,
             model=self.model_estimate(),
+            samples=None if self.budget is None else self.motion.samples,
         )
         steps = state.seq - self._last_start[1] if self._last_start else 0
         self._last_start = (start, state.seq)
@@ -370,6 +371,7 @@ class Controller:
             steps=tick.steps,
             top_modes=it.top_modes,
             model=self.model_estimate(),
+            samples=None if self.budget is None else self.motion.samples,
             guide=self.guide.corners() if self.guide is not None else None,
         )
 

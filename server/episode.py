@@ -85,6 +85,7 @@ class Episode:
         self.action = ""
         self.action_changes: list[tuple[float, str]] = []
         self.model: dict[str, float] | None = None  # the planner's identified model (Command)
+        self.samples: int | None = None  # its samples per mode, under a planner.budget
         self.dropped = 0  # states the simulated link lost
         self._plan_times: list[float] = []
         self._state_times: dict[int, float] = {}  # seq -> world time of recent states
@@ -179,7 +180,7 @@ class Episode:
             if not self.running:
                 break
         self.note_action(cmd.action)
-        self.model = cmd.model
+        self.model, self.samples = cmd.model, cmd.samples
 
     def state_age(self, seq: int) -> float | None:
         """World seconds since state ``seq`` was measured (None: not a recent state)."""
@@ -194,7 +195,7 @@ class Episode:
             self.lag = max(0.0, self.world.time - sent)
         self._count_plan(cmd)
         self.note_action(cmd.action)
-        self.model = cmd.model
+        self.model, self.samples = cmd.model, cmd.samples
         self._player.receive(self._timed(cmd))
 
     def playing(self) -> tuple[np.ndarray | None, int]:
@@ -257,6 +258,8 @@ class Episode:
             s = self.world.true_state()
             # the planner's identified model, when it identifies one (planner.model.variants)
             identified = {} if self.model is None else {"model": self.model}
+            if self.samples is not None:  # the anytime planner's samples per mode
+                identified["samples"] = self.samples
             self.log.write(
                 "step",
                 seq=self.seq,

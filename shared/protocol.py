@@ -22,14 +22,12 @@ import numpy as np
 from shared.scans import SCAN_KINDS, Scan, check_scan
 
 PROTOCOL_VERSION = 3
-"""3 added the sensors' readings of a state (``state.scans``); 2 the time-indexed plan of a
-command (``plan_*``), ``state.lag`` and the diagnostics' timing; a peer of another version is
-refused with both versions named (docs/protocol.md)."""
+"""3 added the sensors' readings (``state.scans``) and the anytime planner's ``samples``; 2 the
+time-indexed plan of a command (``plan_*``), ``state.lag`` and the diagnostics' timing."""
 VERSIONS = (1, 2, 3)
-"""The versions this code speaks. The planner's ``hello`` offers them (``versions``), the world
-answers in the highest both speak, and each side then encodes with that one (docs/protocol.md,
-"Version negotiation"). 1: commands without a plan, held by the world; 2: states without
-scans."""
+"""The versions this code speaks: the planner's ``hello`` offers them, the world answers in the
+highest both speak, and each side then encodes with that one (docs/protocol.md, "Version
+negotiation"); a peer of none of them is refused with the versions named."""
 VERSIONS_TEXT = ", ".join(map(str, VERSIONS))
 MAX_MESSAGE_BYTES = 8 * 1024 * 1024
 """Frames above this are refused before decoding (ZMQ_MAXMSGSIZE is set to the same value)."""
@@ -38,8 +36,7 @@ MIN_PLAN_DT = 1e-6
 """Seconds: a command's ``plan_dt`` below this is refused (a microsecond is far under any
 world's control period; a subnormal one would make the plan's index overflow)."""
 
-MAX_SCANS = 64
-"""Readings one state may carry (a sensor's every reading since the previous state)."""
+MAX_SCANS = 64  # readings one state may carry (a sensor's every reading since the last state)
 
 MAX_WORLD_TIME = 1e9
 """Seconds: a ``state.time`` outside ``[0, MAX_WORLD_TIME]`` (about 31 years of world time) is
@@ -177,6 +174,7 @@ class Command:
     plan_dt: float | None = None
     # the planner's identified model, "kind.name" -> factor (planner.model.variants.identify)
     model: dict[str, float] | None = None
+    samples: int | None = None  # samples per mode now, under a planner.budget (else None)
     type = "command"
 
     @property
@@ -205,6 +203,7 @@ class Diagnostics:
     top_modes: np.ndarray | None = None
     model: dict[str, float] | None = None  # as Command.model
     guide: np.ndarray | None = None
+    samples: int | None = None  # as Command.samples
     type = "diagnostics"
 
 
@@ -279,6 +278,7 @@ _SCHEMA: dict[str, dict[str, tuple[str, bool]]] = {
         "plan_t0": ("float", False),
         "plan_dt": ("float", False),
         "model": ("floatmap", False),
+        "samples": ("int", False),
     },
     "diagnostics": {
         "seq": ("int", True),
@@ -293,6 +293,7 @@ _SCHEMA: dict[str, dict[str, tuple[str, bool]]] = {
         "top_modes": ("array", False),
         "model": ("floatmap", False),
         "guide": ("array", False),
+        "samples": ("int", False),
     },
     "error": {"reason": ("str", True), "versions": ("intlist", False)},
     "control": {
@@ -305,7 +306,7 @@ _SCHEMA: dict[str, dict[str, tuple[str, bool]]] = {
 }
 # version 2 is version 3 without these fields, version 1 is version 2 without the next ones
 # (docs/protocol.md); hello.versions and error.versions, the negotiation, are read in all
-_NOT_IN_V2 = {"state": {"scans"}}
+_NOT_IN_V2 = {"state": {"scans"}, "command": {"samples"}, "diagnostics": {"samples"}}
 _NOT_IN_V1 = {
     "welcome": {"seed"},
     "state": {"lag"},

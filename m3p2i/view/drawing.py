@@ -84,6 +84,7 @@ class PanelInfo:
     mode_weights: list[float] = field(default_factory=list)
     planner_hz: float | None = None
     plan_ms: float | None = None
+    samples: int | None = None  # per mode, under the anytime planner's budget
     extras: dict[str, float] = field(default_factory=dict)
     model: dict[str, float] = field(default_factory=dict)  # identified: "mass.box" -> factor
     note: str = ""
@@ -105,7 +106,8 @@ class PanelInfo:
             lines += [
                 "",
                 f"**planner**: {self.planner_hz:.1f} Hz"
-                + (f", {self.plan_ms:.0f} ms per plan" if self.plan_ms is not None else ""),
+                + (f", {self.plan_ms:.0f} ms per plan" if self.plan_ms is not None else "")
+                + (f", {self.samples} samples per mode" if self.samples is not None else ""),
             ]
         for k, v in self.extras.items():
             lines.append(f"**{k}**: {v:.1f}")

@@ -381,6 +381,7 @@ class LiveView:
             span = self._diag_times[-1] - self._diag_times[0]
             self.info.planner_hz = (len(self._diag_times) - 1) / span if span > 0 else None
         self.info.plan_ms = d.plan_time * 1000
+        self.info.samples = d.samples
         self.info.action, self.info.alternatives = d.action, list(d.alternatives)
         total = float(np.sum(d.mode_weights)) or 1.0
         self.info.mode_names = list(d.mode_names)

@@ -190,6 +190,7 @@ class ReplayView:
             status=f"replay, step {i + 1} of {len(self.replay.steps)}",
             action=step.get("action", ""),
             extras=step.get("extras") or {},
+            samples=step.get("samples"),
         )
         if d is not None:
             total = float(np.sum(d["mode_weights"])) or 1.0

@@ -5,11 +5,15 @@ from __future__ import annotations
 
 import dataclasses
 
+import numpy as np
 import pytest
 
+from m3p2i.plots import budget_samples, episode_series, plot_episode
+from m3p2i.view.drawing import PanelInfo
 from planner_client.budget import BudgetConfig, SampleBudget, budget_config
 from planner_client.build import build_controller
-from server.inprocess import build_episode
+from server.evaluation.log_reader import read_log, steps
+from server.inprocess import build_episode, run_episode
 from shared.config import ConfigError
 from shared.scenario import load_scenario
 
@@ -112,3 +116,22 @@ def test_without_a_budget_the_samples_stay():
 def test_a_faulty_budget_is_refused_naming_its_key(budget, key):
     with pytest.raises(ConfigError, match=key):
         budget_config(_with_budget("navigation", budget))
+
+
+def test_the_samples_reach_the_episode_log_and_its_plot(tmp_path):
+    sc = _with_budget("navigation", {"rate": 1e5, "min_samples": 40})
+    result = run_episode(sc, build_controller, seed=0, log_path=tmp_path / "episode.jsonl")
+    records = read_log(result.log_path)
+    logged = [r.get("samples") for r in steps(records)]
+    assert logged[0] is None or logged[0] <= 200  # the first step may precede any command
+    assert min(s for s in logged if s is not None) == 40
+    series = episode_series(sc, records)
+    assert series.samples is not None and np.nanmin(series.samples) == 40
+    assert plot_episode(series, tmp_path / "plot.png").stat().st_size > 0
+    assert budget_samples([{"time": 0.0}]) is None  # no budget: no panel
+
+
+def test_the_view_panel_shows_the_samples_under_a_budget():
+    info = PanelInfo(scenario="navigation", planner_hz=20.0, plan_ms=48.0, samples=120)
+    assert "20.0 Hz, 48 ms per plan, 120 samples per mode" in info.markdown()
+    assert "samples per mode" not in PanelInfo(planner_hz=20.0).markdown()

@@ -88,6 +88,18 @@ def test_version_1_frames_lack_what_version_2_added():
     assert "lag" not in msgpack.unpackb(P.encode(state, 1))
 
 
+def test_the_anytime_planners_samples_travel_in_version_3_only():
+    cmd = P.Command(session="s", seq=1, ctrl=np.zeros(2), samples=120)
+    assert P.decode(P.encode(cmd)).samples == 120
+    raw = msgpack.unpackb(P.encode(cmd, 2))
+    assert "samples" not in raw
+    assert P.decode_versioned(P.encode(cmd, 2), versions=P.VERSIONS)[0].samples is None
+    bad = msgpack.unpackb(P.encode(cmd))
+    bad["samples"] = 1.5
+    with pytest.raises(P.ProtocolError, match=r"command\.samples: expected an integer"):
+        P.decode(msgpack.packb(bad))
+
+
 def test_the_world_chooses_the_highest_common_version():
     hello = P.Hello(scenario="n", scenario_hash="h", versions=[1, 2])
     assert P.choose_version(hello, 1) == 2
