@@ -72,7 +72,7 @@ from shared.config import ConfigError
 from shared.scenario import Scenario, load_scenario
 from shared.scene import build_spec, compile_model, initial_data
 
-SCENARIOS = ("navigation", "push_pull", "push_pull_fast", "pick_place")
+SCENARIOS = ("navigation", "push_pull", "push_pull_fast", "pick_place", "mobile_pick_place")
 
 app = typer.Typer(add_completion=False)
 
