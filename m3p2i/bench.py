@@ -43,6 +43,7 @@ from rich.progress import (
 )
 
 from m3p2i.launch import MODES, EpisodeLaunch, mode_conflicts, run_episode
+from m3p2i.load import MAX_PROCS, MAX_SECONDS, BusyLoad
 from m3p2i.provenance import machine, versions
 from m3p2i.sweep import Sweep, apply_overrides, file_label, parse_sweep_section, to_cell
 from m3p2i.warm import PairSlot
@@ -105,6 +106,7 @@ class BenchCase:
     measure_delays: bool = False  # compensate: measure (the planner measures them online)
     max_rate: float = 0.0  # realtime: the planner's plans per second at most (0: no cap)
     realtime_factor: float = 1.0  # realtime: world seconds per wall second (< 1: a slower world)
+    load: int = 0  # busy processes competing for the cores while its trials run (m3p2i.load)
 
     @property
     def mode_label(self) -> str:
@@ -116,6 +118,8 @@ class BenchCase:
             label += f", planner at most {self.max_rate:g} Hz"
         if self.realtime_factor != 1.0:
             label += f", world at {self.realtime_factor:g}x wall clock"
+        if self.load:
+            label += f", {self.load} busy processes"
         if self.faults:
             label += f", faults {Path(self.faults).stem}"
         if self.measure_delays:
@@ -179,6 +183,13 @@ def _compensation(value) -> bool | str:
     return flag(value)
 
 
+def _busy(value) -> int:
+    """A case's ``load``: busy processes, 0 to :data:`m3p2i.load.MAX_PROCS`."""
+    if isinstance(value, bool) or not isinstance(value, int) or not 0 <= value <= MAX_PROCS:
+        raise ValueError(f"must be an integer in [0, {MAX_PROCS}]")
+    return value
+
+
 def find_bench(name_or_path: str | os.PathLike) -> Path:
     """A path as given, else ``NAME.yaml`` in the user's bench folders, then the shipped ones."""
     return find(name_or_path, "bench")
@@ -203,6 +214,7 @@ def load_bench(name_or_path: str | os.PathLike) -> BenchConfig:
             realtime_factor=c.opt(
                 "realtime_factor", 1.0, positive, "world seconds per wall second > 0"
             ),
+            load=c.opt("load", 0, _busy, f"busy processes, an integer in [0, {MAX_PROCS}]"),
         )
         case = _with_faults(case, c, path)
         for key, why, value, expected in mode_conflicts(
@@ -576,6 +588,7 @@ def pair_key(trial: Trial) -> tuple:
         trial.case.measure_delays,
         trial.case.max_rate,
         trial.case.realtime_factor,
+        trial.case.load,
     )
 
 
@@ -590,11 +603,17 @@ def run_trials(
     come last, one at a time on every core: a world that does not wait measures the planner's speed,
     which other trials would steal. Returns False when interrupted (Ctrl-C): running trials are
     stopped and left out of the file."""
-    waiting = [t for t in todo if t.case.mode != "realtime"]
-    realtime = [t for t in todo if t.case.mode == "realtime"]
-    return _run_pool(waiting, opts.workers, opts, results, on_done) and _run_pool(
+    waiting = [t for t in todo if t.case.mode != "realtime" and not t.case.load]
+    realtime = [t for t in todo if t.case.mode == "realtime" and not t.case.load]
+    done = _run_pool(waiting, opts.workers, opts, results, on_done) and _run_pool(
         realtime, 1, opts, results, on_done
     )
+    for n in sorted({t.case.load for t in todo if t.case.load}):
+        loaded = [t for t in todo if t.case.load == n]
+        # one at a time under the load, bounded by their time-outs should the bench hang
+        with BusyLoad(n, max_seconds=min(MAX_SECONDS, opts.timeout * (len(loaded) + 1))):
+            done = done and _run_pool(loaded, 1, opts, results, on_done)
+    return done
 
 
 class _TrialQueue:

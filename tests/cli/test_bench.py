@@ -4,6 +4,7 @@ rerun skips finished trials and that a trial past its time-out is recorded as a 
 from __future__ import annotations
 
 import csv
+import multiprocessing
 from pathlib import Path
 
 import pytest
@@ -533,6 +534,33 @@ def test_realtime_trials_run_last_and_alone_on_every_core(tmp_path, monkeypatch)
     assert modes == ["lockstep"] * 3 + ["realtime"] * 3  # the waiting world first
     assert all(t == 4 and now == ["realtime"] for m, t, now in log if m == "realtime")
     assert all(t == 2 for m, t, _ in log if m == "lockstep")
+
+
+def test_loaded_trials_run_last_alone_under_their_busy_processes(tmp_path, monkeypatch):
+    from m3p2i import bench as B
+
+    seen = []
+
+    def fake_trial(trial, opts, threads, stop, slot=None):
+        busy = len([p for p in multiprocessing.active_children() if p.name.startswith("busy-")])
+        seen.append((trial.case.case, busy))
+        return {"case": trial.case.case, "seed": trial.seed}
+
+    monkeypatch.setattr(B, "run_trial", fake_trial)
+    cases = [
+        B.BenchCase("loaded", "", "navigation", 2, "realtime", load=2),
+        B.BenchCase("idle", "", "navigation", 2, "realtime"),
+    ]
+    todo = [B.Trial(c, None, None, seed) for seed in range(2) for c in cases]
+    opts = BenchOptions(out_dir=tmp_path, workers=2, timeout=10)
+    assert B.run_trials(todo, opts, ResultsFile(tmp_path / "results.csv"))
+    assert seen == [("idle", 0), ("idle", 0), ("loaded", 2), ("loaded", 2)]
+    assert not [p for p in multiprocessing.active_children() if p.name.startswith("busy-")]
+    assert cases[0].mode_label == "realtime, 2 busy processes"
+    path = write_bench(tmp_path, [{"case": "a", "scenario": "navigation", "trials": 1, "load": -1}])
+    with pytest.raises(ConfigError, match="busy processes") as err:
+        load_bench(path)
+    assert err.value.path == "cases[0].load"
 
 
 @pytest.mark.parametrize(

@@ -5,7 +5,9 @@ stops it or its own deadline passes, so a crashed caller never leaves load behin
     with BusyLoad(2, max_seconds=900):       # two cores' worth of competition
         run_the_episodes()
 
-    python scripts/measure/load.py --procs 2 --seconds 60    # beside m3p2i run, from a shell
+A bench case's ``load: N`` runs its trials under it (:mod:`m3p2i.bench`), and
+``python -m m3p2i.load --procs 2 --seconds 60`` loads the machine from a shell, e.g. beside
+``m3p2i run``.
 
 A busy process runs at the default nice level, as the planner does: the scheduler shares the
 cores between them, which is the point.

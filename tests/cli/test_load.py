@@ -7,7 +7,7 @@ import time
 
 import pytest
 
-from scripts.measure.load import BusyLoad
+from m3p2i.load import BusyLoad
 
 
 def _wait_until(cond, seconds: float) -> bool:
