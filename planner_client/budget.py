@@ -9,8 +9,9 @@ measured seconds per sample (their running mean): shed at once, grown back only 
 ``patience`` iterations in a row had room, and in steps of a twentieth of the full count, so
 the count settles rather than following every noisy iteration.
 
-Without ``planner.budget`` the planner keeps its samples: a lock-step episode is its seed's.
-With one, a lock-step episode depends on the machine's speed too.
+The budget applies against a real-time world only (the controller makes it at ``begin``): in
+lock-step the world waits for every plan, so a scenario's budget leaves its lock-step episodes
+as they are, its seed's.
 """
 
 from __future__ import annotations

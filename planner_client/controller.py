@@ -161,7 +161,9 @@ class Controller:
         self._last_start: tuple[float, int] | None = None  # (t_eff, state seq) of the last plan
         self._faults = 0  # consecutive iterations without a plan (Iteration.fault)
         self.map: MapUpdater | None = None  # the lidars' map, made at begin
-        self.budget: SampleBudget | None = None  # planner.budget: the anytime planner, at begin
+        # planner.budget: checked now, the anytime planner made at begin against a real-time world
+        budget_config(self.motion.problem.scenario)
+        self.budget: SampleBudget | None = None
         self._map_threaded = False
 
     def begin(
@@ -190,7 +192,7 @@ class Controller:
             reach = max(reach, self.identifier.reach)
         self._sent = deque(maxlen=max(16, reach + 8))
         self._last_start = None
-        self._open_budget()
+        self._open_budget(realtime=mode == "realtime")
         self._open_map(threaded=mode == "realtime")
 
     def _open_map(self, threaded: bool) -> None:
@@ -216,13 +218,14 @@ class Controller:
         self._last_ctrl = self.robot.safe_stop()
         self._faults = 0
 
-    def _open_budget(self) -> None:
-        """The anytime planner (``planner.budget``) from the full samples per mode, or none."""
+    def _open_budget(self, realtime: bool) -> None:
+        """The anytime planner (``planner.budget``) from the full samples per mode against a
+        real-time world; none in lock-step, where the world waits for every plan (so a
+        scenario's budget leaves its lock-step episodes as they are)."""
         scenario = self.motion.problem.scenario
-        cfg = budget_config(scenario)
+        cfg = budget_config(scenario) if realtime else None
         self.budget = None if cfg is None else SampleBudget(cfg, scenario.planner.samples)
-        if cfg is not None:
-            self.motion.set_samples(scenario.planner.samples)
+        self.motion.set_samples(scenario.planner.samples)
 
     def _spend(self, plan_time: float, now: float) -> None:
         """The anytime planner sees the iteration's time and may change the samples."""

@@ -69,7 +69,7 @@ def test_a_controller_over_its_budget_sheds_samples_and_keeps_planning():
     controller = build_controller(sc, seed=0, threads=1)
     episode = build_episode(sc, seed=0)
     try:
-        controller.begin("lockstep", episode.dt)
+        controller.begin("realtime", episode.dt)  # stepped by hand: the world waits here
         state = episode.publish()
         for _ in range(30):
             command = controller.step(state)
@@ -79,27 +79,47 @@ def test_a_controller_over_its_budget_sheds_samples_and_keeps_planning():
         changes = controller.stats.budget_changes
         assert changes and all(after < before for _, before, after, _ in changes)
         assert controller.motion.samples == 40 == controller.motion.mppi.num_samples
-        assert "over the budget" in changes[0][3]
-        controller.begin("lockstep", episode.dt, seed=1, new_episode=True)
+        assert command.samples == 40 and "over the budget" in changes[0][3]
+        controller.begin("realtime", episode.dt, seed=1, new_episode=True)
         assert controller.motion.samples == sc.planner.samples  # a new episode: all back
+        controller.begin("lockstep", episode.dt)  # the world waits: no budget, every sample
+        assert controller.budget is None and controller.motion.samples == sc.planner.samples
+        assert controller.step(episode.publish()).samples is None
     finally:
         controller.close()
         episode.close()
 
 
-def test_without_a_budget_the_samples_stay():
-    controller = build_controller("navigation", seed=0, threads=1)
-    episode = build_episode(load_scenario("navigation"), seed=0)
+def test_a_lockstep_episode_with_a_budget_is_the_one_without(tmp_path):
+    sc = _with_budget("navigation", {"rate": 1e5, "min_samples": 40})
+    runs = [
+        run_episode(s, build_controller, seed=0, log_path=tmp_path / f"{i}.jsonl")
+        for i, s in enumerate((load_scenario("navigation"), sc))
+    ]
+    qpos = [[r["qpos"] for r in steps(read_log(run.log_path))] for run in runs]
+    assert qpos[0] == qpos[1] and all("samples" not in r for r in steps(read_log(runs[1].log_path)))
+
+
+def test_the_world_logs_the_samples_and_the_plot_draws_them(tmp_path):
+    sc = load_scenario("navigation")
+    controller = build_controller(sc, seed=0, threads=1)
+    episode = build_episode(sc, seed=0, log_path=tmp_path / "episode.jsonl")
     try:
         controller.begin("lockstep", episode.dt)
         state = episode.publish()
-        for _ in range(5):
-            episode.play(controller.step(state))
+        for n in (200, 150, 150, 90):  # as an anytime planner's commands carry them
+            episode.play(dataclasses.replace(controller.step(state), samples=n))
             state = episode.publish()
-        assert controller.budget is None and controller.motion.samples == 200
     finally:
         controller.close()
         episode.close()
+    records = read_log(tmp_path / "episode.jsonl")
+    # a lock-step world notes a command's samples after its step, as its action
+    assert [r.get("samples") for r in steps(records)] == [None, 200, 150, 150]
+    series = episode_series(sc, records)
+    assert series.samples is not None and np.nanmin(series.samples) == 150
+    assert plot_episode(series, tmp_path / "plot.png").stat().st_size > 0
+    assert budget_samples([{"time": 0.0}]) is None  # no budget: no panel
 
 
 @pytest.mark.parametrize(
@@ -116,19 +136,6 @@ def test_without_a_budget_the_samples_stay():
 def test_a_faulty_budget_is_refused_naming_its_key(budget, key):
     with pytest.raises(ConfigError, match=key):
         budget_config(_with_budget("navigation", budget))
-
-
-def test_the_samples_reach_the_episode_log_and_its_plot(tmp_path):
-    sc = _with_budget("navigation", {"rate": 1e5, "min_samples": 40})
-    result = run_episode(sc, build_controller, seed=0, log_path=tmp_path / "episode.jsonl")
-    records = read_log(result.log_path)
-    logged = [r.get("samples") for r in steps(records)]
-    assert logged[0] is None or logged[0] <= 200  # the first step may precede any command
-    assert min(s for s in logged if s is not None) == 40
-    series = episode_series(sc, records)
-    assert series.samples is not None and np.nanmin(series.samples) == 40
-    assert plot_episode(series, tmp_path / "plot.png").stat().st_size > 0
-    assert budget_samples([{"time": 0.0}]) is None  # no budget: no panel
 
 
 def test_the_view_panel_shows_the_samples_under_a_budget():
