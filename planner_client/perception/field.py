@@ -9,6 +9,7 @@ resolution``. Values are metres, negative inside an obstacle. A point outside th
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 
 import torch
@@ -31,15 +32,23 @@ class DistanceField:
     def dims(self) -> int:
         return self.values.dim()
 
+    @functools.cached_property
+    def _to_grid(self) -> tuple[torch.Tensor, torch.Tensor]:
+        """``(origin [d], cells [d])`` on the values' dtype and device: the first cell's centre
+        and the cells between the outer centres along x, y[, z] (at least 1). Made once per
+        field, not once per lookup (a cost term looks up every iteration)."""
+        like = dict(dtype=self.values.dtype, device=self.values.device)
+        size = torch.tensor(self.values.shape[::-1], **like)  # x, y[, z]
+        return torch.tensor(self.origin, **like), (size - 1).clamp(min=1)
+
     def lookup(self, points: torch.Tensor) -> torch.Tensor:
         """Signed distance at ``points [..., d]`` (d = 2 or 3, world frame; a 2-D field reads
         x and y of 3-D points) -> ``[...]``, interpolated between cell centres."""
         d = self.dims
         p = points[..., :d].to(self.values)
-        size = torch.tensor(self.values.shape[::-1], dtype=p.dtype, device=p.device)  # x, y[, z]
-        origin = torch.tensor(self.origin, dtype=p.dtype, device=p.device)
+        origin, cells = self._to_grid
         # grid_sample's [-1, 1] spans the outer cells' centres with align_corners=True
-        g = (p - origin) / self.resolution / (size - 1).clamp(min=1) * 2 - 1
+        g = (p - origin) / self.resolution / cells * 2 - 1
         flat = g.reshape(1, -1, *([1] * (d - 1)), d)
         grid = self.values[None, None]
         out = F.grid_sample(grid, flat, mode="bilinear", padding_mode="border", align_corners=True)
