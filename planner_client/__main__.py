@@ -1,3 +1,22 @@
-from planner_client.cli import app
+"""``m3p2i-planner`` and ``python -m planner_client``: the planner process's entry point."""
 
-app(prog_name="m3p2i-planner")
+import os
+
+
+def main() -> None:
+    """Run the planner CLI. Before anything imports them: the planner never draws, so MuJoCo
+    loads no OpenGL library (GLFW: 40 ms of its start-up), and torch loads no third-party device
+    backends (it scans every installed package's entry points for them); a value the operator
+    set is kept."""
+    os.environ.setdefault("MUJOCO_GL", "disable")
+    os.environ.setdefault("TORCH_DEVICE_BACKEND_AUTOLOAD", "0")
+    from planner_client.phases import STARTUP
+
+    STARTUP.start()
+    from planner_client.cli import app
+
+    app(prog_name="m3p2i-planner")
+
+
+if __name__ == "__main__":
+    main()

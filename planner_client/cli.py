@@ -161,11 +161,14 @@ def main(
         if check
         else _security({"--host": host, "--diagnostics-host": diagnostics_host}, keys, insecure)
     )
-    _checked_or_exit(scenario, plugins, check)
-    device = _rollouts_or_exit(backend, device)
     from planner_client.build import build_client
     from planner_client.mujoco_warnings import count_mujoco_warnings
+    from planner_client.phases import STARTUP
 
+    STARTUP.mark("imports")
+    _checked_or_exit(scenario, plugins, check)
+    device = _rollouts_or_exit(backend, device)
+    STARTUP.mark("check")
     warned = count_mujoco_warnings()  # each said once in the log, then counted
 
     try:
@@ -191,6 +194,7 @@ def main(
         raise typer.Exit(2) from None
     except Exception as exc:
         _failed(exc, "building the planner")
+    STARTUP.mark("build")
     _plan(client, scenario, warned)
 
 

@@ -15,7 +15,6 @@ from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.ndimage import map_coordinates
 
 # the 8 grid moves (di, dj) = (rows: y, columns: x) with their lengths in cells
 MOVES = tuple((di, dj) for di in (-1, 0, 1) for dj in (-1, 0, 1) if di or dj)
@@ -51,6 +50,10 @@ class MapObstacles:
 
     def distance(self, points: np.ndarray) -> np.ndarray:
         """``[N]`` at ``points [N, 2]``, bilinear between cell centres."""
+        # scipy.ndimage here, not at the top: it takes a tenth of the planner's start-up to
+        # import, and only planners with a map call this
+        from scipy.ndimage import map_coordinates
+
         rc = (points[:, ::-1] - np.asarray(self.origin)[::-1]) / self.resolution  # (row, col)
         d = map_coordinates(self.values, rc.T, order=1, mode="nearest")
         top = np.asarray(self.values.shape) - 1

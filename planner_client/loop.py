@@ -28,6 +28,7 @@ import zmq
 
 from planner_client.controller import Controller, LoopStats
 from planner_client.perception.field_message import FIELD_TOPIC, FieldPublisher
+from planner_client.phases import STARTUP
 from shared import protocol as P
 from shared.endpoints import Endpoints, socket
 from shared.security import (
@@ -293,6 +294,8 @@ class PlannerClient:
     def run(self, max_iterations: int | None = None) -> LoopStats:
         """Plan until the episode ends (or forever with ``exit_on_done=False``)."""
         self.handshake()
+        if STARTUP.steps:
+            STARTUP.mark("handshake")
         last_state_at = time.monotonic()
         while max_iterations is None or self.stats.iterations < max_iterations:
             if not self.sub.poll(200):
@@ -378,6 +381,9 @@ class PlannerClient:
         self._answer = P.encode(command, self.version)
         self._answered = (state.session, state.seq)
         self.push.send(self._answer)
+        if STARTUP.steps and "first command" not in STARTUP.totals:
+            STARTUP.mark("first command")
+            log.info("start-up: %s", STARTUP.report())
         if self.diag is not None and self._listened():
             self.diag.send(P.encode(self.controller.diagnostics()))
             if self._field_listeners and self.controller.map is not None:

@@ -49,9 +49,19 @@ class PhaseClock:
         self.totals.clear()
         self.steps = 0
 
+    def report(self) -> str:
+        """``name seconds`` per phase, comma-separated: how :data:`STARTUP` is logged."""
+        return ", ".join(f"{p} {s:.3f} s" for p, s in self.totals.items())
+
     def per_step_ms(self) -> dict[str, float]:
         """Mean milliseconds per step of each phase, in :data:`PHASES` order (others after)."""
         n = max(self.steps, 1)
         order = [p for p in PHASES if p in self.totals]
         order += [p for p in self.totals if p not in PHASES]
         return {p: self.totals[p] * 1e3 / n for p in order}
+
+
+# The planner process's start-up, from its entry point (planner_client/__main__.py) to its first
+# command sent: imports, check, build, handshake, first command; logged once as "start-up: ..."
+# (scripts/startup.py reads it). Never started in-process: nothing is logged there.
+STARTUP = PhaseClock()

@@ -6,7 +6,17 @@ slows the other's: the server first, then the planner once the server serves. Th
 runs from its process start to the log's ``header`` record (written when its sockets are bound
 and it starts publishing states); the planner's from its process start to the world's first
 ``step`` record (its first command applied, lock-step). Both include the Python interpreter, the
-imports and the model compilation; the planner's also its handshake and first iteration.
+imports and the model compilation; the planner's also its handshake and first iteration. The
+planner's own phases come from the ``start-up:`` line of its log (planner_client.phases.STARTUP):
+imports, check (the scenario checked), build (model compiled, planner built), handshake, first
+command (its first state received, planned and answered); ``python`` is the rest of the total:
+the interpreter's start and the world's step after the command.
+
+Python caches each module's compiled bytecode beside it (``__pycache__``) on first import, and a
+wheel install compiles it at install; with ``PYTHONDONTWRITEBYTECODE`` set, a clone's ~110
+modules are compiled from source at every start instead (some 0.2-0.3 s of the planner's). The
+script therefore compiles the project's packages first, as any of those has them;
+``--no-compile`` measures without (what was cached stays).
 
     python scripts/startup.py                        # navigation and pick_place, 5 runs each
     python scripts/startup.py -s push_pull -n 3 --json
@@ -14,7 +24,10 @@ imports and the model compilation; the planner's also its handshake and first it
 
 from __future__ import annotations
 
+import compileall
+import importlib.util
 import json
+import re
 import statistics
 import subprocess
 import sys
@@ -31,6 +44,8 @@ from server.evaluation import log_reader
 from shared.scenario import find_scenario
 
 SCENARIOS = ("navigation", "pick_place")
+PACKAGES = ("planner_client", "server", "shared", "m3p2i")  # what the two processes import
+PHASES = ("python", "imports", "check", "build", "handshake", "first command")
 
 app = typer.Typer(add_completion=False)
 
@@ -81,7 +96,16 @@ def measure_once(scenario: str, folder: Path, timeout: float = 60.0) -> dict[str
             planner = _wait_for(log, "step", procs[1], timeout)["wall"] - start
     finally:
         stop_processes(procs)
-    return {"server": server, "planner": planner}
+    return {"server": server, "planner": planner, **_planner_phases(folder / "planner.log")}
+
+
+def _planner_phases(log: Path) -> dict[str, float]:
+    """The planner's start-up phases, seconds by name, from its log's ``start-up:`` line."""
+    for line in log.read_text().splitlines():
+        if "start-up: " in line:
+            pairs = re.findall(r"([a-z ]+) ([0-9.]+) s", line.split("start-up: ", 1)[1])
+            return {name.strip(): float(sec) for name, sec in pairs}
+    raise RuntimeError(f"no 'start-up:' line in {log}")
 
 
 @app.command()
@@ -91,17 +115,27 @@ def main(
     ),
     runs: int = typer.Option(5, "--runs", "-n", min=1, help="Cold starts per scenario."),
     as_json: bool = typer.Option(False, "--json", help="One JSON object per scenario."),
+    compile_first: bool = typer.Option(
+        True, "--compile/--no-compile", help="Compile the project's bytecode before timing."
+    ),
 ) -> None:
     """Time cold starts of the world server and the planner; print median and spread."""
     console = Console()
+    if compile_first:
+        for package in PACKAGES:
+            for folder in importlib.util.find_spec(package).submodule_search_locations:
+                compileall.compile_dir(folder, quiet=1)
     table = Table("scenario", "server start -> serving [s]", "planner start -> first command [s]")
+    phases = Table("scenario", *PHASES, title="the planner's start-up by phase, median [s]")
     for name in scenario:
         path = str(find_scenario(name))
-        samples: dict[str, list[float]] = {"server": [], "planner": []}
+        samples: dict[str, list[float]] = {}
         for i in range(runs):
             with tempfile.TemporaryDirectory(prefix="m3p2i-startup-") as tmp:
-                for side, seconds in measure_once(path, Path(tmp)).items():
-                    samples[side].append(seconds)
+                once = measure_once(path, Path(tmp))
+            once["python"] = once["planner"] - sum(once.get(p, 0.0) for p in PHASES[1:])
+            for side, seconds in once.items():
+                samples.setdefault(side, []).append(seconds)
             if not as_json:
                 console.print(f"{name}: run {i + 1}/{runs}", style="dim")
         stats = {
@@ -113,10 +147,15 @@ def main(
         else:
             table.add_row(
                 name,
-                *(f"{s['median']:.2f} ({s['min']:.2f}-{s['max']:.2f})" for s in stats.values()),
+                *(
+                    f"{stats[s]['median']:.2f} ({stats[s]['min']:.2f}-{stats[s]['max']:.2f})"
+                    for s in ("server", "planner")
+                ),
             )
+            phases.add_row(name, *(f"{stats[p]['median']:.3f}" for p in PHASES))
     if not as_json:
         console.print(table)
+        console.print(phases)
 
 
 if __name__ == "__main__":

@@ -19,7 +19,6 @@ from dataclasses import dataclass
 
 import numpy as np
 import torch
-from scipy.ndimage import distance_transform_edt
 
 from planner_client.global_path import Shape, signed_distance
 from planner_client.perception.field import DistanceField
@@ -35,6 +34,9 @@ def far(spec: GridSpec) -> float:
 
 def distance_field(occupied: np.ndarray, spec: GridSpec, time: float = 0.0) -> DistanceField:
     """The signed distance field of ``occupied`` (bool, ``spec.shape``), m, negative inside."""
+    # imported here: scipy.ndimage costs a tenth of the planner's start-up, and only maps need it
+    from scipy.ndimage import distance_transform_edt
+
     if occupied.shape != spec.shape:
         raise ValueError(f"occupancy {occupied.shape} does not match the grid {spec.shape}")
     res, limit = spec.resolution, far(spec)
