@@ -44,8 +44,9 @@ class EpisodeSeries:
     # "mass.box" -> [T] the planner's estimated factor at each step (NaN before it sent one)
     model: dict[str, np.ndarray] = field(default_factory=dict)
     truth: dict[str, float] = field(default_factory=dict)  # "mass.box" -> the world's factor
-    # [T] the anytime planner's samples per mode (planner.budget), None without a budget
+    # [T] the anytime planner's samples per mode and plan steps (planner.budget), None without
     samples: np.ndarray | None = None
+    horizon: np.ndarray | None = None
 
 
 def cos_rog(robot: np.ndarray, obj: np.ndarray, goal: np.ndarray) -> np.ndarray:
@@ -103,15 +104,16 @@ def episode_series(scenario: Scenario, records: list[dict]) -> EpisodeSeries:
         model=model_estimates(steps),
         truth={f"{k}.{n}": float(v) for k, names in truth.items() for n, v in names.items()},
         samples=budget_samples(steps),
+        horizon=budget_samples(steps, "horizon"),
     )
 
 
-def budget_samples(steps: list[dict]) -> np.ndarray | None:
-    """``[T]`` the samples per mode of the command each step played (NaN before the first), or
-    None when the planner had no budget."""
-    if not any("samples" in s for s in steps):
+def budget_samples(steps: list[dict], key: str = "samples") -> np.ndarray | None:
+    """``[T]`` the samples per mode (``key="horizon"``: the plan's steps) of the command each
+    step played (NaN before the first), or None when the planner had no budget."""
+    if not any(key in s for s in steps):
         return None
-    return np.array([float(s.get("samples", np.nan)) for s in steps])
+    return np.array([float(s.get(key, np.nan)) for s in steps])
 
 
 def model_estimates(steps: list[dict]) -> dict[str, np.ndarray]:
@@ -212,15 +214,19 @@ def _draw_model(ax, series: EpisodeSeries) -> None:
 
 
 def _draw_samples(ax, series: EpisodeSeries) -> None:
-    """The anytime planner's samples per mode over time: where it shed them to keep its
-    budget (planner.budget) and took them back."""
+    """The anytime planner's samples per mode over time, and on the right axis its plan's
+    steps: where it shed them to keep its budget (planner.budget) and took them back."""
     ax.step(series.time, series.samples, where="post", color="C3")
     ax.set(
         xlabel="time [s]",
         ylabel="samples per mode",
-        title="samples under the budget",
+        title="samples and horizon under the budget",
         ylim=(0, np.nanmax(series.samples) * 1.1),
     )
+    if series.horizon is not None and np.isfinite(series.horizon).any():
+        steps = ax.twinx()
+        steps.step(series.time, series.horizon, where="post", color="C0", linestyle="--")
+        steps.set(ylabel="horizon steps", ylim=(0, np.nanmax(series.horizon) * 1.1))
 
 
 def _mark_actions(axes, actions: list[tuple[float, str]]) -> None:

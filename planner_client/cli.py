@@ -268,11 +268,10 @@ def _plan(client, scenario: str, warned) -> None:
         if m
         else ""
     )
-    shed = stats.budget_changes
-    budget = (
-        f", samples per mode changed {len(shed)} times (fewest {min(c[2] for c in shed)})"
-        if shed
-        else ""
+    budget = "".join(
+        f", {label} changed {len(shed)} times (fewest {min(c[3] for c in shed)})"
+        for what, label in (("samples", "samples per mode"), ("horizon", "horizon steps"))
+        if (shed := [c for c in stats.budget_changes if c[1] == what])
     )
     typer.echo(
         f"planner: {stats.iterations} iterations, {stats.hz:.1f} Hz, "

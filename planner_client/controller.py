@@ -81,8 +81,8 @@ class LoopStats:
     action_changes: list[tuple[float, str, tuple[str, ...]]] = field(default_factory=list)
     final_status: str = ""
     safe_fallbacks: int = 0  # commands that were the safe control because there was no plan
-    # the anytime planner's changes of the samples per mode: (world s, before, after, why)
-    budget_changes: list[tuple[float, int, int, str]] = field(default_factory=list)
+    # the anytime planner's changes: (world s, "samples" or "horizon", before, after, why)
+    budget_changes: list[tuple[float, str, int, int, str]] = field(default_factory=list)
 
     @property
     def hz(self) -> float:
@@ -224,23 +224,25 @@ class Controller:
         scenario's budget leaves its lock-step episodes as they are)."""
         scenario = self.motion.problem.scenario
         cfg = budget_config(scenario) if realtime else None
-        self.budget = None if cfg is None else SampleBudget(cfg, scenario.planner.samples)
-        self.motion.set_samples(scenario.planner.samples)
+        pc = scenario.planner
+        self.budget = None if cfg is None else SampleBudget(cfg, pc.samples, pc.horizon)
+        self.motion.set_samples(pc.samples)
+        self.motion.set_horizon(pc.horizon)
 
     def _spend(self, plan_time: float, now: float) -> None:
         """The anytime planner sees the iteration's time and may change the samples."""
         change = self.budget.observe(plan_time) if self.budget is not None else None
         if change is None:
             return
-        self.motion.set_samples(change.after)
-        self.stats.budget_changes.append((now, change.before, change.after, change.reason))
-        log.info(
-            "t=%.2f s: samples per mode %d -> %d: %s",
-            now,
-            change.before,
-            change.after,
-            change.reason,
+        if change.what == "samples":
+            self.motion.set_samples(change.after)
+        else:
+            self.motion.set_horizon(change.after)
+        self.stats.budget_changes.append(
+            (now, change.what, change.before, change.after, change.reason)
         )
+        what = "samples per mode" if change.what == "samples" else "horizon steps"
+        log.info("t=%.2f s: %s %d -> %d: %s", now, what, change.before, change.after, change.reason)
 
     def _estimate(self) -> None:
         """The estimators read the transition the mirror just received: the actuation delay,

@@ -121,6 +121,16 @@ class MotionPlanner:
             self.samples = samples
             self.mppi.set_modes([self._mode(m) for m in self.modes])
 
+    @property
+    def horizon(self) -> int:
+        """The steps each sample rolls out now (``planner.horizon`` unless a budget shed some)."""
+        return self.mppi.horizon
+
+    def set_horizon(self, horizon: int) -> None:
+        """Roll out ``horizon`` steps from the next iteration on (the anytime planner, when its
+        fewest samples still overrun the budget); the plans keep their first steps."""
+        self.mppi.set_horizon(horizon)
+
     def _shared_terms(self) -> list[CostTerm]:
         """The terms of every mode's objective (by :attr:`CostTerm.key`), when there are several
         modes: evaluated once on all S rows instead of once per mode (push and pull share their

@@ -86,6 +86,7 @@ class Episode:
         self.action_changes: list[tuple[float, str]] = []
         self.model: dict[str, float] | None = None  # the planner's identified model (Command)
         self.samples: int | None = None  # its samples per mode, under a planner.budget
+        self.horizon: int | None = None  # and its plan's steps (the budget sheds them last)
         self.dropped = 0  # states the simulated link lost
         self._plan_times: list[float] = []
         self._state_times: dict[int, float] = {}  # seq -> world time of recent states
@@ -180,7 +181,13 @@ class Episode:
             if not self.running:
                 break
         self.note_action(cmd.action)
+        self._note_budget(cmd)
+
+    def _note_budget(self, cmd: P.Command) -> None:
+        """The planner's identified model, and under a budget its samples and plan steps."""
         self.model, self.samples = cmd.model, cmd.samples
+        budgeted = cmd.samples is not None and cmd.plan_ctrl is not None
+        self.horizon = len(cmd.plan_ctrl) if budgeted else None
 
     def state_age(self, seq: int) -> float | None:
         """World seconds since state ``seq`` was measured (None: not a recent state)."""
@@ -195,7 +202,7 @@ class Episode:
             self.lag = max(0.0, self.world.time - sent)
         self._count_plan(cmd)
         self.note_action(cmd.action)
-        self.model, self.samples = cmd.model, cmd.samples
+        self._note_budget(cmd)
         self._player.receive(self._timed(cmd))
 
     def playing(self) -> tuple[np.ndarray | None, int]:
@@ -260,6 +267,8 @@ class Episode:
             identified = {} if self.model is None else {"model": self.model}
             if self.samples is not None:  # the anytime planner's samples per mode
                 identified["samples"] = self.samples
+            if self.horizon is not None:  # and its horizon
+                identified["horizon"] = self.horizon
             self.log.write(
                 "step",
                 seq=self.seq,

@@ -85,6 +85,7 @@ class PanelInfo:
     planner_hz: float | None = None
     plan_ms: float | None = None
     samples: int | None = None  # per mode, under the anytime planner's budget
+    horizon: int | None = None  # the plan's steps, under that budget
     extras: dict[str, float] = field(default_factory=dict)
     model: dict[str, float] = field(default_factory=dict)  # identified: "mass.box" -> factor
     note: str = ""
@@ -107,7 +108,8 @@ class PanelInfo:
                 "",
                 f"**planner**: {self.planner_hz:.1f} Hz"
                 + (f", {self.plan_ms:.0f} ms per plan" if self.plan_ms is not None else "")
-                + (f", {self.samples} samples per mode" if self.samples is not None else ""),
+                + (f", {self.samples} samples per mode" if self.samples is not None else "")
+                + (f", {self.horizon} steps" if self.horizon is not None else ""),
             ]
         for k, v in self.extras.items():
             lines.append(f"**{k}**: {v:.1f}")

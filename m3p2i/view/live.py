@@ -382,6 +382,8 @@ class LiveView:
             self.info.planner_hz = (len(self._diag_times) - 1) / span if span > 0 else None
         self.info.plan_ms = d.plan_time * 1000
         self.info.samples = d.samples
+        # the best trajectories [M, T, 3] are as long as the plan: its steps under a budget
+        self.info.horizon = None if d.samples is None else int(d.top.shape[1])
         self.info.action, self.info.alternatives = d.action, list(d.alternatives)
         total = float(np.sum(d.mode_weights)) or 1.0
         self.info.mode_names = list(d.mode_names)

@@ -191,6 +191,7 @@ class ReplayView:
             action=step.get("action", ""),
             extras=step.get("extras") or {},
             samples=step.get("samples"),
+            horizon=step.get("horizon"),
         )
         if d is not None:
             total = float(np.sum(d["mode_weights"])) or 1.0

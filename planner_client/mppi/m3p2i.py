@@ -10,6 +10,7 @@ Shapes: S samples in all (Σ_i K_i, grouped by mode), T horizon, nu controls, N 
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 from collections.abc import Callable, Sequence
 
@@ -72,6 +73,11 @@ class M3P2I:
     def modes(self) -> tuple[ModeSpec, ...]:
         """The N modes, in row order."""
         return self._modes
+
+    @property
+    def horizon(self) -> int:
+        """T, the steps of every sequence (:meth:`set_horizon` changes it)."""
+        return self._p.cfg.horizon
 
     @property
     def num_samples(self) -> int:
@@ -144,6 +150,24 @@ class M3P2I:
         self._lam = lam
         if self._s != previous:
             p.make_noise(self._s)
+        self._v, self._costs = None, None
+
+    def set_horizon(self, horizon: int) -> None:
+        """Plans ``horizon`` steps from the next iteration on (the anytime planner sheds steps
+        when even its fewest samples overrun its budget, planner_client.budget). The means, plan
+        and best sequences keep their first steps, or grow by holding their last one (as a shift
+        does); modes and temperatures are kept; the sampler starts afresh for the new length.
+
+        Raises ValueError (from :class:`MPPIConfig`) for a horizon the config cannot take, e.g.
+        below ``savgol_window``."""
+        p = self._p
+        if horizon == p.cfg.horizon:
+            return
+        cfg = dataclasses.replace(p.cfg, horizon=horizon)  # validates
+        self._p = MppiCore(cfg, self._s, p.dev.dtype, p.dev.device)
+        self._unshifted = tuple(_resized(x, horizon) for x in self._unshifted)
+        self._set_layout(self._modes)
+        self._retime(self._steps)
         self._v, self._costs = None, None
 
     def advance(self, steps: float) -> None:
@@ -270,3 +294,12 @@ class M3P2I:
         self._layout = ModeLayout.build(modes, p.cfg, p.box, p.dev)
         self._modes = modes
         self._s = sum(m.samples for m in modes)
+
+
+def _resized(seq: Tensor, horizon: int) -> Tensor:
+    """``seq [..., T, nu]`` cut to its first ``horizon`` steps, or extended holding its last."""
+    steps = seq.shape[-2]
+    if horizon <= steps:
+        return seq[..., :horizon, :].clone()
+    tail = seq[..., -1:, :].expand(*seq.shape[:-2], horizon - steps, seq.shape[-1])
+    return torch.cat([seq, tail], dim=-2)
