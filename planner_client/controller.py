@@ -228,6 +228,8 @@ class Controller:
         self.budget = None if cfg is None else SampleBudget(cfg, pc.samples, pc.horizon)
         self.motion.set_samples(pc.samples)
         self.motion.set_horizon(pc.horizon)
+        if cfg is not None:
+            self.motion.prepare_horizons(cfg.min_horizon)
 
     def _spend(self, plan_time: float, now: float) -> None:
         """The anytime planner sees the iteration's time and may change the samples."""

@@ -131,6 +131,11 @@ class MotionPlanner:
         fewest samples still overrun the budget); the plans keep their first steps."""
         self.mppi.set_horizon(horizon)
 
+    def prepare_horizons(self, shortest: int) -> None:
+        """Make the tables of every horizon from ``shortest`` to the current one now, before
+        an anytime planner may shed steps in real time (:meth:`M3P2I.prepare_horizons`)."""
+        self.mppi.prepare_horizons(range(shortest, self.horizon))
+
     def _shared_terms(self) -> list[CostTerm]:
         """The terms of every mode's objective (by :attr:`CostTerm.key`), when there are several
         modes: evaluated once on all S rows instead of once per mode (push and pull share their

@@ -170,6 +170,16 @@ class M3P2I:
         self._retime(self._steps)
         self._v, self._costs = None, None
 
+    def prepare_horizons(self, horizons: Sequence[int]) -> None:
+        """Computes now the sampler's and the smoothing's tables for each of ``horizons`` (they
+        are cached on disk, planner_client/mppi/cache.py), so that :meth:`set_horizon` reads them
+        instead of importing SciPy in the middle of a real-time episode."""
+        p = self._p
+        for horizon in horizons:
+            MppiCore(
+                dataclasses.replace(p.cfg, horizon=horizon), self._s, p.dev.dtype, p.dev.device
+            )
+
     def advance(self, steps: float) -> None:
         """Re-times the warm start: the next iteration starts ``steps`` control steps (may be
         fractional, or less than one) after the last one, where :meth:`update` assumed one.

@@ -31,7 +31,7 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from .cache import cached_table
+from .cache import cached_prefix
 from .config import MPPIConfig
 
 # Keeps ndtri finite if a rotated Halton point lands on 0 or 1 exactly.
@@ -64,7 +64,11 @@ def spline_basis(horizon: int, knot_every: int, degree: int) -> np.ndarray:
         knot_t = np.arange(n_knots) * knot_every
         return make_interp_spline(knot_t, np.eye(n_knots), k=k, axis=0)(np.arange(horizon))
 
-    return cached_table(f"spline-T{horizon}-every{knot_every}-k{k}", (horizon, n_knots), compute)
+    def same_knots(longer: int) -> bool:
+        return math.ceil((longer - 1) / knot_every) + 1 == n_knots
+
+    template = f"spline-T{{}}-every{knot_every}-k{k}"
+    return cached_prefix(template, horizon, n_knots, compute, same_knots)
 
 
 def halton_uniforms(samples: int, dims: int, seed: int) -> np.ndarray:
@@ -76,7 +80,7 @@ def halton_uniforms(samples: int, dims: int, seed: int) -> np.ndarray:
 
         return qmc.Halton(d=dims, scramble=True, seed=seed).random(samples)
 
-    return cached_table(f"halton-{samples}x{dims}-seed{seed}", (samples, dims), compute)
+    return cached_prefix(f"halton-{{}}x{dims}-seed{seed}", samples, dims, compute)
 
 
 class GaussianNoise:

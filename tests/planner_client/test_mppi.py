@@ -676,3 +676,35 @@ def test_the_samplers_tables_come_from_the_cache_once_computed(tmp_path, monkeyp
     # a cache that cannot be written only costs the computation
     monkeypatch.setenv("M3P2I_CACHE", "/proc/m3p2i-no-such-dir")
     assert np.array_equal(cache.cached_table("t-2x3", (2, 3), compute), first)
+
+
+def test_fewer_samples_or_steps_read_a_longer_cached_table_not_scipy(tmp_path, monkeypatch):
+    """The anytime planner sheds samples and steps in real time: their tables are the first rows
+    of longer ones already cached (the same values as SciPy's), computed only when none fits."""
+    from scipy.interpolate import make_interp_spline
+    from scipy.stats import qmc
+
+    from planner_client.mppi import cache
+    from planner_client.mppi.sampling import halton_uniforms, spline_basis
+
+    monkeypatch.setenv("M3P2I_CACHE", str(tmp_path))
+    full = halton_uniforms(200, 24, 3)
+    basis = spline_basis(8, 4, 2)  # knots 0, 4, 8
+    computed = []
+    real = cache.cached_table
+
+    def spy(name, shape, compute):
+        computed.append(name)
+        return real(name, shape, compute)
+
+    monkeypatch.setattr(cache, "cached_table", spy)
+    fewer = halton_uniforms(150, 24, 3)
+    assert np.array_equal(fewer, full[:150]) and computed == []
+    assert np.array_equal(fewer, qmc.Halton(d=24, scramble=True, seed=3).random(150))
+    shorter = spline_basis(7, 4, 2)  # the same knots: the first 7 steps of T = 8
+    assert computed == [] and np.array_equal(shorter, basis[:7])
+    own = make_interp_spline(np.arange(3) * 4, np.eye(3), k=2, axis=0)(np.arange(7))
+    assert np.array_equal(shorter, own)
+    assert spline_basis(5, 4, 2).shape == (5, 2) and computed == ["spline-T5-every4-k1"]
+    halton_uniforms(300, 24, 3)  # more rows than any cached: computed
+    assert computed[-1] == "halton-300x24-seed3"
