@@ -160,6 +160,7 @@ class Controller:
         self._ahead_logged = 0
         self._last_start: tuple[float, int] | None = None  # (t_eff, state seq) of the last plan
         self._faults = 0  # consecutive iterations without a plan (Iteration.fault)
+        self._over_at: tuple[str, int] | None = None  # (session, seq) of the end last logged
         self.map: MapUpdater | None = None  # the lidars' map, made at begin
         # planner.budget: checked now, the anytime planner made at begin against a real-time world
         budget_config(self.motion.problem.scenario)
@@ -283,7 +284,9 @@ class Controller:
         if state.status == "running":
             return False
         self.stats.final_status = state.status
-        log.info("episode over: %s at t=%.2f s", state.status, state.time)
+        if (state.session, state.seq) != self._over_at:  # a kept world re-publishes its end
+            self._over_at = (state.session, state.seq)
+            log.info("episode over: %s at t=%.2f s", state.status, state.time)
         return True
 
     def step(self, state: P.State) -> P.Command | None:

@@ -237,3 +237,19 @@ def test_no_finite_cost_sends_the_safe_control_and_says_why(nav, caplog):
         assert controller.stats.safe_fallbacks == 4
     finally:
         controller.close()
+
+
+def test_the_end_of_an_episode_is_logged_once_however_often_the_world_repeats_it(nav, caplog):
+    planner = build_motion_planner(nav, threads=1)
+    controller = Controller(build_parts(planner, FixedModes(("navigate",))))
+    model = planner.problem.model
+    end = dataclasses.replace(_state(model, 2.0), seq=40, status="success")
+    try:
+        with caplog.at_level(logging.INFO, logger="m3p2i.planner"):
+            assert all(controller.over(end) for _ in range(3))  # re-published by a kept world
+            assert controller.over(dataclasses.replace(end, session="next"))
+        ends = [r.getMessage() for r in caplog.records if "episode over" in r.getMessage()]
+        assert ends == ["episode over: success at t=2.00 s"] * 2
+        assert controller.stats.final_status == "success"
+    finally:
+        controller.close()
