@@ -164,10 +164,13 @@ def test_the_world_logs_the_samples_and_the_plot_draws_them(tmp_path):
         controller.close()
         episode.close()
     records = read_log(tmp_path / "episode.jsonl")
-    # a lock-step world notes a command's samples after its step, as its action
+    # a lock-step world notes a command's samples after its step, as its action, and the steps
+    # of its plan beside them
     assert [r.get("samples") for r in steps(records)] == [None, 200, 150, 150]
+    assert [r.get("horizon") for r in steps(records)] == [None] + [sc.planner.horizon] * 3
     series = episode_series(sc, records)
     assert series.samples is not None and np.nanmin(series.samples) == 150
+    assert np.nanmin(series.horizon) == sc.planner.horizon
     assert plot_episode(series, tmp_path / "plot.png").stat().st_size > 0
     assert budget_samples([{"time": 0.0}]) is None  # no budget: no panel
 
@@ -190,6 +193,6 @@ def test_a_faulty_budget_is_refused_naming_its_key(budget, key):
 
 
 def test_the_view_panel_shows_the_samples_under_a_budget():
-    info = PanelInfo(scenario="navigation", planner_hz=20.0, plan_ms=48.0, samples=120)
-    assert "20.0 Hz, 48 ms per plan, 120 samples per mode" in info.markdown()
+    info = PanelInfo(scenario="navigation", planner_hz=20.0, plan_ms=48.0, samples=120, horizon=4)
+    assert "20.0 Hz, 48 ms per plan, 120 samples per mode, 4 steps" in info.markdown()
     assert "samples per mode" not in PanelInfo(planner_hz=20.0).markdown()
