@@ -109,7 +109,7 @@ def read_planner(s: Section) -> PlannerConfig:
         tracking=read_tracking(s.section(s.renamed("estimate", "tracking"), required=False)),
         delays=_delays(s.section("delays", required=False)),
         map=s.opt("map", {}, dict, "{resolution: m, rate: Hz}"),
-        budget=s.opt("budget", {}, dict, "{rate: Hz, min_samples: n, patience: n}"),
+        budget=s.opt("budget", {}, lambda v: {} if v is None else {**v}, "{rate: Hz, ...} or null"),
     )
     s.done()
     _check_variants(s, cfg)

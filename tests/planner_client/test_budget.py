@@ -196,3 +196,16 @@ def test_the_view_panel_shows_the_samples_under_a_budget():
     info = PanelInfo(scenario="navigation", planner_hz=20.0, plan_ms=48.0, samples=120, horizon=4)
     assert "20.0 Hz, 48 ms per plan, 120 samples per mode, 4 steps" in info.markdown()
     assert "samples per mode" not in PanelInfo(planner_hz=20.0).markdown()
+
+
+@pytest.mark.parametrize("off", [None, {}])
+def test_null_or_an_empty_mapping_switches_a_base_scenarios_budget_off(off):
+    from m3p2i.sweep import apply_overrides
+    from shared.scenario.reader import parse_scenario
+
+    base = load_scenario("pick_place")
+    assert budget_config(base) is not None  # the shipped one keeps 30 plans a second
+    off = parse_scenario(apply_overrides(base.raw, {"planner.budget": off}), "test")
+    assert budget_config(off) is None
+    with pytest.raises(ConfigError, match=r"planner\.budget.*not a mapping"):
+        parse_scenario(apply_overrides(base.raw, {"planner.budget": [30]}), "test")
