@@ -103,14 +103,14 @@ def episode_series(scenario: Scenario, records: list[dict]) -> EpisodeSeries:
         arena=scenario.world.arena.half_size if scenario.world.arena else None,
         model=model_estimates(steps),
         truth={f"{k}.{n}": float(v) for k, names in truth.items() for n, v in names.items()},
-        samples=budget_samples(steps),
-        horizon=budget_samples(steps, "horizon"),
+        samples=budget_series(steps, "samples"),
+        horizon=budget_series(steps, "horizon"),
     )
 
 
-def budget_samples(steps: list[dict], key: str = "samples") -> np.ndarray | None:
-    """``[T]`` the samples per mode (``key="horizon"``: the plan's steps) of the command each
-    step played (NaN before the first), or None when the planner had no budget."""
+def budget_series(steps: list[dict], key: str) -> np.ndarray | None:
+    """``[T]`` the anytime planner's ``key`` (``samples`` per mode, or the plan's ``horizon``
+    steps) for the command each step played (NaN before the first); None without a budget."""
     if not any(key in s for s in steps):
         return None
     return np.array([float(s.get(key, np.nan)) for s in steps])

@@ -150,3 +150,13 @@ __all__ = [
     "wait_episode",
     "wait_until",
 ]
+
+
+def play(controller, episode, steps: int) -> P.State:
+    """``steps`` lock-step iterations of ``controller`` on the in-process ``episode``
+    (server.inprocess) from its current state; the state after the last."""
+    state = episode.publish()
+    for _ in range(steps):
+        episode.play(controller.step(state))
+        state = episode.publish()
+    return state

@@ -12,6 +12,7 @@ import sys
 import threading
 import time
 import urllib.request
+from collections.abc import Iterator
 
 import pytest
 
@@ -57,14 +58,14 @@ def _inflate(frame: bytes) -> bytes:
         return frame
 
 
-def _page_messages(url: str, seconds: float = 10.0) -> bytes:
-    """What the page's websocket sends a new client (the scene and the panel), as raw bytes."""
+def _page_frames(url: str, seconds: float) -> Iterator[bytes]:
+    """Each message the page's websocket sends a new client within ``seconds``, inflated, until
+    the page goes."""
+    from websockets.exceptions import ConnectionClosed
     from websockets.sync.client import connect
 
-    ws_url = url.replace("http://", "ws://")
-    got = b""
     with connect(
-        ws_url,
+        url.replace("http://", "ws://"),
         origin=url.rstrip("/"),
         open_timeout=10,
         max_size=None,
@@ -74,11 +75,18 @@ def _page_messages(url: str, seconds: float = 10.0) -> bytes:
         while time.monotonic() < end:
             try:
                 msg = ws.recv(timeout=max(0.1, end - time.monotonic()))
-            except TimeoutError:
-                break
-            got += _inflate(msg if isinstance(msg, bytes) else msg.encode())
-            if b"time [s]" in got and b"outcome" in got:
-                break
+            except (TimeoutError, ConnectionClosed):  # quiet, or the page ended
+                return
+            yield _inflate(msg if isinstance(msg, bytes) else msg.encode())
+
+
+def _page_messages(url: str, seconds: float = 10.0) -> bytes:
+    """What the page's websocket sends a new client (the scene and the panel), as raw bytes."""
+    got = b""
+    for frame in _page_frames(url, seconds):
+        got += frame
+        if b"time [s]" in got and b"outcome" in got:
+            break
     return got
 
 

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 import torch
 
-from m3p2i.plots import budget_samples, episode_series, plot_episode
+from m3p2i.plots import budget_series, episode_series, plot_episode
 from m3p2i.view.drawing import PanelInfo
 from planner_client.budget import BudgetConfig, SampleBudget, budget_config
 from planner_client.build import build_controller
@@ -172,7 +172,7 @@ def test_the_world_logs_the_samples_and_the_plot_draws_them(tmp_path):
     assert series.samples is not None and np.nanmin(series.samples) == 150
     assert np.nanmin(series.horizon) == sc.planner.horizon
     assert plot_episode(series, tmp_path / "plot.png").stat().st_size > 0
-    assert budget_samples([{"time": 0.0}]) is None  # no budget: no panel
+    assert budget_series([{"time": 0.0}], "samples") is None  # no budget: no panel
 
 
 @pytest.mark.parametrize(

@@ -19,6 +19,7 @@ from server.evaluation.log_reader import read_log, steps
 from server.inprocess import build_episode, run_episode
 from shared.config import ConfigError
 from shared.scenario import find_scenario, load_scenario
+from tests.helpers import play
 
 PERCEIVED = ("block_a", "block_b", "pillar")
 # navigation_seen's perceived obstacles as footprints, the robot disc's radius
@@ -42,10 +43,7 @@ def test_the_controller_fuses_the_lidar_into_the_field_the_cost_reads(seen):
         controller.begin("lockstep", episode.dt)
         slot = controller.motion.problem.field_source
         assert slot.latest() is None  # no scan yet: no field
-        state = episode.publish()
-        for _ in range(4):
-            episode.play(controller.step(state))
-            state = episode.publish()
+        play(controller, episode, 4)
         field = slot.latest()
         assert field is controller.map.latest()
         points = torch.tensor(

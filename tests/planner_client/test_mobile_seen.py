@@ -20,6 +20,7 @@ from planner_client.problem import build_problem
 from server.inprocess import build_episode
 from shared.config import ConfigError
 from shared.scenario import load_scenario, parse_scenario
+from tests.helpers import play
 
 NAME = "mobile_pick_place_seen"
 BOX = Shape("box", (0.85, 1.5), (0.2, 0.2))  # the scenario's box from above
@@ -73,10 +74,7 @@ def test_lockstep_steps_map_the_box_and_guide_the_chassis_round_it(seen):
     episode = build_episode(seen, seed=0)
     try:
         controller.begin("lockstep", episode.dt)
-        state = episode.publish()
-        for _ in range(3):
-            episode.play(controller.step(state))
-            state = episode.publish()
+        play(controller, episode, 3)
         field = controller.motion.problem.field_source.latest()
         assert field is not None and field.dims == 2
         points = torch.tensor(

@@ -24,6 +24,7 @@ from planner_client.spheres import robot_bodies
 from server.inprocess import build_episode, run_episode
 from shared.config import ConfigError
 from shared.scenario import load_scenario, parse_scenario
+from tests.helpers import play
 
 F64 = torch.float64
 RES = 0.02
@@ -75,10 +76,7 @@ def test_a_depth_camera_gives_a_3d_map_that_the_term_reads(seen):
     episode = build_episode(seen, seed=0)
     try:
         controller.begin("lockstep", episode.dt)
-        state = episode.publish()
-        for _ in range(3):
-            episode.play(controller.step(state))
-            state = episode.publish()
+        play(controller, episode, 3)
         assert isinstance(controller.map.map, VoxelGrid)
         field = controller.map.latest()
         assert field is not None and field.dims == 3
