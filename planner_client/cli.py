@@ -26,7 +26,7 @@ from shared.cli_common import (
 )
 from shared.config import ConfigError, ConfigErrors
 from shared.endpoints import DEFAULT_HOST, DEFAULT_PORT, Endpoints
-from shared.scenario import load_scenario
+from shared.scenario import Scenario, load_scenario
 from shared.security import ExposureError, keys_for_cli, load_planner_keys
 
 app = typer.Typer(add_completion=False)
@@ -127,6 +127,30 @@ MaxRate = Annotated[
 ]
 
 
+RobotOption = Annotated[
+    str | None,
+    typer.Option(
+        "--robot",
+        help="In a scenario of several robots (robots:), the one this planner drives: it plans "
+        "that robot's controls, the others rolled out along their planners' plans "
+        "(docs/teams.md). Start one planner per robot.",
+    ),
+]
+
+
+def member_of(scenario: Scenario, robot: str | None) -> Scenario:
+    """The scenario as ``robot``'s planner reads it; a ConfigError when ``robot`` is not one
+    of its team (or a team's scenario got no robot, or one robot's scenario got one)."""
+    names = list(scenario.members)
+    if robot is None and not names:
+        return scenario
+    if robot is None or robot not in names:
+        expected = f"--robot with one of: {', '.join(names)}" if names else "no --robot"
+        what = "has one robot" if not names else "drives several robots"
+        raise ConfigError(scenario.source, "robots", f"this scenario {what}", robot, expected)
+    return scenario.members[robot]
+
+
 @app.command(help=HELP)
 def main(
     scenario: ScenarioOption,
@@ -148,6 +172,7 @@ def main(
     measure_delays: MeasureDelays = False,
     plugins: Plugins = None,
     max_rate: MaxRate = 0.0,
+    robot: RobotOption = None,
     verbose: Verbose = False,
     estimate_delays: OldMeasureDelays = False,
 ) -> None:
@@ -173,7 +198,10 @@ def main(
 
     try:
         sc = with_delays(
-            load_scenario(scenario), actuation_delay_ms, state_delay_ms, measure_delays
+            member_of(load_scenario(scenario), robot),
+            actuation_delay_ms,
+            state_delay_ms,
+            measure_delays,
         )
         client = build_client(
             sc,

@@ -321,7 +321,12 @@ class Controller:
             self.attachments.update(self.mirror.data, self.task.last_observation, state.time)
         self.motion.set_modes(decision.modes)  # 4. modes
         phases.mark("task")
+        team = self.motion.team
+        if team is not None:  # the others' newest plans: they go so in the rollouts
+            team.receive(state.plans)
         start, x0, mocap = self._plan_start(state, x0)  # 5. plan start
+        if team is not None:
+            team.begin(start, self.motion.horizon)
         phases.mark("start")
         it = self.motion.iterate(x0, mocap)  # 6. M3P2I
         self._note_fault(it, state.time)
@@ -346,6 +351,7 @@ class Controller:
             plan_dt=None if plan is None else self.motion.dt,
             model=self.model_estimate(),
             samples=None if self.budget is None else self.motion.samples,
+            robot=team.robot if team is not None else None,
         )
         steps = state.seq - self._last_start[1] if self._last_start else 0
         self._last_start = (start, state.seq)
@@ -447,6 +453,7 @@ class Controller:
                 dt,
                 ahead + acting,
                 acting * dt,
+                self.motion.team,
             )
             x0 = get_full_state(model, data, self.mirror.x0)
             start = float(data.time) - acting * dt  # the same instant, in the mirror's float sums

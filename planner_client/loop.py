@@ -75,8 +75,12 @@ class PlannerClient:
         can), to rehearse on a fast machine what a slower computer does."""
         self.controller = controller
         self.endpoints = endpoints
+        member = controller.motion.problem.scenario.member or None  # a team's: its robot
         self.hello = P.Hello(
-            scenario=scenario_name, scenario_hash=scenario_hash, versions=list(P.VERSIONS)
+            scenario=scenario_name,
+            scenario_hash=scenario_hash,
+            versions=list(P.VERSIONS) if member is None else [P.PROTOCOL_VERSION],
+            robot=member,
         )
         self.version = P.PROTOCOL_VERSION  # of the commands: the one the world chose
         self._warned_version: int | None = None
@@ -111,8 +115,11 @@ class PlannerClient:
                 curve_server(self.diag, keys.own)
             # bound on this machine (loopback unless told): the world's address, the default,
             # is another machine's when the two run apart
+            # a team's robots' planners: one port each, in the team's order from the fourth
+            sc = controller.motion.problem.scenario
+            index = [m.name for m in sc.team].index(sc.member) if sc.team else 0
             self.diag.bind(
-                Endpoints(diagnostics_host or endpoints.host, endpoints.port).diagnostics
+                Endpoints(diagnostics_host or endpoints.host, endpoints.port + index).diagnostics
             )
         self.welcome: P.Welcome | None = None
         self._answered: tuple[str, int] | None = None  # (session, seq) of the last command
@@ -138,7 +145,7 @@ class PlannerClient:
             monitor = HandshakeMonitor(req, hangups=True)
             req.connect(self.endpoints.control)
             req.send(
-                P.encode(self.hello, min(P.VERSIONS))
+                P.encode(self.hello, min(self.hello.versions))
                 if plain is None
                 else P.encode(dataclasses.replace(self.hello, versions=None), plain)
             )
@@ -176,7 +183,7 @@ class PlannerClient:
                     plain = self._plain_hello(reply, version, plain)
                     continue
                 self._speak(version)
-                nu = self.controller.motion.problem.model.nu
+                nu = len(self.controller.motion.problem.actuators)
                 if reply.nu != nu:
                     raise HandshakeRefused(
                         f"server model has nu={reply.nu}, planner model has nu={nu}"

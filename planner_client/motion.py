@@ -25,6 +25,7 @@ from planner_client.mirror import MocapState
 from planner_client.mppi import M3P2I, ModeSpec, MPPIConfig, PlanResult
 from planner_client.phases import PhaseClock
 from planner_client.problem import PlanningProblem
+from planner_client.team import TeamRollouts
 from planner_client.variants import AGGREGATES, VariantModels
 
 
@@ -103,6 +104,9 @@ class MotionPlanner:
         self._last_V: torch.Tensor | None = None  # [S, T, nu] of the last iterate()
         self.variants = variants
         self._variant_rows = 0  # the samples the engine's per-rollout models were set for
+        # a team's other robots, along their plans in every rollout (planner_client.team)
+        sc = problem.scenario
+        self.team = TeamRollouts(sc, problem.model, self._dt, cfg.horizon) if sc.team else None
 
     def _mode(self, name: str) -> ModeSpec:
         return ModeSpec(name=name, samples=self.samples, fixed=self.problem.objectives[name].fixed)
@@ -169,7 +173,8 @@ class MotionPlanner:
                 steps = np.arange(V.shape[1])[:, None, None] * self._dt
                 path = mocap.pos[None] + mocap.vel[None] * steps  # [T, nmocap, 3]
         if self.variants is None:
-            sd = self.engine.sensors(x0, V, path)  # [S, T, nsensordata]
+            W = V if self.team is None else self.team.widen(V)  # [S, T, nu of the world]
+            sd = self.engine.sensors(x0, W, path)  # [S, T, nsensordata]
             self.phases.mark("rollout")
             self._step_costs = self._costs(sd, V)  # [S, T]
             self.phases.mark("costs")

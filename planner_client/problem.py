@@ -85,7 +85,7 @@ def build_problem(scenario: Scenario, extra_sensors: list[SensorRequest] = ()) -
     if guide is not None:
         resolve.checked(guide.cfg.for_, scenario.source, "guide.for")
         resolve.checked(guide.cfg.goal, scenario.source, "guide.goal")
-    actuators = actuator_names(base)
+    actuators = [actuator_names(base)[i] for i in own_actuators(scenario, base)]
     field_source = FieldSlot()
     objectives = build_objectives(scenario, resolve, actuators, guide, field_source)
     robot_pos = SensorRequest("framepos", "robot")
@@ -250,6 +250,15 @@ def actuator_names(model: mujoco.MjModel) -> list[str]:
     return [model.actuator(i).name for i in range(model.nu)]
 
 
+def own_actuators(scenario: Scenario, model: mujoco.MjModel) -> list[int]:
+    """The actuators this planner commands, in its control order: all of the model's, or in a
+    team's scenario its own robot's (planner_client.team)."""
+    if not scenario.team:
+        return list(range(model.nu))
+    names = actuator_names(model)
+    return [names.index(n) for n in scenario.robot.spec.ctrl_names]
+
+
 def build_objectives(
     scenario: Scenario,
     resolve: FrameResolver,
@@ -285,12 +294,15 @@ def mppi_config(sc: Scenario, m: mujoco.MjModel) -> MPPIConfig:
 
     Defaults: bounds = the actuators' ctrlrange, noise_sigma = a quarter of each range.
     """
-    lo, hi = m.actuator_ctrlrange.T
-    limited = m.actuator_ctrllimited.astype(bool)
+    own = own_actuators(sc, m)
+    lo, hi = m.actuator_ctrlrange[own].T
+    limited = m.actuator_ctrllimited[own].astype(bool)
     u_min = tuple(float(v) if lim else -math.inf for v, lim in zip(lo, limited))
     u_max = tuple(float(v) if lim else math.inf for v, lim in zip(hi, limited))
     sigma = tuple(float((b - a) / 4) if lim else 1.0 for a, b, lim in zip(lo, hi, limited))
-    values = dict(horizon=sc.planner.horizon, nu=m.nu, noise_sigma=sigma, u_min=u_min, u_max=u_max)
+    values = dict(
+        horizon=sc.planner.horizon, nu=len(own), noise_sigma=sigma, u_min=u_min, u_max=u_max
+    )
     values.update(sc.planner.mppi.given())  # checked at load (shared/scenario/mppi.py)
     try:
         cfg = MPPIConfig(**values)

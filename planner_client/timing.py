@@ -28,6 +28,7 @@ from contextlib import contextmanager
 import mujoco
 import numpy as np
 
+from planner_client.team import TeamRollouts
 from shared.timed_plan import TimedPlan, playing
 
 
@@ -75,15 +76,16 @@ def predict(
     world_dt: float,
     steps: int,
     actuation_delay: float = 0.0,
+    team: TeamRollouts | None = None,
 ) -> None:
     """Steps ``data`` (the mirrored state) ``steps`` world steps ahead, in place, under the
     controls the world will apply meanwhile (``plans``: the last ones sent, oldest first), each
     acting ``actuation_delay`` seconds after the world plays it; at the world's timestep even
     when the planning model's is coarser, so that the predicted state is on the world's time
-    grid."""
+    grid. A team's planner: the other robots go as their plans say (``team``)."""
     if steps <= 0:
         return
-    controls = played(model, plans, safe, float(data.time), world_dt, steps, actuation_delay)
+    controls = played(model, plans, safe, float(data.time), world_dt, steps, actuation_delay, team)
     step_through(model, data, controls, world_dt)
 
 
@@ -95,6 +97,7 @@ def played(
     world_dt: float,
     steps: int,
     actuation_delay: float = 0.0,
+    team: TeamRollouts | None = None,
 ) -> np.ndarray:
     """``[steps, nu]``: the controls the world applies over ``steps`` world steps from time
     ``start`` (:func:`predict`'s), clipped to the actuators' ranges. The times add up step by
@@ -106,6 +109,7 @@ def played(
     for k in range(steps):
         u = playing(plans, t - actuation_delay)
         u = safe if u is None else u
+        u = u if team is None else team.widen_one(u, t)
         out[k] = np.where(limited, np.clip(u, lo, hi), u)
         t += world_dt
     return out

@@ -107,6 +107,7 @@ class WorldServer:
             self.poller.register(m.mon, zmq.POLLIN)
         self._refused = 0
         self._rejected = 0
+        self._inbox: list[P.Command] = []  # commands received, not yet taken (await_command)
         self.version = P.PROTOCOL_VERSION  # states are written in it: the newest handshake's
         self._stop = False
         self._next_seed: int | None = None  # a seeded reset asked for this episode next
@@ -246,20 +247,36 @@ class WorldServer:
         """Each state waits for the command answering it; ``plan_every`` world steps under it,
         then the next state (:meth:`Episode.play`)."""
         self.publish()
-        while (cmd := self.await_command(lambda c: c.seq == self.episode.seq)) is not None:
-            self.episode.play(cmd, self.opt.plan_every, self._after_step)
+        while (cmds := self._await_team(lambda c: c.seq == self.episode.seq)) is not None:
+            play = cmds if self.scenario.team else cmds[0]
+            self.episode.play(play, self.opt.plan_every, self._after_step)
             self.publish()
+
+    def _await_team(self, wanted) -> list[P.Command] | None:
+        """A command ``wanted`` accepts from every robot's planner (a team's world waits for
+        all of them, in the team's order); None when stopped."""
+        names = [m.name for m in self.scenario.team] or [None]
+        got: dict[str | None, P.Command] = {}
+        while len(got) < len(names):
+            cmd = self.await_command(lambda c: wanted(c) and c.robot not in got)
+            if cmd is None:
+                return None
+            got[cmd.robot] = cmd
+        return [got[n] for n in names]
 
     def await_command(self, wanted) -> P.Command | None:
         """The next valid command ``wanted`` accepts, the pending state re-published every
         ``republish`` seconds meanwhile (for late subscribers); None when stopped. Before the
-        first step, ``wait_planner`` seconds without one raise."""
+        first step, ``wait_planner`` seconds without one raise. Commands that arrived together
+        wait their turn (a team's planners answer the same state)."""
         started = last_pub = time.monotonic()
         while self.running:
-            cmd = self.serve(self.opt.republish)
+            self._inbox = [c for c in self._inbox + self.serve_all(self.opt.republish) if wanted(c)]
             # paused: the command is dropped; the planner sends it again for the re-published state
-            if cmd is not None and wanted(cmd) and not self._paused:
-                return cmd
+            if self._paused:
+                self._inbox.clear()
+            elif self._inbox:
+                return self._inbox.pop(0)
             if time.monotonic() - last_pub >= self.opt.republish:
                 if (
                     self.episode.seq == 0
@@ -274,18 +291,20 @@ class WorldServer:
 
     def _run_realtime(self) -> None:
         period = self.world.dt / self.opt.realtime_factor
-        latest_at = -np.inf
-        stale = True
+        robots = [m.name for m in self.scenario.team] or [None]
+        latest_at = dict.fromkeys(robots, -np.inf)  # each robot's newest command, monotonic s
+        stale = dict.fromkeys(robots, True)
         ended = -1  # seq of the last plan whose end was logged
-        # the clock starts with the planner: its start-up (imports, model compilation) is not
-        # part of the episode
+        # the clock starts with the planners: their start-up (imports, model compilation) is
+        # not part of the episode
         self.publish()
-        cmd = self.await_command(lambda c: True)
+        cmds = self._await_team(lambda c: True) or []
         next_tick = time.monotonic()
         while self.running:
-            if cmd is not None and not self._outdated(cmd):
-                latest_at = time.monotonic()
-                self.episode.receive(cmd)
+            for cmd in cmds:
+                if not self._outdated(cmd):
+                    latest_at[cmd.robot] = time.monotonic()
+                    self.episode.receive(cmd)
             now = time.monotonic()
             if self._paused:
                 # the world's clock stands still (plans are dated in world time, so they stay
@@ -293,24 +312,17 @@ class WorldServer:
                 if now >= next_tick:
                     self.publish()
                     next_tick = now + self.opt.republish
-                cmd = self.serve(max(0.0, min(next_tick - now, self.opt.republish)))
+                cmds = self.serve(max(0.0, min(next_tick - now, self.opt.republish)))
                 if not self._paused:
                     next_tick = time.monotonic()
                 continue
             if now >= next_tick:
-                fresh = now - latest_at <= self.opt.command_timeout
-                if fresh and stale:
-                    self.log.event("commands_fresh", seq=self.episode.seq)
-                elif not fresh and not stale:
-                    log.warning(
-                        "no command for %.2f s: holding the robot (safe control)",
-                        self.opt.command_timeout,
-                    )
-                    self.log.event("commands_stale", seq=self.episode.seq, age=now - latest_at)
-                    self.episode.drop_plans()
-                stale = not fresh
+                for robot in robots:
+                    stale[robot] = self._watch(robot, now - latest_at[robot], stale[robot])
+                fresh = not all(stale.values())
                 ctrl, source = self.episode.playing() if fresh else (None, -1)
-                cmd_age = now - latest_at if latest_at > -np.inf else None
+                newest = min(latest_at.values())
+                cmd_age = now - newest if newest > -np.inf else None
                 if ctrl is None and source >= 0 and source != ended:
                     ended = source
                     log.warning(
@@ -323,7 +335,25 @@ class WorldServer:
                 next_tick += period
                 if now - next_tick > 10 * period:  # fell far behind (debugger, load): resync
                     next_tick = now
-            cmd = self.serve(max(0.0, next_tick - time.monotonic()))
+            cmds = self.serve(max(0.0, next_tick - time.monotonic()))
+
+    def _watch(self, robot: str | None, age: float, was_stale: bool) -> bool:
+        """Whether ``robot``'s planner (None: the planner) is quiet, its newest command ``age``
+        s old: a change is logged, and a quiet planner's plans are dropped (its robot holds its
+        safe control; a team's other robots play on)."""
+        stale = age > self.opt.command_timeout
+        named = {"robot": robot} if robot is not None else {}
+        if not stale and was_stale:
+            self.log.event("commands_fresh", seq=self.episode.seq, **named)
+        elif stale and not was_stale:
+            log.warning(
+                "no command for %.2f s: holding the robot%s (safe control)",
+                self.opt.command_timeout,
+                f" {robot}" if robot is not None else "",
+            )
+            self.log.event("commands_stale", seq=self.episode.seq, age=age, **named)
+            self.episode.drop_plans(robot)
+        return stale
 
     def _outdated(self, cmd: P.Command) -> bool:
         """Whether ``cmd`` answers a state older than the command time-out (in world seconds):
@@ -362,9 +392,14 @@ class WorldServer:
         if state is not None:
             self.pub.send(P.encode(state, self.version))
 
-    def serve(self, timeout_s: float) -> P.Command | None:
-        """Serve control requests and drain commands; return the newest valid command."""
-        newest = None
+    def serve(self, timeout_s: float) -> list[P.Command]:
+        """Serve control requests and drain commands; return each robot's newest valid one."""
+        newest = {c.robot: c for c in self.serve_all(timeout_s)}
+        return list(newest.values())
+
+    def serve_all(self, timeout_s: float) -> list[P.Command]:
+        """Serve control requests and drain commands; return the valid ones in arrival order."""
+        got = []
         events = dict(self.poller.poll(int(timeout_s * 1000)))
         self._note_refusals()
         if self.rep in events:
@@ -377,8 +412,8 @@ class WorldServer:
                     break
                 cmd = self._accept_command(frame)
                 if cmd is not None:
-                    newest = cmd
-        return newest
+                    got.append(cmd)
+        return got
 
     def _accept_command(self, frame: bytes) -> P.Command | None:
         try:
@@ -387,10 +422,18 @@ class WorldServer:
             return self._reject(str(exc))
         if cmd.session != self.episode.session:
             return None  # for an earlier run of this server: silently outdated, not malformed
-        if cmd.ctrl.shape != (self.world.model.nu,):
+        team = [m.name for m in self.scenario.team]
+        if team and cmd.robot not in team:
+            return self._reject(
+                f"command.robot is {cmd.robot!r}; this world's robots are {', '.join(team)}"
+            )
+        if not team and cmd.robot is not None:
+            return self._reject(f"command.robot is {cmd.robot!r}; this world has one robot")
+        nu = self._player_nu(cmd.robot)
+        if cmd.ctrl.shape != (nu,):
             return self._reject(
                 f"command.ctrl has shape {list(cmd.ctrl.shape)}, "
-                f"the model needs [{self.world.model.nu}]"
+                f"the {'robot ' + repr(cmd.robot) if cmd.robot else 'model'} needs [{nu}]"
             )
         return cmd
 
@@ -450,18 +493,26 @@ class WorldServer:
             self.log.event("handshake_refused", reason=reason)
             self.rep.send(P.encode(P.Error(reason=reason, versions=speaks)))
             return
+        reason = self._robot_refusal(msg, chosen)
         if msg.scenario_hash != self.scenario.hash:
             reason = (
                 f"scenario mismatch: the server runs {self.scenario.name!r} "
                 f"(hash {self.scenario.hash}), the planner loaded {msg.scenario!r} "
                 f"(hash {msg.scenario_hash}); start both with the same scenario file"
             )
+        if reason is not None:
             log.error(reason)
             self.log.event("handshake_refused", reason=reason)
             self.rep.send(P.encode(P.Error(reason=reason, versions=speaks), chosen))
             return
-        self.log.event("handshake", client=msg.client, version=chosen)
-        log.info("planner connected (%s, protocol version %d)", msg.client, chosen)
+        robot = {"robot": msg.robot} if msg.robot is not None else {}
+        self.log.event("handshake", client=msg.client, version=chosen, **robot)
+        log.info(
+            "planner connected (%s, protocol version %d)%s",
+            msg.client,
+            chosen,
+            f" for robot {msg.robot}" if msg.robot else "",
+        )
         self.version = chosen
         self.rep.send(
             P.encode(
@@ -470,7 +521,7 @@ class WorldServer:
                     scenario_hash=self.scenario.hash,
                     mode=self.opt.mode,
                     dt=self.world.dt,
-                    nu=int(self.world.model.nu),
+                    nu=self._player_nu(msg.robot),
                     session=self.episode.session,
                     seed=self.episode.seed if self.opt.keep_serving else None,
                 ),
@@ -478,6 +529,30 @@ class WorldServer:
             )
         )
         self.publish()
+
+    def _robot_refusal(self, hello: P.Hello, version: int) -> str | None:
+        """Why a planner's ``hello.robot`` does not fit this world, or None: a team's world
+        needs a robot of its team (protocol 4), a world of one robot none."""
+        names = [m.name for m in self.scenario.team]
+        if not names:
+            if hello.robot is None:
+                return None
+            return (
+                "refused: this world has one robot; start the planner without --robot "
+                f"(got {hello.robot!r})"
+            )
+        if hello.robot in names and version >= 4:
+            return None
+        return (
+            f"refused: this world drives the robots {', '.join(names)}: start a planner per "
+            f"robot with --robot NAME (protocol 4), got {hello.robot!r} in version {version}"
+        )
+
+    def _player_nu(self, robot: str | None) -> int:
+        """The length of ``command.ctrl`` from the planner of ``robot`` (None: the robot)."""
+        if robot is None:
+            return int(self.world.model.nu)
+        return len(next(m for m in self.scenario.team if m.name == robot).robot.spec.ctrl_names)
 
     def _control(self, msg: P.Control) -> None:
         """A control op: echoed when done, answered with ``error`` and its reason when refused

@@ -27,6 +27,7 @@ from server.evaluation.metrics import MetricsEvaluator, describe
 from server.evaluation.plan_ages import describe_timing, timing_summary
 from server.faults import FaultyWorld
 from server.interface import Outcome, World, WorldState, world_name
+from server.team import TeamPlayer
 from server.world import SimWorld
 from shared import protocol as P
 from shared.scenario import Scenario
@@ -84,6 +85,7 @@ class Episode:
         self.lag = 0.0  # of the newest command, world seconds
         self.action = ""
         self.action_changes: list[tuple[float, str]] = []
+        self._actions: dict[str, str] = {}  # a team's robots' newest actions (real time)
         self.model: dict[str, float] | None = None  # the planner's identified model (Command)
         self.samples: int | None = None  # its samples per mode, under a planner.budget
         self.horizon: int | None = None  # and its plan's steps (the budget sheds them last)
@@ -92,7 +94,8 @@ class Episode:
         self._state_times: dict[int, float] = {}  # seq -> world time of recent states
         self._plan_time_of: dict[int, float] = {}  # seq -> planning time, until first applied
         self._published = -1  # the newest seq published (or lost: drop_state)
-        self._player = PlanPlayer()  # the plans received, each played from its t0 on
+        # the plans received, each played from its t0 on (a team: each robot's by its own)
+        self._player = TeamPlayer(scenario) if scenario.team else PlanPlayer()
         self.log = EpisodeLog(log_path)
         self.log.write(
             "header",
@@ -144,6 +147,7 @@ class Episode:
             extras=dict(self.world.extras),
             lag=self.lag,
             scans=self._scans[1],
+            plans=self._player.forwarded() if self.scenario.team else [],
         )
         self._state_times[self.seq] = state.time
         self._state_times.pop(self.seq - _KEEP_STATE_TIMES, None)
@@ -158,30 +162,49 @@ class Episode:
     # ------------------------------------------------------------------ commands
 
     def play(
-        self, cmd: P.Command, steps: int = 1, after_step: Callable[[], None] | None = None
+        self,
+        cmd: P.Command | list[P.Command],
+        steps: int = 1,
+        after_step: Callable[[], None] | None = None,
     ) -> None:
         """Lock-step: ``steps`` world steps under ``cmd`` (its plan's knots by time, or its
         ctrl held; the safe control past the plan's end), fewer when the episode ends; then its
         action is noted. One step by default; more emulate, deterministically, a planner that
-        slow against a real-time world. ``after_step`` runs after each logged step.
+        slow against a real-time world. ``after_step`` runs after each logged step. A team's
+        world plays a list: one command per robot, answering the same state.
 
         As in real time, a plan applies from its ``plan_t0`` on (:class:`PlanPlayer`): one
         dated ahead of the world (a planner that declares a state delay the world does not
         have) waits, and the plan playing goes on until then. A planner's usual plan is dated
         at the state's time, so it starts at once."""
+        cmds = cmd if isinstance(cmd, list) else [cmd]
+        cmd = cmds[0]
         self._count_plan(cmd)
         # the lag, as in real time: from the answered state's time (its measurement's) to now;
         # 0 unless the world publishes its states late (a state delay)
         self.lag = max(0.0, self.world.time - self._state_times.get(cmd.seq, self.world.time))
-        self._player.receive(self._timed(cmd))
+        for c in cmds:
+            self._receive_plan(c)
         for _ in range(steps):
             self.apply(*self.playing())
             if after_step is not None:
                 after_step()
             if not self.running:
                 break
-        self.note_action(cmd.action)
+        self.note_action(self._action(cmds))
         self._note_budget(cmd)
+
+    def _action(self, cmds: list[P.Command]) -> str:
+        """The action the steps are logged with: a team's as ``a: act, b: act``."""
+        if not self.scenario.team:
+            return cmds[0].action
+        return ", ".join(f"{c.robot}: {c.action}" for c in cmds)
+
+    def _receive_plan(self, cmd: P.Command) -> None:
+        if self.scenario.team:
+            self._player.receive(self._timed(cmd), cmd.robot)
+        else:
+            self._player.receive(self._timed(cmd))
 
     def _note_budget(self, cmd: P.Command) -> None:
         """The planner's identified model, and under a budget its samples and plan steps."""
@@ -201,19 +224,30 @@ class Episode:
         if sent is not None:
             self.lag = max(0.0, self.world.time - sent)
         self._count_plan(cmd)
-        self.note_action(cmd.action)
+        if self.scenario.team:  # each robot's newest action
+            self._actions[cmd.robot] = cmd.action
+            self.note_action(", ".join(f"{r}: {a}" for r, a in sorted(self._actions.items())))
+        else:
+            self.note_action(cmd.action)
         self._note_budget(cmd)
-        self._player.receive(self._timed(cmd))
+        self._receive_plan(cmd)
 
     def playing(self) -> tuple[np.ndarray | None, int]:
         """The control the plans received give for the world's time, and the state ``seq`` its
         plan answered: ``(None, seq)`` when that plan ran out, ``(None, -1)`` before any."""
-        ctrl, plan = self._player.control(self.world.time)
+        if self.scenario.team:
+            ctrl, plan = self._player.control(self.world.time, self.world.ctrl)
+        else:
+            ctrl, plan = self._player.control(self.world.time)
         return ctrl, (plan.seq if plan is not None else -1)
 
-    def drop_plans(self) -> None:
-        """Forget the plans received (commands gone stale: the safe control until the next)."""
-        self._player.clear()
+    def drop_plans(self, robot: str | None = None) -> None:
+        """Forget the plans received (commands gone stale: the safe control until the next);
+        in a team, ``robot``'s only (None: every robot's)."""
+        if robot is not None:
+            self._player.clear(robot)
+        else:
+            self._player.clear()
 
     def _timed(self, cmd: P.Command) -> TimedPlan:
         """The plan ``cmd`` carries, as the world plays it; a command without a plan holds its

@@ -21,10 +21,10 @@ import numpy as np
 
 from shared.scans import SCAN_KINDS, Scan, check_scan
 
-PROTOCOL_VERSION = 3
+PROTOCOL_VERSION = 4
 """3 added the sensors' readings (``state.scans``) and the anytime planner's ``samples``; 2 the
 time-indexed plan of a command (``plan_*``), ``state.lag`` and the diagnostics' timing."""
-VERSIONS = (1, 2, 3)
+VERSIONS = (1, 2, 3, 4)
 """The versions this code speaks: the planner's ``hello`` offers them, the world answers in the
 highest both speak, and each side then encodes with that one (docs/protocol.md, "Version
 negotiation"); a peer of none of them is refused with the versions named."""
@@ -113,6 +113,7 @@ class Hello:
     scenario_hash: str
     client: str = "m3p2i-planner"
     versions: list[int] | None = None  # the versions the planner speaks (None: only the hello's v)
+    robot: str | None = None  # in a world of several robots: the one this planner drives
     type = "hello"
 
 
@@ -152,7 +153,19 @@ class State:
     extras: dict[str, float] = field(default_factory=dict)
     lag: float = 0.0  # world s from publishing the state a command answered to its arrival
     scans: list[Scan] = field(default_factory=list)  # readings due since the previous state
+    plans: list[RobotPlan] = field(default_factory=list)  # every robot's newest plan (a team's)
     type = "state"
+
+
+@dataclass
+class RobotPlan:
+    """A team robot's newest plan as the world forwards it to the others' planners (protocol 4):
+    ``ctrl [H, nu]`` of that robot for world times ``t0 + i·dt``."""
+
+    robot: str
+    t0: float
+    dt: float
+    ctrl: np.ndarray
 
 
 @dataclass
@@ -175,6 +188,7 @@ class Command:
     # the planner's identified model, "kind.name" -> factor (planner.model.variants.identify)
     model: dict[str, float] | None = None
     samples: int | None = None  # samples per mode now, under a planner.budget (else None)
+    robot: str | None = None  # in a world of several robots: whose controls ``ctrl`` are
     type = "command"
 
     @property
@@ -244,6 +258,7 @@ _SCHEMA: dict[str, dict[str, tuple[str, bool]]] = {
         "scenario_hash": ("str", True),
         "client": ("str", False),
         "versions": ("intlist", False),
+        "robot": ("str", False),
     },
     "welcome": {
         "scenario": ("str", True),
@@ -267,6 +282,7 @@ _SCHEMA: dict[str, dict[str, tuple[str, bool]]] = {
         "extras": ("floatmap", False),
         "lag": ("float", False),
         "scans": ("scans", False),
+        "plans": ("plans", False),
     },
     "command": {
         "session": ("str", True),
@@ -279,6 +295,7 @@ _SCHEMA: dict[str, dict[str, tuple[str, bool]]] = {
         "plan_dt": ("float", False),
         "model": ("floatmap", False),
         "samples": ("int", False),
+        "robot": ("str", False),
     },
     "diagnostics": {
         "seq": ("int", True),
@@ -304,8 +321,9 @@ _SCHEMA: dict[str, dict[str, tuple[str, bool]]] = {
         "seed": ("int", False),
     },
 }
-# version 2 is version 3 without these fields, version 1 is version 2 without the next ones
-# (docs/protocol.md); hello.versions and error.versions, the negotiation, are read in all
+# each version is the next without these fields (docs/protocol.md); hello.versions and
+# error.versions, the negotiation, are read in all
+_NOT_IN_V3 = {"hello": {"robot"}, "state": {"plans"}, "command": {"robot"}}
 _NOT_IN_V2 = {"state": {"scans"}, "command": {"samples"}, "diagnostics": {"samples"}}
 _NOT_IN_V1 = {
     "welcome": {"seed"},
@@ -323,7 +341,12 @@ _SCHEMAS = {
         }
         for kind, fields in _SCHEMA.items()
     }
-    for version, left_out in ((3, ()), (2, (_NOT_IN_V2,)), (1, (_NOT_IN_V2, _NOT_IN_V1)))
+    for version, left_out in (
+        (4, ()),
+        (3, (_NOT_IN_V3,)),
+        (2, (_NOT_IN_V3, _NOT_IN_V2)),
+        (1, (_NOT_IN_V3, _NOT_IN_V2, _NOT_IN_V1)),
+    )
 }
 _STATUSES = {"running", "success", "timeout", "stopped"}
 _MODES = {"lockstep", "realtime"}
@@ -340,10 +363,12 @@ def encode(msg: Any, version: int = PROTOCOL_VERSION) -> bytes:
     out: dict[str, Any] = {"type": msg.type, "v": version}
     for name, (kind, required) in _SCHEMAS[version][msg.type].items():
         value = getattr(msg, name)
-        if (value is None or (kind == "scans" and not value)) and not required:
+        if (value is None or (kind in ("scans", "plans") and not value)) and not required:
             continue
         if kind == "scans":
             value = [_scan_map(scan) for scan in value]
+        elif kind == "plans":
+            value = [p.__dict__ | {"ctrl": encode_array(np.asarray(p.ctrl))} for p in value]
         elif kind == "array":
             value = encode_array(np.asarray(value))
         elif kind == "floatmap":
@@ -500,6 +525,10 @@ def _check_field(kind: str, name: str, ftype: str, value: Any) -> Any:
         if not isinstance(value, list) or len(value) > MAX_SCANS:
             raise ProtocolError(f"{what}: expected a list of at most {MAX_SCANS} scan maps")
         return [_decode_scan(item, f"{what}[{i}]") for i, item in enumerate(value)]
+    if ftype == "plans":
+        if not isinstance(value, list) or len(value) > 64:
+            raise ProtocolError(f"{what}: expected a list of at most 64 plan maps")
+        return [_decode_plan(item, f"{what}[{i}]") for i, item in enumerate(value)]
     if ftype == "floatmap":
         if not isinstance(value, dict) or not all(
             isinstance(k, str)
@@ -511,6 +540,17 @@ def _check_field(kind: str, name: str, ftype: str, value: Any) -> Any:
             raise ProtocolError(f"{what}: expected a map of names to finite numbers")
         return {k: float(v) for k, v in value.items()}
     raise AssertionError(ftype)
+
+
+def _decode_plan(obj: Any, what: str) -> RobotPlan:
+    """One plan map -> a :class:`RobotPlan`: its fields, ``dt`` > 0, ``ctrl`` 2-D."""
+    fields = {"robot": "str", "t0": "float", "dt": "float", "ctrl": "array"}
+    if not isinstance(obj, dict) or set(obj) != set(fields):
+        raise ProtocolError(f"{what}: expected a map of exactly {', '.join(fields)}")
+    plan = RobotPlan(**{k: _check_field(what, k, t, obj[k]) for k, t in fields.items()})
+    if plan.dt < MIN_PLAN_DT or plan.ctrl.ndim != 2 or len(plan.ctrl) == 0:
+        raise ProtocolError(f"{what}: dt must be > 0 and ctrl [H >= 1, nu]")
+    return plan
 
 
 # a scan's fields (docs/protocol.md, "Scans"), and those of each kind

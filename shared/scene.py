@@ -28,8 +28,11 @@ WALL_NAMES = ("wall_north", "wall_south", "wall_east", "wall_west")
 
 def build_spec(scenario: Scenario) -> mujoco.MjSpec:
     """The scenario's world as an uncompiled spec: robot model + floor + arena + objects."""
-    robot = scenario.robot.spec
-    spec = mujoco.MjSpec.from_file(str(robot.path))
+    spec = (
+        _team_spec(scenario)
+        if scenario.team
+        else mujoco.MjSpec.from_file(str(scenario.robot.spec.path))
+    )
     spec.modelname = scenario.name
     spec.option.timestep = scenario.world.timestep
     world = spec.worldbody
@@ -70,8 +73,13 @@ def reset_data(scenario: Scenario, model: mujoco.MjModel, data: mujoco.MjData) -
     robot (a Panda set to its home pose that way is drawn fully stretched).
     """
     mujoco.mj_resetData(model, data)
-    if scenario.robot.qpos is not None:
-        data.qpos[: len(scenario.robot.qpos)] = scenario.robot.qpos
+    for prefix, qpos in [(f"{m.name}/", m.robot.qpos) for m in scenario.team] or [
+        ("", scenario.robot.qpos)
+    ]:
+        if qpos is not None:
+            first = next(j for j in range(model.njnt) if model.joint(j).name.startswith(prefix))
+            start = model.jnt_qposadr[first]
+            data.qpos[start : start + len(qpos)] = qpos
     mujoco.mj_forward(model, data)
 
 
@@ -80,6 +88,20 @@ def initial_data(scenario: Scenario, model: mujoco.MjModel) -> mujoco.MjData:
     data = mujoco.MjData(model)
     reset_data(scenario, model, data)
     return data
+
+
+def _team_spec(scenario: Scenario) -> mujoco.MjSpec:
+    """A team's robots attached under their names (``a/``), in order: their actuators, so the
+    world's control vector, follow that order. The options (integrator, ...) are the first
+    robot's MJCF's; the robots' MJCFs must agree on them."""
+    first = mujoco.MjSpec.from_file(str(scenario.team[0].robot.spec.path))
+    spec = mujoco.MjSpec()
+    for key in ("timestep", "integrator", "cone", "impratio", "noslip_iterations"):
+        setattr(spec.option, key, getattr(first.option, key))
+    for m in scenario.team:
+        child = mujoco.MjSpec.from_file(str(m.robot.spec.path))
+        spec.attach(child, prefix=f"{m.name}/", frame=spec.worldbody.add_frame())
+    return spec
 
 
 def _add_arena(world, arena) -> None:

@@ -77,6 +77,7 @@ class PlannerConfig:
     delays: DelayConfig = DelayConfig()  # the robot's unseen delays, compensated by prediction
     map: dict = field(default_factory=dict)  # the lidar map's keys, read by planner_client.maps
     budget: dict = field(default_factory=dict)  # the anytime planner's: planner_client.budget
+    shared_plans: bool = True  # a team's: roll the others out along their plans (team.py)
 
     def step(self, world: WorldConfig) -> float:
         """Seconds per planned control step: ``timestep``, or the world's."""
@@ -110,6 +111,7 @@ def read_planner(s: Section) -> PlannerConfig:
         delays=_delays(s.section("delays", required=False)),
         map=s.opt("map", {}, dict, "{resolution: m, rate: Hz}"),
         budget=s.opt("budget", {}, lambda v: {} if v is None else {**v}, "{rate: Hz, ...} or null"),
+        shared_plans=s.opt("shared_plans", True, bool),
     )
     s.done()
     _check_variants(s, cfg)

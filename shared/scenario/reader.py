@@ -4,6 +4,7 @@ collected, the hash both processes compare."""
 from __future__ import annotations
 
 import copy
+import dataclasses
 import hashlib
 import json
 import os
@@ -29,6 +30,7 @@ from shared.scenario.planner import PlannerConfig, read_planner
 from shared.scenario.robot import RobotConfig, read_robot
 from shared.scenario.sensors import SensorConfig, read_sensors
 from shared.scenario.task import ObserverConfig, read_observers, read_plan
+from shared.scenario.team import Member, member_raw, read_team, team_robot
 from shared.scenario.world import WorldConfig, declared_world, read_world
 from shared.task_template import TaskTemplate, parse_task
 
@@ -61,6 +63,10 @@ class Scenario:
     guide: GuideConfig | None = None  # a global path the planner's terms follow (guide.py)
     # range sensors the world simulates; their readings travel with its states (protocol 3)
     sensors: tuple[SensorConfig, ...] = ()
+    # ``robots:`` (shared/scenario/team.py): every robot of the world; empty for one robot
+    team: tuple[Member, ...] = ()
+    member: str = ""  # in a robot's view: its name (``robot`` is then its own robot)
+    members: dict[str, Scenario] = field(default_factory=dict, repr=False)  # the views by name
 
 
 def find_scenario(name_or_path: str | os.PathLike) -> Path:
@@ -174,7 +180,7 @@ def _merge(base: dict, over: dict) -> dict:
 
 
 def scenario_hash(
-    raw: dict, included: Sequence[dict] = (), robot: RobotSpec | None = None, source: str = ""
+    raw: dict, included: Sequence[dict] = (), robots: Sequence[RobotSpec] = (), source: str = ""
 ) -> str:
     """Hash of the scenario's content, of the objective files it includes, of its robot's MJCF
     file and of a robot file of the user's (the shipped ones are part of the package, and a
@@ -185,7 +191,7 @@ def scenario_hash(
     h = hashlib.sha256(json.dumps(raw, sort_keys=True, default=str).encode())
     for inc in included:
         h.update(json.dumps(inc, sort_keys=True, default=str).encode())
-    if robot is not None:
+    for robot in robots:
         h.update(robot.path.read_bytes())
         if robot.source and robot.source != source and not robot.shipped:
             h.update(Path(robot.source).read_bytes())
@@ -227,15 +233,23 @@ def parse_scenario(raw: dict, source: str) -> Scenario:
     return reading.scenario
 
 
-def _read(raw: dict, source: str, errors: ErrorLog) -> ScenarioReading:
+def _read(
+    raw: dict, source: str, errors: ErrorLog, team: tuple = (), member=None
+) -> ScenarioReading:
     """Each independent part is read under ``errors``: a fault is recorded and the part left
     out, and the rest is still read. Parts that depend on a faulty one (observers on the task,
-    metrics on the episode) are skipped rather than reported again."""
+    metrics on the episode) are skipped rather than reported again. ``member``: the team's robot
+    whose view this is (:func:`_read_members`)."""
     n_before = len(errors.errors)
     top = Section(raw, source)
     name = errors.call(top.req, "name", str, default=Path(source).stem)
     description = errors.call(top.opt, "description", "", str, default="")
-    robot = errors.call(lambda: read_robot(top.section("robot")))
+    if top.has("robots"):
+        team = errors.call(lambda: read_team(top.section("robots")), default=())
+        robot = team_robot(team) if team else None
+    else:
+        robot = errors.call(lambda: read_robot(top.section("robot")))
+        robot = member.robot if member is not None and robot is not None else robot
     world = errors.call(lambda: read_world(top.section("world"), errors))
     model_ok = len(errors.errors) == n_before
     sensors = read_sensors(top, errors)
@@ -266,7 +280,9 @@ def _read(raw: dict, source: str, errors: ErrorLog) -> ScenarioReading:
     objectives = errors.call(
         lambda: read_objectives(top.section("objectives"), errors, library), default={}
     )
-    task, observers, action_objectives, modes = _read_task(top, errors, plugins, objectives)
+    task, observers, action_objectives, modes = _read_task(
+        top, errors, plugins, objectives, bool(team) and member is None
+    )
     _check_confirm(raw, top, planner, task, errors)
     _check_planning_model(planner, task, world, source, errors)
     _check_modes(top, modes, errors)
@@ -280,7 +296,7 @@ def _read(raw: dict, source: str, errors: ErrorLog) -> ScenarioReading:
         name=name,
         description=description,
         source=source,
-        hash=scenario_hash(raw, included, robot.spec, source),
+        hash=scenario_hash(raw, included, [m.robot.spec for m in team] or [robot.spec], source),
         robot=robot,
         world=world,
         episode=episode or EpisodeConfig(max_time=0.0, success=()),
@@ -296,8 +312,30 @@ def _read(raw: dict, source: str, errors: ErrorLog) -> ScenarioReading:
         raw=raw,
         guide=guide,
         sensors=sensors,
+        team=team,
+        member=member.name if member is not None else "",
     )
+    if team and member is None:
+        scenario.members.update(_read_members(raw, source, scenario, errors))
     return ScenarioReading(scenario, errors.errors, model_ok)
+
+
+def _read_members(raw: dict, source: str, top: Scenario, errors: ErrorLog) -> dict:
+    """Each robot's view of a team's scenario, read as a scenario of its own
+    (:func:`~shared.scenario.team.member_raw`) with the file's hash; errors of the keys its
+    entry declares are reported under ``robots.NAME``, the rest were reported already."""
+    views = {}
+    for m in top.team:
+        found = ErrorLog()
+        view = _read(member_raw(raw, m.name), source, found, top.team, m).scenario
+        for e in found.errors:
+            if e.path.split(".")[0].split("[")[0] in raw["robots"][m.name]:
+                errors.add(
+                    ConfigError(source, f"robots.{m.name}.{e.path}", e.message, e.value, e.expected)
+                )
+        if view is not None:
+            views[m.name] = dataclasses.replace(view, hash=top.hash)
+    return views
 
 
 def _check_timestep(
@@ -319,13 +357,14 @@ def _check_timestep(
 
 
 def _read_task(
-    top: Section, errors: ErrorLog, plugins: tuple[str, ...], objectives: dict
+    top: Section, errors: ErrorLog, plugins: tuple[str, ...], objectives: dict, team: bool
 ) -> tuple[TaskTemplate | None, dict, dict, tuple[str, ...]]:
     """``task`` and what hangs on it (``observers``, ``plan``), or the fixed ``modes``:
-    ``(task, observers, action_objectives, modes)``."""
+    ``(task, observers, action_objectives, modes)``; a team's top level needs neither (each
+    robot's entry has them)."""
     task = errors.call(lambda: parse_task(top.section("task"))) if top.has("task") else None
     observers, action_objectives, modes = {}, {}, ()
-    if task is None and not top.has("task"):
+    if task is None and not top.has("task") and not team:
         modes = errors.call(
             top.req,
             "modes",

@@ -108,9 +108,9 @@ def test_the_world_chooses_the_highest_common_version():
     assert P.choose_version(P.Hello(scenario="n", scenario_hash="h", versions=[1, 2, 3]), 1) == 3
     with pytest.raises(
         P.ProtocolError,
-        match="the planner speaks versions 4, 9, this world speaks versions 1, 2, 3",
+        match="the planner speaks versions 5, 9, this world speaks versions 1, 2, 3, 4",
     ):
-        P.choose_version(P.Hello(scenario="n", scenario_hash="h", versions=[4, 9]), 1)
+        P.choose_version(P.Hello(scenario="n", scenario_hash="h", versions=[5, 9]), 1)
 
 
 def test_a_hello_of_an_unknown_version_offering_versions_names_both_sides():
@@ -120,7 +120,7 @@ def test_a_hello_of_an_unknown_version_offering_versions_names_both_sides():
     with pytest.raises(
         P.ProtocolError,
         match="no common protocol version: the peer speaks "
-        "version 9, this side speaks versions 1, 2, 3",
+        "version 9, this side speaks versions 1, 2, 3, 4",
     ):
         P.decode(frame, versions=P.VERSIONS)
 
@@ -148,7 +148,7 @@ def test_negotiation_with_a_current_world(nav, planner, tmp_path):
     client = _client(planner, nav, port)
     try:
         welcome = client.handshake(give_up=60)
-        assert client.version == 3 and welcome.session
+        assert client.version == 4 and welcome.session
 
         def ask(**hello):
             req = ctx.socket(zmq.REQ)
@@ -179,7 +179,7 @@ def test_negotiation_with_a_current_world(nav, planner, tmp_path):
         raw, (reply, version) = ask(v=1, versions=[1, 2])  # a version-2 planner
         assert raw["type"] == "welcome" and version == 2
         raw, (reply, version) = ask(v=1, versions=[9])
-        assert isinstance(reply, P.Error) and reply.versions == [1, 2, 3]
+        assert isinstance(reply, P.Error) and reply.versions == [1, 2, 3, 4]
         assert "the planner speaks version 9, this world speaks versions 1, 2, 3" in reply.reason
     finally:
         _close(client)
@@ -314,7 +314,7 @@ def test_a_version_1_world_is_served_with_one_warning(nav, planner, caplog):
         assert client.version == 1
         # the offer (hello v1 + versions) is refused by the strict old world, the plain one not
         assert [h["accepted"] for h in world.hellos] == [False, True, False, True]
-        assert world.hellos[0]["versions"] == [1, 2, 3] and "versions" not in world.hellos[1]
+        assert world.hellos[0]["versions"] == [1, 2, 3, 4] and "versions" not in world.hellos[1]
         time.sleep(0.2)
         assert len(world.commands) >= 8 and not world.refused, world.refused[:2]
         assert all(c["v"] == 1 for c in world.commands)
@@ -329,7 +329,7 @@ def test_a_version_1_world_is_served_with_one_warning(nav, planner, caplog):
 @pytest.mark.parametrize(
     "answer, reason",
     [
-        ("welcome", "protocol version 9 not supported (this side speaks versions 1, 2, 3)"),
+        ("welcome", "protocol version 9 not supported (this side speaks versions 1, 2, 3, 4)"),
         ("error", "the world speaks protocol version 9, this planner speaks versions 1, 2, 3"),
     ],
 )

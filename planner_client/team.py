@@ -1,0 +1,86 @@
+"""The other robots of a team inside this planner's rollouts: each goes as its planner said.
+
+A team's planner (``m3p2i-planner --robot NAME``) plans its own robot's controls only; its model
+is the whole world, every robot in it. The world forwards each robot's newest dated plan with
+every state (``state.plans``); here those plans fill the other robots' controls at each rollout
+step's time, the same for all samples, so that every sample meets the others where they will be
+and pushes, passes or waits with them in the physics itself. Past a plan's last knot its last
+control is held (a velocity-driven robot goes on at that velocity); a robot without a plan, or
+whose plan ended before the horizon starts, holds its safe control (stands still). With
+``planner.shared_plans: false`` the plans are ignored: the others stand still in every rollout,
+obstacles seen only in the state.
+"""
+
+from __future__ import annotations
+
+import mujoco
+import numpy as np
+import torch
+
+from shared import protocol as P
+from shared.scenario import Scenario
+from shared.timed_plan import TimedPlan
+
+
+class TeamRollouts:
+    """Widens this robot's controls ``[S, T, nu_own]`` to the world's ``[S, T, nu]``."""
+
+    def __init__(self, scenario: Scenario, model: mujoco.MjModel, dt: float, horizon: int):
+        names = [model.actuator(i).name for i in range(model.nu)]
+        self.robot = scenario.member
+        self.own = np.array([names.index(n) for n in scenario.robot.spec.ctrl_names])
+        self.use_plans = scenario.planner.shared_plans
+        self.safe = np.zeros(model.nu)
+        self.columns: dict[str, np.ndarray] = {}
+        for m in scenario.team:
+            cols = np.array([names.index(n) for n in m.robot.spec.ctrl_names])
+            self.safe[cols] = m.robot.spec.safe_ctrl
+            if m.name != self.robot:
+                self.columns[m.name] = cols
+        self.dt, self.horizon = dt, horizon
+        self.plans: dict[str, TimedPlan] = {}
+        self._own = torch.from_numpy(self.own)
+        self._others = torch.zeros(horizon, model.nu, dtype=torch.float64)  # [T, nu]
+
+    def receive(self, plans: list[P.RobotPlan]) -> None:
+        """The others' newest plans from a state (this robot's own is left out)."""
+        if not self.use_plans:
+            return
+        for p in plans:
+            if p.robot in self.columns:
+                self.plans[p.robot] = TimedPlan(p.t0, p.dt, p.ctrl)
+
+    def clear(self) -> None:
+        """Forget the plans (a new episode)."""
+        self.plans.clear()
+
+    def at(self, t: float) -> np.ndarray:
+        """The world's control ``[nu]`` at world time ``t`` as the others' plans give it (this
+        robot's columns: its safe control)."""
+        u = self.safe.copy()
+        for name, plan in self.plans.items():
+            if t + 1e-9 < plan.t0:
+                continue  # not started: the robot goes on as before, unknown here: held
+            knot = plan.index(t)
+            u[self.columns[name]] = plan.ctrl[-1 if knot is None else knot]
+        return u
+
+    def begin(self, t0: float, horizon: int) -> None:
+        """The others' controls over the rollouts starting at world time ``t0``: ``[T, nu]``."""
+        self.horizon = horizon
+        self._others = torch.from_numpy(
+            np.stack([self.at(t0 + k * self.dt) for k in range(horizon)])
+        )
+
+    def widen(self, V: torch.Tensor) -> torch.Tensor:
+        """``V [S, T, nu_own]`` -> ``[S, T, nu]`` with the others' controls of :meth:`begin`."""
+        S, T, _ = V.shape
+        full = self._others[:T].to(V.dtype).expand(S, T, -1).clone()
+        full[..., self._own] = V
+        return full
+
+    def widen_one(self, u: np.ndarray, t: float) -> np.ndarray:
+        """One control of this robot ``[nu_own]`` at world time ``t`` -> the world's ``[nu]``."""
+        full = self.at(t)
+        full[self.own] = u
+        return full
