@@ -6,6 +6,7 @@ The two sides still meet only over the wire; this module only starts and stops t
 
 from __future__ import annotations
 
+import functools
 import random
 import signal
 import socket as pysocket
@@ -209,7 +210,11 @@ class EpisodeLaunch:
             planner.append("--measure-delays")
         for plugin in self.plugins:
             planner += ["--plugins", plugin]
-        return {"server": server, "planner": planner}
+        robots = team_names(self.scenario)
+        if not robots:
+            return {"server": server, "planner": planner}
+        # a team's world: a planner per robot (docs/teams.md)
+        return {"server": server} | {f"planner-{r}": [*planner, "--robot", r] for r in robots}
 
     def view_command(self, port: int, view_port: int) -> list[str]:
         """The browser view of this episode: it also records the planner's diagnostics beside
@@ -230,6 +235,14 @@ class EpisodeLaunch:
         if self.view_keep:  # on SIGUSR1, the same page replays the episode
             cmd += ["--replay-after", str(self.run_dir)]
         return cmd + (["--keys", str(self.keys)] if self.keys is not None else [])
+
+
+@functools.cache
+def team_names(scenario: str) -> tuple[str, ...]:
+    """The robots of a team's scenario file, in order (none for a scenario of one robot)."""
+    from shared.scenario import load_scenario
+
+    return tuple(m.name for m in load_scenario(scenario).team)
 
 
 def run_episode(
@@ -264,7 +277,7 @@ def run_episode(
             _start(launch, name, cmd, outs, procs)
         reason = _watch(procs, started + launch.timeout, stop)
         if launch.view and launch.view_keep and not reason and procs["view"].poll() is None:
-            stop_processes([procs["server"], procs["planner"]])
+            stop_processes([p for name, p in procs.items() if name != "view"])
             kept = EpisodeRun(log_path, read_summary(log_path), "", time.monotonic() - started)
             procs["view"].send_signal(signal.SIGUSR1)  # the page replays the episode
             if on_kept is not None:
@@ -296,17 +309,19 @@ def _watch(procs: dict, deadline: float, stop: threading.Event | None) -> str:
     with its episode): the time-out, ``stop``, a planner that died (an exit code no episode
     end has) or that ended while the world kept running past :data:`WORLD_ENDS_WITHIN`, or a
     world that died."""
-    planner_ended = None  # when the planner exited as at an episode's end
+    planner_ended = None  # when a planner exited as at an episode's end
+    planners = [name for name in procs if name.startswith("planner")]  # a team's: one each
     while procs["server"].poll() is None:
         if time.monotonic() > deadline:
             return "timeout"
-        code = procs["planner"].poll()
-        if code is not None and code not in PLANNER_EPISODE_ENDS:
-            return f"planner exited with code {code}"
-        if code is not None:
-            planner_ended = planner_ended or time.monotonic()
-            if time.monotonic() - planner_ended > WORLD_ENDS_WITHIN:
-                return f"planner exited with code {code}"
+        for name in planners:
+            code = procs[name].poll()
+            if code is not None and code not in PLANNER_EPISODE_ENDS:
+                return f"{name} exited with code {code}"
+            if code is not None:
+                planner_ended = planner_ended or time.monotonic()
+                if time.monotonic() - planner_ended > WORLD_ENDS_WITHIN:
+                    return f"{name} exited with code {code}"
         if stop is not None and stop.is_set():
             return "interrupted"
         time.sleep(0.1)
@@ -320,7 +335,8 @@ def died(reason: str) -> str | None:
     """The process an :class:`EpisodeRun`'s ``reason`` names as exited (``planner`` or
     ``server``), None for a time-out or an interruption."""
     name = reason.split(" ", 1)[0]
-    return name if name in ("planner", "server") and " exited with code " in reason else None
+    known = name == "server" or name.split("-")[0] == "planner"  # planner-NAME: a team's
+    return name if known and " exited with code " in reason else None
 
 
 def log_tail(path: Path, lines: int = 12) -> list[str]:

@@ -63,7 +63,8 @@ class WarmPair:
         log_path = episode_log_path(self.launch.log, seed)
         shutil.rmtree(log_path.parent, ignore_errors=True)  # a stale attempt's log must not count
         log_path.parent.mkdir(parents=True)
-        marks = {name: self._size(name) for name in ("server", "planner")}
+        names = launch_names(self.launch)
+        marks = {name: self._size(name) for name in names}
         started = time.monotonic()
         reason = ""
         try:
@@ -131,12 +132,13 @@ class WarmPair:
     ) -> str:
         """'' once the episode's summary is written; else why not (as run_episode says it)."""
         while not has_summary(log_path):
-            server, planner = self.procs["server"].poll(), self.procs["planner"].poll()
+            server = self.procs["server"].poll()
             if server is not None:
                 # it may have written the summary just before exiting
                 return "" if has_summary(log_path) else f"server exited with code {server}"
-            if planner is not None:
-                return f"planner exited with code {planner}"
+            for name, proc in self.procs.items():
+                if name != "server" and proc.poll() is not None:
+                    return f"{name} exited with code {proc.poll()}"
             if time.monotonic() - started > timeout:
                 return "timeout"
             if stop is not None and stop.is_set():
@@ -156,6 +158,11 @@ class WarmPair:
                 with src.open("rb") as f:
                     f.seek(offset)
                     (folder / f"{name}.log").write_bytes(f.read())
+
+
+def launch_names(launch: EpisodeLaunch) -> list[str]:
+    """The processes of a launch: ``server``, and ``planner`` or a team's ``planner-NAME``."""
+    return list(launch.commands(0))
 
 
 class PairSlot:

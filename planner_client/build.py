@@ -90,7 +90,7 @@ def build_task(scenario: Scenario, motion: MotionPlanner) -> TaskLayer:
         for _, pred in cfg.rules:
             check_frames(pred, problem.resolve, scenario.source, f"observers.{factor}")
     return ActiveInferenceTask(
-        ActiveInferencePlanner(scenario.task),
+        ActiveInferencePlanner(scenario.task, waits=bool(scenario.team)),
         SymbolicObserver(scenario.observers, problem.resolve),
         scenario.action_objectives,
         scenario.planner.aip_period,

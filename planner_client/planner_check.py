@@ -23,6 +23,7 @@ from planner_client.problem import (
     build_problem,
     check_terms,
     mppi_config,
+    own_actuators,
     planner_scenario,
 )
 from shared.config import ConfigError, ErrorLog
@@ -49,7 +50,11 @@ def name_checks(
     scenario: Scenario, model: mujoco.MjModel, resolve: FrameResolver, errors: ErrorLog
 ) -> None:
     """The names the planner looks up: its objectives' cost terms, frames and actuators, its
-    observers' frames."""
+    observers' frames (a team's: each robot's planner's)."""
+    if scenario.members:
+        for view in scenario.members.values():
+            name_checks(view, model, FrameResolver(model, view.robot.spec.frame), errors)
+        return
     scenario, model, resolve = _planner_side(scenario, model, resolve)
     guide = None
     # site:guide is added to the planner's model, not the world's; a faulty guide: section
@@ -62,7 +67,8 @@ def name_checks(
         guide = GuideState(scenario.guide, scenario)
         errors.call(resolve.checked, scenario.guide.for_, scenario.source, "guide.for")
         errors.call(resolve.checked, scenario.guide.goal, scenario.source, "guide.goal")
-    errors.call(build_objectives, scenario, resolve, actuator_names(model), guide)
+    actuators = [actuator_names(model)[i] for i in own_actuators(scenario, model)]
+    errors.call(build_objectives, scenario, resolve, actuators, guide)
     for factor, cfg in scenario.observers.items():
         for _, pred in cfg.rules:
             errors.call(check_frames, pred, resolve, scenario.source, f"observers.{factor}")
@@ -71,7 +77,12 @@ def name_checks(
 def model_checks(
     scenario: Scenario, model: mujoco.MjModel, resolve: FrameResolver, errors: ErrorLog
 ) -> None:
-    """What the planner resolves against its compiled model and registries."""
+    """What the planner resolves against its compiled model and registries (a team's: each
+    robot's planner's)."""
+    if scenario.members:
+        for view in scenario.members.values():
+            model_checks(view, model, FrameResolver(model, view.robot.spec.frame), errors)
+        return
     scenario, model, resolve = _planner_side(scenario, model, resolve)
     name_checks(scenario, model, resolve, errors)
     errors.call(mppi_config, scenario, model)

@@ -94,7 +94,8 @@ class ActiveInferenceTask:
     between ticks the last decision stands. Observations reach it through
     :class:`ConfirmedObservation` (``planner.confirm``). Each admissible alternative action
     becomes one M3P2I mode through the plan interface (action -> objective). On success or
-    failure the decision says ``stop``: the loop holds the robot with its safe stop.
+    failure the decision says ``stop``: the loop holds the robot with its safe stop; so does a
+    team robot's ``wait`` (its action needs another robot's factor first).
     """
 
     def __init__(
@@ -125,10 +126,14 @@ class ActiveInferenceTask:
             self.decision = TaskDecision(d.action, modes, d.alternatives)
         else:
             keep = previous.modes if previous else ()
-            if d.status == "failure" and (previous is None or previous.action != "failure"):
-                log.error("task planner failed: %s", d.reason)
+            action = {"success": "idle", "waiting": "wait"}.get(d.status, "failure")
+            if previous is None or previous.action != action:
+                if d.status == "failure":
+                    log.error("task planner failed: %s", d.reason)
+                elif d.status == "waiting":  # a team's robot: until the others' factors change
+                    log.info("%s", d.reason)
             self.decision = TaskDecision(
-                "idle" if d.status == "success" else "failure",
+                action,
                 keep or (next(iter(self.action_objectives.values())),),
                 (),
                 stop=True,

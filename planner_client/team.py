@@ -43,16 +43,12 @@ class TeamRollouts:
         self._others = torch.zeros(horizon, model.nu, dtype=torch.float64)  # [T, nu]
 
     def receive(self, plans: list[P.RobotPlan]) -> None:
-        """The others' newest plans from a state (this robot's own is left out)."""
-        if not self.use_plans:
-            return
-        for p in plans:
-            if p.robot in self.columns:
-                self.plans[p.robot] = TimedPlan(p.t0, p.dt, p.ctrl)
-
-    def clear(self) -> None:
-        """Forget the plans (a new episode)."""
-        self.plans.clear()
+        """The others' newest plans from a state (this robot's own is left out). A robot whose
+        plan the state does not carry (its planner went quiet, a new episode) stands still."""
+        if self.use_plans:
+            self.plans = {
+                p.robot: TimedPlan(p.t0, p.dt, p.ctrl) for p in plans if p.robot in self.columns
+            }
 
     def at(self, t: float) -> np.ndarray:
         """The world's control ``[nu]`` at world time ``t`` as the others' plans give it (this

@@ -35,7 +35,7 @@ GOAL_PREFERENCE = 1.0
 # Above the goal's 1, so a factor serves a blocked action's precondition before its own goal.
 PUSHED_PREFERENCE = 2.0
 
-Status = Literal["running", "success", "failure"]
+Status = Literal["running", "success", "failure", "waiting"]
 Found = list[tuple[str, tuple[str, ...]]]  # admissible action, chain of reasons leading to it
 Blocked = list[tuple[str, list[StateRef]]]  # blocked action, its unmet preconditions
 
@@ -60,9 +60,13 @@ class Decision:
 class ActiveInferencePlanner:
     """Adaptive action selection over the factors of a :class:`TaskTemplate`."""
 
-    def __init__(self, template: TaskTemplate, *, alternatives: bool = True):
+    def __init__(self, template: TaskTemplate, *, alternatives: bool = True, waits: bool = False):
+        """``waits``: a team robot's planner, whose factors without actions are the other
+        robots' to change: an action blocked only on them waits (status ``waiting``) instead
+        of failing."""
         self.template = template
         self.alternatives = alternatives
+        self.waits = waits
         self._agents = {
             f.name: FactorAgent(FactorModel.from_template(f, template.idle_habit))
             for f in template.factors
@@ -108,9 +112,21 @@ class ActiveInferencePlanner:
             return Decision(
                 "running", names[0], names, " -> ".join((names[0],) + found[0][1]), beliefs
             )
+        others = [p for _, unmet in blocked for p in unmet if self._observed_only(p.factor)]
+        if (
+            self.waits
+            and blocked
+            and all(all(self._observed_only(p.factor) for p in unmet) for _, unmet in blocked)
+        ):
+            waiting = ", ".join(map(str, dict.fromkeys(others)))
+            return Decision("waiting", None, (), f"waiting for {waiting}", beliefs)
         return Decision(
             "failure", None, (), self._failure_reason(obs, unmet_goals, blocked), beliefs
         )
+
+    def _observed_only(self, factor: str) -> bool:
+        """A factor no action of the template changes (only observed)."""
+        return not self.template.factor(factor).actions
 
     def _search(
         self,

@@ -30,7 +30,7 @@ from shared.scenario.planner import PlannerConfig, read_planner
 from shared.scenario.robot import RobotConfig, read_robot
 from shared.scenario.sensors import SensorConfig, read_sensors
 from shared.scenario.task import ObserverConfig, read_observers, read_plan
-from shared.scenario.team import Member, member_raw, read_team, team_robot
+from shared.scenario.team import Member, read_team, team_robot
 from shared.scenario.world import WorldConfig, declared_world, read_world
 from shared.task_template import TaskTemplate, parse_task
 
@@ -288,6 +288,9 @@ def _read(
     _check_modes(top, modes, errors)
     guide = _read_guide(top, world, planner, errors)
     errors.call(top.done)
+    if member is not None:  # a team's robot plans with its own objectives only
+        used = {*modes, *action_objectives.values()}
+        objectives = {k: v for k, v in objectives.items() if k in used}
     if robot is None:
         return ScenarioReading(None, errors.errors, False)
     if world is None:  # what the faulty world declares stands in, for name checks only
@@ -321,13 +324,14 @@ def _read(
 
 
 def _read_members(raw: dict, source: str, top: Scenario, errors: ErrorLog) -> dict:
-    """Each robot's view of a team's scenario, read as a scenario of its own
-    (:func:`~shared.scenario.team.member_raw`) with the file's hash; errors of the keys its
+    """Each robot's view of a team's scenario: its entry merged over the top level (as over a
+    ``base:``) and read as a scenario of its own, with the file's hash; errors of the keys its
     entry declares are reported under ``robots.NAME``, the rest were reported already."""
     views = {}
     for m in top.team:
         found = ErrorLog()
-        view = _read(member_raw(raw, m.name), source, found, top.team, m).scenario
+        top_level = {k: v for k, v in raw.items() if k != "robots"}
+        view = _read(_merge(top_level, raw["robots"][m.name]), source, found, top.team, m).scenario
         for e in found.errors:
             if e.path.split(".")[0].split("[")[0] in raw["robots"][m.name]:
                 errors.add(
@@ -381,9 +385,12 @@ def _read_task(
                 lambda: read_observers(top.section("observers"), task, errors, bool(plugins)),
                 default={},
             )
-            action_objectives = errors.call(
-                lambda: read_plan(top.section("plan"), task, objectives), default={}
-            )
+            if team:  # each robot's entry has its own plan
+                top.section("plan", required=False)
+            else:
+                action_objectives = errors.call(
+                    lambda: read_plan(top.section("plan"), task, objectives), default={}
+                )
         else:  # the task's own errors are reported; its dependants would only repeat them
             top.section("observers", required=False)
             top.section("plan", required=False)

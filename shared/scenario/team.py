@@ -4,7 +4,8 @@ Each robot is attached to the world under its name (``a/robot`` is robot ``a``'s
 ``a/vel_x`` its actuator), in the section's order, so the world's control vector is the robots'
 controls one after the other. The world sees the team as one robot (:func:`team_robot`); each
 planner reads the scenario as its own robot's view (``Scenario.members``), in which ``robot``
-names its own robot's frame and the robot's entry replaces the top-level keys it repeats.
+names its own robot's frame and the robot's entry is merged over the top level, as a scenario
+over its ``base:``.
 """
 
 from __future__ import annotations
@@ -76,9 +77,3 @@ def team_robot(team: tuple[Member, ...]) -> RobotConfig:
         spheres=sum((s.spheres for s in specs), ()),
     )
     return RobotConfig(model=spec.name, spec=spec)
-
-
-def member_raw(raw: dict, name: str) -> dict:
-    """The YAML of robot ``name``'s view: the top level without ``robots``, its entry's keys
-    replacing the top level's."""
-    return {**{k: v for k, v in raw.items() if k != "robots"}, **raw["robots"][name]}
