@@ -86,7 +86,7 @@ class EpisodeResult:
     outcome: Outcome
     summary: dict
     log_path: Path
-    stats: Any  # the planner's own statistics (a Controller's LoopStats)
+    stats: Any  # the planner's own statistics (a Controller's LoopStats; a team's: by robot)
 
     @property
     def status(self) -> str:
@@ -130,25 +130,31 @@ def _published(episode: Episode) -> P.State:
 
 def drive(
     episode: Episode,
-    controller: ControlLoop,
+    controller: ControlLoop | list[ControlLoop],
     plan_every: int = 1,
     max_steps: int | None = None,
     on_step: OnStep | None = None,
 ) -> Outcome:
     """Lock-step: ``controller`` answers each state of ``episode`` and the world plays each
     command for ``plan_every`` steps, until the episode ends (or ``max_steps`` world steps:
-    then it is ``stopped``). The episode is always finished (its summary written, the robot
-    stopped), whatever raised; returns its outcome."""
+    then it is ``stopped``). A team's world: a list, one controller per robot in the team's
+    order, each answering every state (``on_step`` then sees the list of commands). The
+    episode is always finished (its summary written, the robots stopped), whatever raised;
+    returns its outcome."""
+    loops = controller if isinstance(controller, list) else [controller]
     try:
-        controller.begin("lockstep", episode.dt)
+        for loop in loops:
+            loop.begin("lockstep", episode.dt)
         state = _published(episode)
-        controller.check_layout(state)
-        while not controller.over(state):
-            command = controller.step(state)
-            if command is None:
+        for loop in loops:
+            loop.check_layout(state)
+        while not any(loop.over(state) for loop in loops):
+            commands = [loop.step(state) for loop in loops]
+            if None in commands:
                 raise ValueError(
                     f"state {state.seq} does not fit the planner's model (logged above)"
                 )
+            command = commands if isinstance(controller, list) else commands[0]
             episode.play(command, plan_every)
             if on_step is not None:
                 on_step(state, command)
@@ -176,15 +182,18 @@ def run_episode(
     :func:`planner_client.build.build_controller`). ``max_steps`` stops the episode after that
     many world steps; ``on_step`` sees each state and the command answering it."""
     sc = _scenario(scenario)
-    controller = planner(sc, seed=seed)
+    # a team's scenario: a controller per robot, each planning from its robot's view
+    loops = [planner(view, seed=seed) for view in sc.members.values()] or [planner(sc, seed=seed)]
     try:
         episode = build_episode(sc, seed, log_path, faults)
         try:
-            outcome = drive(episode, controller, plan_every, max_steps, on_step)
+            outcome = drive(episode, loops if sc.team else loops[0], plan_every, max_steps, on_step)
         finally:
             episode.close()
     finally:
-        controller.close()
+        for loop in loops:
+            loop.close()
+    stats = {name: loop.stats for name, loop in zip(sc.members, loops)} or loops[0].stats
     return EpisodeResult(
-        outcome, summary(read_log(episode.log.path)) or {}, episode.log.path, controller.stats
+        outcome, summary(read_log(episode.log.path)) or {}, episode.log.path, stats
     )
