@@ -9,6 +9,10 @@ control is held (a velocity-driven robot goes on at that velocity); a robot with
 whose plan ended before the horizon starts, holds its safe control (stands still). With
 ``planner.shared_plans: false`` the plans are ignored: the others stand still in every rollout,
 obstacles seen only in the state.
+
+Right of way (prioritized planning): ``planner.passes_through: [b]`` lets this robot plan as if
+``b`` were not there while ``b``'s plan arrives (``b`` sees this robot's plan and gives way);
+once ``b``'s planner goes quiet, ``b`` is an obstacle in the rollouts again.
 """
 
 from __future__ import annotations
@@ -38,6 +42,18 @@ class TeamRollouts:
             if m.name != self.robot:
                 self.columns[m.name] = cols
         self.dt, self.horizon = dt, horizon
+        # planner.passes_through: those robots' geoms, and their contact bits to restore
+        self.model = model
+        self.through = {
+            name: np.flatnonzero(
+                [model.body(int(b)).name.startswith(f"{name}/") for b in model.geom_bodyid]
+            )
+            for name in scenario.planner.passes_through
+        }
+        self._bits = {
+            name: (model.geom_contype[g].copy(), model.geom_conaffinity[g].copy())
+            for name, g in self.through.items()
+        }
         self.plans: dict[str, TimedPlan] = {}
         self._own = torch.from_numpy(self.own)
         self._others = torch.zeros(horizon, model.nu, dtype=torch.float64)  # [T, nu]
@@ -62,8 +78,14 @@ class TeamRollouts:
         return u
 
     def begin(self, t0: float, horizon: int) -> None:
-        """The others' controls over the rollouts starting at world time ``t0``: ``[T, nu]``."""
+        """The others' controls over the rollouts starting at world time ``t0``: ``[T, nu]``;
+        a robot this one passes through has no contacts in them while its plan arrives."""
         self.horizon = horizon
+        for name, geoms in self.through.items():
+            contype, conaffinity = self._bits[name]
+            giving_way = name in self.plans
+            self.model.geom_contype[geoms] = 0 if giving_way else contype
+            self.model.geom_conaffinity[geoms] = 0 if giving_way else conaffinity
         self._others = torch.from_numpy(
             np.stack([self.at(t0 + k * self.dt) for k in range(horizon)])
         )

@@ -14,6 +14,7 @@ from shared.config import (
     one_of,
     positive,
     positive_int,
+    string_list,
 )
 from shared.scenario.common import STEP_SECONDS, step_seconds
 from shared.scenario.model import PlanningModel, read_planning_model
@@ -78,6 +79,7 @@ class PlannerConfig:
     map: dict = field(default_factory=dict)  # the lidar map's keys, read by planner_client.maps
     budget: dict = field(default_factory=dict)  # the anytime planner's: planner_client.budget
     shared_plans: bool = True  # a team's: roll the others out along their plans (team.py)
+    passes_through: tuple[str, ...] = ()  # a team's: robots that give way to this one (team.py)
 
     def step(self, world: WorldConfig) -> float:
         """Seconds per planned control step: ``timestep``, or the world's."""
@@ -111,7 +113,8 @@ def read_planner(s: Section) -> PlannerConfig:
         delays=_delays(s.section("delays", required=False)),
         map=s.opt("map", {}, dict, "{resolution: m, rate: Hz}"),
         budget=s.opt("budget", {}, lambda v: {} if v is None else {**v}, "{rate: Hz, ...} or null"),
-        shared_plans=s.opt("shared_plans", True, bool),
+        shared_plans=s.opt("shared_plans", True, flag),
+        passes_through=s.opt("passes_through", (), string_list, "a list of the team's robots"),
     )
     s.done()
     _check_variants(s, cfg)

@@ -337,6 +337,11 @@ def _read_members(raw: dict, source: str, top: Scenario, errors: ErrorLog) -> di
                 errors.add(
                     ConfigError(source, f"robots.{m.name}.{e.path}", e.message, e.value, e.expected)
                 )
+        others = [o.name for o in top.team if o.name != m.name]
+        for name in view.planner.passes_through if view is not None else ():
+            if name not in others:
+                key = f"robots.{m.name}.planner.passes_through"
+                errors.add(ConfigError(source, key, "not another robot", name, ", ".join(others)))
         if view is not None:
             views[m.name] = dataclasses.replace(view, hash=top.hash)
     return views
