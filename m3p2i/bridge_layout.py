@@ -134,6 +134,41 @@ class Sensor:
 
 
 @dataclass(frozen=True)
+class TeamRobot:
+    """One robot of a team (``robots:``): its planner (``--robot NAME``) sends ``ctrl[ctrl]``
+    as its ``command.ctrl``; its joints are ``qpos[qpos]`` and ``qvel[qvel]`` (start, stop)."""
+
+    name: str
+    ctrl: tuple[int, int]
+    qpos: tuple[int, int]
+    qvel: tuple[int, int]
+
+
+def _team(scenario: Scenario, model: mujoco.MjModel) -> tuple[TeamRobot, ...]:
+    """Each team robot's indices: its actuators and joints are named ``NAME/...``."""
+    out = []
+    for m in scenario.team:
+        prefix = f"{m.name}/"
+        acts = [a for a in range(model.nu) if model.actuator(a).name.startswith(prefix)]
+        joints = [j for j in range(model.njnt) if model.joint(j).name.startswith(prefix)]
+        out.append(
+            TeamRobot(
+                m.name,
+                (acts[0], acts[-1] + 1),
+                (int(model.jnt_qposadr[joints[0]]), _ends(model.jnt_qposadr, model.nq, joints)),
+                (int(model.jnt_dofadr[joints[0]]), _ends(model.jnt_dofadr, model.nv, joints)),
+            )
+        )
+    return tuple(out)
+
+
+def _ends(adr, size: int, joints: list[int]) -> int:
+    """Where the last of ``joints``' coordinates end (the next joint's address, or ``size``)."""
+    last = joints[-1]
+    return int(adr[last + 1]) if last + 1 < len(adr) else size
+
+
+@dataclass(frozen=True)
 class BridgeLayout:
     """Every index of what a world sends (``state``) and accepts (``command``), by name."""
 
@@ -151,6 +186,8 @@ class BridgeLayout:
     extras: tuple[Extra, ...]
     sensors: tuple[Sensor, ...] = ()
     perceived: tuple[str, ...] = ()  # objects of the world the state does not carry
+    # a team's robots: which indices of ctrl, qpos and qvel each one's planner owns
+    team: tuple[TeamRobot, ...] = ()
 
     def to_dict(self) -> dict[str, Any]:
         """Plain lists, dicts, strings and numbers (``--json``, for bridges in other languages)."""
@@ -210,6 +247,7 @@ def bridge_layout(scenario: Scenario, model: mujoco.MjModel | None = None) -> Br
             ),
         )
     return BridgeLayout(
+        team=_team(scenario, model),
         scenario=scenario.name,
         scenario_hash=scenario.hash,
         robot=robot.name,
@@ -270,6 +308,9 @@ def frame_names(scenario: Scenario, model: mujoco.MjModel | None = None) -> tupl
             return "object"
         if name in WALL_NAMES:
             return "arena"
+        for m in scenario.team:  # a team's robot: its bodies are named NAME/...
+            if name.startswith(f"{m.name}/"):
+                return f"robot {m.name}"
         return "robot" if int(model.body_rootid[body]) == robot_root else "scene"
 
     out = [

@@ -47,6 +47,13 @@ def print_layout(layout: BridgeLayout, console: Console) -> None:
         f"(plan_ctrl [H, {layout.nu}])",
         highlight=False,
     )
+    for r in layout.team:
+        console.print(
+            f"robot {r.name} (m3p2i-planner --robot {r.name}): command.ctrl "
+            f"[{r.ctrl[1] - r.ctrl[0]}] = the world's ctrl[{r.ctrl[0]}:{r.ctrl[1]}]; "
+            f"its joints qpos[{r.qpos[0]}:{r.qpos[1]}], qvel[{r.qvel[0]}:{r.qvel[1]}]",
+            highlight=False,
+        )
     console.print(_coordinates(f"state.qpos [{s.nq}]: positions", layout.qpos, ranges=True))
     console.print(_coordinates(f"state.qvel [{s.nv}]: velocities", layout.qvel, ranges=False))
     console.print(
