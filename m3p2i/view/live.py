@@ -178,6 +178,14 @@ class LiveView:
         self.state_sub.connect(endpoints.state)
         for sub in subs:
             sub.connect(endpoints.diagnostics)
+        # a team's other planners publish theirs one port on each (planner_client.loop)
+        self.team_subs = [socket(self.ctx, zmq.SUB, conflate=True) for _ in scenario.team[1:]]
+        for i, sub in enumerate(self.team_subs, start=1):
+            sub.setsockopt(zmq.SUBSCRIBE, b"")
+            if keys is not None:
+                curve_client(sub, keys.own, keys.own.public)
+            sub.connect(Endpoints(endpoints.host, endpoints.port + i).diagnostics)
+        self._team_top: dict[int, P.Diagnostics] = {}  # each robot's newest, for the drawing
         self.control = ControlClient(self.ctx, endpoints, keys=keys)
         self.record = DiagnosticsLog(record) if record else None
         self._path: list[np.ndarray] = []
@@ -269,6 +277,8 @@ class LiveView:
         poller = zmq.Poller()
         poller.register(self.state_sub, zmq.POLLIN)
         poller.register(self.diag_sub, zmq.POLLIN)
+        for sub in self.team_subs:
+            poller.register(sub, zmq.POLLIN)
         if self.field_sub is not None:
             poller.register(self.field_sub, zmq.POLLIN)
         end = None if duration is None else time.monotonic() + duration
@@ -280,17 +290,17 @@ class LiveView:
                 state = self._states() or state
             if self.field_sub is not None and self.field_sub in events:
                 self._field(self.field_sub.recv())
-            if self.diag_sub in events:
-                got = self._receive(self.diag_sub, "diagnostics")
+            for i, sub in enumerate([self.diag_sub, *self.team_subs]):
+                got = self._receive(sub, "diagnostics") if sub in events else None
                 if got is not None:
-                    diag = got
+                    diag = self._team_top[i] = got
                     self._diagnostics(got)
             now = time.monotonic()
             if state is not None and now - last_scene >= 1 / SCENE_HZ:
                 self._state(state)
                 self._draw_scans()
                 if diag is not None:
-                    self.drawing.set_top(diag.top, diag.top_modes)
+                    self.drawing.set_top(*self._tops(diag))
                     self.drawing.set_guide(diag.guide)
                     diag = None
                 state = None
@@ -374,6 +384,17 @@ class LiveView:
                 g.wxyz = self.data.xquat[body].copy()
         self.info.status, self.info.time, self.info.extras = state.status, state.time, state.extras
 
+    def _tops(self, diag: P.Diagnostics) -> tuple[np.ndarray, np.ndarray | None]:
+        """The best trajectories to draw: the planner's, or every team robot's newest, each
+        robot in its own colour."""
+        if not self.team_subs:
+            return diag.top, diag.top_modes
+        tops = list(self._team_top.items())
+        return (
+            np.concatenate([d.top for _, d in tops]),
+            np.concatenate([np.full(len(d.top), i) for i, d in tops]),
+        )
+
     def _diagnostics(self, d: P.Diagnostics) -> None:
         now = time.monotonic()
         self._diag_times.append(now)
@@ -397,7 +418,7 @@ class LiveView:
         :class:`ReplayView` to take over (``m3p2i run --view`` once its episode is over)."""
         self.stop.set()
         if not self.ctx.closed:
-            for s in (self.state_sub, self.diag_sub, self.field_sub):
+            for s in (self.state_sub, self.diag_sub, self.field_sub, *self.team_subs):
                 if s is not None:
                     s.close(0)
             self.ctx.term()

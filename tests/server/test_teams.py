@@ -340,9 +340,13 @@ def test_in_process_equals_two_processes_for_a_team(tmp_path):
 
 
 @pytest.mark.slow
-def test_in_real_time_a_killed_planners_robot_holds_still_and_the_other_goes_on(tmp_path):
+def test_in_real_time_a_killed_planners_robot_holds_still_and_the_other_goes_on(duo, tmp_path):
+    live = pytest.importorskip("m3p2i.view.live")  # the view extra
     port = free_port_block()
     log = tmp_path / "rt.jsonl"
+    view = live.LiveView(duo, Endpoints(port=port), "127.0.0.1", free_port_block(count=1))
+    watching = threading.Thread(target=view.serve, kwargs={"duration": 60.0}, daemon=True)
+    watching.start()
     server = start_server(CORRIDOR, port, log, "--mode", "realtime")
     planners = {r: start_planner(CORRIDOR, port, "--robot", r) for r in "ab"}
     try:
@@ -354,6 +358,9 @@ def test_in_real_time_a_killed_planners_robot_holds_still_and_the_other_goes_on(
         time.sleep(2.5)
     finally:
         stop(server, *planners.values())
+        view.close()
+        watching.join(10)
+    assert set(view._team_top) == {0, 1}  # the view drew both planners' best trajectories
     records = read_log(log)
     assert records[-1]["kind"] == "summary"  # the log is complete
     stale = [r for r in records if r.get("what") == "commands_stale"]
