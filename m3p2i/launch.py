@@ -239,10 +239,15 @@ class EpisodeLaunch:
 
 @functools.cache
 def team_names(scenario: str) -> tuple[str, ...]:
-    """The robots of a team's scenario file, in order (none for a scenario of one robot)."""
+    """The robots of a team's scenario file, in order (none for a scenario of one robot, or
+    one that does not load: the processes report why)."""
+    from shared.config import ConfigError
     from shared.scenario import load_scenario
 
-    return tuple(m.name for m in load_scenario(scenario).team)
+    try:
+        return tuple(m.name for m in load_scenario(scenario).team)
+    except ConfigError:
+        return ()
 
 
 def run_episode(

@@ -168,4 +168,7 @@ def build_client(
     controller = build_controller(scenario, threads, seed, backend, device)
     if before_connect is not None:
         before_connect()
+    if scenario.team:  # a team robot's planner: its robot's name and place in the team
+        names = [m.name for m in scenario.team]
+        options.update(robot=scenario.member, robot_index=names.index(scenario.member))
     return PlannerClient(controller, endpoints, scenario.name, scenario.hash, **options)

@@ -67,20 +67,23 @@ class PlannerClient:
         keys: PlannerKeys | None = None,
         diagnostics_host: str | None = None,
         max_rate: float = 0.0,
+        robot: str | None = None,
+        robot_index: int = 0,
     ):
         """``controller``: the loop each state is handed to; with its ``renew``, each new
         session of the world after the first (a new episode: a world reset with a seed, or
         restarted) gets a planner and task layer as a fresh process would build them.
         ``max_rate``: at most this many iterations per wall-clock second (0: as fast as it
-        can), to rehearse on a fast machine what a slower computer does."""
+        can), to rehearse on a fast machine what a slower computer does. ``robot``: in a
+        team's world, the robot this planner drives, ``robot_index`` its place in the team
+        (its diagnostics port is ``port + 3 + robot_index``)."""
         self.controller = controller
         self.endpoints = endpoints
-        member = controller.motion.problem.scenario.member or None  # a team's: its robot
         self.hello = P.Hello(
             scenario=scenario_name,
             scenario_hash=scenario_hash,
-            versions=list(P.VERSIONS) if member is None else [P.PROTOCOL_VERSION],
-            robot=member,
+            versions=list(P.VERSIONS) if robot is None else [P.PROTOCOL_VERSION],
+            robot=robot,
         )
         self.version = P.PROTOCOL_VERSION  # of the commands: the one the world chose
         self._warned_version: int | None = None
@@ -116,11 +119,8 @@ class PlannerClient:
             # bound on this machine (loopback unless told): the world's address, the default,
             # is another machine's when the two run apart
             # a team's robots' planners: one port each, in the team's order from the fourth
-            sc = controller.motion.problem.scenario
-            index = [m.name for m in sc.team].index(sc.member) if sc.team else 0
-            self.diag.bind(
-                Endpoints(diagnostics_host or endpoints.host, endpoints.port + index).diagnostics
-            )
+            host = diagnostics_host or endpoints.host
+            self.diag.bind(Endpoints(host, endpoints.port + robot_index).diagnostics)
         self.welcome: P.Welcome | None = None
         self._answered: tuple[str, int] | None = None  # (session, seq) of the last command
         self._answer = b""
@@ -183,7 +183,8 @@ class PlannerClient:
                     plain = self._plain_hello(reply, version, plain)
                     continue
                 self._speak(version)
-                nu = len(self.controller.motion.problem.actuators)
+                problem = self.controller.motion.problem  # a team robot's: its own controls
+                nu = problem.model.nu if self.hello.robot is None else len(problem.actuators)
                 if reply.nu != nu:
                     raise HandshakeRefused(
                         f"server model has nu={reply.nu}, planner model has nu={nu}"

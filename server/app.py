@@ -271,7 +271,7 @@ class WorldServer:
         wait their turn (a team's planners answer the same state)."""
         started = last_pub = time.monotonic()
         while self.running:
-            self._inbox = [c for c in self._inbox + self.serve_all(self.opt.republish) if wanted(c)]
+            self._inbox = [c for c in self._inbox + self.serve(self.opt.republish) if wanted(c)]
             # paused: the command is dropped; the planner sends it again for the re-published state
             if self._paused:
                 self._inbox.clear()
@@ -393,12 +393,8 @@ class WorldServer:
             self.pub.send(P.encode(state, self.version))
 
     def serve(self, timeout_s: float) -> list[P.Command]:
-        """Serve control requests and drain commands; return each robot's newest valid one."""
-        newest = {c.robot: c for c in self.serve_all(timeout_s)}
-        return list(newest.values())
-
-    def serve_all(self, timeout_s: float) -> list[P.Command]:
-        """Serve control requests and drain commands; return the valid ones in arrival order."""
+        """Serve control requests and drain commands; return each robot's newest valid one (a
+        team's planners answer the same state: one each)."""
         got = []
         events = dict(self.poller.poll(int(timeout_s * 1000)))
         self._note_refusals()
@@ -413,7 +409,7 @@ class WorldServer:
                 cmd = self._accept_command(frame)
                 if cmd is not None:
                     got.append(cmd)
-        return got
+        return list({c.robot: c for c in got}.values())
 
     def _accept_command(self, frame: bytes) -> P.Command | None:
         try:
