@@ -168,6 +168,12 @@ class EpisodeLaunch:
     plugins: tuple[str, ...] = ()  # planner only: --plugins modules of the operator's
     log: str = ""  # each logged to this template ('{seed}' in it)
 
+    @property
+    def ports(self) -> int:
+        """Consecutive ports the episode uses: the world's three and a diagnostics port per
+        planner (a team's robots: one each)."""
+        return 3 + max(1, len(team_names(self.scenario)))
+
     def commands(self, port: int) -> dict[str, list[str]]:
         common = ["--scenario", self.scenario, "--port", str(port), "--seed", str(self.seed)]
         if self.keys is not None:
@@ -264,7 +270,7 @@ def run_episode(
     stopped, the view switches to the episode's replay, ``on_kept`` gets the episode's result
     and the URL, and this returns that result on Ctrl-C (or ``stop``, or the view's exit)."""
     launch.run_dir.mkdir(parents=True, exist_ok=True)
-    port = launch.port or free_port_block()
+    port = launch.port or free_port_block(count=launch.ports)
     log_path = launch.run_dir / "episode.jsonl"
     outs, procs = {}, {}
     reason = ""

@@ -100,7 +100,7 @@ class WarmPair:
     def _start(self, seed: int) -> None:
         folder = self.launch.run_dir
         folder.mkdir(parents=True, exist_ok=True)
-        self._port = free_port_block()
+        self._port = free_port_block(count=self.launch.ports)
         launch = dataclasses.replace(self.launch, seed=seed)
         for name, cmd in launch.commands(self._port).items():
             out = (folder / f"{name}.log").open("a")
