@@ -93,8 +93,8 @@ class TeamRollouts:
     def widen(self, V: torch.Tensor) -> torch.Tensor:
         """``V [S, T, nu_own]`` -> ``[S, T, nu]`` with the others' controls of :meth:`begin`."""
         S, T, _ = V.shape
-        full = self._others[:T].to(V.dtype).expand(S, T, -1).clone()
-        full[..., self._own] = V
+        full = self._others[:T].to(V.device, V.dtype).expand(S, T, -1).clone()
+        full[..., self._own.to(V.device)] = V
         return full
 
     def widen_one(self, u: np.ndarray, t: float) -> np.ndarray:

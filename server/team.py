@@ -66,8 +66,3 @@ class TeamPlayer:
             for name, p in self.newest.items()
             if np.isfinite(p.dt)
         ]
-
-    def nu(self, robot: str) -> int:
-        """The length of robot ``robot``'s ``command.ctrl``."""
-        sl = self.slices[robot]
-        return sl.stop - sl.start
