@@ -182,8 +182,8 @@ def _merge(base: dict, over: dict) -> dict:
 def scenario_hash(
     raw: dict, included: Sequence[dict] = (), robots: Sequence[RobotSpec] = (), source: str = ""
 ) -> str:
-    """Hash of the scenario's content, of the objective files it includes, of its robot's MJCF
-    file and of a robot file of the user's (the shipped ones are part of the package, and a
+    """Hash of the scenario's content, of the objective files it includes, of its robots' MJCF
+    files and of a robot file of the user's (the shipped ones are part of the package, and a
     shipped scenario keeps the hash it had before robots were files). ``faults:`` is hashed under
     its old name, ``hardware:``: a scenario keeps its hash (bench results, logs, an older peer's)
     whichever name it uses, and so are the other renamed keys (:data:`HASHED_AS`)."""
@@ -234,7 +234,11 @@ def parse_scenario(raw: dict, source: str) -> Scenario:
 
 
 def _read(
-    raw: dict, source: str, errors: ErrorLog, team: tuple = (), member=None
+    raw: dict,
+    source: str,
+    errors: ErrorLog,
+    team: tuple[Member, ...] = (),
+    member: Member | None = None,
 ) -> ScenarioReading:
     """Each independent part is read under ``errors``: a fault is recorded and the part left
     out, and the rest is still read. Parts that depend on a faulty one (observers on the task,
