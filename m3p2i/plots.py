@@ -47,6 +47,9 @@ class EpisodeSeries:
     # [T] the anytime planner's samples per mode and plan steps (planner.budget), None without
     samples: np.ndarray | None = None
     horizon: np.ndarray | None = None
+    # a team's (robots:): the first robot is ``robot``, the others' positions by name
+    robot_name: str = "robot"
+    others: dict[str, np.ndarray] = field(default_factory=dict)
 
 
 def cos_rog(robot: np.ndarray, obj: np.ndarray, goal: np.ndarray) -> np.ndarray:
@@ -81,7 +84,10 @@ def episode_series(scenario: Scenario, records: list[dict]) -> EpisodeSeries:
         "robot": resolve_frame(scenario, model, "robot", "robot"),
         "goal": resolve_frame(scenario, model, pair.b, "metrics.position.b"),
     }
-    is_robot = pair.a == "robot"
+    team = {m.name: m.robot.spec.frame for m in scenario.team}  # the first one is "robot"
+    for name, frame in list(team.items())[1:]:
+        frames[f"robot {name}"] = resolve_frame(scenario, model, frame, "robots")
+    is_robot = pair.a in ("robot", next(iter(team.values()), "robot"))
     if not is_robot:
         frames["obj"] = resolve_frame(scenario, model, pair.a, "metrics.position.a")
     tracks = frame_tracks(model, steps, frames)
@@ -105,6 +111,8 @@ def episode_series(scenario: Scenario, records: list[dict]) -> EpisodeSeries:
         truth={f"{k}.{n}": float(v) for k, names in truth.items() for n, v in names.items()},
         samples=budget_series(steps, "samples"),
         horizon=budget_series(steps, "horizon"),
+        robot_name=next(iter(team), "robot"),
+        others={name: tracks[f"robot {name}"] for name in list(team)[1:]},
     )
 
 
@@ -154,8 +162,11 @@ def _draw_trajectories(ax, series: EpisodeSeries) -> None:
     if series.obj is not None:
         ax.plot(series.obj[:, 0], series.obj[:, 1], color=OBJECT, label=series.object_name)
         ax.plot(*series.obj[0, :2], "o", color=OBJECT)
-    ax.plot(series.robot[:, 0], series.robot[:, 1], color=ROBOT, label="robot")
+    ax.plot(series.robot[:, 0], series.robot[:, 1], color=ROBOT, label=series.robot_name)
     ax.plot(*series.robot[0, :2], "o", color=ROBOT)
+    for name, track in series.others.items():  # a team's other robots
+        (line,) = ax.plot(track[:, 0], track[:, 1], label=name)
+        ax.plot(*track[0, :2], "o", color=line.get_color())
     ax.plot(*series.goal[-1, :2], "*", color=GOAL, markersize=14, label=series.goal_name)
     if series.arena:
         ax.set_xlim(-series.arena, series.arena)
@@ -179,7 +190,8 @@ def _draw_distances(ax, series: EpisodeSeries) -> None:
         series.time,
         planar_distance(tracked, series.goal),
         color=OBJECT_GOAL,
-        label=f"{'robot' if series.obj is None else series.object_name}-{series.goal_name}",
+        label=f"{series.object_name if series.obj is not None else series.robot_name}-"
+        f"{series.goal_name}",
     )
     ax.set(xlabel="time [s]", ylabel="distance [m]", title="distances")
     ax.legend(loc="best", fontsize="small")

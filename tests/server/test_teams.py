@@ -11,6 +11,7 @@ import pytest
 import torch
 import zmq
 
+from m3p2i.plots import episode_series
 from planner_client.aip import ActiveInferencePlanner
 from planner_client.build import build_controller
 from planner_client.team import TeamRollouts
@@ -337,6 +338,9 @@ def test_in_process_equals_two_processes_for_a_team(tmp_path):
     for key in ("qpos", "qvel", "ctrl", "action"):
         assert [s[key] for s in ours] == [s[key] for s in theirs], key  # bit for bit
     assert set(one.stats) == {"a", "b"}
+    series = episode_series(load_scenario(str(short)), read_log(one.log_path))  # m3p2i plot
+    assert series.robot_name == "a" and list(series.others) == ["b"]
+    np.testing.assert_allclose(series.others["b"][-1, :2], ours[-1]["qpos"][2:4], atol=1e-9)
 
 
 @pytest.mark.slow
