@@ -173,13 +173,22 @@ def test_each_robot_plays_its_own_plan_and_is_held_alone_when_it_ran_out(duo, tm
 
 @pytest.fixture
 def world(duo, tmp_path):
-    """A lock-step team world serving on loopback in a thread."""
+    """A lock-step team world serving on loopback in a thread, and a command socket and a state
+    subscription on it: ``(server, ctx, ends, push, sub)``."""
     port = free_port_block()
     server = WorldServer(duo, Endpoints(port=port), tmp_path / "w.jsonl", ServerOptions())
     runner = threading.Thread(target=server.run, daemon=True)
     runner.start()
-    ctx = zmq.Context()
-    yield server, ctx, Endpoints(port=port)
+    ctx, ends = zmq.Context(), Endpoints(port=port)
+    push, sub = ctx.socket(zmq.PUSH), ctx.socket(zmq.SUB)
+    for s in (push, sub):
+        s.setsockopt(zmq.LINGER, 0)
+    push.connect(ends.command)
+    sub.setsockopt(zmq.SUBSCRIBE, b"")
+    sub.connect(ends.state)
+    yield server, ctx, ends, push, sub
+    push.close()
+    sub.close()
     server.stop()
     runner.join(10)
     ctx.term()
@@ -197,9 +206,10 @@ def _hello(ctx, ends, robot, version=P.PROTOCOL_VERSION, sc=None):
     return reply
 
 
-def _newest_state(sub, timeout=5.0) -> P.State:
+def _newest_state(sub, seq: int = 0, timeout=5.0) -> P.State:
+    """The newest state waiting, once one of at least ``seq`` came (or ``timeout`` passed)."""
     end, state = time.monotonic() + timeout, None
-    while time.monotonic() < end and (state is None or sub.poll(0)):
+    while time.monotonic() < end and (state is None or state.seq < seq or sub.poll(0)):
         if sub.poll(200):
             state = P.decode(sub.recv(), expect="state")
     assert state is not None
@@ -207,64 +217,41 @@ def _newest_state(sub, timeout=5.0) -> P.State:
 
 
 def test_the_world_waits_for_every_robots_command_and_refuses_another_robots(world):
-    server, ctx, ends = world
+    server, ctx, ends, push, sub = world
     assert isinstance(_hello(ctx, ends, None), P.Error)  # a team's world needs --robot
     assert "robots a, b" in _hello(ctx, ends, "c").reason
     assert isinstance(_hello(ctx, ends, "a", version=3), P.Error)  # teams speak protocol 4
     welcome = _hello(ctx, ends, "a")
     assert isinstance(welcome, P.Welcome) and welcome.nu == 2
-    push, sub = ctx.socket(zmq.PUSH), ctx.socket(zmq.SUB)
-    for s in (push, sub):
-        s.setsockopt(zmq.LINGER, 0)
-    push.connect(ends.command)
-    sub.setsockopt(zmq.SUBSCRIBE, b"")
-    sub.connect(ends.state)
-    try:
-        session = welcome.session
 
-        def send(robot, ctrl, seq=0):
-            cmd = P.Command(session, seq, np.asarray(ctrl, float), robot=robot)
-            push.send(P.encode(cmd, P.PROTOCOL_VERSION))
+    def send(robot, ctrl, seq=0):
+        cmd = P.Command(welcome.session, seq, np.asarray(ctrl, float), robot=robot)
+        push.send(P.encode(cmd, P.PROTOCOL_VERSION))
 
-        send("a", [1.0, 0.0])
-        send("c", [1.0, 0.0])  # no such robot
-        send("b", [1.0, 0.0, 0.0, 0.0])  # b commanding a's actuators too
-        time.sleep(0.8)
-        assert _newest_state(sub).seq == 0  # a's alone does not step the world
-        assert server._rejected == 2
-        send("b", [-1.0, 0.0])
-        assert _newest_state(sub).seq == 1
-        record = steps(read_log(server.episode.log.path))[0]
-        assert record["ctrl"] == [1.0, 0.0, -1.0, 0.0]
-    finally:
-        push.close()
-        sub.close()
+    send("a", [1.0, 0.0])
+    send("c", [1.0, 0.0])  # no such robot
+    send("b", [1.0, 0.0, 0.0, 0.0])  # b commanding a's actuators too
+    time.sleep(0.8)
+    assert _newest_state(sub).seq == 0  # a's alone does not step the world
+    assert server._rejected == 2
+    send("b", [-1.0, 0.0])
+    assert _newest_state(sub, seq=1).seq == 1
+    record = steps(read_log(server.episode.log.path))[0]
+    assert record["ctrl"] == [1.0, 0.0, -1.0, 0.0]
 
 
 def test_plans_are_forwarded_after_a_planner_reconnects(world):
-    _, ctx, ends = world
+    _, ctx, ends, push, sub = world
     session = _hello(ctx, ends, "a").session
-    push, sub = ctx.socket(zmq.PUSH), ctx.socket(zmq.SUB)
-    for s in (push, sub):
-        s.setsockopt(zmq.LINGER, 0)
-    push.connect(ends.command)
-    sub.setsockopt(zmq.SUBSCRIBE, b"")
-    sub.connect(ends.state)
-    try:
-        for robot, u in (("a", 1.0), ("b", -1.0)):
-            plan = np.full((5, 2), u)
-            cmd = P.Command(
-                session, 0, plan[0], plan_ctrl=plan, plan_t0=0.0, plan_dt=0.1, robot=robot
-            )
-            push.send(P.encode(cmd))
-        assert _newest_state(sub).seq == 1
-        assert isinstance(_hello(ctx, ends, "b"), P.Welcome)  # b's planner restarted
-        state = _newest_state(sub)
-        assert state.seq == 1 and {p.robot for p in state.plans} == {"a", "b"}
-        assert [p.ctrl[0, 0] for p in sorted(state.plans, key=lambda p: p.robot)] == [1.0, -1.0]
-    finally:
-        push.close()
-        sub.close()
+    for robot, u in (("a", 1.0), ("b", -1.0)):
+        plan = np.full((5, 2), u)
+        cmd = P.Command(session, 0, plan[0], plan_ctrl=plan, plan_t0=0.0, plan_dt=0.1, robot=robot)
+        push.send(P.encode(cmd))
+    assert _newest_state(sub, seq=1).seq == 1
+    assert isinstance(_hello(ctx, ends, "b"), P.Welcome)  # b's planner restarted
+    state = _newest_state(sub, seq=1)
+    assert state.seq == 1 and {p.robot for p in state.plans} == {"a", "b"}
+    assert [p.ctrl[0, 0] for p in sorted(state.plans, key=lambda p: p.robot)] == [1.0, -1.0]
 
 
 # ------------------------------------------------------------------ the planner
