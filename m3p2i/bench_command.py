@@ -8,7 +8,7 @@ import functools
 import os
 import sys
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Annotated
 
@@ -215,7 +215,12 @@ def run_bench(req: BenchRequest) -> None:
         f"(time-out {opts.timeout:.0f} s each)"
     )
     finished = _run(req, todo, opts, results, console)
-    _summarize(req, plan, planned, results, console)
+    _summarize(req, plan, planned, results, console, write=not req.cases)
+    if req.cases:
+        # the folder's summary.md covers every case of the bench file, not only those just run
+        whole = _read(replace(req, cases=None))
+        _summarize(req, whole, B.plan_trials(whole.ready, whole.cfg, opts, done)[0], results)
+        console.print(f"summary of every case: {plan.out_dir / 'summary.md'}")
     if not finished:
         console.print("interrupted: finished trials are kept; run the same command to resume")
         raise typer.Exit(130)
@@ -300,9 +305,11 @@ def _run(req: BenchRequest, todo: list, opts, results, console) -> bool:
         return B.run_trials(todo, opts, results, on_done=done)
 
 
-def _summarize(req: BenchRequest, plan: _Plan, planned: list, results, console) -> None:
-    """The table of the planned trials' newest rows, printed and written to OUT/summary.md
-    (with a sweep, one table and one plot per swept key)."""
+def _summarize(
+    req: BenchRequest, plan: _Plan, planned: list, results, console=None, write: bool = True
+) -> None:
+    """The table of the planned trials' newest rows, printed (with a ``console``) and written
+    to OUT/summary.md (``write``; with a sweep, one table and one plot per swept key)."""
     from m3p2i import bench as B
     from m3p2i import bench_report as R
     from m3p2i import sweep as S
@@ -317,7 +324,10 @@ def _summarize(req: BenchRequest, plan: _Plan, planned: list, results, console) 
     ]
     table = R.table_rows(R.summarize(labelled, order), plan.paper)
     title = f"m3p2i bench {Path(plan.cfg.source).stem}{' --quick' if req.quick else ''}"
-    console.print(R.rich_table(table, title))
+    if console is not None:
+        console.print(R.rich_table(table, title))
+    if not write:
+        return
     header = (
         f"# {title}\n\n{time.strftime('%Y-%m-%d %H:%M')}, {os.cpu_count()} cores; "
         f"results: `{results.path}`"
@@ -325,15 +335,14 @@ def _summarize(req: BenchRequest, plan: _Plan, planned: list, results, console) 
     out_dir = plan.out_dir
     out_dir.mkdir(parents=True, exist_ok=True)
     text = R.markdown_report(table, [(s.case.case, s.reason) for s in plan.skipped], header)
+    say = console.print if console is not None else (lambda *a, **k: None)
     if plan.swept.keys:
         text += "\n" + S.sweep_report(rows)
-        console.print(S.sweep_report(rows), markup=False)
+        say(S.sweep_report(rows), markup=False)
         try:
             for path in S.plot_sweep(rows, out_dir):
-                console.print(f"plot: {path}")
+                say(f"plot: {path}")
         except ImportError:
-            console.print(
-                "[yellow]no sweep plot[/]: it needs matplotlib: pip install 'm3p2i[plots]'"
-            )
+            say("[yellow]no sweep plot[/]: it needs matplotlib: pip install 'm3p2i[plots]'")
     (out_dir / "summary.md").write_text(text)
-    console.print(f"summary: {out_dir / 'summary.md'}")
+    say(f"summary: {out_dir / 'summary.md'}")

@@ -62,8 +62,8 @@ class ActiveInferencePlanner:
 
     def __init__(self, template: TaskTemplate, *, alternatives: bool = True, waits: bool = False):
         """``waits``: a team robot's planner, whose factors without actions are the other
-        robots' to change: an action blocked only on them waits (status ``waiting``) instead
-        of failing."""
+        robots' to change: an action blocked only on them, directly or through actions of its
+        own that are blocked in turn, waits (status ``waiting``) instead of failing."""
         self.template = template
         self.alternatives = alternatives
         self.waits = waits
@@ -71,6 +71,7 @@ class ActiveInferencePlanner:
             f.name: FactorAgent(FactorModel.from_template(f, template.idle_habit))
             for f in template.factors
         }
+        self._factor_of = {a.name: f.name for f in template.factors for a in f.actions}
         self._index = {
             StateRef(f.name, s): i for f in template.factors for i, s in enumerate(f.states)
         }
@@ -113,10 +114,16 @@ class ActiveInferencePlanner:
                 "running", names[0], names, " -> ".join((names[0],) + found[0][1]), beliefs
             )
         others = [p for _, unmet in blocked for p in unmet if self._observed_only(p.factor)]
+        # a chain of own actions (place needs preplace, whose move2place needs docked) waits too
+        tried = {self._factor_of[name] for name, _ in blocked}
         if (
             self.waits
-            and blocked
-            and all(all(self._observed_only(p.factor) for p in unmet) for _, unmet in blocked)
+            and others
+            and all(
+                self._observed_only(p.factor) or p.factor in tried
+                for _, unmet in blocked
+                for p in unmet
+            )
         ):
             waiting = ", ".join(map(str, dict.fromkeys(others)))
             return Decision("waiting", None, (), f"waiting for {waiting}", beliefs)

@@ -403,6 +403,12 @@ def test_bench_resumes_and_records_a_hung_trial(tmp_path):
     assert hung["reason"] == "timeout" and hung["success"] == "0", hung
     assert 5 <= float(hung["trial_wall"]) < 20
 
+    # one case asked for again: its table printed, the folder's summary keeps every case
+    third = runner.invoke(app, ["bench", str(bench), "--out", str(out), "--cases", "tiny"])
+    assert third.exit_code == 0, third.output
+    summary = (out / "summary.md").read_text()
+    assert "| tiny |" in summary and "| endless |" in summary
+
 
 def test_bench_modes_are_checked_and_recorded(tmp_path):
     path = write_bench(

@@ -307,6 +307,37 @@ def test_a_team_robot_waits_for_the_other_robots_factor_instead_of_failing():
     assert ActiveInferencePlanner(view.task, waits=True).step(ready).action == "push_together"
 
 
+def test_the_arm_and_the_cart_wait_for_each_other_where_loading_needs_both():
+    """duo_mobile_load: the arm holding the cube over the tray waits until the cart is docked;
+    the docked cart stays docked while the arm loads, and waits for the hand to clear the cube
+    before it drives off; the arm's part ends with the cube on the tray and the hand clear."""
+    members = load_scenario("duo_mobile_load").members
+    arm, cart = (ActiveInferencePlanner(members[n].task, waits=True) for n in ("arm", "cart"))
+    over_tray = {
+        "reachable": "reachable",
+        "holding": "holding",
+        "over": "over",
+        "preplace": "not_at_preplace",
+        "docked": "not_docked",
+        "loaded": "not_loaded",
+        "clear": "not_clear",
+        "delivered": "not_delivered",
+    }
+    d = arm.step(over_tray)
+    assert d.status == "waiting" and "docked.docked" in d.reason
+    assert cart.step(over_tray).action == "dock"
+    docked = {**over_tray, "docked": "docked"}
+    assert arm.step(docked).action == "move2place"
+    assert cart.step(docked).action == "place"  # stays docked while the arm loads
+    on_tray = {**docked, "preplace": "at_preplace", "loaded": "loaded"}
+    assert arm.step(on_tray).action == "retreat"
+    d = cart.step(on_tray)
+    assert d.status == "waiting" and "clear.clear" in d.reason
+    clear = {**on_tray, "clear": "clear"}
+    assert cart.step(clear).action == "deliver"
+    assert arm.step(clear).status == "success"  # its part done; the world waits for the cart
+
+
 def test_in_process_equals_two_processes_for_a_team(tmp_path):
     short = tmp_path / "duo_short.yaml"
     short.write_text(f"base: {CORRIDOR}\nname: duo_short\nepisode: {{max_time: 1.0}}\n")
