@@ -217,7 +217,7 @@ def test_an_arena_wall_thickness_is_read_with_a_warning_and_changes_nothing(monk
         ({"keep_best": "yes"}, "planner.mppi.keep_best", "keep_best"),
     ],
 )
-def test_an_mppi_fault_is_found_at_load_by_both_processes_and_the_check(tmp_path, mppi, key, says):
+def test_an_mppi_fault_is_found_at_load_by_both_processes(tmp_path, mppi, key, says):
     # planner.mppi is a section like any other: the world side learns of a typo too
     raw = _nav()
     raw["planner"]["mppi"] = mppi
@@ -225,8 +225,16 @@ def test_an_mppi_fault_is_found_at_load_by_both_processes_and_the_check(tmp_path
     for errors in (server_check.scenario_errors(path), planner_check.scenario_errors(path)):
         assert [e.path for e in errors] == [key], errors
         assert says in str(errors[0]) and "broken.yaml" in str(errors[0]), errors[0]
+
+
+def test_m3p2i_check_names_an_mppi_fault_once(tmp_path):
+    # what both processes found, merged (each starts with --check: ~2 s, so one case here)
+    raw = _nav()
+    raw["planner"]["mppi"] = {"gamma": 1.5}
+    path = _write(tmp_path, raw)
     result = CliRunner().invoke(app, ["check", str(path)])
-    assert result.exit_code == 2 and key in result.output, result.output
+    assert result.exit_code == 2, result.output
+    assert result.output.count("planner.mppi.gamma") == 1, result.output
 
 
 def test_mppi_keys_reach_the_planner_as_the_file_gives_them():

@@ -337,7 +337,8 @@ def test_a_realtime_pick_place_succeeds_with_a_planner_under_a_third_of_the_worl
     full-speed world against a 30/s cap, near this machine's own speed, failed on CI's machine:
     25/s succeeded 13-17 of 20 here). Success is a rate: 18 of 20 seeds succeeded so
     (``pick_place_rt_half`` in docs/bench/realtime), so one of two must (both failing: well under
-    1 %); in both the world must really have played each plan for more than 3 steps on average. A
+    1 %; seed 2 runs only when seed 1 fails); the world must really have played each plan for
+    more than 3 steps on average. A
     success chains the template's actions and stacks within Eq. 26's 1 cm and φ 0.01 (the suite's
     one end-to-end run of the plain pick_place.yaml)."""
     from m3p2i.launch import EpisodeLaunch, run_episode
@@ -365,6 +366,7 @@ def test_a_realtime_pick_place_succeeds_with_a_planner_under_a_third_of_the_worl
             measures = run.summary["measures"]
             assert measures["position error cube_a-cube_b"] < 0.01
             assert measures["orientation error cube_a-cube_b"] < 0.01
+            break
     assert "success" in outcomes, outcomes
 
 
