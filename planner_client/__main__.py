@@ -1,5 +1,6 @@
 """``m3p2i-planner`` and ``python -m planner_client``: the planner process's entry point."""
 
+import gc
 import os
 
 
@@ -7,7 +8,12 @@ def main() -> None:
     """Run the planner CLI. Before anything imports them: the planner never draws, so MuJoCo
     loads no OpenGL library (GLFW: 40 ms of its start-up), and torch loads no third-party device
     backends (it scans every installed package's entry points for them); a value the operator
-    set is kept."""
+    set is kept.
+
+    The cyclic garbage collector is off until the planner is built (the CLI turns it back on):
+    the imports make some 200,000 objects and next to no garbage, and collecting as they go
+    costs a tenth of torch's import (0.97 s -> 0.89 s, median of 9 here)."""
+    gc.disable()
     os.environ.setdefault("MUJOCO_GL", "disable")
     os.environ.setdefault("TORCH_DEVICE_BACKEND_AUTOLOAD", "0")
     from planner_client.phases import STARTUP
