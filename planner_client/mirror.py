@@ -81,7 +81,8 @@ class Mirror:
     def _estimate_mocap_velocity(self, time: float) -> None:
         pos = self.data.mocap_pos
         if self._prev_time is not None and time > self._prev_time:
-            vel = (pos - self._prev_pos) / (time - self._prev_time)
+            with np.errstate(over="ignore"):  # over a tiny time step: inf, zeroed just below
+                vel = (pos - self._prev_pos) / (time - self._prev_time)
             vel[np.linalg.norm(vel, axis=1) > self.max_speed] = 0.0
             self.mocap_vel[:] = vel
         elif self._prev_time is not None:  # time went back: a new episode

@@ -237,8 +237,7 @@ class LiveView:
                 visible=False,
             )
             g.dragging = False
-            g.on_drag_start(lambda _, g=g: setattr(g, "dragging", True))
-            g.on_drag_end(lambda _, name=obj.name, g=g: self._moved(name, g))
+            g.on_update(lambda event, name=obj.name: self._dragged(name, event))
             self.gizmos[obj.name] = (body.id, g)
 
         def show_handles(_) -> None:
@@ -261,8 +260,13 @@ class LiveView:
             self._path.clear()
             self.drawing.set_path(np.zeros((0, 3)))
 
-    def _moved(self, name: str, gizmo) -> None:
-        gizmo.dragging = False
+    def _dragged(self, name: str, event) -> None:
+        """A handle's drag: the state no longer moves it from ``start`` on; at ``end`` the
+        object is moved where it was let go."""
+        gizmo = event.target
+        gizmo.dragging = event.phase != "end"
+        if event.phase != "end":
+            return
         self._send(
             P.Control(
                 op="move",

@@ -380,8 +380,9 @@ def test_in_real_time_a_killed_planners_robot_holds_still_and_the_other_goes_on(
         time.sleep(1.5)
     finally:
         stop(server, *planners.values())
-        view.close()
+        view.stop.set()  # its sockets are the serving thread's: closed once it has returned
         watching.join(10)
+        view.close()
     assert set(view._team_top) == {0, 1}  # the view drew both planners' best trajectories
     records = read_log(log)
     assert records[-1]["kind"] == "summary"  # the log is complete

@@ -280,6 +280,35 @@ def test_a_public_view_has_no_controls_unless_asked(monkeypatch):
     assert _view_cli(monkeypatch, "--public", "--public-controls")["controls"] is True
 
 
+@pytest.mark.filterwarnings("error::DeprecationWarning")  # viser's drag API as it now stands
+def test_a_handle_dragged_in_the_page_moves_its_object_once_let_go(live_view):
+    """A drag's phases as viser reports them to the handle's callbacks: while it is held the
+    world's states no longer place the handle; on release one ``move`` goes to the world, where
+    the handle was let go."""
+    import viser
+
+    view = live_view()
+    sent = []
+    view.control.send = lambda msg: sent.append(msg) or (True, "ok")
+    name, (_, handle) = next(iter(view.gizmos.items()))
+
+    def drag(phase: str) -> None:
+        event = viser.TransformControlsEvent(
+            client=None, client_id=None, target=handle, phase=phase
+        )
+        for callback in handle._impl_aux.update_cb:  # viser's own list of on_update callbacks
+            callback(event)
+
+    drag("start")
+    handle.position = (0.3, -0.2, 0.1)
+    drag("update")
+    assert handle.dragging and sent == []
+    drag("end")
+    assert not handle.dragging
+    assert [(m.op, m.object) for m in sent] == [("move", name)]
+    np.testing.assert_allclose(sent[0].pos, [0.3, -0.2, 0.1])
+
+
 def test_a_view_without_controls_shows_no_buttons_and_sends_nothing(live_view):
     from m3p2i.view import LiveView
 
