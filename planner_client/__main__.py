@@ -11,8 +11,8 @@ def main() -> None:
     set is kept.
 
     The cyclic garbage collector is off until the planner is built (the CLI turns it back on):
-    the imports make some 200,000 objects and next to no garbage, and collecting as they go
-    costs a tenth of torch's import (0.97 s -> 0.89 s, median of 9 here)."""
+    the imports make some 200,000 objects and next to no garbage, and collecting as they went
+    cost 0.2 s of a 1.4 s start to the first command (scripts/startup.py, docs/speed.md)."""
     gc.disable()
     os.environ.setdefault("MUJOCO_GL", "disable")
     os.environ.setdefault("TORCH_DEVICE_BACKEND_AUTOLOAD", "0")
