@@ -10,9 +10,8 @@ def main() -> None:
     backends (it scans every installed package's entry points for them); a value the operator
     set is kept.
 
-    The cyclic garbage collector is off until the planner is built (the CLI turns it back on):
-    the imports make some 200,000 objects and next to no garbage, and collecting as they went
-    cost 0.2 s of a 1.4 s start to the first command (scripts/startup.py, docs/speed.md)."""
+    The garbage collector is off until the planner is built (the CLI turns it back on:
+    :func:`shared.cli_common.collector_back`)."""
     gc.disable()
     os.environ.setdefault("MUJOCO_GL", "disable")
     os.environ.setdefault("TORCH_DEVICE_BACKEND_AUTOLOAD", "0")

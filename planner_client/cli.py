@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import dataclasses
-import gc
 import logging
 import sys
 from pathlib import Path
@@ -21,6 +20,7 @@ from shared.cli_common import (
     Port,
     ScenarioOption,
     Verbose,
+    collector_back,
     print_errors,
     renamed,
     setup_logging,
@@ -224,7 +224,7 @@ def main(
     except Exception as exc:
         _failed(exc, "building the planner")
     STARTUP.mark("build")
-    _collector_back()
+    collector_back()
     _plan(client, scenario, warned)
 
 
@@ -260,16 +260,6 @@ def _rollouts_or_exit(backend: str | None, device: str | None) -> str | None:
     except ValueError as exc:
         typer.echo(f"error: --device {device!r}: {exc}", err=True)
         raise typer.Exit(2) from None
-
-
-def _collector_back() -> None:
-    """The garbage collector on again after a start-up without it (the process's entry point,
-    planner_client/__main__.py); what start-up made is frozen first, so that no collection in the
-    control loop traverses it again (a full one over it takes ~90 ms). In-process callers keep
-    their collector as it is."""
-    if not gc.isenabled():
-        gc.freeze()
-        gc.enable()
 
 
 def _plan(client, scenario: str, warned) -> None:

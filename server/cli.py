@@ -32,6 +32,7 @@ from shared.cli_common import (
     ScenarioOption,
     Verbose,
     Window,
+    collector_back,
     default_run_dir,
     print_errors,
     renamed,
@@ -244,6 +245,7 @@ def _serve(server: WorldServer, world: str | None) -> None:
     # SIGTERM: end the episode as Ctrl-C does, so the log still gets its summary
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, server.interrupt)
+    collector_back()
     try:
         outcome = server.run()
     except WorldError as exc:  # the world failed mid-episode: stopped, the summary written

@@ -5,12 +5,15 @@ themselves are timing, not tested here."""
 from __future__ import annotations
 
 import gc
+import importlib
+import signal
+from types import SimpleNamespace
 
 import pytest
+from typer.testing import CliRunner
 
-from planner_client import cli
-from planner_client.__main__ import main
 from scripts import startup
+from shared.cli_common import collector_back
 
 
 @pytest.mark.slow
@@ -30,22 +33,24 @@ def test_a_planner_log_without_the_line_is_named(tmp_path):
         startup._planner_phases(log)
 
 
-def test_the_planner_starts_without_the_collector_and_plans_with_it(monkeypatch):
-    """The entry point imports and builds with the garbage collector off; the CLI turns it back
-    on once built (after freezing what start-up made), so the control loop never runs without."""
-    monkeypatch.setenv("MUJOCO_GL", "disable")  # main() sets both when unset: restored after
+@pytest.mark.parametrize("process", ["server", "planner_client"])
+def test_a_process_starts_without_the_collector_and_runs_with_it(monkeypatch, process):
+    """Each entry point imports and builds with the garbage collector off; its CLI turns it back
+    on once built (after freezing what start-up made), so no loop runs without it."""
+    monkeypatch.setenv("MUJOCO_GL", "disable")  # the planner's main() sets both when unset
     monkeypatch.setenv("TORCH_DEVICE_BACKEND_AUTOLOAD", "0")
+    entry = importlib.import_module(f"{process}.__main__")
     seen = {}
 
-    def planner(prog_name: str) -> None:  # the CLI up to its build, then the loop's check
+    def cli(prog_name: str) -> None:  # the CLI up to its build, then what its loop finds
         seen["start-up"] = gc.isenabled()
-        cli._collector_back()
+        collector_back()
         seen["loop"] = gc.isenabled()
 
-    monkeypatch.setattr(cli, "app", planner)
+    monkeypatch.setattr(importlib.import_module(f"{process}.cli"), "app", cli)
     frozen = gc.get_freeze_count()
     try:
-        main()
+        entry.main()
         assert seen == {"start-up": False, "loop": True}
         assert gc.get_freeze_count() > frozen
     finally:
@@ -53,7 +58,48 @@ def test_the_planner_starts_without_the_collector_and_plans_with_it(monkeypatch)
         gc.enable()
 
 
-def test_an_in_process_planner_keeps_its_collector():
+def test_an_in_process_caller_keeps_its_collector():
     frozen = gc.get_freeze_count()
-    cli._collector_back()
+    collector_back()
     assert gc.isenabled() and gc.get_freeze_count() == frozen
+
+
+def _stub_world(*args, **kwargs):
+    from server.interface import WorldError
+
+    def run():
+        raise WorldError(f"collector on: {gc.isenabled()}")
+
+    return SimpleNamespace(run=run, interrupt=None, log=SimpleNamespace(path="-"), viewer=None)
+
+
+def _stub_planner(*args, **kwargs):
+    def run():
+        raise RuntimeError(f"collector on: {gc.isenabled()}")
+
+    return SimpleNamespace(run=run, close=lambda: None)
+
+
+@pytest.mark.parametrize(
+    "cli, builder, stub, args",
+    [
+        ("server.cli", "server.cli.WorldServer", _stub_world, ["--log", "episode.jsonl"]),
+        ("planner_client.cli", "planner_client.build.build_client", _stub_planner, []),
+    ],
+)
+def test_each_cli_runs_its_loop_with_the_collector_on(
+    monkeypatch, tmp_path, cli, builder, stub, args
+):
+    """The CLI as its entry point calls it (collector off): by the time its loop runs (a stub
+    that reports what it finds), the collector is on again."""
+    monkeypatch.setattr(builder, stub)
+    monkeypatch.setattr(signal, "signal", lambda *a: None)  # the world's: not this process's
+    monkeypatch.chdir(tmp_path)
+    gc.disable()
+    try:
+        app = importlib.import_module(cli).app
+        result = CliRunner().invoke(app, ["--scenario", "navigation", *args])
+    finally:
+        gc.unfreeze()
+        gc.enable()
+    assert "collector on: True" in result.output, result.output
