@@ -11,6 +11,7 @@ import pytest
 import yaml
 from typer.testing import CliRunner
 
+import shared.config
 from m3p2i.bench import (
     FIELDS,
     BenchOptions,
@@ -432,7 +433,7 @@ def test_bench_modes_are_checked_and_recorded(tmp_path):
     }
 
 
-def test_bench_faults_and_compensation_are_checked_and_reach_the_processes(tmp_path):
+def test_bench_faults_and_compensation_are_checked_and_reach_the_processes(tmp_path, monkeypatch):
     (tmp_path / "slow.yaml").write_text("actuation_delay_ms: 40\n")
     path = write_bench(
         tmp_path,
@@ -454,7 +455,7 @@ def test_bench_faults_and_compensation_are_checked_and_reach_the_processes(tmp_p
         ({"faults": "office"}, "faults", "neither a profile nor a file"),
         ({"compensate": True}, "compensate", "no delay to compensate"),
         ({"faults": "lab", "compensate": "yes"}, "compensate", "wrong type"),
-        ({"compensate": "estimate"}, "compensate", "no delay to compensate"),
+        ({"compensate": "measure"}, "compensate", "no delay to compensate"),
     ]:
         path = write_bench(tmp_path, [{"case": "c", "scenario": "navigation", "trials": 1, **case}])
         with pytest.raises(ConfigError, match=message) as err:
@@ -493,11 +494,16 @@ def test_bench_faults_and_compensation_are_checked_and_reach_the_processes(tmp_p
                 "scenario": "navigation",
                 "trials": 1,
                 "faults": "lab",
-                "compensate": "estimate",
+                "compensate": "measure",
             }
         ],
     )
     (f,) = load_bench(path).cases
+    old = path.read_text().replace("compensate: measure", "compensate: estimate")
+    path.write_text(old)  # the old spelling: the same case, and a warning naming the new one
+    monkeypatch.setattr(shared.config, "_WARNED", set())  # each old spelling is warned of once
+    with pytest.warns(FutureWarning, match="write compensate: measure"):
+        assert load_bench(path).cases == (f,)
     assert f.measure_delays and f.delays is None and f.mode_label.endswith("delays estimated")
     assert (
         "--measure-delays"

@@ -120,18 +120,20 @@ def test_the_old_names_hardware_and_dash_dash_hardware_mean_faults(tmp_path, mon
     # over a base: each file's old name is read as the new one before they merge
     (tmp_path / "base.yaml").write_text("base: push\nname: base\nhardware: {profile: lab}\n")
     (tmp_path / "mine.yaml").write_text("base: base.yaml\nname: mine\nfaults: {drop_rate: 0.3}\n")
-    assert load_scenario(tmp_path / "mine.yaml").faults == dataclasses.replace(
-        PROFILES["lab"], drop_rate=0.3
-    )
+    with pytest.warns(FutureWarning, match=r"hardware: \(in .*base.yaml\)"):
+        mine = load_scenario(tmp_path / "mine.yaml")
+    assert mine.faults == dataclasses.replace(PROFILES["lab"], drop_rate=0.3)
     f = tmp_path / "old.yaml"
     f.write_text("hardware: harsh\n")  # a faults file under the old key
-    assert load_faults(str(f)) is PROFILES["harsh"]
+    with pytest.warns(FutureWarning, match=r"hardware: \(in .*old.yaml\)"):
+        assert load_faults(str(f)) is PROFILES["harsh"]
     # a bench case's hardware:
     bench = tmp_path / "bench.yaml"
     case = {"case": "a", "scenario": "navigation", "trials": 1, "compensate": True}
-    cases = []
-    for key in ("faults", "hardware"):
-        bench.write_text(yaml.safe_dump({"cases": [{**case, key: "lab"}]}))
+    bench.write_text(yaml.safe_dump({"cases": [{**case, "faults": "lab"}]}))
+    cases = [load_bench(bench).cases[0]]
+    bench.write_text(yaml.safe_dump({"cases": [{**case, "hardware": "lab"}]}))
+    with pytest.warns(FutureWarning, match=r"hardware: \(in .*bench.yaml\)"):
         cases.append(load_bench(bench).cases[0])
     assert cases[0] == cases[1] and cases[0].faults == "lab" and cases[0].delays == (25.0, 25.0)
     assert cases[0].mode_label == "lockstep, faults lab, compensated"

@@ -114,6 +114,7 @@ def test_m3p2i_check_refuses_non_finite_numbers_naming_file_and_key(tmp_path, ex
     assert f"{path}: {key}: must be a finite number" in result.output
 
 
+@pytest.mark.filterwarnings("ignore:hardware.*is deprecated:FutureWarning")  # test_faults.py's
 def test_the_loader_refuses_non_finite_numbers(tmp_path):
     from shared.config import ConfigError
     from shared.scenario import load_scenario
