@@ -1,6 +1,7 @@
 """What the three command-line programs share: the options they have in common (declared once
 here, as ``Annotated`` types; a command sets only the default), help text that typer's rich
-output can rewrap, logging, and the one-line summaries and error lines they print."""
+output can rewrap, logging, the one-line summaries and error lines they print, and the garbage
+collector turned back on after a process's start-up."""
 
 from __future__ import annotations
 
