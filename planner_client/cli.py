@@ -21,6 +21,7 @@ from shared.cli_common import (
     ScenarioOption,
     Verbose,
     collector_back,
+    keys_or_exit,
     print_errors,
     renamed,
     setup_logging,
@@ -28,7 +29,7 @@ from shared.cli_common import (
 from shared.config import ConfigError, ConfigErrors
 from shared.endpoints import DEFAULT_HOST, DEFAULT_PORT, Endpoints
 from shared.scenario import Scenario, load_scenario
-from shared.security import ExposureError, keys_for_cli, load_planner_keys
+from shared.security import load_planner_keys
 
 app = typer.Typer(add_completion=False)
 
@@ -185,7 +186,13 @@ def main(
     planner_keys = (
         None
         if check
-        else _security({"--host": host, "--diagnostics-host": diagnostics_host}, keys, insecure)
+        else keys_or_exit(
+            {"--host": host, "--diagnostics-host": diagnostics_host},
+            keys,
+            insecure,
+            load_planner_keys,
+            log.warning,
+        )
     )
     from planner_client.build import build_client
     from planner_client.mujoco_warnings import count_mujoco_warnings
@@ -330,16 +337,6 @@ def with_delays(sc, actuation_ms: float | None, state_ms: float | None, measure:
     if state_ms is not None:
         delays = dataclasses.replace(delays, state_ms=state_ms)
     return dataclasses.replace(sc, planner=dataclasses.replace(sc.planner, delays=delays))
-
-
-def _security(hosts: dict[str, str], keys: Path | None, insecure: bool):
-    """The planner's CURVE keys (None without --keys); exit 2 for a network address without keys
-    (unless --insecure: then a warning) or for keys that cannot be used."""
-    try:
-        return keys_for_cli(hosts, keys, insecure, load_planner_keys, log.warning)
-    except (ExposureError, ConfigError) as exc:
-        typer.echo(f"error: {exc}", err=True)
-        raise typer.Exit(2) from None
 
 
 def _await_go() -> None:

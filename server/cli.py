@@ -34,6 +34,7 @@ from shared.cli_common import (
     Window,
     collector_back,
     default_run_dir,
+    keys_or_exit,
     print_errors,
     renamed,
     setup_logging,
@@ -43,7 +44,7 @@ from shared.config import ConfigError
 from shared.endpoints import DEFAULT_HOST, DEFAULT_PORT, Endpoints
 from shared.scenario import load_scenario
 from shared.scenario.faults import load_faults
-from shared.security import ExposureError, keys_for_cli, load_world_keys
+from shared.security import load_world_keys
 
 app = typer.Typer(add_completion=False)
 
@@ -149,7 +150,11 @@ def main(
     if mode not in MODES:
         raise typer.BadParameter("must be 'lockstep' or 'realtime'", param_hint="--mode")
     # before anything else: an exposed robot is refused at once (--check checks no keys)
-    world_keys = None if check else _security({"--host": host}, keys, insecure)
+    world_keys = (
+        None
+        if check
+        else keys_or_exit({"--host": host}, keys, insecure, load_world_keys, log.warning)
+    )
     world_class, fault_config = _checked_or_exit(scenario, world, faults, check)
     _serving_or_exit(keep_serving, log_file, window)
     sc = load_scenario(scenario)
@@ -271,16 +276,6 @@ def frame_viewer(viewer, model, data) -> None:
         # fit them all still shows every geom
         viewer.cam.distance = 0.75 * radius / math.sin(half_fov)
         viewer.cam.azimuth, viewer.cam.elevation = 150.0, -30.0
-
-
-def _security(hosts: dict[str, str], keys: Path | None, insecure: bool):
-    """The world's CURVE keys (None without --keys); exit 2 for a network address without keys
-    (unless --insecure: then a warning) or for keys that cannot be used."""
-    try:
-        return keys_for_cli(hosts, keys, insecure, load_world_keys, log.warning)
-    except (ExposureError, ConfigError) as exc:
-        typer.echo(f"error: {exc}", err=True)
-        raise typer.Exit(2) from None
 
 
 def scene_framing(model: mujoco.MjModel, data: mujoco.MjData) -> tuple[np.ndarray, float]:

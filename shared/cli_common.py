@@ -15,7 +15,7 @@ from typing import Annotated
 import typer
 from rich.logging import RichHandler
 
-from shared.config import deprecated
+from shared.config import ConfigError, deprecated
 from shared.scenario.faults import PROFILES
 
 # --- options shared by m3p2i-server, m3p2i-planner and m3p2i's commands --------------------
@@ -174,6 +174,19 @@ def collector_back() -> None:
     if not gc.isenabled():
         gc.freeze()
         gc.enable()
+
+
+def keys_or_exit(hosts: dict[str, str], keys: Path | None, insecure: bool, load, warn):
+    """A process's CURVE keys, loaded with ``load`` (None without ``--keys``); exit 2 for a
+    network address without keys (unless ``--insecure``: then ``warn`` is given the warning)
+    or for keys that cannot be used (:func:`shared.security.keys_for_cli`)."""
+    from shared.security import ExposureError, keys_for_cli  # zmq.auth: not for m3p2i
+
+    try:
+        return keys_for_cli(hosts, keys, insecure, load, warn)
+    except (ExposureError, ConfigError) as exc:
+        typer.echo(f"error: {exc}", err=True)
+        raise typer.Exit(2) from None
 
 
 def setup_logging(verbose: bool, name: str) -> None:
