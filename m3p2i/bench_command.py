@@ -177,6 +177,7 @@ def run_bench(req: BenchRequest) -> None:
     from rich.console import Console
 
     from m3p2i import bench as B
+    from m3p2i import bench_report as R
 
     # piped or logged output gets the whole table instead of 80 columns of wrapped cells
     console = Console(width=None if sys.stdout.isatty() else 200)
@@ -215,12 +216,14 @@ def run_bench(req: BenchRequest) -> None:
         f"(time-out {opts.timeout:.0f} s each)"
     )
     finished = _run(req, todo, opts, results, console)
-    _summarize(req, plan, planned, results, console, write=not req.cases)
+    rows, table = _table(plan, planned, results)
+    title = f"m3p2i bench {Path(plan.cfg.source).stem}{' --quick' if req.quick else ''}"
+    console.print(R.rich_table(table, title))
     if req.cases:
         # the folder's summary.md covers every case of the bench file, not only those just run
-        whole = _read(replace(req, cases=None))
-        _summarize(req, whole, B.plan_trials(whole.ready, whole.cfg, opts, done)[0], results)
-        console.print(f"summary of every case: {plan.out_dir / 'summary.md'}")
+        plan = _read(replace(req, cases=None))
+        rows, table = _table(plan, B.plan_trials(plan.ready, plan.cfg, opts, done)[0], results)
+    _write_summary(plan, rows, table, title, results, console)
     if not finished:
         console.print("interrupted: finished trials are kept; run the same command to resume")
         raise typer.Exit(130)
@@ -305,29 +308,28 @@ def _run(req: BenchRequest, todo: list, opts, results, console) -> bool:
         return B.run_trials(todo, opts, results, on_done=done)
 
 
-def _summarize(
-    req: BenchRequest, plan: _Plan, planned: list, results, console=None, write: bool = True
-) -> None:
-    """The table of the planned trials' newest rows, printed (with a ``console``) and written
-    to OUT/summary.md (``write``; with a sweep, one table and one plot per swept key)."""
+def _table(plan: _Plan, planned: list, results) -> tuple[list[dict], list]:
+    """The planned trials' newest rows and their summary table (a sweep's variants are rows
+    of their own: "push (samples=50)")."""
     from m3p2i import bench as B
     from m3p2i import bench_report as R
     from m3p2i import sweep as S
 
     keys = {B.trial_key(t.case.case, t.seed, t.scenario.hash) for t in planned}
     rows = B.latest_rows(results.rows(), keys)
-    # a sweep's variants are rows of their own: "push (samples=50)"
     labelled = [{**r, "case": S.variant_case(r)} for r in rows]
     order = [
         S.variant_case({"case": rc.case.case, "overrides": S.to_cell(rc.overrides)})
         for rc in plan.ready
     ]
-    table = R.table_rows(R.summarize(labelled, order), plan.paper)
-    title = f"m3p2i bench {Path(plan.cfg.source).stem}{' --quick' if req.quick else ''}"
-    if console is not None:
-        console.print(R.rich_table(table, title))
-    if not write:
-        return
+    return rows, R.table_rows(R.summarize(labelled, order), plan.paper)
+
+
+def _write_summary(plan: _Plan, rows: list[dict], table: list, title: str, results, console):
+    """OUT/summary.md: the table (with a sweep, one table and one plot per swept key)."""
+    from m3p2i import bench_report as R
+    from m3p2i import sweep as S
+
     header = (
         f"# {title}\n\n{time.strftime('%Y-%m-%d %H:%M')}, {os.cpu_count()} cores; "
         f"results: `{results.path}`"
@@ -335,14 +337,15 @@ def _summarize(
     out_dir = plan.out_dir
     out_dir.mkdir(parents=True, exist_ok=True)
     text = R.markdown_report(table, [(s.case.case, s.reason) for s in plan.skipped], header)
-    say = console.print if console is not None else (lambda *a, **k: None)
     if plan.swept.keys:
         text += "\n" + S.sweep_report(rows)
-        say(S.sweep_report(rows), markup=False)
+        console.print(S.sweep_report(rows), markup=False)
         try:
             for path in S.plot_sweep(rows, out_dir):
-                say(f"plot: {path}")
+                console.print(f"plot: {path}")
         except ImportError:
-            say("[yellow]no sweep plot[/]: it needs matplotlib: pip install 'm3p2i[plots]'")
+            console.print(
+                "[yellow]no sweep plot[/]: it needs matplotlib: pip install 'm3p2i[plots]'"
+            )
     (out_dir / "summary.md").write_text(text)
-    say(f"summary: {out_dir / 'summary.md'}")
+    console.print(f"summary: {out_dir / 'summary.md'}")
