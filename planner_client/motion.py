@@ -94,6 +94,7 @@ class MotionPlanner:
         )
         self.modes = list(modes)
         self._shared = self._shared_terms()
+        self._read_sensors()
         self._step_costs: torch.Tensor | None = None
         self._generation = 0  # iterations so far (Iteration.top)
         # the planning model's timestep is fixed once built (timing.predict changes it only
@@ -117,6 +118,7 @@ class MotionPlanner:
             self.mppi.set_modes([self._mode(m) for m in modes])
             self.modes = list(modes)
             self._shared = self._shared_terms()
+            self._read_sensors()
 
     def set_samples(self, samples: int) -> None:
         """Roll out ``samples`` per mode from the next iteration on (the anytime planner:
@@ -151,6 +153,13 @@ class MotionPlanner:
             {wt.term.key: wt.term for wt in self.problem.objectives[m].terms} for m in self.modes
         ]
         return [term for key, term in keys[0].items() if all(key in k for k in keys[1:])]
+
+    def _read_sensors(self) -> None:
+        """Tell the backend which sensors the modes' objectives read, with the robot's position
+        (the diagnostics' trajectories): the others need not be computed in the rollouts."""
+        p = self.problem
+        read = {p.robot_pos, *(r for m in self.modes for r in p.objectives[m].sensors())}
+        self.engine.read_sensors(np.array(sorted(p.model.sensor(r.name).id for r in read)))
 
     def iterate(self, x0: np.ndarray, mocap: MocapState | None = None) -> Iteration:
         """One iteration from the full physics state ``x0 [nstate]`` and the mocap bodies'

@@ -13,6 +13,8 @@ import mujoco
 import numpy as np
 from mujoco import rollout as mj_rollout
 
+from planner_client.sensors import SensorSwitch
+
 
 class RolloutEngine:
     """Runs ``[S, T, nu]`` controls from one state; returns ``sensordata [S, T, nsensordata]``
@@ -37,6 +39,8 @@ class RolloutEngine:
         self._mocap_bodies = bodies[np.argsort(model.body_mocapid[bodies])]  # of mocap 0, 1, ...
         self._shape: tuple[int, int] | None = None
         self._variants: list[mujoco.MjModel] | None = None  # set_models: a model per rollout
+        self._switch = SensorSwitch(model)
+        self._read: np.ndarray | None = None  # the sensors computed (ids); None: all
 
     def _buffers(self, samples: int, horizon: int) -> None:
         if self._shape == (samples, horizon):
@@ -55,6 +59,21 @@ class RolloutEngine:
         ``mujoco.rollout`` takes a sequence); its length is the number of rollouts a
         :meth:`run` must have. None: the planner's model for every rollout."""
         self._variants = None if models is None else list(models)
+        self._switch.only(self._models_rolled_out(), self._read)
+
+    def read_sensors(self, read: np.ndarray | None) -> None:
+        """Compute only the sensors ``read`` (ids in the model) in the rollouts from now on,
+        the others' columns of sensordata left meaningless (:class:`SensorSwitch`); None: all.
+        The model is the planner's own, so its other users (the mirror, the prediction of the
+        start state) compute only these too: none of them reads sensors."""
+        self._read = read
+        self._switch.only(self._models_rolled_out(), read)
+
+    def _models_rolled_out(self) -> list[mujoco.MjModel]:
+        """The model, and each distinct variant of :meth:`set_models`."""
+        unique = {id(m): m for m in self._variants or ()}
+        unique[id(self.model)] = self.model
+        return list(unique.values())
 
     def set_mocap(self, pos: np.ndarray, quat: np.ndarray) -> None:
         """Mocap poses [nmocap, 3], [nmocap, 4] to start every rollout from.

@@ -39,6 +39,10 @@ class RolloutBackend(Protocol):
         ``sensordata [S, T, nsensordata]`` after each step (as ``mujoco.rollout`` records it).
         With ``mocap_path [T, nmocap, 3]`` the mocap bodies are placed there at each step."""
 
+    def read_sensors(self, read: np.ndarray | None) -> None:
+        """Only the sensors ``read`` (ids in the model) need to be right in the sensordata of
+        the next rollouts (None: all): a backend may skip computing the others."""
+
     def close(self) -> None:
         """Release threads and device memory."""
 

@@ -171,6 +171,10 @@ class WarpBackend:
         self._mocap_pos = torch.as_tensor(pos, dtype=torch.float32)
         self._mocap_quat = torch.as_tensor(quat, dtype=torch.float32)
 
+    def read_sensors(self, read: np.ndarray | None) -> None:
+        """Every sensor stays computed: the model is on the device as put at construction, and
+        its sensors run in parallel there."""
+
     # -- rollouts ----------------------------------------------------------------------------
 
     def _start(self, w: _Worlds, x0: np.ndarray) -> None:
