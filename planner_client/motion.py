@@ -156,9 +156,11 @@ class MotionPlanner:
 
     def _read_sensors(self) -> None:
         """Tell the backend which sensors the modes' objectives read, with the robot's position
-        (the diagnostics' trajectories): the others need not be computed in the rollouts."""
+        (the diagnostics' trajectories) and the problem's extra sensors: the others need not be
+        computed in the rollouts."""
         p = self.problem
-        read = {p.robot_pos, *(r for m in self.modes for r in p.objectives[m].sensors())}
+        modes_read = (r for m in self.modes for r in p.objectives[m].sensors())
+        read = {p.robot_pos, *p.extra_sensors, *modes_read}
         self.engine.read_sensors(np.array(sorted(p.model.sensor(r.name).id for r in read)))
 
     def iterate(self, x0: np.ndarray, mocap: MocapState | None = None) -> Iteration:

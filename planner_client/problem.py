@@ -45,6 +45,8 @@ class PlanningProblem:
     guide: GuideState | None = None  # the scenario's guide: its path and sub-goal site
     # the planner's map as its terms and guide read it: connect the map updater to it
     field_source: FieldSlot = field(default_factory=FieldSlot)
+    # sensors no objective lists, read by their caller: computed in every rollout
+    extra_sensors: tuple[SensorRequest, ...] = ()
 
 
 def robot_joints(scenario: Scenario, model: mujoco.MjModel) -> dict[str, JointInfo]:
@@ -68,7 +70,8 @@ def robot_joints(scenario: Scenario, model: mujoco.MjModel) -> dict[str, JointIn
 def build_problem(scenario: Scenario, extra_sensors: list[SensorRequest] = ()) -> PlanningProblem:
     """The planner's model of ``scenario`` and its objectives, its perceived objects left out
     (:func:`planner_scenario`: only the scans show them); ``problem.scenario`` is
-    that view of the scenario."""
+    that view of the scenario. ``extra_sensors``: sensors no objective lists, for a caller that
+    reads the rollouts' sensordata itself; a :class:`MotionPlanner` computes them too."""
     scenario = planner_scenario(scenario)
     robot = scenario.robot.spec
     spec = build_spec(scenario)
@@ -107,6 +110,7 @@ def build_problem(scenario: Scenario, extra_sensors: list[SensorRequest] = ()) -
         FrameResolver(model, robot.frame),
         guide,
         field_source,
+        tuple(extra_sensors),
     )
 
 

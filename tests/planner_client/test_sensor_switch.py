@@ -13,8 +13,10 @@ import torch
 from planner_client.build import build_controller
 from planner_client.costs import RolloutBatch
 from planner_client.model_state import get_full_state
-from planner_client.problem import build_problem
+from planner_client.motion import MotionPlanner
+from planner_client.problem import build_problem, mppi_config
 from planner_client.rollout import RolloutEngine
+from planner_client.sensors import SensorRequest
 from shared.scenario import load_scenario
 from shared.scene import initial_data
 
@@ -93,6 +95,19 @@ def test_the_planner_computes_the_sensors_of_its_modes_and_changes_them_with_the
             assert len(read) < model.nsensor
     finally:
         controller.close()
+
+
+def test_the_planner_computes_the_extra_sensors_of_its_problem():
+    sc = load_scenario("pick_place")
+    extra = SensorRequest("jointvel", "panda_joint2")  # no objective of pick_place reads it
+    problem = build_problem(sc, extra_sensors=[extra])
+    assert extra not in {r for o in problem.objectives.values() for r in o.sensors()}
+    motion = MotionPlanner(problem, mppi_config(sc, problem.model), 40, ["reach"], nthread=1)
+    try:
+        sensor = problem.model.sensor(extra.name)
+        assert sensor.type[0] == int(mujoco.mjtSensor.mjSENS_JOINTVEL)
+    finally:
+        motion.close()
 
 
 def motion_sensors(problem, modes):
