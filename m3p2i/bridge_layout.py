@@ -21,7 +21,7 @@ import mujoco
 
 from planner_client.problem import planner_scenario
 from shared.scenario import Scenario
-from shared.scenario.sensors import LidarConfig
+from shared.scenario.sensors import LidarConfig, SensorConfig
 from shared.scene import WALL_NAMES, StateSizes, compile_model
 
 _FREE, _BALL, _SLIDE, _HINGE = (
@@ -234,18 +234,6 @@ def bridge_layout(scenario: Scenario, model: mujoco.MjModel | None = None) -> Br
         )
         for a in range(model.nu)
     )
-    extras = ()
-    if scenario.world.battery:
-        b = scenario.world.battery
-        extras = (
-            Extra(
-                "battery",
-                "%",
-                (0.0, 100.0),
-                f"charge level: rises by {b.rate:g} %/s within {b.radius:g} m (xy) of "
-                f"{b.charger!r}, else falls by as much; starts at {b.initial:g}",
-            ),
-        )
     return BridgeLayout(
         team=_team(scenario, model),
         scenario=scenario.name,
@@ -259,21 +247,34 @@ def bridge_layout(scenario: Scenario, model: mujoco.MjModel | None = None) -> Br
         act=act,
         mocap=tuple(mocap),
         ctrl=ctrl,
-        extras=extras,
-        sensors=tuple(
-            Sensor(
-                c.name,
-                c.kind,
-                (c.rays,) if isinstance(c, LidarConfig) else (c.height, c.width),
-                c.rate,
-                c.frame,
-                c.pos,
-                c.range,
-                c.fov if isinstance(c, LidarConfig) else c.fovy,
-            )
-            for c in scenario.sensors
-        ),
+        extras=_extras(scenario),
+        sensors=tuple(_sensor(c) for c in scenario.sensors),
         perceived=tuple(o.name for o in scenario.world.objects if o.perceived),
+    )
+
+
+def _extras(scenario: Scenario) -> tuple[Extra, ...]:
+    """The state's extras beside the physics: the battery's charge, where the world has one."""
+    b = scenario.world.battery
+    if not b:
+        return ()
+    return (
+        Extra(
+            "battery",
+            "%",
+            (0.0, 100.0),
+            f"charge level: rises by {b.rate:g} %/s within {b.radius:g} m (xy) of "
+            f"{b.charger!r}, else falls by as much; starts at {b.initial:g}",
+        ),
+    )
+
+
+def _sensor(c: SensorConfig) -> Sensor:
+    """A scenario sensor as the layout lists it: its reading's shape and field of view."""
+    lidar = isinstance(c, LidarConfig)
+    shape = (c.rays,) if lidar else (c.height, c.width)
+    return Sensor(
+        c.name, c.kind, shape, c.rate, c.frame, c.pos, c.range, c.fov if lidar else c.fovy
     )
 
 

@@ -257,14 +257,7 @@ def _read(
     world = errors.call(lambda: read_world(top.section("world"), errors))
     model_ok = len(errors.errors) == n_before
     sensors = read_sensors(top, errors)
-    episode = errors.call(lambda: read_episode(top.section("episode"), errors))
-    metrics = MetricsConfig()
-    if episode is not None:
-        metrics = errors.call(
-            lambda: read_metrics(top.section("metrics", required=False), episode), default=metrics
-        )
-    else:
-        top.section("metrics", required=False)
+    episode, metrics = _read_episode(top, errors)
     planner = errors.call(
         lambda: read_planner(top.section("planner", required=False)), default=PlannerConfig()
     )
@@ -272,14 +265,7 @@ def _read(
     faults = NOMINAL
     if top.has("faults"):  # a profile's name or a mapping
         faults = errors.call(parse_faults, top.opt("faults", None), source, default=NOMINAL)
-    plugins = errors.call(
-        top.opt,
-        "plugins",
-        (),
-        string_list,
-        "a list of Python modules: NAME.py beside the scenario, or importable module names",
-        default=(),
-    )
+    plugins = _read_plugins(top, errors)
     library, included = read_includes(top, errors)
     objectives = errors.call(
         lambda: read_objectives(top.section("objectives"), errors, library), default={}
@@ -325,6 +311,32 @@ def _read(
     if team and member is None:
         scenario.members.update(_read_members(raw, source, scenario, errors))
     return ScenarioReading(scenario, errors.errors, model_ok)
+
+
+def _read_episode(top: Section, errors: ErrorLog) -> tuple[EpisodeConfig | None, MetricsConfig]:
+    """The ``episode`` section and the ``metrics`` that depend on it (skipped, not reported
+    again, when the episode is faulty)."""
+    episode = errors.call(lambda: read_episode(top.section("episode"), errors))
+    if episode is None:
+        top.section("metrics", required=False)
+        return None, MetricsConfig()
+    metrics = errors.call(
+        lambda: read_metrics(top.section("metrics", required=False), episode),
+        default=MetricsConfig(),
+    )
+    return episode, metrics
+
+
+def _read_plugins(top: Section, errors: ErrorLog) -> tuple[str, ...]:
+    """The ``plugins`` list: the modules a scenario's own cost terms live in."""
+    return errors.call(
+        top.opt,
+        "plugins",
+        (),
+        string_list,
+        "a list of Python modules: NAME.py beside the scenario, or importable module names",
+        default=(),
+    )
 
 
 def _read_members(raw: dict, source: str, top: Scenario, errors: ErrorLog) -> dict:
