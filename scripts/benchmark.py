@@ -284,7 +284,7 @@ def measure(
             for i in range(rounds):
                 bench.run_round(pool)
                 if i == 0:  # the split over warm iterations only, as the medians
-                    bench.planner.phases.reset()
+                    bench.planner.phases.keep()
     finally:
         controller.close()
     return _row(scenario, bench, nthread, backend, device)
@@ -311,7 +311,7 @@ def _row(scenario: Scenario, bench: _Bench, nthread: int, backend: str, device: 
         "threads": nthread,
         "backend": backend,
         "device": device if backend == "warp" else "cpu",
-        "phases_ms": {k: round(v, 4) for k, v in bench.planner.phases.per_step_ms().items()},
+        "phases_ms": {k: round(v, 4) for k, v in bench.planner.phases.median_ms().items()},
         **_map_figures(scenario, bench),
     }
 

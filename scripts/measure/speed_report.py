@@ -95,7 +95,7 @@ def perception(results: dict) -> list[str]:
 
 def phase_split(results: dict) -> list[str]:
     """Where an iteration's time goes (``phases_ms``): per case the median over the runs of
-    each phase's mean ms per iteration, and its share of their sum; no lines for a file
+    each phase's median ms per iteration, and its share of their sum; no lines for a file
     without the split."""
     cases: dict[str, list[dict]] = {}
     for row in results["rows"]:
