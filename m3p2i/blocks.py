@@ -5,16 +5,39 @@ each own one tag."""
 
 from __future__ import annotations
 
+import json
 import re
 from collections.abc import Callable
+from pathlib import Path
+
+import typer
 
 
-def regenerate(text: str, tag: str, end: str, render: Callable[[str], str]) -> tuple[str, int]:
+def regenerate(
+    text: str, tag: str, end: str, render: Callable[[str], str | None]
+) -> tuple[str, int]:
     """``text`` with the body of every ``<!-- TAG ARGS -->`` block up to its ``<!-- end of
-    END -->`` replaced by ``render(ARGS)`` (stripped), and how many blocks there were."""
+    END -->`` replaced by ``render(ARGS)`` (stripped; None keeps the body), and how many
+    blocks there were."""
     pattern = re.compile(
         rf"(<!-- {re.escape(tag)} (?P<args>[^>]*?) -->\n)(?P<body>.*?)"
         rf"(<!-- end of {re.escape(end)} -->)",
         re.S,
     )
-    return pattern.subn(lambda m: m.group(1) + render(m["args"].strip()) + m.group(4), text)
+
+    def block(m: re.Match) -> str:
+        body = render(m["args"].strip())
+        return m.group(1) + (m["body"] if body is None else body) + m.group(4)
+
+    return pattern.subn(block, text)
+
+
+def read_results(path: Path, what: str) -> dict:
+    """The JSON results file ``path`` (``what``: where it was named, for the message), or a
+    ``typer.BadParameter`` that names it and says what was expected."""
+    try:
+        return json.loads(path.read_text(encoding="utf-8"))
+    except FileNotFoundError:
+        raise typer.BadParameter(f"{what}: no file {path} (expected a results file)") from None
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise typer.BadParameter(f"{what}: {path} is not a JSON results file ({exc})") from None

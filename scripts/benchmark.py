@@ -31,8 +31,9 @@ MJWarp's kernels (minutes on a CPU; cached in ~/.cache/warp); untimed warm-up ca
 
 ``--runs N`` repeats the whole measurement (the spread between runs is machine noise: other
 processes, frequency scaling); ``--out FILE`` keeps every row with the command, date and
-machine, and ``--report FILE --update docs/speed.md`` regenerates that file's
-``<!-- benchmark PATH -->`` blocks (median and range over the runs) from it:
+machine, and ``--report FILE --update docs/speed.md`` regenerates the ``<!-- benchmark PATH
+-->`` blocks of docs/speed.md that name FILE (median and range over the runs); ``--report FILE``
+alone prints its tables:
 
     python scripts/benchmark.py --runs 5 --out docs/speed/benchmark.json
     python scripts/benchmark.py --report docs/speed/benchmark.json --update docs/speed.md
@@ -58,6 +59,7 @@ from mujoco import rollout as mj_rollout
 from rich.console import Console
 from rich.table import Table
 
+from m3p2i.blocks import read_results
 from m3p2i.provenance import machine, versions
 from measure.speed_report import update
 from planner_client.build import build_controller
@@ -368,13 +370,17 @@ Report = Annotated[
     Path | None,
     typer.Option(
         help="Measure nothing: regenerate the "
-        "'<!-- benchmark PATH -->' blocks of --update from "
-        "the results files they name.",
+        "'<!-- benchmark PATH -->' blocks of --update that name this results file "
+        "(without --update: print its tables).",
     ),
 ]
 UpdateFile = Annotated[
     Path | None,
-    typer.Option("--update", help="Markdown file whose benchmark blocks --report regenerates."),
+    typer.Option(
+        "--update",
+        help="Markdown file whose benchmark blocks are regenerated from the results files "
+        "they name (with --report: only the blocks naming it).",
+    ),
 ]
 
 
@@ -410,7 +416,7 @@ def main(
     update_file: UpdateFile = None,
 ) -> None:
     if report is not None or update_file is not None:
-        _regenerate(update_file)
+        _regenerate_or_show(report, update_file)
         return
     opts = Options(
         scenarios=scenario,
@@ -430,15 +436,28 @@ def main(
     if out is not None:
         _save(out, rows, opts)
     if not as_json:
-        _print_table(rows, opts)
+        where = (
+            f"{opts.backend} backend on {opts.device}"
+            if opts.backend == "warp"
+            else f"{opts.nthread} rollout threads"
+        )
+        _print_table(rows, f"planner speed ({where}, median of {opts.iterations})")
 
 
-def _regenerate(update_file: Path | None) -> None:
-    """--report: regenerate the benchmark blocks of ``update_file`` from the results files
-    they name."""
+def _regenerate_or_show(report: Path | None, update_file: Path | None) -> None:
+    """No run: --update's benchmark blocks regenerated (with --report, those that name it),
+    or without --update, --report's tables printed."""
     if update_file is None:
-        raise typer.BadParameter("--report needs --update FILE", param_hint="--update")
-    update_file.write_text(update(update_file.read_text(), update_file.parent))
+        results = read_results(report, "--report")
+        _print_table(results["rows"], f"{report}: {results.get('command', '')}")
+        return
+    try:
+        text = update_file.read_text(encoding="utf-8")
+    except OSError as exc:
+        raise typer.BadParameter(
+            f"cannot read {update_file}: {exc}", param_hint="--update"
+        ) from None
+    update_file.write_text(update(text, update_file.parent, report), encoding="utf-8")
     typer.echo(f"updated {update_file}")
 
 
@@ -503,14 +522,9 @@ def _save(out: Path, rows: list[dict], opts: Options) -> None:
     typer.echo(f"results: {out}")
 
 
-def _print_table(rows: list[dict], opts: Options) -> None:
-    """The rows as a table on the terminal."""
-    where = (
-        f"{opts.backend} backend on {opts.device}"
-        if opts.backend == "warp"
-        else f"{opts.nthread} rollout threads"
-    )
-    table = Table(title=f"planner speed ({where}, median of {opts.iterations})")
+def _print_table(rows: list[dict], title: str) -> None:
+    """The rows as tables on the terminal: the speeds, then the split by phase."""
+    table = Table(title=title)
     for col in (
         "scenario",
         "samples x horizon",
@@ -538,7 +552,7 @@ def _print_table(rows: list[dict], opts: Options) -> None:
             f"{r['ratio_to_sensor_rollout']:.2f}",
         )
     Console().print(table)
-    split = Table(title="where an iteration's time goes (mean ms per iteration)")
+    split = Table(title="where an iteration's time goes (median ms per phase)")
     phases = list(dict.fromkeys(p for r in rows for p in r.get("phases_ms", {})))
     for col in ("scenario", *phases):
         split.add_column(col, justify="right")

@@ -4,7 +4,6 @@ memory), and the reliability table of docs/reliability.md regenerated from a res
 
 from __future__ import annotations
 
-import json
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -13,7 +12,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 import typer
 
-from m3p2i.blocks import regenerate
+from m3p2i.blocks import read_results, regenerate
 
 if TYPE_CHECKING:
     from .soak import Fault, SoakConfig
@@ -263,7 +262,7 @@ def update(text: str, base: Path) -> str:
         text,
         "soak",
         "soak",
-        lambda path: markdown(json.loads((base / path).read_text()), path) + "\n",
+        lambda path: markdown(read_results(base / path, f"<!-- soak {path} -->"), path) + "\n",
     )
     if not n:
         raise typer.BadParameter(

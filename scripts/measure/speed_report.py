@@ -1,17 +1,16 @@
 """The speed table of docs/speed.md: ``python scripts/benchmark.py --report FILE --update
-docs/speed.md`` regenerates its ``<!-- benchmark PATH -->`` blocks from the results files that
-``scripts/benchmark.py --out`` writes (median and range over the runs), so the table is never
-typed by hand."""
+docs/speed.md`` regenerates its ``<!-- benchmark PATH -->`` blocks that name FILE (without
+``--report``: every block) from the results files that ``scripts/benchmark.py --out`` writes
+(median and range over the runs), so the table is never typed by hand."""
 
 from __future__ import annotations
 
-import json
 import statistics
 from pathlib import Path
 
 import typer
 
-from m3p2i.blocks import regenerate
+from m3p2i.blocks import read_results, regenerate
 
 
 def spread(values: list[float], digits: int) -> str:
@@ -117,18 +116,27 @@ def phase_split(results: dict) -> list[str]:
     return lines
 
 
-def update(text: str, base: Path) -> str:
+def update(text: str, base: Path, only: Path | None = None) -> str:
     """``text`` with every ``<!-- benchmark PATH -->`` block regenerated from its results file
-    (PATH relative to ``base``)."""
-    new, n = regenerate(
-        text,
-        "benchmark",
-        "benchmark",
-        lambda path: markdown(json.loads((base / path).read_text()), path) + "\n",
-    )
+    (PATH relative to ``base``); with ``only``, just the blocks that name that file."""
+    named: list[str] = []
+
+    def render(path: str) -> str | None:
+        named.append(path)
+        if only is not None and (base / path).resolve() != only.resolve():
+            return None
+        results = read_results(base / path, f"<!-- benchmark {path} -->")
+        return markdown(results, path) + "\n"
+
+    new, n = regenerate(text, "benchmark", "benchmark", render)
     if not n:
         raise typer.BadParameter(
             "no '<!-- benchmark PATH -->' ... '<!-- end of benchmark -->' block found",
             param_hint="--update",
+        )
+    if only is not None and all((base / p).resolve() != only.resolve() for p in named):
+        raise typer.BadParameter(
+            f"no block names {only} (its blocks name: {', '.join(named)}, relative to {base})",
+            param_hint="--report",
         )
     return new

@@ -5,11 +5,17 @@ changes nothing."""
 from __future__ import annotations
 
 import json
+import subprocess
+import sys
+from pathlib import Path
 
 import pytest
 import typer
 
 from scripts.measure import speed_report
+from tests.helpers import ENV
+
+ROOT = Path(__file__).resolve().parents[2]
 
 
 def _row(run: int, hz: float, ratio: float) -> dict:
@@ -23,6 +29,9 @@ def _row(run: int, hz: float, ratio: float) -> dict:
         "ratio_to_rollout": ratio / 3,
         "ratio_to_own_rollout": ratio,
         "ratio_to_sensor_rollout": ratio - 0.1,
+        "rollout_ms": 3000 / hz / ratio,
+        "own_rollout_ms": 1000 / hz / ratio,
+        "sensor_rollout_ms": 1000 / hz / (ratio - 0.1),
         "run": run,
     }
 
@@ -86,3 +95,52 @@ def test_the_phase_split_is_the_median_of_each_phase_and_its_share():
     text = speed_report.markdown({**results, "runs": 3, "rows": rows}, "x.json")
     assert "| scenario | mirror | rollout | costs |" in text
     assert "| `navigation` | 0.200 (4 %) | 4.000 (77 %) | 1.000 (19 %) |" in text
+
+
+def _results(hz: float) -> dict:
+    return {
+        **{"command": "c", "date": "d", "machine": "m", "threads": 2, "iterations": 200},
+        **{"runs": 1, "rows": [_row(0, hz, 1.3)]},
+    }
+
+
+def test_report_regenerates_only_the_blocks_that_name_it(tmp_path):
+    for name, hz in (("a.json", 100.0), ("b.json", 400.0)):
+        (tmp_path / name).write_text(json.dumps(_results(hz)))
+    doc = tmp_path / "doc.md"
+    doc.write_text(
+        "<!-- benchmark a.json -->\nold a\n<!-- end of benchmark -->\n"
+        "<!-- benchmark b.json -->\nold b\n<!-- end of benchmark -->\n"
+    )
+    new = speed_report.update(doc.read_text(), tmp_path, only=tmp_path / "b.json")
+    assert "old a" in new and "old b" not in new and "400.0" in new
+    with pytest.raises(typer.BadParameter, match=r"no block names .*c\.json.*a\.json, b\.json"):
+        speed_report.update(doc.read_text(), tmp_path, only=tmp_path / "c.json")
+    (tmp_path / "a.json").unlink()
+    with pytest.raises(typer.BadParameter, match=r"<!-- benchmark a\.json -->: no file .*a\.json"):
+        speed_report.update(doc.read_text(), tmp_path)
+    (tmp_path / "b.json").write_text("{not json")
+    with pytest.raises(typer.BadParameter, match=r"b\.json is not a JSON results file"):
+        speed_report.update(doc.read_text(), tmp_path, only=tmp_path / "b.json")
+
+
+def test_the_command_updates_from_report_and_prints_a_report_alone(tmp_path):
+    def benchmark(*args: str) -> subprocess.CompletedProcess:
+        script = ROOT / "scripts" / "benchmark.py"
+        env = {**ENV, "COLUMNS": "200"}
+        return subprocess.run(
+            [sys.executable, str(script), *args], capture_output=True, text=True, env=env
+        )
+
+    (tmp_path / "r.json").write_text(json.dumps(_results(250.0)))
+    doc = tmp_path / "doc.md"
+    doc.write_text("<!-- benchmark r.json -->\nold\n<!-- end of benchmark -->\n")
+    report = ["--report", str(tmp_path / "r.json")]
+    run = benchmark(*report, "--update", str(doc))
+    assert run.returncode == 0, run.stderr
+    assert "250.0" in doc.read_text() and "old" not in doc.read_text()
+    shown = benchmark(*report)
+    assert shown.returncode == 0, shown.stderr
+    assert "navigation" in shown.stdout and "250.0" in shown.stdout
+    missing = benchmark("--report", str(tmp_path / "none.json"))
+    assert missing.returncode == 2 and "no file" in missing.stderr
