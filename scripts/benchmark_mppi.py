@@ -30,7 +30,6 @@ from collections.abc import Callable
 from dataclasses import dataclass
 
 import torch
-from pytorch_mppi import MPPI as ArmMPPI
 from rich.console import Console
 from rich.table import Table
 
@@ -159,6 +158,8 @@ def ours(planner_of: Callable[[Task, int], object]):
 
 
 def arm(task: Task, seed: int):
+    from pytorch_mppi import MPPI as ArmMPPI  # checked by main()
+
     torch.manual_seed(seed)
     ctrl = ArmMPPI(
         task.dynamics,
@@ -342,6 +343,13 @@ def main() -> None:
     parser.add_argument("--seeds", type=int, default=5)
     parser.add_argument("--threads", type=int, default=1, help="torch intra-op threads")
     args = parser.parse_args()
+    try:
+        import pytorch_mppi  # noqa: F401
+    except ImportError:
+        raise SystemExit(
+            "error: this benchmark compares with pytorch_mppi, which is not installed: "
+            "pip install pytorch-mppi==0.9.1 (it keeps the installed torch)"
+        ) from None
     torch.set_num_threads(args.threads)
     console = Console(width=100)
     console.print(

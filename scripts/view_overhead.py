@@ -29,8 +29,11 @@ def run_once(scenario: str, view: bool, folder: Path) -> tuple[float, int, float
     if view:
         cmd.append("--view")
     started = time.monotonic()
-    subprocess.run(cmd, capture_output=True, text=True, timeout=1800)
+    run = subprocess.run(cmd, capture_output=True, text=True, timeout=1800)
     wall = time.monotonic() - started
+    if run.returncode not in (0, 1):  # 1: the episode ended unsuccessfully, its log is kept
+        tail = "\n".join((run.stdout + run.stderr).strip().splitlines()[-6:])
+        sys.exit(f"error: {' '.join(cmd[2:])} exited with code {run.returncode}:\n{tail}")
     summary = next(
         json.loads(line)
         for line in reversed((run_dir / "episode.jsonl").read_text().splitlines())
