@@ -28,6 +28,7 @@ from shared.cli_common import (
 )
 from shared.config import ConfigError, ConfigErrors
 from shared.endpoints import DEFAULT_HOST, DEFAULT_PORT, Endpoints
+from shared.protocol import MAX_SEED
 from shared.scenario import Scenario, load_scenario
 from shared.security import load_planner_keys
 
@@ -66,7 +67,10 @@ KeepRunning = Annotated[
     typer.Option(help="Keep planning across episodes instead of exiting when the episode ends."),
 ]
 SamplingSeed = Annotated[
-    int | None, typer.Option(help="Sampling seed (default: planner.mppi.seed of the scenario).")
+    int | None,
+    typer.Option(
+        min=0, max=MAX_SEED, help="Sampling seed (default: planner.mppi.seed of the scenario)."
+    ),
 ]
 Backend = Annotated[
     str | None,

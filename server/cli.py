@@ -42,6 +42,7 @@ from shared.cli_common import (
 )
 from shared.config import ConfigError
 from shared.endpoints import DEFAULT_HOST, DEFAULT_PORT, Endpoints
+from shared.protocol import MAX_SEED
 from shared.scenario import load_scenario
 from shared.scenario.faults import load_faults
 from shared.security import load_world_keys
@@ -105,6 +106,8 @@ CheckOnly = Annotated[
 WorldSeed = Annotated[
     int,
     typer.Option(
+        min=0,
+        max=MAX_SEED,
         help="Seed of the scenario's randomised start (world.randomize) and of the simulated "
         "faults (--faults).",
     ),

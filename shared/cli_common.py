@@ -16,6 +16,7 @@ import typer
 from rich.logging import RichHandler
 
 from shared.config import ConfigError, deprecated
+from shared.protocol import MAX_SEED
 from shared.scenario.faults import PROFILES
 
 # --- options shared by m3p2i-server, m3p2i-planner and m3p2i's commands --------------------
@@ -147,6 +148,8 @@ Seed = Annotated[
     int,
     typer.Option(
         "--seed",
+        min=0,
+        max=MAX_SEED,
         help="Seed of the episode: the world's randomised start (world.randomize) and the "
         "planner's sampling.",
     ),

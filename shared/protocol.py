@@ -43,6 +43,8 @@ MAX_WORLD_TIME = 1e9
 refused. A world's time counts from its episode's start; one near float64's top would make the
 planner's step counts (time / dt) overflow every integer."""
 
+MAX_SEED = 2**32 - 1  # an episode's seed (welcome.seed, a reset's control.seed)
+
 _DTYPES = {"<f8", "<f4", "<i4", "<i8", "|u1", "|b1"}
 _MAX_ARRAY_ELEMENTS = 4_000_000
 _MAX_ARRAY_DIMS = 4
@@ -684,7 +686,7 @@ def _check_welcome(msg: Welcome) -> None:
         raise ProtocolError(f"welcome.dt: {msg.dt} s (expected seconds in [{MIN_PLAN_DT}, 10])")
     if msg.nu < 0:
         raise ProtocolError(f"welcome.nu: {msg.nu} (expected >= 0)")
-    if msg.seed is not None and not 0 <= msg.seed < 2**32:
+    if msg.seed is not None and not 0 <= msg.seed <= MAX_SEED:
         raise ProtocolError(f"welcome.seed: {msg.seed} (expected 0 <= seed < 2**32)")
 
 
@@ -729,7 +731,7 @@ def _check_control(msg: Control) -> None:
         raise ProtocolError(f"control.op: {msg.op!r} (expected one of {sorted(_OPS)})")
     if msg.seed is not None and msg.op != "reset":
         raise ProtocolError(f"control.op {msg.op!r} takes no seed (only 'reset' does)")
-    if msg.seed is not None and not 0 <= msg.seed < 2**32:
+    if msg.seed is not None and not 0 <= msg.seed <= MAX_SEED:
         raise ProtocolError(f"control.seed: {msg.seed} (expected 0 <= seed < 2**32)")
     if msg.op != "move":
         extra = [n for n in ("object", "pos", "quat") if getattr(msg, n) is not None]

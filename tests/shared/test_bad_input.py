@@ -138,6 +138,29 @@ def test_m3p2i_run_refuses_an_infinite_delay_before_starting_anything(tmp_path):
     assert not run_dir.exists()
 
 
+@pytest.mark.parametrize("seed", ["-1", "4294967296"])
+@pytest.mark.parametrize("cli", ["m3p2i", "server", "planner"])
+def test_a_seed_the_wire_cannot_carry_is_refused_before_starting_anything(tmp_path, cli, seed):
+    """A seed travels in the welcome and a reset (0 <= seed < 2**32); a negative one crashed the
+    world's seeding after the launcher had started both processes."""
+    from typer.testing import CliRunner
+
+    from m3p2i.cli import app as m3p2i_app
+    from planner_client.cli import app as planner_app
+    from server.cli import app as server_app
+
+    run_dir = tmp_path / "run"
+    app, args = {
+        "m3p2i": (m3p2i_app, ["run", "navigation", "--run-dir", str(run_dir)]),
+        "server": (server_app, ["--scenario", "navigation", "--log", str(run_dir / "e.jsonl")]),
+        "planner": (planner_app, ["--scenario", "navigation"]),
+    }[cli]
+    result = CliRunner().invoke(app, [*args, "--seed", seed])
+    assert result.exit_code == 2, result.output
+    assert "--seed" in result.output
+    assert not run_dir.exists()
+
+
 # ---------------------------------------------------------------- 3: only the view's own page
 
 
