@@ -304,7 +304,11 @@ def run_episode(
                 out.close()
     if kept is not None:
         return kept
-    return EpisodeRun(log_path, read_summary(log_path), reason, time.monotonic() - started)
+    summary = read_summary(log_path)
+    if summary is None and not reason and "server" in procs:
+        # a world that failed before its episode began exits 1, as an episode's end does
+        reason = f"server exited with code {procs['server'].returncode} without an episode summary"
+    return EpisodeRun(log_path, summary, reason, time.monotonic() - started)
 
 
 def _start(launch: EpisodeLaunch, name: str, cmd: list[str], outs: dict, procs: dict) -> None:

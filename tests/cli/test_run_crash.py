@@ -89,6 +89,16 @@ def test_a_world_that_dies_is_named(tmp_path, monkeypatch):
     assert run.reason == "server exited with code 2" and L.died(run.reason) == "server"
 
 
+def test_a_world_that_fails_before_its_episode_is_named_though_it_exits_1(tmp_path, monkeypatch):
+    # exit 1 is also an episode's end: without a summary in the log it is the world's failure
+    world = "print('RuntimeError: no driver'); raise SystemExit(1)"
+    _fake(monkeypatch, world, "import time; time.sleep(120)")
+    run = L.run_episode(L.EpisodeLaunch(scenario="navigation", run_dir=tmp_path, timeout=60))
+    assert run.reason == "server exited with code 1 without an episode summary"
+    assert L.died(run.reason) == "server"
+    assert L.log_tail(tmp_path / "server.log") == ["RuntimeError: no driver"]
+
+
 def test_the_report_names_the_dead_process_and_its_log_tail(tmp_path, capsys):
     from m3p2i.cli import _report_run
 
