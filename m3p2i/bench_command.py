@@ -18,6 +18,7 @@ from m3p2i.cli_support import plugin_args, terminate_as_interrupt
 from m3p2i.process_checks import scenario_errors
 from shared.cli_common import Plugins
 from shared.config import ConfigError
+from shared.protocol import MAX_SEED
 
 if TYPE_CHECKING:  # the bench's modules load only when it runs: --help stays quick
     from m3p2i.bench import BenchConfig
@@ -49,10 +50,13 @@ Trials = Annotated[
 TrialTimeout = Annotated[
     float | None,
     typer.Option(
-        help="Wall-clock seconds per trial before both processes are killed (default: the file's)."
+        min=0.001,
+        help="Wall-clock seconds per trial before both processes are killed (default: the file's).",
     ),
 ]
-FirstSeed = Annotated[int, typer.Option(help="Seed of trial 0; trial i uses seed + i.")]
+FirstSeed = Annotated[
+    int, typer.Option(min=0, max=MAX_SEED, help="Seed of trial 0; trial i uses seed + i.")
+]
 Fresh = Annotated[
     bool,
     typer.Option(

@@ -39,6 +39,7 @@ from m3p2i.launch import (
 from m3p2i.new import new_scenario
 from server.evaluation.plan_ages import describe_timing
 from shared.cli_common import (
+    LAST_FIRST_PORT,
     Faults,
     Host,
     Keys,
@@ -154,7 +155,9 @@ PlannerMaxRate = Annotated[
 FirstPort = Annotated[
     int,
     typer.Option(
-        help="The world's first port, as m3p2i-server --port (0: pick a free block of ports)."
+        min=0,
+        max=LAST_FIRST_PORT,
+        help="The world's first port, as m3p2i-server --port (0: pick a free block of ports).",
     ),
 ]
 View = Annotated[
@@ -165,7 +168,9 @@ View = Annotated[
         "m3p2i\\[view].",
     ),
 ]
-ViewPort = Annotated[int, typer.Option(help="With --view: the page's port (0: a free one).")]
+ViewPort = Annotated[
+    int, typer.Option(min=0, max=65535, help="With --view: the page's port (0: a free one).")
+]
 ViewExit = Annotated[
     bool | None,
     typer.Option(
@@ -492,7 +497,9 @@ ReplayLog = Annotated[
         "metrics."
     ),
 ]
-PagePort = Annotated[int, typer.Option(help="Port of the page (the next free one if taken).")]
+PagePort = Annotated[
+    int, typer.Option(min=1, max=65535, help="Port of the page (the next free one if taken).")
+]
 Public = Annotated[
     bool,
     typer.Option(

@@ -24,7 +24,8 @@ RunDir = Annotated[
     typer.Option("--run-dir", help="Where the episode's logs go (default runs/<scenario>-<time>)."),
 ]
 Timeout = Annotated[
-    float, typer.Option("--timeout", help="Wall-clock seconds before the run is abandoned.")
+    float,
+    typer.Option("--timeout", min=0.001, help="Wall-clock seconds before the run is abandoned."),
 ]
 
 

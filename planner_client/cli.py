@@ -59,9 +59,13 @@ DiagnosticsHost = Annotated[
 ]
 Threads = Annotated[
     int,
-    typer.Option(help="Rollout threads (0: the scenario's planner.threads, else one per core)."),
+    typer.Option(
+        min=0, help="Rollout threads (0: the scenario's planner.threads, else one per core)."
+    ),
 ]
-ServerTimeout = Annotated[float, typer.Option(help="Seconds of silence before reconnecting.")]
+ServerTimeout = Annotated[
+    float, typer.Option(min=0.001, help="Seconds of silence before reconnecting.")
+]
 KeepRunning = Annotated[
     bool,
     typer.Option(help="Keep planning across episodes instead of exiting when the episode ends."),

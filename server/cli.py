@@ -75,7 +75,8 @@ LogFile = Annotated[
 CommandTimeout = Annotated[
     float,
     typer.Option(
-        help="realtime: seconds after which a missing command makes the robot hold still."
+        min=0.001,
+        help="realtime: seconds after which a missing command makes the robot hold still.",
     ),
 ]
 Republish = Annotated[

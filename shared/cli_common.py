@@ -33,10 +33,13 @@ Host = Annotated[
         "side) needs --keys (or, on m3p2i-server and m3p2i-planner, --insecure).",
     ),
 ]
+LAST_FIRST_PORT = 65535 - 3  # the world's ports are PORT..PORT+3
 Port = Annotated[
     int,
     typer.Option(
         "--port",
+        min=1,
+        max=LAST_FIRST_PORT,
         help="The world's first port: control; the state is published on PORT+1, "
         "commands arrive on PORT+2, the planner's diagnostics are on PORT+3.",
     ),

@@ -138,11 +138,28 @@ def test_m3p2i_run_refuses_an_infinite_delay_before_starting_anything(tmp_path):
     assert not run_dir.exists()
 
 
-@pytest.mark.parametrize("seed", ["-1", "4294967296"])
-@pytest.mark.parametrize("cli", ["m3p2i", "server", "planner"])
-def test_a_seed_the_wire_cannot_carry_is_refused_before_starting_anything(tmp_path, cli, seed):
-    """A seed travels in the welcome and a reset (0 <= seed < 2**32); a negative one crashed the
-    world's seeding after the launcher had started both processes."""
+OUT_OF_RANGE = [
+    ("m3p2i", "--seed", "-1"),
+    ("m3p2i", "--seed", "4294967296"),  # a seed travels in the welcome and a reset: < 2**32
+    ("server", "--seed", "-1"),
+    ("planner", "--seed", "4294967296"),
+    ("m3p2i", "--port", "65533"),  # the world's ports are PORT..PORT+3
+    ("server", "--port", "70000"),
+    ("planner", "--port", "0"),
+    ("m3p2i", "--timeout", "0"),
+    ("server", "--command-timeout", "-1"),
+    ("planner", "--threads", "-1"),
+    ("planner", "--server-timeout", "0"),
+]
+
+
+@pytest.mark.parametrize("cli, option, value", OUT_OF_RANGE)
+def test_an_option_out_of_its_range_is_refused_before_starting_anything(
+    tmp_path, cli, option, value
+):
+    """A negative seed crashed the world's seeding after the launcher had started both
+    processes; port 70000 served on a port nobody could reach, a negative command time-out
+    held a real-time robot still forever: each is now a usage error naming the option."""
     from typer.testing import CliRunner
 
     from m3p2i.cli import app as m3p2i_app
@@ -155,9 +172,9 @@ def test_a_seed_the_wire_cannot_carry_is_refused_before_starting_anything(tmp_pa
         "server": (server_app, ["--scenario", "navigation", "--log", str(run_dir / "e.jsonl")]),
         "planner": (planner_app, ["--scenario", "navigation"]),
     }[cli]
-    result = CliRunner().invoke(app, [*args, "--seed", seed])
+    result = CliRunner().invoke(app, [*args, option, value])
     assert result.exit_code == 2, result.output
-    assert "--seed" in result.output
+    assert option in result.output
     assert not run_dir.exists()
 
 
