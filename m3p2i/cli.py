@@ -17,9 +17,14 @@ import typer
 
 from m3p2i.bench_command import bench
 from m3p2i.cli_support import (
+    VIDEO_FORMATS,
+    Fps,
+    Height,
     RunDir,
     ScenarioArgument,
+    Speed,
     Timeout,
+    Width,
     declared_delays_or_exit,
     faults_or_exit,
     flow_help,
@@ -431,21 +436,24 @@ def record(
     seed: Seed = 0,
     run_dir: RunDir = None,
     timeout: Timeout = 900.0,
-    width: int = typer.Option(480, help="Frame width in pixels."),
-    height: int = typer.Option(360, help="Frame height in pixels."),
-    fps: float = typer.Option(20.0, help="Frames per second of the video."),
-    speed: float = typer.Option(1.0, help="Simulated seconds per video second."),
+    width: Width = 480,
+    height: Height = 360,
+    fps: Fps = 20.0,
+    speed: Speed = 1.0,
     keys: Keys = None,
 ) -> None:
     """Record an episode offscreen (EGL or OSMesa) to GIF/MP4, with the planner's best sampled
     trajectories drawn in green."""
-    from m3p2i import video
-
     if (scenario is None) == (log is None):
         typer.echo(
             "error: give a SCENARIO to run, or --log to render an existing episode", err=True
         )
         raise typer.Exit(2)
+    if out.suffix.lower() not in VIDEO_FORMATS:  # before an episode that could not be written
+        typer.echo(f"error: --out {out}: expected a {' or '.join(VIDEO_FORMATS)} file", err=True)
+        raise typer.Exit(2)
+    from m3p2i import video
+
     try:
         backend = video.gl_backend()  # before the episode: no point running one we cannot draw
     except video.NoGLError as exc:

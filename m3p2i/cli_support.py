@@ -29,6 +29,15 @@ Timeout = Annotated[
 ]
 
 
+# a video (m3p2i record, python -m m3p2i.video)
+VIDEO_FORMATS = (".gif", ".mp4")
+Width = Annotated[int, typer.Option(min=16, max=4096, help="Frame width in pixels.")]
+Height = Annotated[int, typer.Option(min=16, max=4096, help="Frame height in pixels.")]
+Fps = Annotated[float, typer.Option(min=0.1, max=240, help="Frames per second of the video.")]
+Speed = Annotated[
+    float, typer.Option(min=0.01, max=100, help="Simulated seconds per video second.")
+]
+
 # --- help text ------------------------------------------------------------------------------
 
 

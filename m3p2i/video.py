@@ -24,6 +24,7 @@ import numpy as np
 import typer
 import zmq
 
+from m3p2i.cli_support import VIDEO_FORMATS, Fps, Height, Speed, Width
 from server.evaluation import log_reader
 from shared import protocol as P
 from shared.config import ConfigError
@@ -229,7 +230,7 @@ def write_video(frames: list[np.ndarray], out: Path, fps: float) -> Path:
         )
         return out
     if out.suffix.lower() != ".mp4":
-        raise ValueError(f"{out}: unknown video format (expected .gif or .mp4)")
+        raise ValueError(f"{out}: unknown video format (expected {' or '.join(VIDEO_FORMATS)})")
     exe = shutil.which("ffmpeg")
     if exe is None:
         try:
@@ -271,10 +272,10 @@ def main(
     log: Path = typer.Argument(..., help="Episode log or its run folder."),
     out: Path = typer.Argument(..., help="Video file: .gif or .mp4."),
     scenario: str | None = typer.Option(None, help="Scenario (default: the log's)."),
-    width: int = typer.Option(480),
-    height: int = typer.Option(360),
-    fps: float = typer.Option(20.0),
-    speed: float = typer.Option(1.0),
+    width: Width = 480,
+    height: Height = 360,
+    fps: Fps = 20.0,
+    speed: Speed = 1.0,
 ) -> None:
     """Render an episode log to a video (run with MUJOCO_GL set; ``m3p2i record`` does that)."""
     try:

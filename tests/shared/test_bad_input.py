@@ -178,6 +178,26 @@ def test_an_option_out_of_its_range_is_refused_before_starting_anything(
     assert not run_dir.exists()
 
 
+@pytest.mark.parametrize(
+    "args, said",
+    [
+        (["--out", "clip.txt"], "--out clip.txt: expected a .gif or .mp4 file"),
+        (["--out", "clip.gif", "--fps", "0"], "--fps"),  # divided by: a ZeroDivisionError
+        (["--out", "clip.gif", "--width", "-5"], "--width"),  # failed after the episode
+    ],
+)
+def test_m3p2i_record_refuses_what_it_could_not_write_before_the_episode(tmp_path, args, said):
+    from typer.testing import CliRunner
+
+    from m3p2i.cli import app
+
+    run_dir = tmp_path / "run"
+    result = CliRunner().invoke(app, ["record", "navigation", "--run-dir", str(run_dir), *args])
+    assert result.exit_code == 2, result.output
+    assert said in result.output
+    assert not run_dir.exists()
+
+
 # ---------------------------------------------------------------- 3: only the view's own page
 
 
