@@ -532,7 +532,8 @@ Record = Annotated[
     ),
 ]
 Duration = Annotated[
-    float | None, typer.Option(help="Stop after this many seconds (default: until Ctrl-C).")
+    float | None,
+    typer.Option(min=0.001, help="Stop after this many seconds (default: until Ctrl-C)."),
 ]
 ReplayAfter = Annotated[
     Path | None,

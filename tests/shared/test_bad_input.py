@@ -150,6 +150,7 @@ OUT_OF_RANGE = [
     ("server", "--command-timeout", "-1"),
     ("planner", "--threads", "-1"),
     ("planner", "--server-timeout", "0"),
+    ("view", "--duration", "-1"),
 ]
 
 
@@ -171,6 +172,7 @@ def test_an_option_out_of_its_range_is_refused_before_starting_anything(
         "m3p2i": (m3p2i_app, ["run", "navigation", "--run-dir", str(run_dir)]),
         "server": (server_app, ["--scenario", "navigation", "--log", str(run_dir / "e.jsonl")]),
         "planner": (planner_app, ["--scenario", "navigation"]),
+        "view": (m3p2i_app, ["view", "navigation"]),
     }[cli]
     result = CliRunner().invoke(app, [*args, option, value])
     assert result.exit_code == 2, result.output
