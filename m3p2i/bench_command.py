@@ -42,7 +42,8 @@ Out = Annotated[
     ),
 ]
 Workers = Annotated[
-    int, typer.Option(help="Trials at once, each a server + planner pair (0: one per core).")
+    int,
+    typer.Option(min=0, help="Trials at once, each a server + planner pair (0: one per core)."),
 ]
 Trials = Annotated[
     int | None, typer.Option(min=1, help="Trials per case (overrides the file and --quick).")

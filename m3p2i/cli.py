@@ -11,7 +11,7 @@ import signal
 import sys
 import threading
 from pathlib import Path
-from typing import Annotated
+from typing import Annotated, NoReturn
 
 import typer
 
@@ -40,6 +40,7 @@ from m3p2i.launch import (
     log_tail,
     mode_conflicts,
     run_episode,
+    taken_ports,
 )
 from m3p2i.new import new_scenario
 from server.evaluation.plan_ages import describe_timing
@@ -225,6 +226,9 @@ def run(
     sc = load_or_exit(scenario, plugin_args(plugins))
     keys_or_exit(keys)
     delays = declared_delays_or_exit(sc, faults) if compensate else None
+    _ports_or_exit(port, view_port if view else 0)
+    if view_port and not view:
+        _exit_usage("--view-port serves the page of --view: give --view too, or leave it out")
     run_dir = run_dir or default_run_dir(sc.name)
     typer.echo(
         f"running {sc.name} ({mode}{', faults ' + faults if faults else ''}"
@@ -255,6 +259,21 @@ def run(
         plugins=plugin_args(plugins),
     )
     raise typer.Exit(_launch(launch, sc.name))
+
+
+def _exit_usage(message: str) -> NoReturn:
+    typer.echo(f"error: {message}", err=True)
+    raise typer.Exit(2)
+
+
+def _ports_or_exit(port: int, view_port: int) -> None:
+    """A port asked for that another process holds: exit 2 before anything starts (the world
+    would fail to bind it, the view would move to another port than the one waited on)."""
+    for flag, first, count in (("--port", port, 4), ("--view-port", view_port, 1)):
+        if first and (busy := taken_ports(first, count)):
+            _exit_usage(
+                f"{flag} {first}: port {busy[0]} is taken (leave {flag} out to pick free ones)"
+            )
 
 
 def _modes_or_exit(mode: str, plan_every: int, max_rate: float, realtime_factor: float) -> None:

@@ -49,17 +49,21 @@ def _find_free_block(host: str, count: int) -> int:
         base = _random.randrange(10000, max(10001, low - count))
         if _handed_out.intersection(range(base, base + count)):
             continue
-        ok = True
-        for p in range(base, base + count):
-            with pysocket.socket() as s:
-                try:
-                    s.bind((host, p))
-                except OSError:
-                    ok = False
-                    break
-        if ok:
+        if not taken_ports(base, count, host):
             return base
     raise RuntimeError("no block of free ports found")
+
+
+def taken_ports(first: int, count: int = 1, host: str = DEFAULT_HOST) -> list[int]:
+    """The ports of ``first .. first + count - 1`` that cannot be bound on ``host`` now."""
+    taken = []
+    for p in range(first, first + count):
+        with pysocket.socket() as s:
+            try:
+                s.bind((host, p))
+            except OSError:
+                taken.append(p)
+    return taken
 
 
 def _ephemeral_range() -> tuple[int, int]:
@@ -272,6 +276,7 @@ def run_episode(
     launch.run_dir.mkdir(parents=True, exist_ok=True)
     port = launch.port or free_port_block(count=launch.ports)
     log_path = launch.run_dir / "episode.jsonl"
+    earlier = _file_stamp(log_path)  # a reused run folder's log: not this episode's
     outs, procs = {}, {}
     reason = ""
     kept: EpisodeRun | None = None
@@ -304,11 +309,20 @@ def run_episode(
                 out.close()
     if kept is not None:
         return kept
-    summary = read_summary(log_path)
+    summary = read_summary(log_path) if _file_stamp(log_path) != earlier else None
     if summary is None and not reason and "server" in procs:
         # a world that failed before its episode began exits 1, as an episode's end does
         reason = f"server exited with code {procs['server'].returncode} without an episode summary"
     return EpisodeRun(log_path, summary, reason, time.monotonic() - started)
+
+
+def _file_stamp(path: Path) -> tuple[int, int, int] | None:
+    """What tells a rewritten file from the one that was there: inode, size, modification."""
+    try:
+        st = path.stat()
+    except FileNotFoundError:
+        return None
+    return st.st_ino, st.st_size, st.st_mtime_ns
 
 
 def _start(launch: EpisodeLaunch, name: str, cmd: list[str], outs: dict, procs: dict) -> None:

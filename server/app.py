@@ -19,6 +19,7 @@ calls its methods, never MuJoCo's data. With simulated faults (``--faults``, the
 from __future__ import annotations
 
 import logging
+import os
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -58,6 +59,10 @@ class ServerOptions:
     keep_serving: bool = False  # after an episode, wait for a seeded reset (warm bench workers)
 
 
+class AddressUnavailable(OSError):
+    """The world's ports cannot be bound (taken by another process, or not this machine's)."""
+
+
 class WorldServer:
     def __init__(
         self,
@@ -94,12 +99,17 @@ class WorldServer:
         # failed handshakes (a peer without keys, or with another world key) never reach ZAP:
         # only the socket monitor tells, and the world must say why nobody is answering
         self.monitors = {name: HandshakeMonitor(s) for name, s in self._sockets.items()}
-        for s, addr in (
-            (self.rep, endpoints.control),
-            (self.pub, endpoints.state),
-            (self.pull, endpoints.command),
-        ):
-            s.bind(addr)
+        try:
+            for s, addr in (
+                (self.rep, endpoints.control),
+                (self.pub, endpoints.state),
+                (self.pull, endpoints.command),
+            ):
+                s.bind(addr)
+        except zmq.ZMQError as exc:  # e.g. another world on these ports: nothing half-open
+            self.close()
+            why = os.strerror(exc.errno) if exc.errno else str(exc)
+            raise AddressUnavailable(f"cannot serve on {addr}: {why}") from None
         self.poller = zmq.Poller()
         self.poller.register(self.rep, zmq.POLLIN)
         self.poller.register(self.pull, zmq.POLLIN)

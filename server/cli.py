@@ -13,7 +13,7 @@ import mujoco
 import numpy as np
 import typer
 
-from server.app import ServerOptions, WorldServer
+from server.app import AddressUnavailable, ServerOptions, WorldServer
 from server.interface import WorldError, WorldLoadError, load_world_class
 from server.world import SimWorld
 from server.world_check import scenario_errors
@@ -185,6 +185,8 @@ def main(
         _exit(f"error: {exc}")
     except WorldError as exc:  # a bridge that cannot reach its robot
         _exit(f"error: --world {world}: {exc}")
+    except AddressUnavailable as exc:
+        _exit(f"error: {exc} (--host, --port: the world needs ports PORT..PORT+3 free)")
     if window:
         _open_window(server, world)
     _serve(server, world)

@@ -99,6 +99,17 @@ def test_a_world_that_fails_before_its_episode_is_named_though_it_exits_1(tmp_pa
     assert L.log_tail(tmp_path / "server.log") == ["RuntimeError: no driver"]
 
 
+def test_a_reused_run_folder_never_reports_the_earlier_episode(tmp_path, monkeypatch):
+    # the earlier episode's log, a success: a world that fails at once must not pass for it
+    earlier = '{"kind": "header"}\n{"kind": "summary", "status": "success", "time": 1.0}\n'
+    (tmp_path / "episode.jsonl").write_text(earlier)
+    _fake(monkeypatch, "raise SystemExit(1)", "import time; time.sleep(120)")
+    run = L.run_episode(L.EpisodeLaunch(scenario="navigation", run_dir=tmp_path, timeout=60))
+    assert run.summary is None
+    assert run.reason == "server exited with code 1 without an episode summary"
+    assert (tmp_path / "episode.jsonl").read_text() == earlier  # kept, not deleted
+
+
 def test_the_report_names_the_dead_process_and_its_log_tail(tmp_path, capsys):
     from m3p2i.cli import _report_run
 

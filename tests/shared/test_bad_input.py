@@ -151,6 +151,7 @@ OUT_OF_RANGE = [
     ("planner", "--threads", "-1"),
     ("planner", "--server-timeout", "0"),
     ("view", "--duration", "-1"),
+    ("bench", "--workers", "-1"),  # ran no trial and exited 0
 ]
 
 
@@ -173,6 +174,7 @@ def test_an_option_out_of_its_range_is_refused_before_starting_anything(
         "server": (server_app, ["--scenario", "navigation", "--log", str(run_dir / "e.jsonl")]),
         "planner": (planner_app, ["--scenario", "navigation"]),
         "view": (m3p2i_app, ["view", "navigation"]),
+        "bench": (m3p2i_app, ["bench", "paper", "--quick", "--out", str(run_dir)]),
     }[cli]
     result = CliRunner().invoke(app, [*args, option, value])
     assert result.exit_code == 2, result.output
@@ -197,6 +199,59 @@ def test_m3p2i_record_refuses_what_it_could_not_write_before_the_episode(tmp_pat
     result = CliRunner().invoke(app, ["record", "navigation", "--run-dir", str(run_dir), *args])
     assert result.exit_code == 2, result.output
     assert said in result.output
+    assert not run_dir.exists()
+
+
+def test_a_world_whose_ports_are_taken_says_so_and_leaves_no_log(tmp_path):
+    """Another process on one of the world's four ports: a usage error naming the address
+    (it was a ZMQError traceback and exit 1, an unsuccessful episode's code)."""
+    import socket
+
+    from typer.testing import CliRunner
+
+    from server.cli import app
+    from tests.helpers import free_port_block
+
+    port = free_port_block()
+    with socket.socket() as taken:
+        taken.bind(("127.0.0.1", port + 2))  # the command port
+        taken.listen()
+        log = tmp_path / "episode.jsonl"
+        args = ["--scenario", "navigation", "--port", str(port), "--log", str(log)]
+        result = CliRunner().invoke(app, args)
+    assert result.exit_code == 2, result.output
+    assert f"cannot serve on tcp://127.0.0.1:{port + 2}: Address already in use" in result.output
+    assert not log.exists()
+
+
+@pytest.mark.parametrize(
+    "flags, said",
+    [
+        (["--port", "{port}"], "--port {port}: port {taken} is taken"),
+        (["--view", "--view-port", "{taken}"], "--view-port {taken}: port {taken} is taken"),
+        (["--view-port", "{free}"], "--view-port serves the page of --view"),
+    ],
+)
+def test_m3p2i_run_refuses_ports_it_could_not_use_before_starting_anything(tmp_path, flags, said):
+    """A world would fail to bind a taken port; a view moves to the next free port while the
+    launcher waited on the one asked for (then gave up after 120 s)."""
+    import socket
+
+    from typer.testing import CliRunner
+
+    from m3p2i.cli import app
+    from tests.helpers import free_port_block
+
+    port = free_port_block()
+    names = {"port": port, "taken": port + 1, "free": free_port_block(count=1)}
+    run_dir = tmp_path / "run"
+    with socket.socket() as taken:
+        taken.bind(("127.0.0.1", port + 1))
+        taken.listen()
+        args = ["run", "navigation", "--run-dir", str(run_dir)]
+        result = CliRunner().invoke(app, [*args, *(f.format(**names) for f in flags)])
+    assert result.exit_code == 2, result.output
+    assert said.format(**names) in result.output
     assert not run_dir.exists()
 
 
