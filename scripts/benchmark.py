@@ -61,6 +61,7 @@ from rich.table import Table
 
 from m3p2i.blocks import read_results
 from m3p2i.provenance import machine, versions
+from measure.options import scenarios_or_usage_error
 from measure.speed_report import update
 from planner_client.build import build_controller
 from planner_client.controller import Controller
@@ -71,12 +72,14 @@ from planner_client.problem import apply_planning_model, planner_scenario, tune_
 from server.sensors import RangeSensors
 from shared import protocol as P
 from shared.config import ConfigError
-from shared.scenario import Scenario, load_scenario
+from shared.scenario import ROLLOUT_BACKENDS, Scenario, load_scenario
 from shared.scene import build_spec, compile_model, initial_data
 
 SCENARIOS = ("navigation", "push_pull", "push_pull_fast", "pick_place", "mobile_pick_place")
 
 app = typer.Typer(add_completion=False)
+
+ROUNDS = 20  # blocks of planner iterations, each followed by blocks of bare rollouts
 
 
 def _own_model(scenario: Scenario, timestep: float) -> mujoco.MjModel:
@@ -263,7 +266,7 @@ def measure(
     scenario: Scenario,
     iterations: int,
     nthread: int,
-    rounds: int = 20,
+    rounds: int = ROUNDS,
     backend: str = "mujoco",
     device: str = "cuda:0",
 ) -> dict:
@@ -334,8 +337,16 @@ def _map_figures(scenario: Scenario, bench: _Bench) -> dict:
 
 
 ScenariosOption = Annotated[list[str], typer.Option("--scenario", "-s", help="Scenarios to run.")]
-Iterations = Annotated[int, typer.Option("--iterations", "-n", help="Timed planner iterations.")]
-Threads = Annotated[int, typer.Option(help="Rollout threads (0: one per core).")]
+Iterations = Annotated[
+    int,
+    typer.Option(
+        "--iterations",
+        "-n",
+        min=ROUNDS,
+        help=f"Timed planner iterations, in {ROUNDS} blocks (rounded down to a multiple).",
+    ),
+]
+Threads = Annotated[int, typer.Option(min=0, help="Rollout threads (0: one per core).")]
 AsJson = Annotated[bool, typer.Option("--json", help="One JSON object per line per case.")]
 Backend = Annotated[
     str,
@@ -418,11 +429,16 @@ def main(
     if report is not None or update_file is not None:
         _regenerate_or_show(report, update_file)
         return
+    if backend not in ROLLOUT_BACKENDS:
+        raise typer.BadParameter(
+            f"{backend!r}: expected one of {', '.join(ROLLOUT_BACKENDS)}", param_hint="--backend"
+        )
+    scenarios_or_usage_error(scenario)  # every one sound before the first is measured
     opts = Options(
         scenarios=scenario,
         counts=_sample_counts(samples),
         horizon=horizon,
-        iterations=iterations,
+        iterations=iterations // ROUNDS * ROUNDS,
         runs=runs,
         nthread=threads or os.cpu_count() or 1,
         backend=backend,
@@ -464,11 +480,14 @@ def _regenerate_or_show(report: Path | None, update_file: Path | None) -> None:
 def _sample_counts(samples: str) -> list[int | None]:
     """--samples' values, or ``[None]`` (the scenario's planner.samples) when empty."""
     try:
-        return [int(v) for v in samples.split(",") if v.strip()] or [None]
+        counts = [int(v) for v in samples.split(",") if v.strip()]
     except ValueError:
+        counts = [0]
+    if any(c < 1 for c in counts):
         raise typer.BadParameter(
-            f"{samples!r}: expected integers separated by commas", param_hint="--samples"
-        ) from None
+            f"{samples!r}: expected integers >= 1 separated by commas", param_hint="--samples"
+        )
+    return counts or [None]
 
 
 def _case(name: str, count: int | None, horizon: int) -> Scenario:

@@ -33,6 +33,7 @@ import torch
 from rich.console import Console
 from rich.table import Table
 
+from measure.options import positive_int
 from planner_client.mppi import M3P2I, MPPI, ModeSpec, MPPIConfig
 
 F64 = torch.float64
@@ -340,8 +341,8 @@ def sampling_table(task: Task, seeds: int) -> Table:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    parser.add_argument("--seeds", type=int, default=5)
-    parser.add_argument("--threads", type=int, default=1, help="torch intra-op threads")
+    parser.add_argument("--seeds", type=positive_int, default=5)
+    parser.add_argument("--threads", type=positive_int, default=1, help="torch intra-op threads")
     args = parser.parse_args()
     try:
         import pytorch_mppi  # noqa: F401

@@ -20,6 +20,7 @@ import typer
 
 from m3p2i.blocks import read_results
 from measure.netns import Unavailable, unavailable
+from measure.options import scenarios_or_usage_error
 from measure.soak_episodes import Soak, SoakConfig, print_table, update
 
 app = typer.Typer(add_completion=False)
@@ -39,8 +40,9 @@ Duration = Annotated[
 Seed = Annotated[
     int,
     typer.Option(
-        help="Seed of the fault schedule (moments, order, pauses, "
-        "garbage) and of the worlds' and planners' seeds.",
+        min=0,
+        help="Seed of the fault schedule (moments, order, pauses, garbage); the i-th planner "
+        "samples with SEED + i, the i-th world starts from seed i.",
     ),
 ]
 ScenarioName = Annotated[str, typer.Option(help="Scenario name or YAML path.")]
@@ -131,6 +133,7 @@ def main(
     if report is not None or update_file is not None:
         _regenerate_or_show(report, update_file)
         return
+    scenarios_or_usage_error([scenario], teams=False)
     cfg = SoakConfig(
         duration=duration,
         seed=seed,

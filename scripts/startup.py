@@ -28,6 +28,7 @@ import compileall
 import importlib.util
 import json
 import re
+import shutil
 import statistics
 import subprocess
 import sys
@@ -40,8 +41,8 @@ from rich.console import Console
 from rich.table import Table
 
 from m3p2i.launch import free_port_block, stop_processes
+from measure.options import scenarios_or_usage_error
 from server.evaluation import log_reader
-from shared.scenario import find_scenario
 
 SCENARIOS = ("navigation", "pick_place")
 PACKAGES = ("planner_client", "server", "shared", "m3p2i")  # what the two processes import
@@ -108,6 +109,19 @@ def _planner_phases(log: Path) -> dict[str, float]:
     raise RuntimeError(f"no 'start-up:' line in {log}")
 
 
+def _measured_or_exit(path: str) -> dict[str, float]:
+    """:func:`measure_once` in a fresh folder, removed after; on failure the folder (the two
+    processes' logs) is kept, named, and the script exits 1."""
+    folder = Path(tempfile.mkdtemp(prefix="m3p2i-startup-"))
+    try:
+        once = measure_once(path, folder)
+    except RuntimeError as exc:
+        typer.echo(f"error: {exc}", err=True)
+        raise typer.Exit(1) from None
+    shutil.rmtree(folder, ignore_errors=True)
+    return once
+
+
 @app.command()
 def main(
     scenario: list[str] = typer.Option(
@@ -120,6 +134,7 @@ def main(
     ),
 ) -> None:
     """Time cold starts of the world server and the planner; print median and spread."""
+    scenarios = scenarios_or_usage_error(scenario, teams=False)
     console = Console()
     if compile_first:
         for package in PACKAGES:
@@ -127,12 +142,10 @@ def main(
                 compileall.compile_dir(folder, quiet=1)
     table = Table("scenario", "server start -> serving [s]", "planner start -> first command [s]")
     phases = Table("scenario", *PHASES, title="the planner's start-up by phase, median [s]")
-    for name in scenario:
-        path = str(find_scenario(name))
+    for name, sc in zip(scenario, scenarios):
         samples: dict[str, list[float]] = {}
         for i in range(runs):
-            with tempfile.TemporaryDirectory(prefix="m3p2i-startup-") as tmp:
-                once = measure_once(path, Path(tmp))
+            once = _measured_or_exit(sc.source)
             once["python"] = once["planner"] - sum(once.get(p, 0.0) for p in PHASES[1:])
             for side, seconds in once.items():
                 samples.setdefault(side, []).append(seconds)

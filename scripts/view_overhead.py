@@ -21,6 +21,8 @@ import tempfile
 import time
 from pathlib import Path
 
+from measure.options import positive_int
+
 
 def run_once(scenario: str, view: bool, folder: Path) -> tuple[float, int, float]:
     """(planner Hz, steps, wall seconds) of one ``m3p2i run``."""
@@ -47,7 +49,7 @@ def main() -> None:
         description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
     )
     ap.add_argument("-s", "--scenario", default="pick_place")
-    ap.add_argument("-n", "--pairs", type=int, default=3)
+    ap.add_argument("-n", "--pairs", type=positive_int, default=3, help="runs with and without")
     args = ap.parse_args()
     rates: dict[bool, list[float]] = {False: [], True: []}
     with tempfile.TemporaryDirectory() as tmp:

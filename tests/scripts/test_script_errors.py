@@ -25,6 +25,26 @@ def _script(name: str, *args: str) -> subprocess.CompletedProcess:
     )
 
 
+@pytest.mark.parametrize(
+    "script, args, said",
+    [
+        ("benchmark.py", ["-s", "no_such_scenario"], "no_such_scenario: no such scenario"),
+        ("benchmark.py", ["--backend", "foo"], "'foo': expected one of mujoco, warp"),
+        ("benchmark.py", ["-n", "5"], "greater than or equal to 20"),  # timed 20 anyway
+        ("benchmark.py", ["--samples", "0,10"], "expected integers >= 1"),
+        ("startup.py", ["-s", "duo_corridor", "--no-compile"], "starts a planner per robot"),
+        ("soak.py", ["--scenario", "no_such_scenario"], "no_such_scenario: no such scenario"),
+        ("rollout_floor.py", ["-s", "no_such_scenario"], "no_such_scenario: no such scenario"),
+        ("view_overhead.py", ["-n", "0"], "expected an integer >= 1, got 0"),
+    ],
+)
+def test_a_script_refuses_a_wrong_option_before_measuring(script, args, said):
+    run = _script(script, *args)
+    assert run.returncode == 2, run.stdout + run.stderr
+    assert said in " ".join(run.stderr.split()), run.stderr  # rich wraps its box's lines
+    assert "Traceback" not in run.stderr
+
+
 def test_soak_report_of_a_missing_file_names_it(tmp_path):
     run = _script("soak.py", "--report", str(tmp_path / "none.json"))
     assert run.returncode == 2
