@@ -79,6 +79,23 @@ def load_or_exit(scenario: str, plugins: tuple[str, ...] = ()):
     return load_scenario(path)
 
 
+def scenarios_or_exit(names: list[str], teams: bool = True) -> list:
+    """Each scenario of ``names`` as :func:`load_or_exit` loads it (exit 2 at the first that is
+    not sound); ``teams``: whether a scenario of several robots is taken (exit 2 if not)."""
+    scenarios = []
+    for name in names:
+        sc = load_or_exit(name)
+        if sc.team and not teams:
+            typer.echo(
+                f"error: {name}: a scenario of {len(sc.team)} robots starts a planner per "
+                "robot; this measures one (expected a scenario of one robot)",
+                err=True,
+            )
+            raise typer.Exit(2)
+        scenarios.append(sc)
+    return scenarios
+
+
 def plugin_args(plugins: list[str] | None) -> tuple[str, ...]:
     """``--plugins`` for the planner processes: a file as an absolute path (they may run in
     another folder), a module name as given."""

@@ -60,8 +60,8 @@ from rich.console import Console
 from rich.table import Table
 
 from m3p2i.blocks import read_results
+from m3p2i.cli_support import scenarios_or_exit
 from m3p2i.provenance import machine, versions
-from measure.options import scenarios_or_usage_error
 from measure.speed_report import update
 from planner_client.build import build_controller
 from planner_client.controller import Controller
@@ -433,7 +433,7 @@ def main(
         raise typer.BadParameter(
             f"{backend!r}: expected one of {', '.join(ROLLOUT_BACKENDS)}", param_hint="--backend"
         )
-    scenarios_or_usage_error(scenario)  # every one sound before the first is measured
+    scenarios_or_exit(scenario)  # every one sound before the first is measured
     opts = Options(
         scenarios=scenario,
         counts=_sample_counts(samples),

@@ -12,7 +12,7 @@ import os
 import typer
 from rich.console import Console
 
-from measure.options import scenarios_or_usage_error
+from m3p2i.cli_support import scenarios_or_exit
 from measure.rollout_parts import floor_table
 
 app = typer.Typer(add_completion=False)
@@ -33,7 +33,7 @@ def main(
     """Time the bare rollout of each scenario's planner model, as planned and with its
     sensors, contacts or constraints switched off."""
     nthread = threads or os.cpu_count() or 1
-    scenarios_or_usage_error(scenario)
+    scenarios_or_exit(scenario)
     Console().print(floor_table(scenario, samples, horizon, nthread, rounds))
 
 

@@ -19,8 +19,8 @@ from typing import Annotated
 import typer
 
 from m3p2i.blocks import read_results
+from m3p2i.cli_support import scenarios_or_exit
 from measure.netns import Unavailable, unavailable
-from measure.options import scenarios_or_usage_error
 from measure.soak_episodes import Soak, SoakConfig, print_table, update
 
 app = typer.Typer(add_completion=False)
@@ -133,7 +133,7 @@ def main(
     if report is not None or update_file is not None:
         _regenerate_or_show(report, update_file)
         return
-    scenarios_or_usage_error([scenario], teams=False)
+    scenarios_or_exit([scenario], teams=False)
     cfg = SoakConfig(
         duration=duration,
         seed=seed,

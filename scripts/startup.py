@@ -40,8 +40,8 @@ import typer
 from rich.console import Console
 from rich.table import Table
 
+from m3p2i.cli_support import scenarios_or_exit
 from m3p2i.launch import free_port_block, stop_processes
-from measure.options import scenarios_or_usage_error
 from server.evaluation import log_reader
 
 SCENARIOS = ("navigation", "pick_place")
@@ -134,7 +134,7 @@ def main(
     ),
 ) -> None:
     """Time cold starts of the world server and the planner; print median and spread."""
-    scenarios = scenarios_or_usage_error(scenario, teams=False)
+    scenarios = scenarios_or_exit(scenario, teams=False)
     console = Console()
     if compile_first:
         for package in PACKAGES:
