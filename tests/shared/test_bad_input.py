@@ -255,6 +255,26 @@ def test_m3p2i_run_refuses_ports_it_could_not_use_before_starting_anything(tmp_p
     assert not run_dir.exists()
 
 
+@pytest.mark.parametrize(
+    "args, said",
+    [
+        (["--mode", "realtime", "--plan-every", "3"], "--plan-every 3: only a lock-step world"),
+        (["--realtime-factor", "2"], "--realtime-factor 2: only a real-time world"),
+    ],
+)
+def test_m3p2i_server_refuses_an_option_of_the_other_mode(tmp_path, args, said):
+    """As m3p2i run and the bench do: the world would have ignored it."""
+    from typer.testing import CliRunner
+
+    from server.cli import app
+
+    log = tmp_path / "episode.jsonl"
+    result = CliRunner().invoke(app, ["--scenario", "navigation", "--log", str(log), *args])
+    assert result.exit_code == 2, result.output
+    assert said in result.output
+    assert not log.exists()
+
+
 # ---------------------------------------------------------------- 3: only the view's own page
 
 
