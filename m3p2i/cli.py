@@ -384,6 +384,9 @@ def report(
     if not results and not update:
         typer.echo("error: give results files to tabulate, or --update FILE", err=True)
         raise typer.Exit(2)
+    if check and not update:  # it would have checked nothing and passed
+        typer.echo("error: --check checks the blocks of --update FILE: give --update", err=True)
+        raise typer.Exit(2)
     try:
         paper = R.load_paper()
         if results:

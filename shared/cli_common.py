@@ -96,6 +96,7 @@ RealtimeFactor = Annotated[
     typer.Option(
         "--realtime-factor",
         min=0.01,
+        max=100.0,
         help="realtime: simulated seconds per wall second; 0.5 runs "
         "the world at half speed, so every planner rate counts double against it.",
     ),

@@ -4,6 +4,7 @@ refused with a reason (or played safely), never an exception that ends a process
 from __future__ import annotations
 
 import math
+from pathlib import Path
 from typing import ClassVar
 
 import msgpack
@@ -138,6 +139,7 @@ def test_m3p2i_run_refuses_an_infinite_delay_before_starting_anything(tmp_path):
     assert not run_dir.exists()
 
 
+PANDA_RESULTS = Path(__file__).resolve().parents[2] / "docs" / "bench" / "panda" / "results.csv"
 OUT_OF_RANGE = [
     ("m3p2i", "--seed", "-1"),
     ("m3p2i", "--seed", "4294967296"),  # a seed travels in the welcome and a reset: < 2**32
@@ -152,6 +154,8 @@ OUT_OF_RANGE = [
     ("planner", "--server-timeout", "0"),
     ("view", "--duration", "-1"),
     ("bench", "--workers", "-1"),  # ran no trial and exited 0
+    ("server", "--realtime-factor", "inf"),
+    ("report", "--check", None),  # without --update it checked nothing and passed
 ]
 
 
@@ -175,8 +179,9 @@ def test_an_option_out_of_its_range_is_refused_before_starting_anything(
         "planner": (planner_app, ["--scenario", "navigation"]),
         "view": (m3p2i_app, ["view", "navigation"]),
         "bench": (m3p2i_app, ["bench", "paper", "--quick", "--out", str(run_dir)]),
+        "report": (m3p2i_app, ["report", str(PANDA_RESULTS)]),
     }[cli]
-    result = CliRunner().invoke(app, [*args, option, value])
+    result = CliRunner().invoke(app, [*args, option, *([value] if value else [])])
     assert result.exit_code == 2, result.output
     assert option in result.output
     assert not run_dir.exists()
