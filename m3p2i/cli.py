@@ -595,6 +595,21 @@ def view(
             "error: give a SCENARIO for a live view, or --log to replay an episode", err=True
         )
         raise typer.Exit(2)
+    live_only = {
+        "--host": host != DEFAULT_HOST,
+        "--port": port != DEFAULT_PORT,
+        "--public-controls": public_controls,
+        "--record": record is not None,
+        "--keys": keys is not None,
+        "--replay-after": replay_after is not None,
+    }
+    if log is not None and (given := [flag for flag, on in live_only.items() if on]):
+        typer.echo(
+            f"error: {', '.join(given)}: live view only; a replay (--log) has no world to "
+            "reach or record",
+            err=True,
+        )
+        raise typer.Exit(2)
     bind = "0.0.0.0" if public else "127.0.0.1"
     over = threading.Event()  # the episode is over: --replay-after takes the page over
     if replay_after is not None and log is None:

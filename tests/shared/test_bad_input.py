@@ -280,6 +280,19 @@ def test_m3p2i_server_refuses_an_option_of_the_other_mode(tmp_path, args, said):
     assert not log.exists()
 
 
+def test_m3p2i_view_refuses_live_options_with_a_replay():
+    """--record, --keys, --host, --port, --public-controls and --replay-after were ignored by a
+    replay (--log), so a user asking for a recording got none."""
+    from typer.testing import CliRunner
+
+    from m3p2i.cli import app
+
+    args = ["view", "--log", str(PANDA_RESULTS.parent), "--record", "x.jsonl", "--port", "6000"]
+    result = CliRunner().invoke(app, args)
+    assert result.exit_code == 2, result.output
+    assert "--port, --record: live view only" in result.output
+
+
 # ---------------------------------------------------------------- 3: only the view's own page
 
 
