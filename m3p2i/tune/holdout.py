@@ -12,7 +12,10 @@ from m3p2i.tune.study import Events, Runner, Score, TuneOptions
 from m3p2i.tune.target import Target
 from server.evaluation.metrics import MetricsEvaluator
 from shared.config import ConfigError
+from shared.protocol import MAX_SEED
 from shared.scenario import load_scenario
+
+MAX_SEEDS = 10_000  # episodes per trial: a typo like 0-9999999 must not start a study
 
 
 @dataclass(frozen=True)
@@ -83,19 +86,21 @@ def write_holdout(held: Held, path: Path) -> None:
 
 
 def parse_seeds(text: str, option: str) -> tuple[int, ...]:
-    """``0-9``, ``3``, ``0-4,10,12-13`` -> the seeds in order, each once."""
-    seeds: list[int] = []
+    """``0-9``, ``3``, ``0-4,10,12-13`` -> the seeds in order, each once (at most
+    :data:`MAX_SEEDS` of them, none above the protocol's :data:`~shared.protocol.MAX_SEED`)."""
+    seeds: dict[int, None] = {}  # ordered, each once
     for part in text.split(","):
         m = re.fullmatch(r"\s*(\d+)\s*(?:-\s*(\d+)\s*)?", part)
-        if not m or (m.group(2) and int(m.group(2)) < int(m.group(1))):
+        lo = int(m.group(1)) if m else 0
+        hi = int(m.group(2)) if m and m.group(2) else lo
+        if not m or hi < lo or hi > MAX_SEED or len(seeds) + hi - lo >= MAX_SEEDS:
             raise ConfigError(
                 option,
                 "",
                 "not a seed range",
                 text,
-                "A-B (A <= B), a seed, or a comma list, e.g. 0-9",
+                f"A-B (A <= B <= {MAX_SEED}), a seed, or a comma list of at most "
+                f"{MAX_SEEDS:,} seeds, e.g. 0-9",
             )
-        lo = int(m.group(1))
-        hi = int(m.group(2)) if m.group(2) else lo
-        seeds += [s for s in range(lo, hi + 1) if s not in seeds]
+        seeds.update(dict.fromkeys(range(lo, hi + 1)))
     return tuple(seeds)

@@ -115,7 +115,7 @@ def _read_seeds(seeds: str, holdout_seeds: str | None) -> tuple[tuple[int, ...],
     """The training and held-out seeds; ConfigError when they overlap (a held-out seed must
     judge the tuned set on an episode it was not chosen on)."""
     train = parse_seeds(seeds, "--seeds")
-    held = parse_seeds(holdout_seeds, "--holdout") if holdout_seeds else ()
+    held = parse_seeds(holdout_seeds, "--holdout") if holdout_seeds is not None else ()
     if set(train) & set(held):
         raise ConfigError(
             "--holdout",

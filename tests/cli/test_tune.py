@@ -200,8 +200,9 @@ def test_the_command_writes_the_overlay_the_report_and_the_held_out_rows(tmp_pat
         ("--sampler-seed", "-1", "greater than or equal to 0"),
         ("--trials", "0", "greater than or equal to 1"),
         ("--cpus-per-trial", "0", "greater than or equal to 1"),
-        ("--seeds", "-1-3", "not a seed range (got '-1-3'; expected A-B (A <= B)"),
-        ("--holdout", "9-5", "not a seed range (got '9-5'; expected A-B (A <= B)"),
+        ("--seeds", "-1-3", "not a seed range (got '-1-3'; expected A-B (A <= B"),
+        ("--holdout", "9-5", "not a seed range (got '9-5'; expected A-B (A <= B"),
+        ("--holdout", "", "not a seed range (got ''; expected A-B (A <= B"),  # was: no holdout
     ],
 )
 def test_a_numeric_option_out_of_range_is_refused_before_anything_runs(
@@ -304,9 +305,10 @@ def test_a_malformed_space_names_file_key_and_value(tmp_path, data, where, messa
 def test_seed_ranges_and_targets():
     assert parse_seeds("0-3", "--seeds") == (0, 1, 2, 3)
     assert parse_seeds("5,0-1,1", "--seeds") == (5, 0, 1)
-    for bad in ("3-1", "a", "1-", ""):
+    for bad in ("3-1", "a", "1-", "", "0-4294967296", "0-10000", "0-9999,20000"):
         with pytest.raises(ConfigError, match="--seeds"):
             parse_seeds(bad, "--seeds")
+    assert len(parse_seeds("0-9999", "--seeds")) == 10_000  # the most a study takes
     case = resolve_target("robustness:push_lab_comp")
     assert case.case.faults == "lab" and case.case.delays is not None and case.base == "push"
     assert resolve_target("push_lab_comp").case == case.case  # a case name of one bench file
