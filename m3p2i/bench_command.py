@@ -207,6 +207,8 @@ def run_bench(req: BenchRequest) -> None:
     results = B.ResultsFile(plan.out_dir / "results.csv")
     done = {B.trial_key(r["case"], r["seed"], r["scenario_hash"]) for r in results.rows()}
     planned, todo = B.plan_trials(plan.ready, plan.cfg, opts, done)
+    if planned and (last := max(t.seed for t in planned)) > MAX_SEED:
+        _fail(f"--seed {req.seed}: its trials' seeds reach {last} (expected at most {MAX_SEED})")
     for s in plan.skipped:
         console.print(f"[yellow]skipped[/] {s.case.case}: {s.reason}")
     variants = len(plan.swept.variants())

@@ -154,6 +154,7 @@ OUT_OF_RANGE = [
     ("planner", "--server-timeout", "0"),
     ("view", "--duration", "-1"),
     ("bench", "--workers", "-1"),  # ran no trial and exited 0
+    ("bench", "--seed", "4294967295"),  # its second trial's seed would be 2**32
     ("server", "--realtime-factor", "inf"),
     ("report", "--check", None),  # without --update it checked nothing and passed
 ]
