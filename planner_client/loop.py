@@ -197,6 +197,12 @@ class PlannerClient:
                     reply.session,
                 )
                 new = self.welcome is not None and reply.session != self.welcome.session
+                if self.min_period and reply.mode != "realtime" and self.welcome is None:
+                    log.warning(
+                        "--max-rate %g: a lock-step world waits for every plan, so it only "
+                        "slows the episode (m3p2i-server --plan-every rehearses a slow planner)",
+                        1.0 / self.min_period,
+                    )
                 self.controller.begin(reply.mode, reply.dt, reply.seed, new_episode=new)
                 self.welcome = reply
                 self._layout_checked = False

@@ -47,6 +47,21 @@ def test_lockstep_navigation_reaches_the_goal(tmp_path):
     assert len(steps) == summary["steps"] and all(not s["safe"] for s in steps)
 
 
+def test_a_rate_cap_in_lock_step_is_named_for_what_it_does(tmp_path):
+    """--max-rate rehearses a slow planner against a real-time world; a lock-step world waits
+    for every plan, so there it only slows the run: the planner says so once."""
+    port = free_port_block()
+    server = start_server("navigation", port, tmp_path / "episode.jsonl")
+    planner = start_planner("navigation", port, "--max-rate", "1000")
+    try:
+        out, _ = server.communicate(timeout=240)
+        planner_out, _ = planner.communicate(timeout=30)
+    finally:
+        stop(server, planner)
+    assert server.returncode == 0 and "success" in out, out
+    assert planner_out.count("--max-rate 1000: a lock-step world waits for every plan") == 1
+
+
 def _navigation_steps(tmp_path, *server_args: str) -> list[list[float]]:
     port = free_port_block()
     log = tmp_path / f"episode-{port}.jsonl"
