@@ -183,29 +183,7 @@ class PlannerClient:
                     plain = self._plain_hello(reply, version, plain)
                     continue
                 self._speak(version)
-                problem = self.controller.motion.problem  # a team robot's: its own controls
-                nu = problem.model.nu if self.hello.robot is None else len(problem.actuators)
-                if reply.nu != nu:
-                    raise HandshakeRefused(
-                        f"server model has nu={reply.nu}, planner model has nu={nu}"
-                    )
-                log.info(
-                    "connected: %s, %s mode, dt %.3f s, session %s",
-                    reply.scenario,
-                    reply.mode,
-                    reply.dt,
-                    reply.session,
-                )
-                new = self.welcome is not None and reply.session != self.welcome.session
-                if self.min_period and reply.mode != "realtime" and self.welcome is None:
-                    log.warning(
-                        "--max-rate %g: a lock-step world waits for every plan, so it only "
-                        "slows the episode (m3p2i-server --plan-every rehearses a slow planner)",
-                        1.0 / self.min_period,
-                    )
-                self.controller.begin(reply.mode, reply.dt, reply.seed, new_episode=new)
-                self.welcome = reply
-                self._layout_checked = False
+                self._welcomed(reply)
                 return reply
             req.close(0)  # a REQ that got no reply cannot send again: make a fresh one
             if not warned:
@@ -215,6 +193,31 @@ class PlannerClient:
                 raise TimeoutError(
                     f"no server answered at {self.endpoints.control} within {give_up:.0f} s"
                 )
+
+    def _welcomed(self, reply: P.Welcome) -> None:
+        """Begin planning for the world of ``reply`` (a new episode when its session is new);
+        HandshakeRefused when its controls are not this planner's."""
+        problem = self.controller.motion.problem  # a team robot's: its own controls
+        nu = problem.model.nu if self.hello.robot is None else len(problem.actuators)
+        if reply.nu != nu:
+            raise HandshakeRefused(f"server model has nu={reply.nu}, planner model has nu={nu}")
+        log.info(
+            "connected: %s, %s mode, dt %.3f s, session %s",
+            reply.scenario,
+            reply.mode,
+            reply.dt,
+            reply.session,
+        )
+        new = self.welcome is not None and reply.session != self.welcome.session
+        if self.min_period and reply.mode != "realtime" and self.welcome is None:
+            log.warning(
+                "--max-rate %g: a lock-step world waits for every plan, so it only slows the "
+                "episode (m3p2i-server --plan-every rehearses a slow planner)",
+                1.0 / self.min_period,
+            )
+        self.controller.begin(reply.mode, reply.dt, reply.seed, new_episode=new)
+        self.welcome = reply
+        self._layout_checked = False
 
     def _plain_hello(self, error: P.Error, version: int, plain: int | None) -> int:
         """The version to say a plain hello in after the world refused ours with ``error``
