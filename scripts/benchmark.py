@@ -465,6 +465,10 @@ def _regenerate_or_show(report: Path | None, update_file: Path | None) -> None:
     or without --update, --report's tables printed."""
     if update_file is None:
         results = read_results(report, "--report")
+        if not isinstance(results, dict) or not isinstance(results.get("rows"), list):
+            raise typer.BadParameter(
+                f"{report}: no 'rows' (expected a file written by --out)", param_hint="--report"
+            )
         _print_table(results["rows"], f"{report}: {results.get('command', '')}")
         return
     try:

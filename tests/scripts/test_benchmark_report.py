@@ -144,3 +144,6 @@ def test_the_command_updates_from_report_and_prints_a_report_alone(tmp_path):
     assert "navigation" in shown.stdout and "250.0" in shown.stdout
     missing = benchmark("--report", str(tmp_path / "none.json"))
     assert missing.returncode == 2 and "no file" in missing.stderr
+    (tmp_path / "other.json").write_text('{"a": 1}')
+    other = benchmark("--report", str(tmp_path / "other.json"))
+    assert other.returncode == 2 and "no 'rows' (expected a file written by --out)" in other.stderr
