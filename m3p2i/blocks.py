@@ -41,3 +41,12 @@ def read_results(path: Path, what: str) -> dict:
         raise typer.BadParameter(f"{what}: no file {path} (expected a results file)") from None
     except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
         raise typer.BadParameter(f"{what}: {path} is not a JSON results file ({exc})") from None
+
+
+def read_doc(path: Path, flag: str = "--update") -> str:
+    """The Markdown file ``path`` whose blocks are to be regenerated, or a
+    ``typer.BadParameter`` naming ``flag`` when it cannot be read."""
+    try:
+        return path.read_text(encoding="utf-8")
+    except OSError as exc:
+        raise typer.BadParameter(f"cannot read {path}: {exc}", param_hint=flag) from None

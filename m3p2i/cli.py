@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import sys
 from pathlib import Path
-from typing import Annotated, NoReturn
+from typing import Annotated
 
 import typer
 
@@ -30,6 +30,7 @@ from m3p2i.cli_support import (
     load_or_exit,
     plugin_args,
     terminate_as_interrupt,
+    usage_error,
 )
 from m3p2i.launch import (
     EpisodeLaunch,
@@ -224,7 +225,7 @@ def run(
     delays = declared_delays_or_exit(sc, faults) if compensate else None
     _ports_or_exit(port, view_port if view else 0)
     if view_port and not view:
-        _exit_usage("--view-port serves the page of --view: give --view too, or leave it out")
+        usage_error("--view-port serves the page of --view: give --view too, or leave it out")
     run_dir = run_dir or default_run_dir(sc.name)
     typer.echo(
         f"running {sc.name} ({mode}{', faults ' + faults if faults else ''}"
@@ -257,17 +258,12 @@ def run(
     raise typer.Exit(_launch(launch, sc.name))
 
 
-def _exit_usage(message: str) -> NoReturn:
-    typer.echo(f"error: {message}", err=True)
-    raise typer.Exit(2)
-
-
 def _ports_or_exit(port: int, view_port: int) -> None:
     """A port asked for that another process holds: exit 2 before anything starts (the world
     would fail to bind it, the view would move to another port than the one waited on)."""
     for flag, first, count in (("--port", port, 4), ("--view-port", view_port, 1)):
         if first and (busy := taken_ports(first, count)):
-            _exit_usage(
+            usage_error(
                 f"{flag} {first}: port {busy[0]} is taken (leave {flag} out to pick free ones)"
             )
 
@@ -381,8 +377,7 @@ def report(
         typer.echo("error: give results files to tabulate, or --update FILE", err=True)
         raise typer.Exit(2)
     if check and not update:  # it would have checked nothing and passed
-        typer.echo("error: --check checks the blocks of --update FILE: give --update", err=True)
-        raise typer.Exit(2)
+        usage_error("--check checks the blocks of --update FILE: give --update")
     try:
         paper = R.load_paper()
         if results:
@@ -468,8 +463,7 @@ def record(
         )
         raise typer.Exit(2)
     if out.suffix.lower() not in VIDEO_FORMATS:  # before an episode that could not be written
-        typer.echo(f"error: --out {out}: expected a {' or '.join(VIDEO_FORMATS)} file", err=True)
-        raise typer.Exit(2)
+        usage_error(f"--out {out}: expected a {' or '.join(VIDEO_FORMATS)} file")
     from m3p2i import video
 
     try:

@@ -7,7 +7,7 @@ from __future__ import annotations
 import inspect
 import signal
 from pathlib import Path
-from typing import Annotated
+from typing import Annotated, NoReturn
 
 import typer
 
@@ -61,6 +61,13 @@ def flow_help(app: typer.Typer) -> None:
             command.help = flowing(text)
 
 
+def usage_error(message: str) -> NoReturn:
+    """``error: message`` on stderr and exit 2: an option or file the command cannot use,
+    before anything starts."""
+    typer.echo(f"error: {message}", err=True)
+    raise typer.Exit(2)
+
+
 def load_or_exit(scenario: str, plugins: tuple[str, ...] = ()):
     """The scenario, checked by both processes before either starts (the planner with its
     ``--plugins``); or exit 2 printing every error of the file (file, key path, value,
@@ -86,12 +93,10 @@ def scenarios_or_exit(names: list[str], teams: bool = True) -> list:
     for name in names:
         sc = load_or_exit(name)
         if sc.team and not teams:
-            typer.echo(
-                f"error: {name}: a scenario of {len(sc.team)} robots starts a planner per "
-                "robot; this measures one (expected a scenario of one robot)",
-                err=True,
+            usage_error(
+                f"{name}: a scenario of {len(sc.team)} robots starts a planner per robot; "
+                "this measures one (expected a scenario of one robot)"
             )
-            raise typer.Exit(2)
         scenarios.append(sc)
     return scenarios
 

@@ -11,7 +11,7 @@ from typing import Annotated
 
 import typer
 
-from m3p2i.cli_support import keys_or_exit, load_or_exit
+from m3p2i.cli_support import keys_or_exit, load_or_exit, usage_error
 from shared.cli_common import Host, Keys, Port
 from shared.config import ConfigError
 from shared.endpoints import DEFAULT_HOST, DEFAULT_PORT
@@ -105,12 +105,9 @@ def view(
         "--replay-after": replay_after is not None,
     }
     if log is not None and (given := [flag for flag, on in live_only.items() if on]):
-        typer.echo(
-            f"error: {', '.join(given)}: live view only; a replay (--log) has no world to "
-            "reach or record",
-            err=True,
+        usage_error(
+            f"{', '.join(given)}: live view only; a replay (--log) has no world to reach or record"
         )
-        raise typer.Exit(2)
     bind = "0.0.0.0" if public else "127.0.0.1"
     over = threading.Event()  # the episode is over: --replay-after takes the page over
     if replay_after is not None and log is None:

@@ -59,7 +59,7 @@ from mujoco import rollout as mj_rollout
 from rich.console import Console
 from rich.table import Table
 
-from m3p2i.blocks import read_results
+from m3p2i.blocks import read_doc, read_results
 from m3p2i.cli_support import scenarios_or_exit
 from m3p2i.provenance import machine, versions
 from measure.speed_report import update
@@ -471,12 +471,7 @@ def _regenerate_or_show(report: Path | None, update_file: Path | None) -> None:
             )
         _print_table(results["rows"], f"{report}: {results.get('command', '')}")
         return
-    try:
-        text = update_file.read_text(encoding="utf-8")
-    except OSError as exc:
-        raise typer.BadParameter(
-            f"cannot read {update_file}: {exc}", param_hint="--update"
-        ) from None
+    text = read_doc(update_file)
     update_file.write_text(update(text, update_file.parent, report), encoding="utf-8")
     typer.echo(f"updated {update_file}")
 

@@ -18,7 +18,7 @@ from typing import Annotated
 
 import typer
 
-from m3p2i.blocks import read_results
+from m3p2i.blocks import read_doc, read_results
 from m3p2i.cli_support import scenarios_or_exit
 from measure.netns import Unavailable, unavailable
 from measure.soak_episodes import Soak, SoakConfig, print_table, update
@@ -162,10 +162,7 @@ def main(
 def _regenerate_or_show(report: Path | None, update_file: Path | None) -> None:
     """No run: --update's soak blocks regenerated, then --report's table printed."""
     if update_file is not None:
-        try:
-            text = update_file.read_text(encoding="utf-8")
-        except OSError as exc:
-            raise typer.BadParameter(f"cannot read {update_file}: {exc}", "--update") from None
+        text = read_doc(update_file)
         update_file.write_text(update(text, update_file.parent), encoding="utf-8")
         typer.echo(f"updated {update_file}")
     if report is not None:
