@@ -16,8 +16,9 @@ import torch
 from mujoco import rollout as mj_rollout
 
 from planner_client.costs import TERMS, JointInfo, RolloutBatch, TermContext, build_objective
+from planner_client.costs.base import Norm
 from planner_client.costs.helpers import norm, sparse_norm
-from planner_client.costs.norms import fusable
+from planner_client.costs.norms import NormObjective, fusable
 from planner_client.guide import GuideState
 from planner_client.sensors import SensorColumns, SensorRequest, add_sensors
 from planner_client.spheres import add_sphere_sites, robot_spheres
@@ -770,6 +771,68 @@ def test_an_objective_of_norms_costs_what_its_terms_sum_to(ctx):
     # the sensor columns are part of the fused form: another batch's columns are read where they are
     other = _random_batch(obj, seed=7)
     torch.testing.assert_close(obj(other), obj(other, {}), rtol=1e-12, atol=0.0)
+
+
+class _NormsOnly:
+    """A term that is only its norms (what :class:`NormObjective` reads of a term)."""
+
+    def __init__(self, *norms: Norm):
+        self._norms = list(norms)
+
+    def norms(self) -> list[Norm]:
+        return self._norms
+
+
+def _dense_reference(terms, columns: SensorColumns, x: np.ndarray) -> np.ndarray:
+    """The objective of ``terms`` over ``x [S, T, n]`` as the module's equation reads, one norm
+    at a time in NumPy: ``Σ_g W[t, g] sqrt(max(floor, Σ_i (b_i + Σ c x)²))``."""
+    out = np.zeros(x.shape[:2])
+    for term, w in terms:
+        for each in term.norms():
+            squares = 0.0
+            for bias, parts in each.components:
+                z = bias + sum(c * x[..., columns.spans[req].start + i] for req, i, c in parts)
+                squares = squares + z * z
+            out += w.numpy() * np.sqrt(np.maximum(each.floor, squares))
+    return out
+
+
+def test_fused_norms_of_any_shape_are_what_the_equation_says():
+    """Components with a bias and two values (the first negative), one value scaled by 2.5, a
+    column listed twice and one whose coefficients cancel, norms of one to three components:
+    the fused evaluation against :mod:`planner_client.costs.norms`' equation."""
+    a, b = SensorRequest("framepos", "a"), SensorRequest("framepos", "b")
+    columns = SensorColumns({b: slice(0, 3), a: slice(3, 6)})
+    distance = Norm(tuple((0.1 * i, ((a, i, -1.0), (b, i, 1.0))) for i in range(3)))
+    odd = Norm(
+        ((0.0, ((a, 0, 2.5),)), (-0.3, ((b, 1, 1.0), (b, 1, 1.0), (a, 2, 1.0)))), floor=1e-300
+    )
+    gone = Norm(((0.5, ((a, 1, 1.0), (a, 1, -1.0))),))
+    terms = [
+        (_NormsOnly(distance, gone), torch.tensor([1.0, 2.0, 3.0], dtype=F64)),
+        (_NormsOnly(odd), torch.tensor([0.5, 0.0, 4.0], dtype=F64)),
+    ]
+    x = np.random.default_rng(3).normal(size=(7, 3, 6)) * 10.0 ** np.arange(-2, 4)
+    x[0, 0] = 0.0
+    got = NormObjective(terms, columns, 6)(torch.from_numpy(x.copy()))
+    np.testing.assert_allclose(got.numpy(), _dense_reference(terms, columns, x), rtol=1e-13)
+
+
+def test_norms_of_unit_differences_are_exact():
+    """A distance, ``x_a - x_b`` with or without an offset, is the number plain differences
+    give, bit for bit, whatever the BLAS: its map's products are by ±1 or 0, exact."""
+    a, b = SensorRequest("framepos", "a"), SensorRequest("framepos", "b")
+    columns = SensorColumns({a: slice(0, 3), b: slice(3, 6)})
+    plain = Norm(tuple((0.0, ((a, i, 1.0), (b, i, -1.0))) for i in range(2)))
+    offset = Norm(((0.25, ((b, 2, -1.0),)),))
+    ones = torch.ones(4, dtype=F64)
+    objective = NormObjective([(_NormsOnly(plain, offset), ones)], columns, 6)
+    x = np.random.default_rng(5).normal(size=(50, 4, 6)) * 1e3
+    got = objective(torch.from_numpy(x.copy())).numpy()
+    dx, dy = x[..., 0] - x[..., 3], x[..., 1] - x[..., 4]
+    squares = torch.from_numpy(np.stack([dx * dx + dy * dy, (0.25 - x[..., 5]) ** 2]))
+    want = squares.sqrt().sum(0)  # torch's root: not always correctly rounded, as NumPy's is
+    assert np.array_equal(got, want.numpy())
 
 
 def test_an_objectives_norm_terms_are_fused_beside_its_other_terms(ctx):
