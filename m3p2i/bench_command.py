@@ -14,7 +14,7 @@ from typing import TYPE_CHECKING, Annotated
 
 import typer
 
-from m3p2i.cli_support import plugin_args, terminate_as_interrupt
+from m3p2i.cli_support import plugin_args, terminate_as_interrupt, usage_error
 from m3p2i.process_checks import scenario_errors
 from shared.cli_common import Plugins
 from shared.config import ConfigError
@@ -200,7 +200,7 @@ def run_bench(req: BenchRequest) -> None:
         plugins=req.plugins,
     )
     if (req.ray or req.ray_address) and opts.plugins:
-        _fail(
+        usage_error(
             "--plugins: a Ray node imports no module the driver names (the planner's plugins "
             "are the node operator's choice); run the bench on this machine's pool"
         )
@@ -208,7 +208,9 @@ def run_bench(req: BenchRequest) -> None:
     done = {B.trial_key(r["case"], r["seed"], r["scenario_hash"]) for r in results.rows()}
     planned, todo = B.plan_trials(plan.ready, plan.cfg, opts, done)
     if planned and (last := max(t.seed for t in planned)) > MAX_SEED:
-        _fail(f"--seed {req.seed}: its trials' seeds reach {last} (expected at most {MAX_SEED})")
+        usage_error(
+            f"--seed {req.seed}: its trials' seeds reach {last} (expected at most {MAX_SEED})"
+        )
     for s in plan.skipped:
         console.print(f"[yellow]skipped[/] {s.case.case}: {s.reason}")
     variants = len(plan.swept.variants())
@@ -236,11 +238,6 @@ def run_bench(req: BenchRequest) -> None:
         raise typer.Exit(130)
 
 
-def _fail(message: str) -> None:
-    typer.echo(f"error: {message}", err=True)
-    raise typer.Exit(2)
-
-
 def _read(req: BenchRequest) -> _Plan:
     """The bench file, the cases asked for and the sweep (exit 2 on any error of them)."""
     from m3p2i import bench as B
@@ -263,7 +260,7 @@ def _read(req: BenchRequest) -> _Plan:
         )
         return _Plan(cfg, out_dir, swept, ready, skipped, R.load_paper())
     except ConfigError as exc:
-        _fail(str(exc))
+        usage_error(str(exc))
 
 
 def _check_variants(req: BenchRequest, plan: _Plan, console) -> None:
@@ -296,7 +293,7 @@ def _run(req: BenchRequest, todo: list, opts, results, console) -> bool:
         try:
             cluster = bench_ray.connect(req.ray_address, opts.workers)
         except bench_ray.RayUnavailable as exc:
-            _fail(str(exc))
+            usage_error(str(exc))
         console.print(f"Ray: {cluster.describe()}, {req.cpus_per_trial} CPU(s) per trial")
     with B.progress(console) as bar:
         task = bar.add_task("bench", total=len(todo))

@@ -128,8 +128,7 @@ def layout(
         # the world's
         found, frames = bridge_layout(sc), frame_names(sc, model)
     except (ConfigError, ValueError) as exc:
-        typer.echo(f"error: {exc}", err=True)
-        raise typer.Exit(2) from None
+        usage_error(str(exc))
     if as_json:
         typer.echo(json.dumps({**found.to_dict(), "frames": [asdict(f) for f in frames]}, indent=1))
         return
@@ -278,8 +277,7 @@ def _modes_or_exit(mode: str, plan_every: int, max_rate: float, realtime_factor:
     }
     for key, why, value, expected in mode_conflicts(mode, plan_every, max_rate, realtime_factor):
         expected = expected.replace("mode: ", "--mode ").replace("plan_every", "--plan-every")
-        typer.echo(f"error: {flags[key]} {value}: {why} (expected {expected})", err=True)
-        raise typer.Exit(2)
+        usage_error(f"{flags[key]} {value}: {why} (expected {expected})")
 
 
 def _launch(launch: EpisodeLaunch, name: str) -> int:
@@ -300,8 +298,7 @@ def _launch(launch: EpisodeLaunch, name: str) -> int:
     try:
         result = run_episode(launch, on_view=lambda url: typer.echo(f"view: {url}"), on_kept=kept)
     except RuntimeError as exc:  # the view could not serve its page
-        typer.echo(f"error: {exc}", err=True)
-        raise typer.Exit(2) from None
+        usage_error(str(exc))
     return codes[0] if codes else report(result)
 
 
@@ -374,8 +371,7 @@ def report(
     from m3p2i import bench_report as R
 
     if not results and not update:
-        typer.echo("error: give results files to tabulate, or --update FILE", err=True)
-        raise typer.Exit(2)
+        usage_error("give results files to tabulate, or --update FILE")
     if check and not update:  # it would have checked nothing and passed
         usage_error("--check checks the blocks of --update FILE: give --update")
     try:
@@ -397,8 +393,7 @@ def report(
                 if not check:
                     doc.write_text(new)
     except (ConfigError, OSError) as exc:
-        typer.echo(f"error: {exc}", err=True)
-        raise typer.Exit(2) from None
+        usage_error(str(exc))
     for doc in stale:
         typer.echo(f"{doc}: {'out of date' if check else 'updated'}")
     if check and stale:
@@ -426,15 +421,13 @@ def plot(
         sc = log_reader.log_scenario(records, scenario)
         series = episode_series(sc, records)
     except (ConfigError, FileNotFoundError, ValueError) as exc:
-        typer.echo(f"error: {exc}", err=True)
-        raise typer.Exit(2) from None
+        usage_error(str(exc))
     head = log_reader.header(records)
     title = f"{sc.name}, seed {head.get('seed', '?')}"
     try:
         typer.echo(f"wrote {plot_episode(series, out / 'episode.png', title)}")
     except ImportError:
-        typer.echo("error: m3p2i plot needs matplotlib: pip install -e '.[plots]'", err=True)
-        raise typer.Exit(2) from None
+        usage_error("m3p2i plot needs matplotlib: pip install -e '.[plots]'")
 
 
 @app.command("record")
@@ -458,10 +451,7 @@ def record(
     """Record an episode offscreen (EGL or OSMesa) to GIF/MP4, with the planner's best sampled
     trajectories drawn in green."""
     if (scenario is None) == (log is None):
-        typer.echo(
-            "error: give a SCENARIO to run, or --log to render an existing episode", err=True
-        )
-        raise typer.Exit(2)
+        usage_error("give a SCENARIO to run, or --log to render an existing episode")
     if out.suffix.lower() not in VIDEO_FORMATS:  # before an episode that could not be written
         usage_error(f"--out {out}: expected a {' or '.join(VIDEO_FORMATS)} file")
     from m3p2i import video
@@ -530,8 +520,7 @@ def keys_command(
     try:
         written = make_keys(folder)
     except ConfigError as exc:
-        typer.echo(f"error: {exc}", err=True)
-        raise typer.Exit(2) from None
+        usage_error(str(exc))
     for path in written:
         typer.echo(f"wrote {path} ({oct(path.stat().st_mode & 0o777)[2:]})")
     typer.echo(
@@ -551,8 +540,7 @@ def list_files(
     robots folders beside them, then the shipped robots). Where two folders
     have a file of the same name, the earlier one is used, and both lines say so."""
     if kind not in KINDS:
-        typer.echo(f"error: cannot list {kind!r}; one of: {', '.join(KINDS)}", err=True)
-        raise typer.Exit(2)
+        usage_error(f"cannot list {kind!r}; one of: {', '.join(KINDS)}")
     found = entries(kind)
     # a used file -> the first file of its name that it shadows
     shadowed = {}
@@ -607,8 +595,7 @@ def new(
     try:
         made = new_scenario(name, source)
     except ConfigError as exc:
-        typer.echo(f"error: {exc}", err=True)
-        raise typer.Exit(2) from None
+        usage_error(str(exc))
     typer.echo(f"wrote {shown(made.path)}, a copy of {shown(made.source)}")
     for e in entries("scenarios"):
         if e.shadowed_by == made.path:

@@ -75,8 +75,7 @@ def load_or_exit(scenario: str, plugins: tuple[str, ...] = ()):
     try:
         path = find_scenario(scenario)
     except ConfigError as exc:
-        typer.echo(f"error: {exc}", err=True)
-        raise typer.Exit(2) from None
+        usage_error(str(exc))
     errors = scenario_errors(path, plugins)
     for message in errors:
         typer.echo(f"error: {message}", err=True)
@@ -126,8 +125,7 @@ def faults_or_exit(spec: str) -> str:
     try:
         load_faults(spec)
     except ConfigError as exc:
-        typer.echo(f"error: {exc}", err=True)
-        raise typer.Exit(2) from None
+        usage_error(str(exc))
     return spec if spec in PROFILES else str(Path(spec).resolve())
 
 
@@ -138,12 +136,10 @@ def declared_delays_or_exit(sc, faults: str | None) -> tuple[float, float]:
 
     delays = (load_faults(faults) if faults else sc.faults).delays
     if delays is None:
-        typer.echo(
-            "error: --compensate: no delay to compensate (give --faults PROFILE, or a "
-            "scenario whose faults: section sets actuation_delay_ms or state_delay_ms)",
-            err=True,
+        usage_error(
+            "--compensate: no delay to compensate (give --faults PROFILE, or a "
+            "scenario whose faults: section sets actuation_delay_ms or state_delay_ms)"
         )
-        raise typer.Exit(2)
     return delays
 
 
@@ -161,5 +157,4 @@ def keys_or_exit(keys: Path | None, world: bool = True):
             load_world_keys(keys)
         return load_planner_keys(keys)
     except ConfigError as exc:
-        typer.echo(f"error: {exc}", err=True)
-        raise typer.Exit(2) from None
+        usage_error(str(exc))

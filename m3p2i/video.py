@@ -24,7 +24,7 @@ import numpy as np
 import typer
 import zmq
 
-from m3p2i.cli_support import VIDEO_FORMATS, Fps, Height, Speed, Width
+from m3p2i.cli_support import VIDEO_FORMATS, Fps, Height, Speed, Width, usage_error
 from server.evaluation import log_reader
 from shared import protocol as P
 from shared.config import ConfigError
@@ -282,8 +282,7 @@ def main(
         frames = render_frames(log_reader.find_log(log), scenario, width, height, fps, speed)
         typer.echo(f"wrote {write_video(frames, out, fps)} ({len(frames)} frames)")
     except (ConfigError, FileNotFoundError, ValueError, RuntimeError) as exc:
-        typer.echo(f"error: {exc}", err=True)
-        raise typer.Exit(2) from None
+        usage_error(str(exc))
 
 
 def render_in_child(

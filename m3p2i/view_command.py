@@ -92,10 +92,7 @@ def view(
     from shared.endpoints import Endpoints
 
     if (scenario is None) == (log is None):
-        typer.echo(
-            "error: give a SCENARIO for a live view, or --log to replay an episode", err=True
-        )
-        raise typer.Exit(2)
+        usage_error("give a SCENARIO for a live view, or --log to replay an episode")
     live_only = {
         "--host": host != DEFAULT_HOST,
         "--port": port != DEFAULT_PORT,
@@ -126,8 +123,7 @@ def view(
                 controls=not public or public_controls,
             )
     except ImportError as exc:
-        typer.echo(f"error: {exc}", err=True)
-        raise typer.Exit(2) from None
+        usage_error(str(exc))
     if log is None and replay_after is not None:
         shown.stop = over  # the live view serves until the episode is over
     typer.echo(f"view: {shown.url}")
