@@ -433,10 +433,11 @@ def main(
         raise typer.BadParameter(
             f"{backend!r}: expected one of {', '.join(ROLLOUT_BACKENDS)}", param_hint="--backend"
         )
+    counts = _sample_counts(samples)  # before the scenarios: it is the cheaper check
     scenarios_or_exit(scenario)  # every one sound before the first is measured
     opts = Options(
         scenarios=scenario,
-        counts=_sample_counts(samples),
+        counts=counts,
         horizon=horizon,
         iterations=iterations // ROUNDS * ROUNDS,
         runs=runs,
