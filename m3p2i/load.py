@@ -1,6 +1,7 @@
 """Repeatable load: N busy processes that compete with the planner for the cores, as a robot's
 computer also runs drivers, perception and logging. Each spins on arithmetic until the harness
-stops it or its own deadline passes, so a crashed caller never leaves load behind.
+stops it, its own deadline passes or the process that started it is gone (killed, even with
+SIGKILL), so a crashed caller never leaves load behind.
 
     with BusyLoad(2, max_seconds=900):       # two cores' worth of competition
         run_the_episodes()
@@ -28,10 +29,11 @@ MAX_PROCS = 64
 MAX_SECONDS = 24 * 3600.0
 
 
-def _spin(stop: Event, deadline: float) -> None:
-    """Burn one core until ``stop`` is set or the monotonic ``deadline`` passes."""
+def _spin(stop: Event, deadline: float, parent: int) -> None:
+    """Burn one core until ``stop`` is set, the monotonic ``deadline`` passes or process
+    ``parent`` is no longer this one's parent (it died: the orphan was adopted)."""
     x = 0
-    while time.monotonic() < deadline and not stop.is_set():
+    while time.monotonic() < deadline and not stop.is_set() and os.getppid() == parent:
         for _ in range(20_000):  # a slice of pure work between checks: ~1 ms
             x = (x * 1103515245 + 12345) & 0x7FFFFFFF
 
@@ -58,7 +60,10 @@ class BusyLoad:
         deadline = time.monotonic() + self.max_seconds
         for i in range(self.procs):
             w = self._ctx.Process(
-                target=_spin, args=(self._stop, deadline), daemon=True, name=f"busy-{i}"
+                target=_spin,
+                args=(self._stop, deadline, os.getpid()),
+                daemon=True,
+                name=f"busy-{i}",
             )
             w.start()
             self._workers.append(w)
@@ -95,7 +100,11 @@ def main(
         float, typer.Option(min=0.001, max=MAX_SECONDS, help="How long they run.")
     ] = 60.0,
 ) -> None:
-    """Load the machine with PROCS busy processes for SECONDS (Ctrl-C stops them sooner)."""
+    """Load the machine with PROCS busy processes for SECONDS (Ctrl-C or SIGTERM stops them
+    sooner; they also stop if this process is killed)."""
+    from m3p2i.cli_support import terminate_as_interrupt
+
+    terminate_as_interrupt()
     typer.echo(f"{procs} busy processes for {seconds:g} s on {os.cpu_count()} cores")
     with BusyLoad(procs, max_seconds=seconds) as load:
         try:

@@ -1,9 +1,15 @@
-"""The load harness (scripts/measure/load.py): its busy processes run while asked, stop when
-told, and stop by themselves at their deadline, so a test never leaves load behind."""
+"""The load harness (m3p2i/load.py): its busy processes run while asked, stop when told, stop by
+themselves at their deadline and when the process that started them is killed, so neither a test
+nor a killed command leaves load behind."""
 
 from __future__ import annotations
 
+import os
+import signal
+import subprocess
+import sys
 import time
+from pathlib import Path
 
 import pytest
 
@@ -38,3 +44,80 @@ def test_busy_processes_stop_by_themselves_at_their_deadline():
 def test_a_load_out_of_bounds_is_refused(procs, seconds):
     with pytest.raises(ValueError, match="expected"):
         BusyLoad(procs, max_seconds=seconds)
+
+
+def _children(pid: int) -> list[int]:
+    """Live processes whose parent is ``pid`` (Linux /proc)."""
+    found = []
+    for entry in Path("/proc").iterdir():
+        if entry.name.isdigit() and _state(int(entry.name)) not in ("", "Z"):
+            try:
+                ppid = int((entry / "stat").read_text().rsplit(")", 1)[1].split()[1])
+            except (OSError, IndexError, ValueError):
+                continue
+            if ppid == pid:
+                found.append(int(entry.name))
+    return found
+
+
+def _state(pid: int) -> str:
+    """A process's state letter ('Z': a zombie, done but not reaped), '' when it is gone."""
+    try:
+        return (Path("/proc") / str(pid) / "stat").read_text().rsplit(")", 1)[1].split()[0]
+    except (OSError, IndexError):
+        return ""
+
+
+def _gone(pids: list[int]) -> bool:
+    return all(_state(p) in ("", "Z") for p in pids)
+
+
+def _load_command(procs: int) -> tuple[subprocess.Popen, list[int]]:
+    """``python -m m3p2i.load`` with ``procs`` busy processes, and the pids of those (not of
+    multiprocessing's resource tracker), once they run."""
+    cmd = [sys.executable, "-m", "m3p2i.load", "--procs", str(procs), "--seconds", "60"]
+    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    busy: list[int] = []
+
+    def started() -> bool:
+        busy[:] = [
+            p
+            for p in _children(proc.pid)
+            if b"spawn_main" in (Path("/proc") / str(p) / "cmdline").read_bytes()
+        ]
+        return len(busy) == procs
+
+    if not _wait_until(started, 30.0):
+        proc.kill()
+        pytest.fail(f"{procs} busy processes did not start: {proc.communicate()[0]}")
+    return proc, busy
+
+
+@pytest.mark.skipif(not Path("/proc/self/stat").exists(), reason="reads /proc (Linux)")
+def test_busy_processes_stop_when_the_command_that_started_them_is_killed():
+    proc, busy = _load_command(2)
+    try:
+        proc.kill()  # SIGKILL: no handler runs, the harness cannot stop them itself
+        proc.wait(10)
+        assert _wait_until(lambda: _gone(busy), 10.0), "busy processes outlived their starter"
+    finally:
+        _kill_left(busy)
+
+
+@pytest.mark.skipif(not Path("/proc/self/stat").exists(), reason="reads /proc (Linux)")
+def test_sigterm_stops_the_load_command_as_ctrl_c_does():
+    proc, busy = _load_command(1)
+    try:
+        proc.terminate()
+        out, _ = proc.communicate(timeout=15)
+        assert proc.returncode == 0 and "stopped" in out, out
+        assert _wait_until(lambda: _gone(busy), 10.0)
+    finally:
+        _kill_left(busy)
+
+
+def _kill_left(pids: list[int]) -> None:
+    """A failing test leaves no load behind either."""
+    for p in pids:
+        if not _gone([p]):
+            os.kill(p, signal.SIGKILL)
