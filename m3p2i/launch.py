@@ -7,6 +7,7 @@ The two sides still meet only over the wire; this module only starts and stops t
 from __future__ import annotations
 
 import functools
+import os
 import random
 import signal
 import socket as pysocket
@@ -180,6 +181,7 @@ class EpisodeLaunch:
 
     def commands(self, port: int) -> dict[str, list[str]]:
         common = ["--scenario", self.scenario, "--port", str(port), "--seed", str(self.seed)]
+        common += ["--parent-pid", str(os.getpid())]  # killed outright, we leave no pair behind
         if self.keys is not None:
             common += ["--keys", str(self.keys)]
         server = [

@@ -16,6 +16,7 @@ from shared.cli_common import (
     Keys,
     MeasureDelays,
     OldMeasureDelays,
+    ParentPid,
     Plugins,
     Port,
     ScenarioOption,
@@ -25,6 +26,8 @@ from shared.cli_common import (
     print_errors,
     renamed,
     setup_logging,
+    signals_as_ctrl_c,
+    stop_with_parent,
 )
 from shared.config import ConfigError, ConfigErrors
 from shared.endpoints import DEFAULT_HOST, DEFAULT_PORT, Endpoints
@@ -184,6 +187,7 @@ def main(
     max_rate: MaxRate = 0.0,
     robot: RobotOption = None,
     verbose: Verbose = False,
+    parent_pid: ParentPid = None,
     estimate_delays: OldMeasureDelays = False,
 ) -> None:
     setup_logging(verbose, "m3p2i.planner")
@@ -240,7 +244,7 @@ def main(
         _failed(exc, "building the planner")
     STARTUP.mark("build")
     collector_back()
-    _plan(client, scenario, warned)
+    _plan(client, scenario, warned, parent_pid)
 
 
 def _checked_or_exit(scenario: str, plugins: list[str] | None, check: bool) -> None:
@@ -277,12 +281,15 @@ def _rollouts_or_exit(backend: str | None, device: str | None) -> str | None:
         raise typer.Exit(2) from None
 
 
-def _plan(client, scenario: str, warned) -> None:
-    """Plan until the episode (or, kept running, the world) ends; print the planner's
-    statistics and exit 0 on success, 1 otherwise, 3 when the world refuses this planner, 4
-    when planning fails."""
+def _plan(client, scenario: str, warned, parent_pid: int | None) -> None:
+    """Plan until the episode (or, kept running, the world) ends, or launcher ``parent_pid``
+    is gone; print the planner's statistics and exit 0 on success, 1 otherwise, 3 when the
+    world refuses this planner, 4 when planning fails."""
     from planner_client.controller import LayoutMismatch
     from planner_client.loop import HandshakeRefused
+
+    signals_as_ctrl_c()  # caught below: a supervisor's stop still prints the statistics
+    stop_with_parent(parent_pid)
 
     try:
         stats = client.run()

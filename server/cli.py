@@ -26,6 +26,7 @@ from shared.cli_common import (
     Mode,
     OldFaults,
     OldWindow,
+    ParentPid,
     PlanEvery,
     Port,
     RealtimeFactor,
@@ -38,6 +39,7 @@ from shared.cli_common import (
     print_errors,
     renamed,
     setup_logging,
+    stop_with_parent,
     summary_line,
 )
 from shared.config import ConfigError
@@ -145,6 +147,7 @@ def main(
     world: WorldClass = None,
     faults: Faults = None,
     verbose: Verbose = False,
+    parent_pid: ParentPid = None,
     hardware: OldFaults = None,
     viewer: OldWindow = False,
 ) -> None:
@@ -200,7 +203,7 @@ def main(
         _exit(f"error: {exc} (--host, --port: the world needs ports PORT..PORT+3 free)")
     if window:
         _open_window(server, world)
-    _serve(server, world)
+    _serve(server, world, parent_pid)
 
 
 def _exit(message: str, code: int = 2) -> None:
@@ -261,13 +264,15 @@ def _open_window(server: WorldServer, world: str | None) -> None:
         log.warning("no display found: running without the viewer")
 
 
-def _serve(server: WorldServer, world: str | None) -> None:
-    """Serve until the episode (or, kept, the last one) ends; exit 0 on success, 1 otherwise."""
+def _serve(server: WorldServer, world: str | None, parent_pid: int | None) -> None:
+    """Serve until the episode (or, kept, the last one) ends, or launcher ``parent_pid`` is
+    gone; exit 0 on success, 1 otherwise."""
     # a supervisor (systemd, the launcher's stop, a soak test's restart) stops the world with
     # SIGTERM: end the episode as Ctrl-C does, so the log still gets its summary
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, server.interrupt)
     collector_back()
+    stop_with_parent(parent_pid)
     try:
         outcome = server.run()
     except WorldError as exc:  # the world failed mid-episode: stopped, the summary written

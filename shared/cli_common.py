@@ -1,13 +1,17 @@
 """What the three command-line programs share: the options they have in common (declared once
 here, as ``Annotated`` types; a command sets only the default), help text that typer's rich
-output can rewrap, logging, the one-line summaries and error lines they print, and the garbage
-collector turned back on after a process's start-up."""
+output can rewrap, logging, the one-line summaries and error lines they print, the garbage
+collector turned back on after a process's start-up, and the watch that stops a process whose
+launcher died."""
 
 from __future__ import annotations
 
 import gc
 import logging
+import os
+import signal
 import sys
+import threading
 import time
 from pathlib import Path
 from typing import Annotated
@@ -167,6 +171,52 @@ Plugins = Annotated[
         "(docs/cost_terms.md). Only the planner imports it.",
     ),
 ]
+
+
+ParentPid = Annotated[
+    int | None,
+    typer.Option(
+        "--parent-pid",
+        min=1,
+        help="Stop, as on Ctrl-C, once process PID (the launcher that started this one: "
+        "m3p2i run and m3p2i bench pass their own) is no longer its parent: a launcher killed "
+        "outright leaves no world or planner behind.",
+    ),
+]
+
+
+def stop_with_parent(parent: int | None, every: float = 0.5) -> None:
+    """With ``parent`` (``--parent-pid``), SIGTERM to this process, once, as soon as it is no
+    longer ``parent``'s child: its launcher has died, even by SIGKILL, and a kept world or
+    planner (``--keep-serving``, ``--keep-running``) would wait for it forever. Both take
+    SIGTERM as Ctrl-C (:func:`signals_as_ctrl_c`; the world's own handler): the world ends its
+    episode with its summary, the planner prints its statistics. Not SIGINT: a process started
+    in the background inherits SIGINT ignored. A daemon thread checks every ``every`` s, the
+    first time ``every`` s after this call: call it just before the code that handles Ctrl-C.
+    Without ``parent`` nothing is watched."""
+    if parent is None:
+        return
+
+    def watch() -> None:
+        time.sleep(every)  # first: the caller is then past this call, inside its Ctrl-C path
+        while os.getppid() == parent:
+            time.sleep(every)
+        logging.getLogger("m3p2i").warning("launcher %d is gone: stopping as on Ctrl-C", parent)
+        os.kill(os.getpid(), signal.SIGTERM)
+
+    threading.Thread(target=watch, name="parent-watch", daemon=True).start()
+
+
+def signals_as_ctrl_c() -> None:
+    """SIGINT and SIGTERM raise KeyboardInterrupt in the main thread, as Ctrl-C does in a
+    terminal, whatever the process inherited (a background start ignores SIGINT; SIGTERM's
+    default ends the process on the spot, before it says how it did)."""
+
+    def interrupt(signum, frame):
+        raise KeyboardInterrupt(f"signal {signum}")
+
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(sig, interrupt)
 
 
 def collector_back() -> None:

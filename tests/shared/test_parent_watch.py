@@ -1,0 +1,128 @@
+"""``--parent-pid`` (shared/cli_common.py): a world or planner whose launcher is killed outright
+(SIGKILL: no handler of the launcher runs) stops by itself as on Ctrl-C, a kept world with its
+episode's summary, instead of waiting for the launcher forever; without the option, or while
+the launcher lives, nothing changes."""
+
+from __future__ import annotations
+
+import json
+import signal
+import subprocess
+import sys
+import textwrap
+import time
+from pathlib import Path
+
+import pytest
+
+from m3p2i.launch import free_port_block
+
+pytestmark = pytest.mark.skipif(
+    not Path("/proc/self/stat").exists(), reason="reads /proc for processes it did not start"
+)
+
+
+def _ended(pid: int) -> bool:
+    """Whether process ``pid`` has ended (gone, or a zombie nobody reaped)."""
+    try:
+        stat = (Path("/proc") / str(pid) / "stat").read_text()
+    except OSError:
+        return True
+    return stat.rsplit(")", 1)[1].split()[0] == "Z"
+
+
+def _wait(cond, seconds: float) -> bool:
+    deadline = time.monotonic() + seconds
+    while time.monotonic() < deadline and not cond():
+        time.sleep(0.1)
+    return cond()
+
+
+def _launcher(child: list[str], out: Path) -> tuple[subprocess.Popen, int]:
+    """A stand-in launcher: a Python process that starts ``child`` (``{pid}`` in it: the
+    launcher's own pid; its output to ``out``), prints the child's pid and sleeps. Returns it
+    and the child's pid."""
+    code = textwrap.dedent(
+        f"""
+        import os, subprocess, sys, time
+        cmd = [a.replace("{{pid}}", str(os.getpid())) for a in {child!r}]
+        with open({str(out)!r}, "w") as out:
+            child = subprocess.Popen(cmd, stdout=out, stderr=subprocess.STDOUT)
+        print(child.pid, flush=True)
+        time.sleep(120)
+        """
+    )
+    launcher = subprocess.Popen([sys.executable, "-c", code], stdout=subprocess.PIPE, text=True)
+    return launcher, int(launcher.stdout.readline())
+
+
+def _kill(pid: int) -> None:
+    if not _ended(pid):
+        subprocess.run(["kill", "-9", str(pid)], check=False)
+
+
+def test_a_kept_world_stops_with_its_summary_when_its_launcher_is_killed(tmp_path):
+    port, out = free_port_block(), tmp_path / "server.out"
+    cmd = [sys.executable, "-m", "server", "--scenario", "navigation", "--port", str(port)]
+    cmd += ["--keep-serving", "--log", str(tmp_path / "seed-{seed}.jsonl"), "--parent-pid", "{pid}"]
+    launcher, world = _launcher(cmd, out)
+    log = tmp_path / "seed-0.jsonl"
+    try:
+        assert _wait(lambda: "serving navigation" in out.read_text(), 60.0), out.read_text()
+        time.sleep(1.0)
+        assert not _ended(world)  # its launcher lives: it waits for a planner, kept
+        launcher.send_signal(signal.SIGKILL)
+        launcher.wait(10)
+        assert _wait(lambda: _ended(world), 15.0), "the world outlived its launcher"
+        last = json.loads(log.read_text().splitlines()[-1])
+        assert last["kind"] == "summary" and last["status"] == "stopped"
+    finally:
+        _kill(launcher.pid)
+        _kill(world)
+
+
+def test_a_kept_planner_stops_when_its_launcher_is_killed(tmp_path):
+    port, out = free_port_block(), tmp_path / "planner.out"  # no world: the planner waits
+    cmd = [sys.executable, "-m", "planner_client", "--scenario", "navigation", "--port", str(port)]
+    cmd += ["--keep-running", "--parent-pid", "{pid}"]
+    launcher, planner = _launcher(cmd, out)
+    try:
+        assert _wait(lambda: "waiting for a server" in out.read_text(), 60.0), out.read_text()
+        assert not _ended(planner)
+        launcher.send_signal(signal.SIGKILL)
+        launcher.wait(10)
+        assert _wait(lambda: _ended(planner), 20.0), "the planner outlived its launcher"
+    finally:
+        _kill(launcher.pid)
+        _kill(planner)
+
+
+def test_the_watch_stops_a_process_as_ctrl_c_once_its_parent_is_not_the_one_named():
+    code = textwrap.dedent(
+        """
+        import os, sys, time
+        from shared.cli_common import signals_as_ctrl_c, stop_with_parent
+        signals_as_ctrl_c()
+        stop_with_parent(int(sys.argv[1]), every=0.05)
+        try:
+            time.sleep(30)
+        except KeyboardInterrupt as exc:
+            print("interrupted:", exc)
+        """
+    )
+    ours = subprocess.run(
+        [sys.executable, "-c", code, "1"], capture_output=True, text=True, timeout=20
+    )
+    assert ours.stdout.strip() == f"interrupted: signal {int(signal.SIGTERM)}", ours.stderr
+    # its real parent named: it runs on until stopped
+    alive = subprocess.Popen(
+        [sys.executable, "-c", code.replace("int(sys.argv[1])", "os.getppid()")],
+        stdout=subprocess.PIPE,
+        text=True,
+    )
+    try:
+        time.sleep(1.5)
+        assert alive.poll() is None
+    finally:
+        alive.kill()
+        alive.wait(10)
