@@ -243,6 +243,8 @@ class EpisodeLaunch:
             str(view_port),
             "--record",
             str(self.run_dir / "diagnostics.jsonl"),
+            "--parent-pid",
+            str(os.getpid()),
         ]
         if self.view_keep:  # on SIGUSR1, the same page replays the episode
             cmd += ["--replay-after", str(self.run_dir)]

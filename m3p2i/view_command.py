@@ -12,7 +12,7 @@ from typing import Annotated
 import typer
 
 from m3p2i.cli_support import keys_or_exit, load_or_exit, usage_error
-from shared.cli_common import Host, Keys, Port
+from shared.cli_common import Host, Keys, ParentPid, Port, stop_with_parent
 from shared.config import ConfigError
 from shared.endpoints import DEFAULT_HOST, DEFAULT_PORT
 
@@ -80,6 +80,7 @@ def view(
     duration: Duration = None,
     keys: Keys = None,
     replay_after: ReplayAfter = None,
+    parent_pid: ParentPid = None,
 ) -> None:
     """Show a world and its planner in a browser: the scene from the scenario's model, the
     planner's best sampled trajectories coloured by mode, the executed path, the action and its
@@ -128,6 +129,7 @@ def view(
         shown.stop = over  # the live view serves until the episode is over
     typer.echo(f"view: {shown.url}")
     sys.stdout.flush()
+    stop_with_parent(parent_pid)  # m3p2i run's page: not kept waiting by a killed launcher
     _show(shown, duration, over, replay_after, bind, view_port)
 
 

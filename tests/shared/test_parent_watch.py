@@ -1,7 +1,7 @@
-"""``--parent-pid`` (shared/cli_common.py): a world or planner whose launcher is killed outright
-(SIGKILL: no handler of the launcher runs) stops by itself as on Ctrl-C, a kept world with its
-episode's summary, instead of waiting for the launcher forever; without the option, or while
-the launcher lives, nothing changes."""
+"""``--parent-pid`` (shared/cli_common.py): a world, planner or view whose launcher is killed
+outright (SIGKILL: no handler of the launcher runs) stops by itself as on Ctrl-C, a kept world
+with its episode's summary, instead of waiting for the launcher forever; while the launcher
+lives, nothing changes."""
 
 from __future__ import annotations
 
@@ -95,6 +95,23 @@ def test_a_kept_planner_stops_when_its_launcher_is_killed(tmp_path):
     finally:
         _kill(launcher.pid)
         _kill(planner)
+
+
+def test_a_live_view_stops_when_its_launcher_is_killed(tmp_path):
+    port, page, out = free_port_block(), free_port_block(count=1), tmp_path / "view.out"
+    cmd = [sys.executable, "-m", "m3p2i", "view", "navigation", "--port", str(port)]
+    cmd += ["--view-port", str(page), "--parent-pid", "{pid}"]
+    launcher, view = _launcher(cmd, out)
+    try:
+        assert _wait(lambda: "view: http" in out.read_text(), 60.0), out.read_text()
+        time.sleep(1.0)
+        assert not _ended(view)  # a live view serves until stopped
+        launcher.send_signal(signal.SIGKILL)
+        launcher.wait(10)
+        assert _wait(lambda: _ended(view), 15.0), "the view outlived its launcher"
+    finally:
+        _kill(launcher.pid)
+        _kill(view)
 
 
 def test_the_watch_stops_a_process_as_ctrl_c_once_its_parent_is_not_the_one_named():
