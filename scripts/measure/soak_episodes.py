@@ -293,6 +293,8 @@ class Soak:
             str(i),
             "--log",
             str(log),
+            "--parent-pid",  # a soak killed outright leaves no world behind
+            str(os.getpid()),
         ]
         if self.hosts is not None:
             cmd = self.hosts.in_namespace("world", cmd)
@@ -323,6 +325,8 @@ class Soak:
             "--keep-running",
             "--seed",
             str(self.cfg.seed + i),
+            "--parent-pid",  # kept running: without it, a killed soak's planners ran on forever
+            str(os.getpid()),
         ]
         if self.hosts is not None:
             # silence above the cut: the planner keeps its connection through it, and a new
