@@ -288,23 +288,22 @@ def _plan(client, scenario: str, warned, parent_pid: int | None) -> None:
     from planner_client.controller import LayoutMismatch
     from planner_client.loop import HandshakeRefused
 
-    signals_as_ctrl_c()  # caught below: a supervisor's stop still prints the statistics
     stop_with_parent(parent_pid)
-
-    try:
-        stats = client.run()
-    except HandshakeRefused as exc:
-        typer.echo(f"error: the server refused the handshake: {exc}", err=True)
-        raise typer.Exit(3) from None
-    except LayoutMismatch as exc:
-        typer.echo(f"error: {exc.explain(scenario)}", err=True)
-        raise typer.Exit(3) from None
-    except KeyboardInterrupt:
-        stats = client.stats
-    except Exception as exc:
-        _failed(exc, "planning")
-    finally:
-        client.close()
+    with signals_as_ctrl_c():  # a supervisor's SIGTERM, too, ends in the statistics
+        try:
+            stats = client.run()
+        except HandshakeRefused as exc:
+            typer.echo(f"error: the server refused the handshake: {exc}", err=True)
+            raise typer.Exit(3) from None
+        except LayoutMismatch as exc:
+            typer.echo(f"error: {exc.explain(scenario)}", err=True)
+            raise typer.Exit(3) from None
+        except KeyboardInterrupt:
+            stats = client.stats
+        except Exception as exc:
+            _failed(exc, "planning")
+        finally:
+            client.close()
     fallbacks = (
         f", {stats.safe_fallbacks} safe controls for want of a finite plan"
         if stats.safe_fallbacks

@@ -6,6 +6,7 @@ launcher died."""
 
 from __future__ import annotations
 
+import contextlib
 import gc
 import logging
 import os
@@ -13,6 +14,7 @@ import signal
 import sys
 import threading
 import time
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Annotated
 
@@ -207,16 +209,26 @@ def stop_with_parent(parent: int | None, every: float = 0.5) -> None:
     threading.Thread(target=watch, name="parent-watch", daemon=True).start()
 
 
-def signals_as_ctrl_c() -> None:
-    """SIGINT and SIGTERM raise KeyboardInterrupt in the main thread, as Ctrl-C does in a
-    terminal, whatever the process inherited (a background start ignores SIGINT; SIGTERM's
-    default ends the process on the spot, before it says how it did)."""
+@contextlib.contextmanager
+def signals_as_ctrl_c() -> Iterator[None]:
+    """Inside the block, SIGINT and SIGTERM raise KeyboardInterrupt in the main thread, as
+    Ctrl-C does in a terminal, whatever the process inherited (a background start ignores
+    SIGINT; SIGTERM's default ends the process on the spot, before it says how it did); the
+    handlers before it are back after it. Run in another thread (a command invoked in-process,
+    as tests do), it changes nothing: a process's signals are its main thread's to take."""
 
     def interrupt(signum, frame):
         raise KeyboardInterrupt(f"signal {signum}")
 
-    for sig in (signal.SIGINT, signal.SIGTERM):
-        signal.signal(sig, interrupt)
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    before = {sig: signal.signal(sig, interrupt) for sig in (signal.SIGINT, signal.SIGTERM)}
+    try:
+        yield
+    finally:
+        for sig, handler in before.items():
+            signal.signal(sig, handler)
 
 
 def collector_back() -> None:

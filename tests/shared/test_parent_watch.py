@@ -119,12 +119,12 @@ def test_the_watch_stops_a_process_as_ctrl_c_once_its_parent_is_not_the_one_name
         """
         import os, sys, time
         from shared.cli_common import signals_as_ctrl_c, stop_with_parent
-        signals_as_ctrl_c()
         stop_with_parent(int(sys.argv[1]), every=0.05)
-        try:
-            time.sleep(30)
-        except KeyboardInterrupt as exc:
-            print("interrupted:", exc)
+        with signals_as_ctrl_c():
+            try:
+                time.sleep(30)
+            except KeyboardInterrupt as exc:
+                print("interrupted:", exc)
         """
     )
     ours = subprocess.run(
@@ -143,3 +143,29 @@ def test_the_watch_stops_a_process_as_ctrl_c_once_its_parent_is_not_the_one_name
     finally:
         alive.kill()
         alive.wait(10)
+
+
+def test_signals_are_the_main_threads_and_come_back_after_the_block():
+    """In a thread (a command invoked in-process) nothing is installed, where signal.signal
+    would raise and leave the planner's sockets open; in the main thread the handlers before
+    the block are back after it."""
+    import threading
+
+    from shared.cli_common import signals_as_ctrl_c
+
+    before = signal.getsignal(signal.SIGTERM)
+    with signals_as_ctrl_c():
+        assert signal.getsignal(signal.SIGTERM) is not before
+        seen = []
+        worker = threading.Thread(target=lambda: seen.append(_enter_in_thread()))
+        worker.start()
+        worker.join(10)
+        assert seen == ["entered"]
+    assert signal.getsignal(signal.SIGTERM) is before
+
+
+def _enter_in_thread() -> str:
+    from shared.cli_common import signals_as_ctrl_c
+
+    with signals_as_ctrl_c():
+        return "entered"
