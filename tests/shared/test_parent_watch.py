@@ -61,57 +61,45 @@ def _kill(pid: int) -> None:
         subprocess.run(["kill", "-9", str(pid)], check=False)
 
 
+def _outlives_killed_launcher(cmd: list[str], out: Path, ready: str) -> bool:
+    """Start ``cmd`` under a stand-in launcher, wait for ``ready`` in its output, check that
+    it runs on while the launcher lives, SIGKILL the launcher: whether ``cmd``'s process still
+    runs 20 s later."""
+    launcher, pid = _launcher(cmd, out)
+    try:
+        assert _wait(lambda: ready in out.read_text(), 60.0), out.read_text()
+        time.sleep(1.0)
+        assert not _ended(pid)
+        launcher.send_signal(signal.SIGKILL)
+        launcher.wait(10)
+        return not _wait(lambda: _ended(pid), 20.0)
+    finally:
+        _kill(launcher.pid)
+        _kill(pid)
+
+
 def test_a_kept_world_stops_with_its_summary_when_its_launcher_is_killed(tmp_path):
-    port, out = free_port_block(), tmp_path / "server.out"
-    cmd = [sys.executable, "-m", "server", "--scenario", "navigation", "--port", str(port)]
-    cmd += ["--keep-serving", "--log", str(tmp_path / "seed-{seed}.jsonl"), "--parent-pid", "{pid}"]
-    launcher, world = _launcher(cmd, out)
-    log = tmp_path / "seed-0.jsonl"
-    try:
-        assert _wait(lambda: "serving navigation" in out.read_text(), 60.0), out.read_text()
-        time.sleep(1.0)
-        assert not _ended(world)  # its launcher lives: it waits for a planner, kept
-        launcher.send_signal(signal.SIGKILL)
-        launcher.wait(10)
-        assert _wait(lambda: _ended(world), 15.0), "the world outlived its launcher"
-        last = json.loads(log.read_text().splitlines()[-1])
-        assert last["kind"] == "summary" and last["status"] == "stopped"
-    finally:
-        _kill(launcher.pid)
-        _kill(world)
+    cmd = [sys.executable, "-m", "server", "--scenario", "navigation"]
+    cmd += ["--port", str(free_port_block()), "--keep-serving", "--parent-pid", "{pid}"]
+    cmd += ["--log", str(tmp_path / "seed-{seed}.jsonl")]  # a kept world waits for a planner
+    assert not _outlives_killed_launcher(cmd, tmp_path / "out", "serving navigation")
+    last = json.loads((tmp_path / "seed-0.jsonl").read_text().splitlines()[-1])
+    assert last["kind"] == "summary" and last["status"] == "stopped"
 
 
-def test_a_kept_planner_stops_when_its_launcher_is_killed(tmp_path):
-    port, out = free_port_block(), tmp_path / "planner.out"  # no world: the planner waits
-    cmd = [sys.executable, "-m", "planner_client", "--scenario", "navigation", "--port", str(port)]
-    cmd += ["--keep-running", "--parent-pid", "{pid}"]
-    launcher, planner = _launcher(cmd, out)
-    try:
-        assert _wait(lambda: "waiting for a server" in out.read_text(), 60.0), out.read_text()
-        assert not _ended(planner)
-        launcher.send_signal(signal.SIGKILL)
-        launcher.wait(10)
-        assert _wait(lambda: _ended(planner), 20.0), "the planner outlived its launcher"
-    finally:
-        _kill(launcher.pid)
-        _kill(planner)
-
-
-def test_a_live_view_stops_when_its_launcher_is_killed(tmp_path):
-    port, page, out = free_port_block(), free_port_block(count=1), tmp_path / "view.out"
-    cmd = [sys.executable, "-m", "m3p2i", "view", "navigation", "--port", str(port)]
-    cmd += ["--view-port", str(page), "--parent-pid", "{pid}"]
-    launcher, view = _launcher(cmd, out)
-    try:
-        assert _wait(lambda: "view: http" in out.read_text(), 60.0), out.read_text()
-        time.sleep(1.0)
-        assert not _ended(view)  # a live view serves until stopped
-        launcher.send_signal(signal.SIGKILL)
-        launcher.wait(10)
-        assert _wait(lambda: _ended(view), 15.0), "the view outlived its launcher"
-    finally:
-        _kill(launcher.pid)
-        _kill(view)
+@pytest.mark.parametrize(
+    "cmd, ready",
+    [  # a kept planner waits for a world; a live view serves until stopped
+        (["planner_client", "--scenario", "navigation", "--keep-running"], "waiting for a server"),
+        (["m3p2i", "view", "navigation", "--view-port", "{page}"], "view: http"),
+    ],
+    ids=["planner", "view"],
+)
+def test_a_planner_or_view_stops_when_its_launcher_is_killed(tmp_path, cmd, ready):
+    page = str(free_port_block(count=1))
+    cmd = [sys.executable, "-m", *(a.replace("{page}", page) for a in cmd)]
+    cmd += ["--port", str(free_port_block()), "--parent-pid", "{pid}"]
+    assert not _outlives_killed_launcher(cmd, tmp_path / "out", ready)
 
 
 def test_the_watch_stops_a_process_as_ctrl_c_once_its_parent_is_not_the_one_named():
