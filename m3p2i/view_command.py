@@ -12,7 +12,7 @@ from typing import Annotated
 import typer
 
 from m3p2i.cli_support import keys_or_exit, load_or_exit, usage_error
-from shared.cli_common import Host, Keys, ParentPid, Port, stop_with_parent
+from shared.cli_common import Host, Keys, ParentPid, Port, signals_as_ctrl_c, stop_with_parent
 from shared.config import ConfigError
 from shared.endpoints import DEFAULT_HOST, DEFAULT_PORT
 
@@ -130,7 +130,8 @@ def view(
     typer.echo(f"view: {shown.url}")
     sys.stdout.flush()
     stop_with_parent(parent_pid)  # m3p2i run's page: not kept waiting by a killed launcher
-    _show(shown, duration, over, replay_after, bind, view_port)
+    with signals_as_ctrl_c():  # a SIGTERM (the launcher's stop, the watch's) closes it as Ctrl-C
+        _show(shown, duration, over, replay_after, bind, view_port)
 
 
 def _replay_or_exit(log: Path, bind: str, view_port: int, server=None, code: int = 2):

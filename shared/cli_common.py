@@ -182,7 +182,7 @@ ParentPid = Annotated[
         min=1,
         help="Stop, as on Ctrl-C, once process PID (the launcher that started this one: "
         "m3p2i run and m3p2i bench pass their own) is no longer its parent: a launcher killed "
-        "outright leaves no world or planner behind.",
+        "outright leaves nothing behind.",
     ),
 ]
 
@@ -190,9 +190,10 @@ ParentPid = Annotated[
 def stop_with_parent(parent: int | None, every: float = 0.5) -> None:
     """With ``parent`` (``--parent-pid``), SIGTERM to this process, once, as soon as it is no
     longer ``parent``'s child: its launcher has died, even by SIGKILL, and a kept world or
-    planner (``--keep-serving``, ``--keep-running``) would wait for it forever. Both take
-    SIGTERM as Ctrl-C (:func:`signals_as_ctrl_c`; the world's own handler): the world ends its
-    episode with its summary, the planner prints its statistics. Not SIGINT: a process started
+    planner (``--keep-serving``, ``--keep-running``) or a live view would wait for it forever.
+    Each takes SIGTERM as Ctrl-C (:func:`signals_as_ctrl_c`; the world's own handler): the
+    world ends its episode with its summary, the planner prints its statistics, the view
+    closes its page and its recording. Not SIGINT: a process started
     in the background inherits SIGINT ignored. A daemon thread checks every ``every`` s, the
     first time ``every`` s after this call: call it just before the code that handles Ctrl-C.
     Without ``parent`` nothing is watched."""
