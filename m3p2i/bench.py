@@ -42,13 +42,14 @@ from rich.progress import (
     TimeRemainingColumn,
 )
 
-from m3p2i.launch import MODES, EpisodeLaunch, mode_conflicts, run_episode
+from m3p2i.launch import EpisodeLaunch, run_episode
 from m3p2i.load import MAX_PROCS, MAX_SECONDS, BusyLoad
 from m3p2i.provenance import machine, versions
 from m3p2i.sweep import Sweep, apply_overrides, file_label, parse_sweep_section, to_cell
 from m3p2i.warm import PairSlot
 from server.evaluation import log_reader
 from server.evaluation.metrics import MetricsEvaluator
+from shared.cli_common import MODES, mode_conflicts
 from shared.config import (
     ConfigError,
     Section,

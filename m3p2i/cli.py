@@ -37,7 +37,6 @@ from m3p2i.launch import (
     died,
     free_port_block,
     log_tail,
-    mode_conflicts,
     run_episode,
     taken_ports,
 )
@@ -61,6 +60,7 @@ from shared.cli_common import (
     Window,
     default_run_dir,
     error_blocks,
+    mode_conflicts,
     renamed,
     summary_line,
 )

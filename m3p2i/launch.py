@@ -83,48 +83,6 @@ def read_summary(log_path: Path) -> dict | None:
     return log_reader.summary(log_reader.read_log(log_path))
 
 
-MODES = ("lockstep", "realtime")
-
-
-def mode_conflicts(
-    mode: str, plan_every: int = 1, max_rate: float = 0.0, realtime_factor: float = 1.0
-) -> list[tuple[str, str, object, str]]:
-    """The options that mean nothing in ``mode``, each as ``(key, why, value, expected)`` (the
-    bench names the key, ``m3p2i run`` its flag): a combination that would be silently ignored
-    is refused instead."""
-    if mode not in MODES:
-        return [("mode", "unknown mode", mode, " or ".join(MODES))]
-    out: list[tuple[str, str, object, str]] = []
-    if max_rate and mode != "realtime":
-        out.append(
-            (
-                "max_rate",
-                "only a real-time world lets a planner fall behind",
-                max_rate,
-                "mode: realtime (lock-step: plan_every)",
-            )
-        )
-    if realtime_factor != 1.0 and mode != "realtime":
-        out.append(
-            (
-                "realtime_factor",
-                "only a real-time world has a wall clock to follow",
-                realtime_factor,
-                "mode: realtime",
-            )
-        )
-    if plan_every > 1 and mode != "lockstep":
-        out.append(
-            (
-                "plan_every",
-                "only a lock-step world plays a plan for a set number of steps",
-                plan_every,
-                "1 with mode: realtime",
-            )
-        )
-    return out
-
-
 # The planner's exit codes (planner_client/cli.py): 0 and 1 end an episode (success, not); 2 a
 # configuration error, 3 a refused handshake, 4 an uncaught error; a negative one, a signal.
 PLANNER_EPISODE_ENDS = (0, 1)

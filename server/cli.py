@@ -36,6 +36,7 @@ from shared.cli_common import (
     collector_back,
     default_run_dir,
     keys_or_exit,
+    mode_conflicts,
     print_errors,
     renamed,
     setup_logging,
@@ -157,16 +158,9 @@ def main(
     if mode not in MODES:
         raise typer.BadParameter("must be 'lockstep' or 'realtime'", param_hint="--mode")
     # as m3p2i run refuses them: an option of the other mode would be silently ignored
-    if realtime_factor != 1.0 and mode != "realtime":
-        _exit(
-            f"error: --realtime-factor {realtime_factor:g}: only a real-time world has a wall "
-            "clock to follow (expected --mode realtime)"
-        )
-    if plan_every > 1 and mode != "lockstep":
-        _exit(
-            f"error: --plan-every {plan_every}: only a lock-step world plays a plan for a set "
-            "number of steps (expected --mode lockstep)"
-        )
+    for key, why, value, expected in mode_conflicts(mode, plan_every, 0.0, realtime_factor):
+        expected = expected.replace("mode: ", "--mode ")
+        _exit(f"error: --{key.replace('_', '-')} {value:g}: {why} (expected {expected})")
     # before anything else: an exposed robot is refused at once (--check checks no keys)
     world_keys = (
         None
