@@ -49,7 +49,7 @@ from m3p2i.sweep import Sweep, apply_overrides, file_label, parse_sweep_section,
 from m3p2i.warm import PairSlot
 from server.evaluation import log_reader
 from server.evaluation.metrics import MetricsEvaluator
-from shared.cli_common import MODES, mode_conflicts
+from server.options import MODES, mode_conflicts
 from shared.config import (
     ConfigError,
     Section,
@@ -142,7 +142,8 @@ def _with_faults(case: BenchCase, c: Section, bench: Path) -> BenchCase:
     """A case's ``faults`` (profile, or file relative to the bench file) and ``compensate``
     (``true``: declare its delays to the planner; ``measure``: the planner measures them
     online), checked now, not trial by trial."""
-    from shared.scenario.faults import PROFILES, load_faults
+    from server.options import load_faults
+    from shared.scenario.faults import PROFILES
 
     spec = c.opt("faults", "", str, "a profile (nominal, lab, harsh) or a YAML file")
     compensate = c.opt(

@@ -16,7 +16,7 @@ import typer
 
 from m3p2i.cli_support import plugin_args, terminate_as_interrupt, usage_error
 from m3p2i.process_checks import scenario_errors
-from shared.cli_common import Plugins
+from planner_client.options import Plugins
 from shared.config import ConfigError
 from shared.protocol import MAX_SEED
 

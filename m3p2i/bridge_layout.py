@@ -6,10 +6,10 @@ component and unit of each ``qpos`` and ``qvel`` entry, the body of each mocap s
 actuator, range, unit and safe value of each ``ctrl`` entry, and the ``extras`` the world
 simulates, the sensors whose readings ``state.scans`` carries. The model is the planner's: the
 world's without its perceived objects, whose poses never travel. ``m3p2i layout SCENARIO``
-prints it; the planner checks a world's first state against
-the same sizes (:class:`shared.scene.StateSizes`). Beside it, :func:`frame_names` lists the frames
-a scenario may name (cost terms, observers, the success test, metrics): the robot's bodies and
-sites, the objects, the arena's walls.
+prints it; the planner checks a world's first state against the same sizes
+(:class:`planner_client.model_state.StateSizes`). Beside it, :func:`frame_names` lists the
+frames a scenario may name (cost terms, observers, the success test, metrics): the robot's
+bodies and sites, the objects, the arena's walls.
 """
 
 from __future__ import annotations
@@ -19,10 +19,11 @@ from typing import Any
 
 import mujoco
 
+from planner_client.model_state import StateSizes
 from planner_client.problem import planner_scenario
 from shared.scenario import Scenario
 from shared.scenario.sensors import LidarConfig, SensorConfig
-from shared.scene import WALL_NAMES, StateSizes, compile_model
+from shared.scene import WALL_NAMES, compile_model
 
 _FREE, _BALL, _SLIDE, _HINGE = (
     mujoco.mjtJoint.mjJNT_FREE,

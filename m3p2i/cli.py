@@ -20,6 +20,7 @@ from m3p2i.cli_support import (
     Height,
     RunDir,
     ScenarioArgument,
+    Seed,
     Speed,
     Timeout,
     Width,
@@ -41,29 +42,23 @@ from m3p2i.launch import (
     taken_ports,
 )
 from m3p2i.new import new_scenario
+from m3p2i.process_checks import error_blocks
 from m3p2i.view_command import view
+from planner_client.options import MeasureDelays, OldMeasureDelays, Plugins
 from server.evaluation.plan_ages import describe_timing
-from shared.cli_common import (
-    LAST_FIRST_PORT,
+from server.options import (
     Faults,
-    Keys,
-    MeasureDelays,
     Mode,
     OldFaults,
-    OldMeasureDelays,
     OldWindow,
     PlanEvery,
-    Plugins,
     RealtimeFactor,
-    Seed,
-    Verbose,
     Window,
     default_run_dir,
-    error_blocks,
     mode_conflicts,
-    renamed,
     summary_line,
 )
+from shared.cli_common import LAST_FIRST_PORT, Keys, Verbose, renamed
 from shared.config import ConfigError, load_yaml
 from shared.config_files import ENV_VAR, KINDS, Entry, entries, search_folders, shown
 from shared.robots import load_robot, registered

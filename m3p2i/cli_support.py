@@ -14,6 +14,7 @@ import typer
 from m3p2i.process_checks import scenario_errors
 from shared.cli_common import SCENARIO_HELP
 from shared.config import ConfigError
+from shared.protocol import MAX_SEED
 from shared.scenario import find_scenario, load_scenario
 
 # --- options of m3p2i's own commands ------------------------------------------------------
@@ -26,6 +27,16 @@ RunDir = Annotated[
 Timeout = Annotated[
     float,
     typer.Option("--timeout", min=0.001, help="Wall-clock seconds before the run is abandoned."),
+]
+Seed = Annotated[
+    int,
+    typer.Option(
+        "--seed",
+        min=0,
+        max=MAX_SEED,
+        help="Seed of the episode: the world's randomised start (world.randomize) and the "
+        "planner's sampling.",
+    ),
 ]
 
 
@@ -120,7 +131,8 @@ def terminate_as_interrupt() -> None:
 def faults_or_exit(spec: str) -> str:
     """``--faults`` checked before either process starts; what the server is passed (a
     profile's name, or the file's absolute path: the server may run elsewhere than here)."""
-    from shared.scenario.faults import PROFILES, load_faults
+    from server.options import load_faults
+    from shared.scenario.faults import PROFILES
 
     try:
         load_faults(spec)
@@ -132,7 +144,7 @@ def faults_or_exit(spec: str) -> str:
 def declared_delays_or_exit(sc, faults: str | None) -> tuple[float, float]:
     """``--compensate``: the (actuation, state) delays in ms of ``--faults``, else of the
     scenario's faults: section, for the planner to declare; exit 2 when there are none."""
-    from shared.scenario.faults import load_faults
+    from server.options import load_faults
 
     delays = (load_faults(faults) if faults else sc.faults).delays
     if delays is None:

@@ -4,7 +4,8 @@ Both processes check what they will use: the world its success test, disturbance
 the planner its cost terms, pinned controls, observers and MPPI parameters, against the
 compiled model and its registries. Only they know those registries, and the tools never import
 them (docs/layout in the README), so each runs once with ``--check`` (in parallel) and this
-merges their messages, each message once, in the order they came.
+merges their messages (:func:`error_blocks` reads them back from the processes' output), each
+message once, in the order they came.
 """
 
 from __future__ import annotations
@@ -14,7 +15,7 @@ import sys
 from collections.abc import Sequence
 from pathlib import Path
 
-from shared.cli_common import error_blocks
+from shared.cli_common import ERROR_PREFIX
 
 CHECK_TIMEOUT = 300.0  # seconds; a check compiles the model once per process
 
@@ -45,3 +46,15 @@ def scenario_errors(path: str | Path, plugins: Sequence[str] = ()) -> list[str]:
             blocks.append(f"the {name} check failed (exit code {proc.returncode}): {tail}")
         messages += [b for b in blocks if b not in messages]
     return messages
+
+
+def error_blocks(text: str) -> list[str]:
+    """The messages :func:`shared.cli_common.print_errors` wrote into ``text`` (a message may
+    span lines)."""
+    blocks: list[str] = []
+    for line in text.splitlines():
+        if line.startswith(ERROR_PREFIX):
+            blocks.append(line[len(ERROR_PREFIX) :])
+        elif blocks and line:
+            blocks[-1] += "\n" + line
+    return blocks

@@ -10,14 +10,12 @@ from typing import Annotated, NoReturn
 
 import typer
 
+from planner_client.options import MeasureDelays, OldMeasureDelays, Plugins
 from shared.cli_common import (
     Host,
     Insecure,
     Keys,
-    MeasureDelays,
-    OldMeasureDelays,
     ParentPid,
-    Plugins,
     Port,
     ScenarioOption,
     Verbose,

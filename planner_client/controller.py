@@ -36,7 +36,7 @@ from planner_client.budget import SampleBudget, budget_config
 from planner_client.delay_estimate import ActuationDelayEstimate
 from planner_client.guide import Guide
 from planner_client.mirror import Mirror, MocapState
-from planner_client.model_state import get_full_state
+from planner_client.model_state import StateSizes, get_full_state
 from planner_client.motion import Iteration, MotionPlanner
 from planner_client.perception.updater import MapUpdater
 from planner_client.task import TaskDecision, TaskLayer
@@ -45,7 +45,7 @@ from planner_client.variants import Identifier
 from shared import protocol as P
 from shared.scenario import DelayConfig
 from shared.scenario.faults import steps_of
-from shared.scene import STATE_FIELDS, StateSizes
+from shared.scene import STATE_FIELDS
 from shared.timed_plan import TimedPlan, held, mean_hz
 
 log = logging.getLogger("m3p2i.planner")

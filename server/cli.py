@@ -15,39 +15,41 @@ import typer
 
 from server.app import AddressUnavailable, ServerOptions, WorldServer
 from server.interface import WorldError, WorldLoadError, load_world_class
-from server.world import SimWorld
-from server.world_check import scenario_errors
-from shared.cli_common import (
+from server.options import (
     MODES,
     Faults,
-    Host,
-    Insecure,
-    Keys,
     Mode,
     OldFaults,
     OldWindow,
-    ParentPid,
     PlanEvery,
-    Port,
     RealtimeFactor,
+    Window,
+    default_run_dir,
+    load_faults,
+    mode_conflicts,
+    summary_line,
+)
+from server.world import SimWorld
+from server.world_check import scenario_errors
+from shared.cli_common import (
+    Host,
+    Insecure,
+    Keys,
+    ParentPid,
+    Port,
     ScenarioOption,
     Verbose,
-    Window,
     collector_back,
-    default_run_dir,
     keys_or_exit,
-    mode_conflicts,
     print_errors,
     renamed,
     setup_logging,
     stop_with_parent,
-    summary_line,
 )
 from shared.config import ConfigError
 from shared.endpoints import DEFAULT_HOST, DEFAULT_PORT, Endpoints
 from shared.protocol import MAX_SEED
 from shared.scenario import load_scenario
-from shared.scenario.faults import load_faults
 from shared.security import load_world_keys
 
 app = typer.Typer(add_completion=False)

@@ -27,12 +27,13 @@ from server.evaluation.metrics import MetricsEvaluator, describe
 from server.evaluation.plan_ages import describe_timing, timing_summary
 from server.faults import FaultyWorld
 from server.interface import Outcome, World, WorldState, world_name
+from server.plan_player import PlanPlayer
 from server.team import TeamPlayer
 from server.world import SimWorld
 from shared import protocol as P
 from shared.scenario import Scenario
 from shared.scenario.faults import FaultConfig
-from shared.timed_plan import PlanPlayer, TimedPlan, held, mean_hz
+from shared.timed_plan import TimedPlan, held, mean_hz
 
 log = logging.getLogger("m3p2i.server")
 

@@ -44,10 +44,11 @@ from typing import Any, Protocol
 from server.episode import Episode
 from server.evaluation.log_reader import read_log, summary
 from server.interface import Outcome, World
+from server.options import load_faults
 from server.world import SimWorld
 from shared import protocol as P
 from shared.scenario import Scenario, load_scenario
-from shared.scenario.faults import FaultConfig, load_faults
+from shared.scenario.faults import FaultConfig
 
 __all__ = ["ControlLoop", "EpisodeResult", "build_episode", "drive", "run_episode"]
 

@@ -11,13 +11,14 @@ from __future__ import annotations
 
 import numpy as np
 
+from server.plan_player import PlanPlayer
 from shared import protocol as P
 from shared.scenario import Scenario
-from shared.timed_plan import PlanPlayer, TimedPlan
+from shared.timed_plan import TimedPlan
 
 
 class TeamPlayer:
-    """A :class:`~shared.timed_plan.PlanPlayer` per robot of ``scenario.team``."""
+    """A :class:`~server.plan_player.PlanPlayer` per robot of ``scenario.team``."""
 
     def __init__(self, scenario: Scenario):
         self.team = scenario.team

@@ -1,8 +1,9 @@
 """What the three command-line programs share: the options they have in common (declared once
 here, as ``Annotated`` types; a command sets only the default), help text that typer's rich
-output can rewrap, logging, the one-line summaries and error lines they print, the garbage
-collector turned back on after a process's start-up, and the watch that stops a process whose
-launcher died."""
+output can rewrap, logging, the error lines they print, the garbage collector turned back on
+after a process's start-up, and the watch that stops a process whose launcher died. The options
+of one side alone (and of ``m3p2i``'s commands that pass them on) are that side's:
+``server/options.py``, ``planner_client/options.py``."""
 
 from __future__ import annotations
 
@@ -22,8 +23,6 @@ import typer
 from rich.logging import RichHandler
 
 from shared.config import ConfigError, deprecated
-from shared.protocol import MAX_SEED
-from shared.scenario.faults import PROFILES
 
 # --- options shared by m3p2i-server, m3p2i-planner and m3p2i's commands --------------------
 
@@ -78,111 +77,6 @@ Verbose = Annotated[
     ),
 ]
 
-MODES = ("lockstep", "realtime")
-Mode = Annotated[
-    str,
-    typer.Option(
-        "--mode",
-        help="lockstep: the world steps only when the command for its latest state "
-        "arrives (deterministic). realtime: it steps on the wall clock, playing the newest "
-        "command's plan.",
-    ),
-]
-
-
-def mode_conflicts(
-    mode: str, plan_every: int = 1, max_rate: float = 0.0, realtime_factor: float = 1.0
-) -> list[tuple[str, str, object, str]]:
-    """The options that mean nothing in ``mode``, each as ``(key, why, value, expected)`` (the
-    bench names the key, ``m3p2i run`` and ``m3p2i-server`` its flag): a combination that
-    would be silently ignored is refused instead."""
-    if mode not in MODES:
-        return [("mode", "unknown mode", mode, " or ".join(MODES))]
-    out: list[tuple[str, str, object, str]] = []
-    if max_rate and mode != "realtime":
-        out.append(
-            (
-                "max_rate",
-                "only a real-time world lets a planner fall behind",
-                max_rate,
-                "mode: realtime (lock-step: plan_every)",
-            )
-        )
-    if realtime_factor != 1.0 and mode != "realtime":
-        out.append(
-            (
-                "realtime_factor",
-                "only a real-time world has a wall clock to follow",
-                realtime_factor,
-                "mode: realtime",
-            )
-        )
-    if plan_every > 1 and mode != "lockstep":
-        out.append(
-            (
-                "plan_every",
-                "only a lock-step world plays a plan for a set number of steps",
-                plan_every,
-                "1 with mode: realtime",
-            )
-        )
-    return out
-
-
-PlanEvery = Annotated[
-    int,
-    typer.Option(
-        "--plan-every",
-        min=1,
-        help="lockstep: world steps played per command (its plan's knots by "
-        "time). K > 1 emulates, repeatably, a planner K times slower than a real-time world.",
-    ),
-]
-RealtimeFactor = Annotated[
-    float,
-    typer.Option(
-        "--realtime-factor",
-        min=0.01,
-        max=100.0,
-        help="realtime: simulated seconds per wall second; 0.5 runs "
-        "the world at half speed, so every planner rate counts double against it.",
-    ),
-]
-Faults = Annotated[
-    str | None,
-    typer.Option(
-        "--faults",
-        help="Simulated faults for the world, to rehearse a robot "
-        f"(docs/faults.md): a fault profile ({', '.join(PROFILES)}) or a YAML file of faults: keys "
-        "(delays, noise, dropped states, withheld velocities, control period, model mismatch, "
-        "binary gripper). Replaces the scenario's own faults: section. Only the world is told: the "
-        "planner keeps the nominal model (m3p2i run --compensate declares the delays to it). "
-        "lockstep: faults drawn from --seed, delays in world steps (repeatable); realtime: "
-        "wall-clock delays.",
-    ),
-]
-OldFaults = Annotated[str | None, typer.Option("--hardware", hidden=True)]  # deprecated
-MeasureDelays = Annotated[
-    bool,
-    typer.Option(
-        "--measure-delays",
-        help="The planner measures the robot's delays online "
-        "(planner.delays.measure): the state delay from the lag the world reports, the actuation "
-        "delay from how the robot answers the controls sent; declared delays stand until then "
-        "(docs/faults.md).",
-    ),
-]
-Window = Annotated[
-    bool,
-    typer.Option(
-        "--window/--no-window",
-        help="Open MuJoCo's own viewer window on "
-        "the world's machine (needs a display); drag objects in it to disturb the world.",
-    ),
-]
-OldWindow = Annotated[bool, typer.Option("--viewer", hidden=True)]  # deprecated
-OldMeasureDelays = Annotated[bool, typer.Option("--estimate-delays", hidden=True)]  # deprecated
-
 
 def renamed(value, old_value, new: str, old: str, default):
     """An option's ``value``, or the one given under its old name ``old`` (``--hardware``,
@@ -193,27 +87,6 @@ def renamed(value, old_value, new: str, old: str, default):
         raise typer.BadParameter(f"both {new} and {old} (its old name) given", param_hint=old)
     deprecated(old, f"write {new}")
     return old_value
-
-
-Seed = Annotated[
-    int,
-    typer.Option(
-        "--seed",
-        min=0,
-        max=MAX_SEED,
-        help="Seed of the episode: the world's randomised start (world.randomize) and the "
-        "planner's sampling.",
-    ),
-]
-Plugins = Annotated[
-    list[str] | None,
-    typer.Option(
-        "--plugins",
-        help="A Python module of your own cost terms for the planner to import (repeatable): "
-        "a .py file or an importable module name, besides the scenario's plugins: "
-        "(docs/cost_terms.md). Only the planner imports it.",
-    ),
-]
 
 
 ParentPid = Annotated[
@@ -316,24 +189,6 @@ def setup_logging(verbose: bool, name: str) -> None:
     logging.getLogger(name).setLevel(level)
 
 
-def default_run_dir(scenario: str) -> Path:
-    """``runs/<scenario>-<YYYYmmdd-HHMMSS>`` under the current directory."""
-    return Path("runs") / f"{scenario}-{time.strftime('%Y%m%d-%H%M%S')}"
-
-
-def summary_line(status: str, sim_time: float, measures: dict[str, float]) -> str:
-    """One line for the end of an episode: outcome, simulated time, measures, planner Hz."""
-    parts = [f"{status}", f"time {sim_time:.2f} s"]
-    for k, v in measures.items():
-        if k == "planner_hz":
-            continue
-        unit = " m" if k.startswith("distance") else ""
-        parts.append(f"final {k} {v:.3f}{unit}")
-    if "planner_hz" in measures:
-        parts.append(f"planner {measures['planner_hz']:.1f} Hz")
-    return ", ".join(parts)
-
-
 ERROR_PREFIX = "error: "
 
 
@@ -342,14 +197,3 @@ def print_errors(errors, err: bool = True) -> None:
     processes' ``--check``."""
     for e in errors:
         print(f"{ERROR_PREFIX}{e}", file=sys.stderr if err else sys.stdout)
-
-
-def error_blocks(text: str) -> list[str]:
-    """The messages :func:`print_errors` wrote into ``text`` (a message may span lines)."""
-    blocks: list[str] = []
-    for line in text.splitlines():
-        if line.startswith(ERROR_PREFIX):
-            blocks.append(line[len(ERROR_PREFIX) :])
-        elif blocks and line:
-            blocks[-1] += "\n" + line
-    return blocks

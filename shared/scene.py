@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import math
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass
 from typing import Any
 
 import mujoco
@@ -206,38 +205,3 @@ def contact_friction(
             friction = np.maximum(friction, model.geom_friction[others].max(0))
         out[body] = (own, friction)
     return priority, out
-
-
-@dataclass(frozen=True)
-class StateSizes:
-    """The array sizes of a ``state`` that fits a model."""
-
-    nq: int
-    nv: int
-    na: int
-    nmocap: int
-
-    @classmethod
-    def of(cls, model: mujoco.MjModel) -> StateSizes:
-        return cls(nq=model.nq, nv=model.nv, na=model.na, nmocap=model.nmocap)
-
-    def mismatches(self, values: Mapping[str, Any]) -> list[str]:
-        """One message per array of ``values`` (``qpos``, ``qvel``, ``act``, ``mocap_pos``,
-        ``mocap_quat``) whose size differs from these sizes, naming both; empty when all fit."""
-        out = []
-        for name, size, what in (
-            ("qpos", self.nq, "nq"),
-            ("qvel", self.nv, "nv"),
-            ("act", self.na, "na"),
-        ):
-            got = np.asarray(values[name]).size
-            if got != size:
-                out.append(f"{name} has {got} values, the scenario's model has {what} = {size}")
-        for name, width in (("mocap_pos", 3), ("mocap_quat", 4)):
-            shape = list(np.shape(values[name]))
-            if int(np.prod(shape)) != self.nmocap * width:
-                out.append(
-                    f"{name} has shape {shape}, the scenario's model has nmocap = "
-                    f"{self.nmocap} (shape [{self.nmocap}, {width}])"
-                )
-        return out

@@ -7,7 +7,8 @@ the knot whose interval holds the current time, **zero-order hold** (each knot h
 exactly as the planner's rollouts held it), and switches to a newer plan when the time its first
 knot is meant for arrives. When the newest plan runs out, the safe control takes over.
 
-Pure functions and a small player; no sockets. ``docs/protocol.md`` ("Playing a plan").
+Pure functions; no sockets. The world's player is :class:`server.plan_player.PlanPlayer`.
+``docs/protocol.md`` ("Playing a plan").
 """
 
 from __future__ import annotations
@@ -18,7 +19,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-_EPS = 1e-9  # world times are sums of float timesteps: a knot boundary must not fall off by one
+TIME_EPS = 1e-9  # world times are sums of float timesteps: a knot boundary must not fall off by one
 
 
 @dataclass(frozen=True)
@@ -47,11 +48,11 @@ class TimedPlan:
 
     def index(self, t: float) -> int | None:
         """The knot holding at world time ``t``; None before ``t0`` or from :attr:`end` on."""
-        if t + _EPS < self.t0:
+        if t + TIME_EPS < self.t0:
             return None
         # total for any float: a quotient too large for the plan (an overflow to inf from a tiny
         # dt or a huge span) is past its end, and so is NaN (t = inf of a held plan, t = NaN)
-        k = (t - self.t0) / self.dt + _EPS
+        k = (t - self.t0) / self.dt + TIME_EPS
         return int(k) if k < self.ctrl.shape[0] else None
 
     def at(self, t: float) -> np.ndarray | None:
@@ -66,45 +67,12 @@ def held(ctrl: np.ndarray, t: float, seq: int = 0) -> TimedPlan:
 
 
 def playing(plans: list[TimedPlan], t: float) -> np.ndarray | None:
-    """What a :class:`PlanPlayer` that received ``plans`` in order (``t0`` not decreasing)
-    applies at ``t``, without playing them: the newest that has started; None (the safe
-    control) when none has, or that one has run out. The planner uses it to predict the world."""
-    plan = next((p for p in reversed(plans) if t + _EPS >= p.t0), None)
+    """What a world's :class:`server.plan_player.PlanPlayer` that received ``plans`` in order
+    (``t0`` not decreasing) applies at ``t``, without playing them: the newest that has started;
+    None (the safe control) when none has, or that one has run out. The planner uses it to
+    predict the world."""
+    plan = next((p for p in reversed(plans) if t + TIME_EPS >= p.t0), None)
     return None if plan is None else plan.at(t)
-
-
-class PlanPlayer:
-    """Plays the plans received, each from its first knot's time.
-
-    A plan applies from its ``t0`` on: one that arrives early waits, and the running plan (the
-    safe control, before the first) goes on meanwhile: the planner predicted its start state
-    assuming exactly that. Waiting plans are queued, not replaced: a planner that answers every
-    state with a lead of a step or more would otherwise replace each waiting plan by the next
-    before its time came, and none would ever start. A plan that arrives late starts at once, at
-    the knot of the current time (its first knots are past).
-    """
-
-    def __init__(self) -> None:
-        self.active: TimedPlan | None = None
-        self.pending: list[TimedPlan] = []
-
-    def receive(self, plan: TimedPlan) -> None:
-        # a waiting plan that would start at or after the new one is older news for that time
-        self.pending = [p for p in self.pending if p.t0 < plan.t0 - _EPS] + [plan]
-
-    def clear(self) -> None:
-        self.active, self.pending = None, []
-
-    def control(self, t: float) -> tuple[np.ndarray | None, TimedPlan | None]:
-        """``(ctrl [nu], plan)`` for world time ``t``; ``(None, plan)`` when the plan that should
-        hold has run out (the caller applies the safe control), ``(None, None)`` with no plan."""
-        started = [p for p in self.pending if t + _EPS >= p.t0]
-        if started:
-            self.active = started[-1]
-            self.pending = self.pending[len(started) :]
-        if self.active is None:
-            return None, None
-        return self.active.at(t), self.active
 
 
 def mean_hz(plan_times: Sequence[float]) -> float:

@@ -1,6 +1,7 @@
-"""Simulated faults for a world: the ``faults:`` section of a scenario, the named fault
-profiles (``nominal``, ``lab``, ``harsh``, ``mismatch``) and ``--faults PROFILE|FILE``
-(``hardware:`` and ``--hardware`` are their old names, still accepted).
+"""Simulated faults for a world: the ``faults:`` section of a scenario and the named fault
+profiles (``nominal``, ``lab``, ``harsh``, ``mismatch``), which ``--faults PROFILE|FILE`` names
+too (read by :func:`server.options.load_faults`; ``hardware:`` and ``--hardware`` are their old
+names, still accepted).
 
 Only the world server reads it (:mod:`server.faults` applies it); the planner keeps the
 nominal model and is never told, unless ``m3p2i run --compensate`` declares the delays to it as
@@ -13,7 +14,6 @@ from __future__ import annotations
 import dataclasses
 import math
 from dataclasses import dataclass
-from pathlib import Path
 from typing import Any
 
 from shared.config import (
@@ -21,7 +21,6 @@ from shared.config import (
     Section,
     deprecated,
     flag,
-    load_yaml,
     non_negative,
     one_of,
     positive,
@@ -242,27 +241,6 @@ def _profile(name: str, source: str, path: str) -> FaultConfig:
             f"one of: {', '.join(PROFILES)} (or a mapping of keys)",
         )
     return PROFILES[name]
-
-
-def load_faults(spec: str) -> FaultConfig:
-    """``--faults``'s value: a profile's name, or a YAML file holding a ``faults:`` value (a
-    profile's name or a mapping; ``hardware:``, its old name, too), or that mapping at its top
-    level."""
-    if spec in PROFILES:
-        return PROFILES[spec]
-    path = Path(spec)
-    if not path.is_file():
-        raise ConfigError(
-            "--faults",
-            "",
-            "neither a profile nor a file",
-            spec,
-            f"one of: {', '.join(PROFILES)}, or a YAML file",
-        )
-    raw = read_old_name(load_yaml(path), str(path))
-    if isinstance(raw, dict) and set(raw) == {"faults"}:
-        return parse_faults(raw["faults"], str(path))
-    return parse_faults(raw, str(path), "")
 
 
 def read_old_name(raw: Any, source: str, path: str = "") -> Any:

@@ -586,7 +586,7 @@ def test_loaded_trials_run_last_alone_under_their_busy_processes(tmp_path, monke
 )
 def test_run_refuses_options_its_mode_would_ignore(args, message):
     """What the bench refuses by key, ``m3p2i run`` refuses by flag (one check,
-    shared.cli_common.mode_conflicts), before anything starts."""
+    server.options.mode_conflicts), before anything starts."""
     from typer.testing import CliRunner
 
     from m3p2i.cli import app

@@ -1,5 +1,5 @@
 """``--help`` of the three programs reads as flowing sentences; their shared options are one
-declaration (shared.cli_common).
+declaration (shared.cli_common, or server.options and planner_client.options for one side's).
 
 Typer's rich help rewraps an option's help and a command's first paragraph, but keeps the hard
 line breaks of a command's later paragraphs: a docstring wrapped at 100 columns in the source

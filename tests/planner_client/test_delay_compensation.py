@@ -12,12 +12,13 @@ import yaml
 
 from planner_client.timing import predict
 from server.faults import FaultyWorld
+from server.plan_player import PlanPlayer
 from server.world import SimWorld
 from shared.config import ConfigError
 from shared.scenario import DelayConfig, load_scenario
 from shared.scenario.faults import FaultConfig
 from shared.scene import compile_model
-from shared.timed_plan import PlanPlayer, TimedPlan
+from shared.timed_plan import TimedPlan
 
 ACTUATION_MS, STATE_MS = 60.0, 30.0  # 6 and 3 steps of the Panda's 0.01 s
 TOLERANCE = 1e-6  # rad or m: the same model stepped the same way

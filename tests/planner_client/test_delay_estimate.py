@@ -9,11 +9,12 @@ import pytest
 
 from planner_client.delay_estimate import ActuationDelayEstimate
 from server.faults import FaultyWorld
+from server.plan_player import PlanPlayer
 from server.world import SimWorld
 from shared.scenario import load_scenario
 from shared.scenario.faults import FaultConfig
 from shared.scene import compile_model
-from shared.timed_plan import PlanPlayer, TimedPlan
+from shared.timed_plan import TimedPlan
 
 
 def _drive(scenario: str, actuation_ms: float, speed: float, states: int = 60):

@@ -29,10 +29,11 @@ from planner_client.variants import (
     transition_log_likelihood,
 )
 from server.inprocess import build_episode
+from server.options import load_faults
 from shared import protocol as P
 from shared.config import ConfigError
 from shared.scenario import SCENARIO_DIR, load_scenario, parse_scenario
-from shared.scenario.faults import PROFILES, load_faults
+from shared.scenario.faults import PROFILES
 from shared.scene import initial_data
 from shared.timed_plan import TimedPlan
 

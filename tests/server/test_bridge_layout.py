@@ -17,13 +17,14 @@ from typer.testing import CliRunner
 from m3p2i.bridge_layout import bridge_layout, frame_names
 from m3p2i.cli import app as m3p2i
 from m3p2i.cli import free_port_block
+from planner_client.model_state import StateSizes
 from server.world import SimWorld
 from shared import protocol as P
 from shared.endpoints import Endpoints, socket
 from shared.frames import FrameResolver
 from shared.robots import ROBOTS, get_robot
 from shared.scenario import load_scenario
-from shared.scene import STATE_FIELDS, StateSizes, compile_model
+from shared.scene import STATE_FIELDS, compile_model
 
 
 @pytest.fixture(scope="module")

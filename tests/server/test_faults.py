@@ -23,6 +23,7 @@ from planner_client.problem import build_problem
 from server.cli import app as server_cli
 from server.evaluation import log_reader
 from server.faults import FaultyWorld
+from server.options import load_faults
 from server.world import SimWorld
 from shared.config import ConfigError, load_yaml
 from shared.scenario import find_scenario, load_scenario, parse_scenario
@@ -31,7 +32,6 @@ from shared.scenario.faults import (
     PROFILES,
     FaultConfig,
     MismatchConfig,
-    load_faults,
     steps_of,
 )
 

@@ -17,6 +17,7 @@ import yaml
 from m3p2i.bench_report import HEADERS, PERCEIVED_HEADERS, markdown_report, summarize, table_rows
 from m3p2i.bridge_layout import bridge_layout
 from planner_client.build import build_controller
+from planner_client.model_state import StateSizes
 from planner_client.planner_check import scenario_errors as planner_errors
 from planner_client.problem import build_problem
 from server.episode import Episode, Published
@@ -27,7 +28,7 @@ from server.interface import WorldState
 from server.world_check import scenario_errors as world_errors
 from shared.config import ConfigError
 from shared.scenario import load_scenario, parse_scenario
-from shared.scene import StateSizes, compile_model
+from shared.scene import compile_model
 
 CRATE = {"pos": [1.2, 0.6, 0.15], "size": [0.2, 0.3, 0.15], "yaw": 20.0}
 FIELDS = ("qpos", "qvel", "act", "mocap_pos", "mocap_quat")

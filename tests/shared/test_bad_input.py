@@ -11,8 +11,9 @@ import msgpack
 import numpy as np
 import pytest
 
+from server.plan_player import PlanPlayer
 from shared import protocol as P
-from shared.timed_plan import PlanPlayer, TimedPlan, playing
+from shared.timed_plan import TimedPlan, playing
 
 V = P.PROTOCOL_VERSION
 
