@@ -162,7 +162,8 @@ def keys_or_exit(keys: Path | None, world: bool = True):
     machine holding only ``DIR/planner``, needs and checks only the planner's keys."""
     if keys is None:
         return None
-    from shared.security import load_planner_keys, load_world_keys
+    from planner_client.keys import load_planner_keys
+    from server.keys import load_world_keys
 
     try:
         if world:

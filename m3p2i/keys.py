@@ -1,5 +1,6 @@
 """``m3p2i keys DIR``: a world's and a planner's CURVE key pairs, written in the key folder
-layout :mod:`shared.security` reads (each side's sub-folder is all that side needs)."""
+layout :mod:`shared.security` describes (each side's sub-folder is all that side needs: the world
+reads its own with ``server/keys.py``, the planner with ``planner_client/keys.py``)."""
 
 from __future__ import annotations
 

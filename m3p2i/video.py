@@ -25,11 +25,11 @@ import typer
 import zmq
 
 from m3p2i.cli_support import VIDEO_FORMATS, Fps, Height, Speed, Width, usage_error
+from planner_client.keys import PlannerKeys, curve_client
 from server.evaluation import log_reader
 from shared import protocol as P
 from shared.config import ConfigError
 from shared.endpoints import Endpoints, socket
-from shared.security import PlannerKeys, curve_client
 
 GL_BACKENDS = ("egl", "osmesa")
 DIAGNOSTICS_FILE = "diagnostics.jsonl"

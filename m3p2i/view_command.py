@@ -12,7 +12,8 @@ from typing import Annotated
 import typer
 
 from m3p2i.cli_support import keys_or_exit, load_or_exit, usage_error
-from shared.cli_common import Host, Keys, ParentPid, Port, signals_as_ctrl_c, stop_with_parent
+from planner_client.signals import signals_as_ctrl_c
+from shared.cli_common import Host, Keys, ParentPid, Port, stop_with_parent
 from shared.config import ConfigError
 from shared.endpoints import DEFAULT_HOST, DEFAULT_PORT
 

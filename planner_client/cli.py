@@ -10,7 +10,9 @@ from typing import Annotated, NoReturn
 
 import typer
 
+from planner_client.keys import load_planner_keys
 from planner_client.options import MeasureDelays, OldMeasureDelays, Plugins
+from planner_client.signals import signals_as_ctrl_c
 from shared.cli_common import (
     Host,
     Insecure,
@@ -24,14 +26,12 @@ from shared.cli_common import (
     print_errors,
     renamed,
     setup_logging,
-    signals_as_ctrl_c,
     stop_with_parent,
 )
 from shared.config import ConfigError, ConfigErrors
 from shared.endpoints import DEFAULT_HOST, DEFAULT_PORT, Endpoints
 from shared.protocol import MAX_SEED
 from shared.scenario import Scenario, load_scenario
-from shared.security import load_planner_keys
 
 app = typer.Typer(add_completion=False)
 

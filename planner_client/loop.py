@@ -27,6 +27,7 @@ import time
 import zmq
 
 from planner_client.controller import Controller, LoopStats
+from planner_client.keys import PlannerKeys, curve_client
 from planner_client.perception.field_message import FIELD_TOPIC, FieldPublisher
 from planner_client.phases import STARTUP
 from shared import protocol as P
@@ -34,8 +35,6 @@ from shared.endpoints import Endpoints, socket
 from shared.security import (
     Authenticator,
     HandshakeMonitor,
-    PlannerKeys,
-    curve_client,
     curve_server,
     describe_handshake_failure,
 )

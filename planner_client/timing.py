@@ -29,7 +29,7 @@ import mujoco
 import numpy as np
 
 from planner_client.team import TeamRollouts
-from shared.timed_plan import TimedPlan, playing
+from shared.timed_plan import TIME_EPS, TimedPlan
 
 
 class LeadEstimate:
@@ -113,6 +113,15 @@ def played(
         out[k] = np.where(limited, np.clip(u, lo, hi), u)
         t += world_dt
     return out
+
+
+def playing(plans: list[TimedPlan], t: float) -> np.ndarray | None:
+    """What a world's :class:`server.plan_player.PlanPlayer` that received ``plans`` in order
+    (``t0`` not decreasing) applies at ``t``, without playing them: the newest that has started;
+    None (the safe control) when none has, or that one has run out. The planner uses it to
+    predict the world."""
+    plan = next((p for p in reversed(plans) if t + TIME_EPS >= p.t0), None)
+    return None if plan is None else plan.at(t)
 
 
 def step_through(

@@ -31,6 +31,7 @@ from server.episode import Episode
 from server.episode_log import EpisodeLog
 from server.evaluation.log_reader import episode_log_path
 from server.interface import Outcome, World
+from server.keys import WorldKeys
 from server.world import SimWorld
 from shared import protocol as P
 from shared.endpoints import Endpoints, socket
@@ -39,7 +40,6 @@ from shared.scenario.faults import FaultConfig
 from shared.security import (
     Authenticator,
     HandshakeMonitor,
-    WorldKeys,
     curve_server,
     describe_handshake_failure,
 )
@@ -61,6 +61,21 @@ class ServerOptions:
 
 class AddressUnavailable(OSError):
     """The world's ports cannot be bound (taken by another process, or not this machine's)."""
+
+
+def choose_version(hello: P.Hello, version: int, speaks: tuple[int, ...] = P.VERSIONS) -> int:
+    """The version a world answers ``hello`` (written in ``version``) in: the highest both
+    speak. A hello without ``versions`` (a planner from before the negotiation) speaks its own
+    ``v`` only. Raises :class:`shared.protocol.ProtocolError` naming both sides' versions when
+    none is common."""
+    offered = hello.versions if hello.versions is not None else [version]
+    common = set(offered) & set(speaks)
+    if not common:
+        raise P.ProtocolError(
+            f"no common protocol version: the planner speaks {P.version_names(offered)}, "
+            f"this world speaks {P.version_names(speaks)}"
+        )
+    return max(common)
 
 
 class WorldServer:
@@ -492,7 +507,7 @@ class WorldServer:
         # a planner that offered versions learns from an error's own ones that we negotiated
         speaks = list(P.VERSIONS) if msg.versions is not None else None
         try:
-            chosen = P.choose_version(msg, version)
+            chosen = choose_version(msg, version)
         except P.ProtocolError as exc:
             reason = f"refused: {exc}"
             log.error(reason)

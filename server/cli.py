@@ -15,6 +15,7 @@ import typer
 
 from server.app import AddressUnavailable, ServerOptions, WorldServer
 from server.interface import WorldError, WorldLoadError, load_world_class
+from server.keys import load_world_keys
 from server.options import (
     MODES,
     Faults,
@@ -50,7 +51,6 @@ from shared.config import ConfigError
 from shared.endpoints import DEFAULT_HOST, DEFAULT_PORT, Endpoints
 from shared.protocol import MAX_SEED
 from shared.scenario import load_scenario
-from shared.security import load_world_keys
 
 app = typer.Typer(add_completion=False)
 

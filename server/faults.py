@@ -33,8 +33,9 @@ import mujoco
 import numpy as np
 
 from server.interface import Outcome, World, WorldError, WorldState
+from server.sensors import no_return
 from server.world import SimWorld
-from shared.scans import Scan, no_return
+from shared.scans import Scan
 from shared.scenario.faults import FaultConfig, steps_of
 from shared.scene import contact_friction
 

@@ -7,7 +7,7 @@ own body is skipped, and a ray that meets another body of the robot (the tree of
 frame hangs from) first is no return, as a robot's self-filter drops those points. Markers
 (``visual`` objects: they collide with nothing) are seen through, and so is a geom drawn fully
 transparent (MuJoCo's rays skip those). A hit nearer than the sensor's ``range`` min or beyond
-its max is no return too, written as :func:`shared.scans.no_return`.
+its max is no return too, written as :func:`no_return`.
 
 A sensor's readings fall due at whole multiples of 1/``rate`` world seconds from the episode's
 start; each is taken at the first world state at or after its time, stamped with that state's
@@ -26,12 +26,17 @@ import mujoco
 import numpy as np
 
 from shared.frames import Frame, FrameResolver
-from shared.scans import Scan, no_return, ray_directions
+from shared.scans import Scan, ray_directions
 from shared.scenario import Scenario
 from shared.scenario.sensors import WORLD_FRAME, DepthConfig, LidarConfig, SensorConfig
 
 MAX_PENDING = 4  # readings of one sensor a state may carry (a slow planner's states)
 _DUE = 1e-9  # world seconds: a reading due at t is taken at a step whose time rounds to t
+
+
+def no_return(range_max: float) -> float:
+    """The range the simulated world writes for a ray without a return: outside the band."""
+    return float(range_max) + 1.0
 
 
 @dataclass

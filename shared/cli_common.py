@@ -1,13 +1,13 @@
 """What the three command-line programs share: the options they have in common (declared once
-here, as ``Annotated`` types; a command sets only the default), help text that typer's rich
-output can rewrap, logging, the error lines they print, the garbage collector turned back on
-after a process's start-up, and the watch that stops a process whose launcher died. The options
-of one side alone (and of ``m3p2i``'s commands that pass them on) are that side's:
-``server/options.py``, ``planner_client/options.py``."""
+here, as ``Annotated`` types; a command sets only the default) and their old names, logging, the
+error lines they print, the exit on a network address without keys, the garbage collector turned
+back on after a process's start-up, and the watch that stops a process whose launcher died. The
+options of one side alone (and of ``m3p2i``'s commands that pass them on) are that side's:
+``server/options.py``, ``planner_client/options.py``; help text that typer's rich output can
+rewrap is ``m3p2i/cli_support.py``'s."""
 
 from __future__ import annotations
 
-import contextlib
 import gc
 import logging
 import os
@@ -15,7 +15,6 @@ import signal
 import sys
 import threading
 import time
-from collections.abc import Iterator
 from pathlib import Path
 from typing import Annotated
 
@@ -105,12 +104,13 @@ def stop_with_parent(parent: int | None, every: float = 0.5) -> None:
     """With ``parent`` (``--parent-pid``), SIGTERM to this process, once, as soon as it is no
     longer ``parent``'s child: its launcher has died, even by SIGKILL, and a kept world or
     planner (``--keep-serving``, ``--keep-running``) or a live view would wait for it forever.
-    Each takes SIGTERM as Ctrl-C (:func:`signals_as_ctrl_c`; the world's own handler): the
-    world ends its episode with its summary, the planner prints its statistics, the view
-    closes its page and its recording. Not SIGINT: a process started
-    in the background inherits SIGINT ignored. A daemon thread checks every ``every`` s, the
-    first time ``every`` s after this call: call it just before the code that handles Ctrl-C.
-    Without ``parent`` nothing is watched."""
+    Each takes SIGTERM as Ctrl-C (the planner and the view:
+    :func:`planner_client.signals.signals_as_ctrl_c`; the world: its own handler): the world
+    ends its episode with its summary, the planner prints its statistics, the view closes its
+    page and its recording. Not SIGINT: a process started in the background inherits SIGINT
+    ignored. A daemon thread checks every ``every`` s, the first time ``every`` s after this
+    call: call it just before the code that handles Ctrl-C. Without ``parent`` nothing is
+    watched."""
     if parent is None:
         return
 
@@ -122,28 +122,6 @@ def stop_with_parent(parent: int | None, every: float = 0.5) -> None:
         os.kill(os.getpid(), signal.SIGTERM)
 
     threading.Thread(target=watch, name="parent-watch", daemon=True).start()
-
-
-@contextlib.contextmanager
-def signals_as_ctrl_c() -> Iterator[None]:
-    """Inside the block, SIGINT and SIGTERM raise KeyboardInterrupt in the main thread, as
-    Ctrl-C does in a terminal, whatever the process inherited (a background start ignores
-    SIGINT; SIGTERM's default ends the process on the spot, before it says how it did); the
-    handlers before it are back after it. Run in another thread (a command invoked in-process,
-    as tests do), it changes nothing: a process's signals are its main thread's to take."""
-
-    def interrupt(signum, frame):
-        raise KeyboardInterrupt(f"signal {signum}")
-
-    if threading.current_thread() is not threading.main_thread():
-        yield
-        return
-    before = {sig: signal.signal(sig, interrupt) for sig in (signal.SIGINT, signal.SIGTERM)}
-    try:
-        yield
-    finally:
-        for sig, handler in before.items():
-            signal.signal(sig, handler)
 
 
 def collector_back() -> None:

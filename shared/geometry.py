@@ -91,6 +91,9 @@ def symmetric_orientation_error(rot_u: ArrayLike, rot_v: ArrayLike) -> torch.Ten
     rotation is about u's third axis, e.g. a cube and its goal both lying on a table. Pass the
     frames in the same order everywhere (costs, observers, success tests) so they agree.
 
+    The planner's cost computes the same phi from v's axes in u's frame, as MuJoCo's frame axis
+    sensors give them: :func:`planner_client.costs.poses.symmetric_orientation_error_relative`.
+
     Args:
         rot_u, rot_v: rotation matrices ``[..., 3, 3]`` (axes as columns); leading dimensions
             broadcast, e.g. rollout orientations ``[S, T, 3, 3]`` against one goal ``[3, 3]``.
@@ -109,19 +112,3 @@ def symmetric_orientation_error(rot_u: ArrayLike, rot_v: ArrayLike) -> torch.Ten
     # cos[..., a, i] = u_a . v_i for a in (1, 2)
     cos = torch.matmul(u[..., :, :2].transpose(-1, -2), v).abs()
     return (2.0 - cos.amax(dim=-1).sum(dim=-1)).clamp_min(0.0)
-
-
-def symmetric_orientation_error_relative(axes: torch.Tensor) -> torch.Tensor:
-    """:func:`symmetric_orientation_error` from the axes of frame v expressed in frame u,
-    ``[..., 9]``: v's x, y and z axis in u's coordinates one after the other, i.e. the columns of
-    R_uᵀR_v, whose first two rows are the dot products u_a · v_i of paper Eq. 33. MuJoCo's
-    ``framexaxis``, ``frameyaxis`` and ``framezaxis`` sensors of v with u as their reference
-    frame give exactly this, in every rollout step, so the planner's cost is six tensor
-    operations on the sensors instead of a product of two orientations (its quaternion form took
-    some twenty operations: 235 µs on [200, 8] samples × steps, against 65 µs).
-    """
-    import torch
-
-    a = axes.abs()
-    best = torch.maximum(torch.maximum(a[..., 0:2], a[..., 3:5]), a[..., 6:8])  # [..., 2]
-    return (2.0 - best[..., 0] - best[..., 1]).clamp_min(0.0)

@@ -360,7 +360,7 @@ def encode(msg: Any, version: int = PROTOCOL_VERSION) -> bytes:
     fields that version does not have are left out (a version-1 command carries no plan)."""
     if version not in _SCHEMAS:
         raise ProtocolError(
-            f"cannot encode protocol version {version} (this side speaks {_names(VERSIONS)})"
+            f"cannot encode protocol version {version} (this side speaks {version_names(VERSIONS)})"
         )
     out: dict[str, Any] = {"type": msg.type, "v": version}
     for name, (kind, required) in _SCHEMAS[version][msg.type].items():
@@ -439,16 +439,17 @@ def decode_versioned(
         if _is_intlist(offered) and not set(offered) & set(versions):
             raise ProtocolError(
                 f"no common protocol version: the peer speaks "
-                f"{_names(offered)}, this side speaks {_names(versions)}"
+                f"{version_names(offered)}, this side speaks {version_names(versions)}"
             )
         if _is_intlist(offered):  # a version in common: the frame's own v is what is wrong
             raise ProtocolError(
                 f"hello written in protocol version {version!r}, which this side does not "
-                f"read: a hello offering {_names(offered)} is written in one this side "
-                f"speaks ({_names(versions)}), the oldest it offers"
+                f"read: a hello offering {version_names(offered)} is written in one this side "
+                f"speaks ({version_names(versions)}), the oldest it offers"
             )
         raise ProtocolError(
-            f"protocol version {version!r} not supported (this side speaks {_names(versions)})"
+            f"protocol version {version!r} not supported "
+            f"(this side speaks {version_names(versions)})"
         )
     if not known:
         theirs = obj.get("versions")
@@ -479,24 +480,10 @@ def _is_intlist(value: Any) -> bool:
     )
 
 
-def _names(versions) -> str:
+def version_names(versions) -> str:
     """``version 2`` or ``versions 1, 2``: for messages naming a side's versions."""
     versions = list(versions)
     return f"version{'s' if len(versions) != 1 else ''} {', '.join(str(v) for v in versions)}"
-
-
-def choose_version(hello: Hello, version: int, speaks: tuple[int, ...] = VERSIONS) -> int:
-    """The version a world answers ``hello`` (written in ``version``) in: the highest both
-    speak. A hello without ``versions`` (a planner from before the negotiation) speaks its own
-    ``v`` only. Raises :class:`ProtocolError` naming both sides' versions when none is common."""
-    offered = hello.versions if hello.versions is not None else [version]
-    common = set(offered) & set(speaks)
-    if not common:
-        raise ProtocolError(
-            f"no common protocol version: the planner speaks {_names(offered)}, "
-            f"this world speaks {_names(speaks)}"
-        )
-    return max(common)
 
 
 def _check_field(kind: str, name: str, ftype: str, value: Any) -> Any:

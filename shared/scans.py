@@ -15,10 +15,10 @@ frame (:func:`ray_directions`):
 
 ``ranges`` are metres along each ray, finite; a value outside ``[range_min, range_max]`` is no
 return (nothing within range, or a lost return): the ray is free up to ``range_max``. The
-simulated world writes :func:`no_return` (``range_max + 1``) for it; a bridge may write any
-finite value outside the band (0 where ``range_min > 0``, as many drivers do), never NaN or inf,
-which the protocol refuses. The world's own robot is never a return: a ray that meets it first
-is no return (docs/protocol.md, "Scans").
+simulated world writes :func:`server.sensors.no_return` (``range_max + 1``) for it; a bridge may
+write any finite value outside the band (0 where ``range_min > 0``, as many drivers do), never
+NaN or inf, which the protocol refuses. The world's own robot is never a return: a ray that
+meets it first is no return (docs/protocol.md, "Scans").
 """
 
 from __future__ import annotations
@@ -71,11 +71,6 @@ class Scan:
     def hits(self) -> np.ndarray:
         """``[...]`` bool, the shape of ``ranges``: which rays returned within range."""
         return (self.ranges >= self.range_min) & (self.ranges <= self.range_max)
-
-
-def no_return(range_max: float) -> float:
-    """The range the simulated world writes for a ray without a return: outside the band."""
-    return float(range_max) + 1.0
 
 
 def check_scan(scan: Scan) -> Scan:

@@ -22,6 +22,8 @@ The key folder ``m3p2i keys DIR`` writes (each side's sub-folder is all that sid
     DIR/planner/viewers/*.key       public keys of other diagnostics subscribers (optional)
 
 The files are pyzmq's certificate format (``zmq.auth``): text with the Z85-encoded 32-byte key.
+Each side loads its own sub-folder with the readers here: the world in ``server/keys.py``, the
+planner and the tools beside it (and their CURVE client sockets) in ``planner_client/keys.py``.
 """
 
 from __future__ import annotations
@@ -61,60 +63,11 @@ class KeyPair:
     source: str
 
 
-@dataclass(frozen=True)
-class WorldKeys:
-    """What the world needs: its own pair and the planners' public keys it accepts."""
-
-    own: KeyPair
-    allowed: frozenset[bytes]
-    allow_dir: Path
-
-
-@dataclass(frozen=True)
-class PlannerKeys:
-    """What the planner (and a tool beside it) needs: its own pair, the world's public key to
-    check, and the subscribers its diagnostics socket accepts (its own key and the viewers')."""
-
-    own: KeyPair
-    world: bytes
-    viewers: frozenset[bytes]
-
-
 # ------------------------------------------------------------------------------ key files
 
 
-def load_world_keys(folder: Path) -> WorldKeys:
-    """The world's keys from ``folder`` (the DIR of ``m3p2i keys DIR``, or its ``world``
-    sub-folder); a missing or malformed file, a secret key readable by others or an empty
-    allow list is a ConfigError naming the file and the fix."""
-    require_curve()
-    side = _side(Path(folder), WORLD)
-    own = _load_pair(side / "world.key_secret")
-    allow_dir = side / ALLOW_WORLD
-    allowed = _load_publics(allow_dir)
-    if not allowed:
-        raise ConfigError(
-            str(allow_dir),
-            "",
-            "no planner public key to accept (the world would refuse every planner)",
-            expected="at least one *.key file, "
-            "e.g. a copy of the planner's DIR/planner/planner.key",
-        )
-    return WorldKeys(own, frozenset(allowed), allow_dir)
-
-
-def load_planner_keys(folder: Path) -> PlannerKeys:
-    """The planner's keys from ``folder`` (the DIR of ``m3p2i keys DIR``, or its ``planner``
-    sub-folder); errors as :func:`load_world_keys`."""
-    require_curve()
-    side = _side(Path(folder), PLANNER)
-    own = _load_pair(side / "planner.key_secret")
-    world = _load_public(side / "world.key")
-    viewers = _load_publics(side / ALLOW_PLANNER) if (side / ALLOW_PLANNER).is_dir() else set()
-    return PlannerKeys(own, world, frozenset(viewers | {own.public}))
-
-
-def _side(folder: Path, name: str) -> Path:
+def side_folder(folder: Path, name: str) -> Path:
+    """The ``name`` side's key folder: ``folder/name``, or ``folder`` itself if it is that."""
     if (folder / name).is_dir():
         return folder / name
     if folder.name == name and folder.is_dir():
@@ -128,6 +81,7 @@ def _side(folder: Path, name: str) -> Path:
 
 
 def require_curve() -> None:
+    """A ConfigError unless this libzmq has CURVE security."""
     if not zmq.has("curve"):
         raise ConfigError(
             "libzmq",
@@ -137,7 +91,8 @@ def require_curve() -> None:
         )
 
 
-def _load_pair(secret_file: Path) -> KeyPair:
+def load_pair(secret_file: Path) -> KeyPair:
+    """The key pair in ``secret_file``; ConfigError if missing, malformed or readable by others."""
     if not secret_file.is_file():
         raise ConfigError(
             str(secret_file),
@@ -165,7 +120,8 @@ def _load_pair(secret_file: Path) -> KeyPair:
     return KeyPair(public, secret, str(secret_file))
 
 
-def _load_public(path: Path) -> bytes:
+def load_public(path: Path) -> bytes:
+    """The public key in ``path``; a missing or malformed file is a ConfigError."""
     if not path.is_file():
         raise ConfigError(
             str(path),
@@ -181,11 +137,11 @@ def _load_public(path: Path) -> bytes:
     return public
 
 
-def _load_publics(folder: Path) -> set[bytes]:
+def load_publics(folder: Path) -> set[bytes]:
     """The public keys of every ``*.key`` file in ``folder`` (none if it does not exist)."""
     if not folder.is_dir():
         return set()
-    return {_load_public(p) for p in sorted(folder.glob("*.key"))}
+    return {load_public(p) for p in sorted(folder.glob("*.key"))}
 
 
 def _check_z85(key: bytes, path: Path) -> None:
@@ -269,13 +225,6 @@ def curve_server(sock: zmq.Socket, own: KeyPair) -> None:
     sock.curve_server = True
     sock.curve_publickey = own.public
     sock.curve_secretkey = own.secret
-
-
-def curve_client(sock: zmq.Socket, own: KeyPair, server_public: bytes) -> None:
-    """Make ``sock`` (before connect) a CURVE client of the server with ``server_public``."""
-    sock.curve_publickey = own.public
-    sock.curve_secretkey = own.secret
-    sock.curve_serverkey = server_public
 
 
 @dataclass(frozen=True)

@@ -7,7 +7,8 @@ the knot whose interval holds the current time, **zero-order hold** (each knot h
 exactly as the planner's rollouts held it), and switches to a newer plan when the time its first
 knot is meant for arrives. When the newest plan runs out, the safe control takes over.
 
-Pure functions; no sockets. The world's player is :class:`server.plan_player.PlanPlayer`.
+Pure functions; no sockets. The world's player is :class:`server.plan_player.PlanPlayer`, the
+planner's prediction of what it plays :func:`planner_client.timing.playing`.
 ``docs/protocol.md`` ("Playing a plan").
 """
 
@@ -64,15 +65,6 @@ class TimedPlan:
 def held(ctrl: np.ndarray, t: float, seq: int = 0) -> TimedPlan:
     """A command without a plan, as a world plays it: ``ctrl [nu]`` from ``t`` on."""
     return TimedPlan(t, math.inf, np.asarray(ctrl)[None], seq)
-
-
-def playing(plans: list[TimedPlan], t: float) -> np.ndarray | None:
-    """What a world's :class:`server.plan_player.PlanPlayer` that received ``plans`` in order
-    (``t0`` not decreasing) applies at ``t``, without playing them: the newest that has started;
-    None (the safe control) when none has, or that one has run out. The planner uses it to
-    predict the world."""
-    plan = next((p for p in reversed(plans) if t + TIME_EPS >= p.t0), None)
-    return None if plan is None else plan.at(t)
 
 
 def mean_hz(plan_times: Sequence[float]) -> float:

@@ -13,9 +13,9 @@ import zmq
 
 from m3p2i.cli import free_port_block
 from m3p2i.launch import stop_processes
+from planner_client.keys import PlannerKeys, curve_client
 from shared import protocol as P
 from shared.endpoints import Endpoints
-from shared.security import PlannerKeys, curve_client
 
 ENV = {**os.environ, "PYTHONUNBUFFERED": "1"}
 

@@ -23,6 +23,7 @@ from m3p2i.view.perception import (
     scan_points,
     scan_record,
 )
+from planner_client.keys import PlannerKeys, curve_client
 from planner_client.perception.field_message import FIELD_TOPIC, FieldSlice, decode_field
 from server.episode import Published
 from shared import protocol as P
@@ -30,7 +31,6 @@ from shared.endpoints import Endpoints, socket
 from shared.scans import Scan
 from shared.scenario import Scenario
 from shared.scene import compile_model, initial_data, set_state
-from shared.security import PlannerKeys, curve_client
 
 log = logging.getLogger("m3p2i.view")
 

@@ -18,8 +18,8 @@ from pathlib import Path
 import msgpack
 import zmq
 
+from planner_client.keys import curve_client, load_planner_keys
 from shared.endpoints import socket
-from shared.security import curve_client, load_planner_keys
 
 
 def push(ctx: zmq.Context, endpoint: str, frames: list[bytes], keys: Path | None = None) -> int:

@@ -286,7 +286,8 @@ def test_the_views_controls_pass_a_keyed_world(tmp_path):
 
     from m3p2i.keys import make_keys
     from m3p2i.view import ControlClient
-    from shared.security import load_planner_keys, load_world_keys
+    from planner_client.keys import load_planner_keys
+    from server.keys import load_world_keys
 
     make_keys(tmp_path / "keys")
     port = free_port_block()

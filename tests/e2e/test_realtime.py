@@ -15,7 +15,7 @@ import zmq
 
 from planner_client.mppi import M3P2I, ModeSpec, MPPIConfig
 from planner_client.mppi.shift import shift
-from planner_client.timing import LeadEstimate, predict, steps_between
+from planner_client.timing import LeadEstimate, playing, predict, steps_between
 from server.evaluation.log_reader import read_log
 from server.evaluation.plan_ages import timing_summary
 from server.plan_player import PlanPlayer
@@ -23,7 +23,7 @@ from shared import protocol as P
 from shared.endpoints import Endpoints
 from shared.scenario import load_scenario
 from shared.scene import compile_model, reset_data
-from shared.timed_plan import TimedPlan, held, playing
+from shared.timed_plan import TimedPlan, held
 from tests.helpers import free_port_block, start_server, stop
 
 KNOTS = np.arange(10.0).reshape(5, 2)  # [H=5, nu=2]: knot i is (2i, 2i+1)

@@ -11,9 +11,10 @@ import msgpack
 import numpy as np
 import pytest
 
+from planner_client.timing import playing
 from server.plan_player import PlanPlayer
 from shared import protocol as P
-from shared.timed_plan import TimedPlan, playing
+from shared.timed_plan import TimedPlan
 
 V = P.PROTOCOL_VERSION
 

@@ -11,7 +11,8 @@ import pytest
 import torch
 from scipy.spatial.transform import Rotation
 
-from shared.geometry import symmetric_orientation_error, symmetric_orientation_error_relative
+from planner_client.costs.poses import symmetric_orientation_error_relative
+from shared.geometry import symmetric_orientation_error
 
 
 def rot(axis, degrees) -> np.ndarray:

@@ -1,7 +1,7 @@
-"""``--parent-pid`` (shared/cli_common.py): a world, planner or view whose launcher is killed
-outright (SIGKILL: no handler of the launcher runs) stops by itself as on Ctrl-C, a kept world
-with its episode's summary, instead of waiting for the launcher forever; while the launcher
-lives, nothing changes."""
+"""``--parent-pid`` (shared/cli_common.py; SIGTERM as Ctrl-C: planner_client/signals.py): a
+world, planner or view whose launcher is killed outright (SIGKILL: no handler of the launcher
+runs) stops by itself as on Ctrl-C, a kept world with its episode's summary, instead of waiting
+for the launcher forever; while the launcher lives, nothing changes."""
 
 from __future__ import annotations
 
@@ -106,7 +106,8 @@ def test_the_watch_stops_a_process_as_ctrl_c_once_its_parent_is_not_the_one_name
     code = textwrap.dedent(
         """
         import os, sys, time
-        from shared.cli_common import signals_as_ctrl_c, stop_with_parent
+        from planner_client.signals import signals_as_ctrl_c
+        from shared.cli_common import stop_with_parent
         stop_with_parent(int(sys.argv[1]), every=0.05)
         with signals_as_ctrl_c():
             try:
@@ -139,7 +140,7 @@ def test_signals_are_the_main_threads_and_come_back_after_the_block():
     the block are back after it."""
     import threading
 
-    from shared.cli_common import signals_as_ctrl_c
+    from planner_client.signals import signals_as_ctrl_c
 
     before = signal.getsignal(signal.SIGTERM)
     with signals_as_ctrl_c():
@@ -153,7 +154,7 @@ def test_signals_are_the_main_threads_and_come_back_after_the_block():
 
 
 def _enter_in_thread() -> str:
-    from shared.cli_common import signals_as_ctrl_c
+    from planner_client.signals import signals_as_ctrl_c
 
     with signals_as_ctrl_c():
         return "entered"

@@ -17,21 +17,15 @@ from m3p2i.cli import app as m3p2i
 from m3p2i.keys import make_keys
 from m3p2i.launch import EpisodeLaunch
 from m3p2i.video import DiagnosticsRecorder, read_tops
+from planner_client.keys import curve_client, load_planner_keys
 from server.app import ServerOptions, WorldServer
 from server.episode_log import read_log
+from server.keys import load_world_keys
 from shared import protocol as P
 from shared.config import ConfigError
 from shared.endpoints import Endpoints
 from shared.scenario import load_scenario
-from shared.security import (
-    ExposureError,
-    HandshakeMonitor,
-    curve_client,
-    is_loopback,
-    keys_for_cli,
-    load_planner_keys,
-    load_world_keys,
-)
+from shared.security import ExposureError, HandshakeMonitor, is_loopback, keys_for_cli
 from tests.helpers import (
     StateWatcher,
     free_port_block,

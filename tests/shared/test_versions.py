@@ -19,6 +19,7 @@ from planner_client.build import build_motion_planner, build_parts
 from planner_client.controller import Controller
 from planner_client.loop import HandshakeRefused, PlannerClient
 from planner_client.task import FixedModes
+from server.app import choose_version
 from server.world import SimWorld
 from shared import protocol as P
 from shared.endpoints import Endpoints
@@ -102,15 +103,15 @@ def test_the_anytime_planners_samples_travel_in_version_3_only():
 
 def test_the_world_chooses_the_highest_common_version():
     hello = P.Hello(scenario="n", scenario_hash="h", versions=[1, 2])
-    assert P.choose_version(hello, 1) == 2
-    assert P.choose_version(P.Hello(scenario="n", scenario_hash="h", versions=[1]), 1) == 1
-    assert P.choose_version(P.Hello(scenario="n", scenario_hash="h"), 2) == 2  # no offer: its v
-    assert P.choose_version(P.Hello(scenario="n", scenario_hash="h", versions=[1, 2, 3]), 1) == 3
+    assert choose_version(hello, 1) == 2
+    assert choose_version(P.Hello(scenario="n", scenario_hash="h", versions=[1]), 1) == 1
+    assert choose_version(P.Hello(scenario="n", scenario_hash="h"), 2) == 2  # no offer: its v
+    assert choose_version(P.Hello(scenario="n", scenario_hash="h", versions=[1, 2, 3]), 1) == 3
     with pytest.raises(
         P.ProtocolError,
         match="the planner speaks versions 5, 9, this world speaks versions 1, 2, 3, 4",
     ):
-        P.choose_version(P.Hello(scenario="n", scenario_hash="h", versions=[5, 9]), 1)
+        choose_version(P.Hello(scenario="n", scenario_hash="h", versions=[5, 9]), 1)
 
 
 def test_a_hello_of_an_unknown_version_offering_versions_names_both_sides():
