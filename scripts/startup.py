@@ -95,9 +95,23 @@ def measure_once(scenario: str, folder: Path, timeout: float = 60.0) -> dict[str
                 )
             )
             planner = _wait_for(log, "step", procs[1], timeout)["wall"] - start
+        # the planner logs its phases just after sending the command the world applied: on a
+        # busy machine that line may come after the world's step record, so stop after it
+        phases = _wait_for_phases(folder / "planner.log", procs[1], timeout)
     finally:
         stop_processes(procs)
-    return {"server": server, "planner": planner, **_planner_phases(folder / "planner.log")}
+    return {"server": server, "planner": planner, **phases}
+
+
+def _wait_for_phases(log: Path, proc: subprocess.Popen, timeout: float) -> dict[str, float]:
+    """:func:`_planner_phases` of ``log`` once the line is there, polled until ``timeout`` s
+    or ``proc`` ends (then its absence is the error)."""
+    end = time.monotonic() + timeout
+    while time.monotonic() < end and proc.poll() is None:
+        if "start-up: " in log.read_text():
+            break
+        time.sleep(0.01)
+    return _planner_phases(log)
 
 
 def _planner_phases(log: Path) -> dict[str, float]:

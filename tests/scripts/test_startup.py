@@ -7,6 +7,7 @@ from __future__ import annotations
 import gc
 import importlib
 import signal
+import threading
 from types import SimpleNamespace
 
 import pytest
@@ -31,6 +32,29 @@ def test_a_planner_log_without_the_line_is_named(tmp_path):
     log.write_text("INFO m3p2i.planner: connected\n")
     with pytest.raises(RuntimeError, match="start-up"):
         startup._planner_phases(log)
+
+
+def test_the_phases_are_awaited_when_the_planner_logs_them_after_the_worlds_step(tmp_path):
+    """On a busy machine the planner's ``start-up:`` line may come after the world logged the
+    step its command made; the measurement waits for it instead of stopping the planner first
+    (seen under load: "no 'start-up:' line")."""
+    log = tmp_path / "planner.log"
+    log.write_text("INFO m3p2i.planner: connected\n")
+    running = SimpleNamespace(poll=lambda: None)
+    late = threading.Timer(
+        0.3, lambda: log.write_text(log.read_text() + "INFO start-up: imports 1.1 s, build 0.2 s\n")
+    )
+    late.start()
+    try:
+        assert startup._wait_for_phases(log, running, timeout=30) == {
+            "imports": 1.1,
+            "build": 0.2,
+        }
+    finally:
+        late.cancel()
+    log.write_text("INFO m3p2i.planner: connected\n")
+    with pytest.raises(RuntimeError, match="no 'start-up:' line"):  # ended without it
+        startup._wait_for_phases(log, SimpleNamespace(poll=lambda: 1), timeout=30)
 
 
 @pytest.mark.parametrize("process", ["server", "planner_client"])
