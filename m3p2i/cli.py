@@ -214,12 +214,13 @@ def run(
     _modes_or_exit(mode, plan_every, planner_max_rate, realtime_factor)
     if faults is not None:  # first: a mistyped profile is refused at once
         faults = faults_or_exit(faults)
-    sc = load_or_exit(scenario, plugin_args(plugins))
-    keys_or_exit(keys)
-    delays = declared_delays_or_exit(sc, faults) if compensate else None
-    _ports_or_exit(port, view_port if view else 0)
+    # the checks that need no scenario first: the processes' checks of it take seconds
     if view_port and not view:
         usage_error("--view-port serves the page of --view: give --view too, or leave it out")
+    _ports_or_exit(port, view_port if view else 0)
+    keys_or_exit(keys)
+    sc = load_or_exit(scenario, plugin_args(plugins))
+    delays = declared_delays_or_exit(sc, faults) if compensate else None
     run_dir = run_dir or default_run_dir(sc.name)
     typer.echo(
         f"running {sc.name} ({mode}{', faults ' + faults if faults else ''}"
