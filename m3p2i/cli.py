@@ -458,8 +458,8 @@ def record(
         typer.echo(f"error: {exc}", err=True)
         raise typer.Exit(3) from None
     if log is None:
-        sc = load_or_exit(scenario)
         planner_keys = keys_or_exit(keys)
+        sc = load_or_exit(scenario)
         run_dir = run_dir or default_run_dir(sc.name)
         run_dir.mkdir(parents=True, exist_ok=True)
         port = free_port_block()

@@ -133,7 +133,6 @@ def main(
     if report is not None or update_file is not None:
         _regenerate_or_show(report, update_file)
         return
-    scenarios_or_exit([scenario], teams=False)
     cfg = SoakConfig(
         duration=duration,
         seed=seed,
@@ -146,7 +145,8 @@ def main(
         cut_s=cut,
         faults=_fault_kinds(faults),
     )
-    cfg.check()
+    cfg.check()  # before the scenario, whose checks start both processes
+    scenarios_or_exit([scenario], teams=False)
     if netns:
         _prepare_netns()
     out = out or Path("runs") / f"soak-{time.strftime('%Y%m%d-%H%M%S')}"
