@@ -2,7 +2,8 @@
 once here, as ``Annotated`` types; a command sets only the default): the mode and what each mode
 alone takes (:func:`mode_conflicts` refuses the rest), ``--faults`` and the file or profile it
 names (:func:`load_faults`), MuJoCo's window; and the run folder and the one-line summary both
-print at an episode's end. Light to import (typer, no MuJoCo world): ``m3p2i`` reads it too."""
+print at an episode's end. Light to import (typer and the scenario schema, not the world's
+simulation): ``m3p2i`` reads it too."""
 
 from __future__ import annotations
 
