@@ -599,8 +599,10 @@ def _children(pid: int) -> set[int]:
     """The live child processes of ``pid`` (Linux /proc)."""
     out = set()
     for task in Path(f"/proc/{pid}/task").glob("*"):
-        children = (task / "children").read_text().split() if (task / "children").exists() else []
-        out |= {int(c) for c in children}
+        try:  # a thread may end between the listing and the read
+            out |= {int(c) for c in (task / "children").read_text().split()}
+        except OSError:
+            continue
     return out
 
 

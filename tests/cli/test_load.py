@@ -68,6 +68,14 @@ def _state(pid: int) -> str:
         return ""
 
 
+def _cmdline(pid: int) -> bytes:
+    """A process's command line, b"" when it ended between listing /proc and reading it."""
+    try:
+        return (Path("/proc") / str(pid) / "cmdline").read_bytes()
+    except OSError:
+        return b""
+
+
 def _gone(pids: list[int]) -> bool:
     return all(_state(p) in ("", "Z") for p in pids)
 
@@ -80,11 +88,7 @@ def _load_command(procs: int) -> tuple[subprocess.Popen, list[int]]:
     busy: list[int] = []
 
     def started() -> bool:
-        busy[:] = [
-            p
-            for p in _children(proc.pid)
-            if b"spawn_main" in (Path("/proc") / str(p) / "cmdline").read_bytes()
-        ]
+        busy[:] = [p for p in _children(proc.pid) if b"spawn_main" in _cmdline(p)]
         return len(busy) == procs
 
     if not _wait_until(started, 30.0):
