@@ -30,7 +30,7 @@ def lab(tmp_path, monkeypatch):
 
 def test_a_robot_of_the_users_runs_a_scenario_from_the_users_folder(lab):
     # lock-step, in one process: the arm's tip reaches the target on three seeds
-    planner = functools.partial(build_controller, threads=1)
+    planner = functools.partial(build_controller, threads=2)
     for seed in range(3):
         result = run_episode("reach", planner, seed=seed)
         assert result.status == "success", (seed, result.summary)

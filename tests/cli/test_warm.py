@@ -96,7 +96,7 @@ def test_a_trial_that_fails_takes_its_pair_down_and_the_next_starts_afresh(tmp_p
     launch = EpisodeLaunch(
         scenario="navigation",
         run_dir=tmp_path / "pair",
-        threads=1,
+        threads=2,
         log=str(tmp_path / "seed-{seed:03d}" / "episode.jsonl"),
     )
     pair = WarmPair(launch)

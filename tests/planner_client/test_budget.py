@@ -83,7 +83,7 @@ def test_at_the_fewest_samples_it_sheds_steps_then_takes_them_back_first():
 
 
 def test_the_mppi_keeps_its_plans_first_steps_when_the_horizon_changes():
-    controller = build_controller(load_scenario("navigation"), seed=0, threads=1)
+    controller = build_controller(load_scenario("navigation"), seed=0, threads=2)
     mppi = controller.motion.mppi
     try:
         mppi.update(mppi.sample().sum(-1) ** 2)  # one iteration: a plan to keep
@@ -112,7 +112,7 @@ def _with_budget(name: str, budget: dict, **planner):
 def test_a_controller_over_its_budget_sheds_samples_and_keeps_planning():
     # a budget no machine meets (10 µs an iteration): every iteration sheds, down to the floors
     sc = _with_budget("navigation", {"rate": 1e5, "min_samples": 40, "min_horizon": 6}, horizon=10)
-    controller = build_controller(sc, seed=0, threads=1)
+    controller = build_controller(sc, seed=0, threads=2)
     episode = build_episode(sc, seed=0)
     try:
         controller.begin("realtime", episode.dt)  # stepped by hand: the world waits here
@@ -152,7 +152,7 @@ def test_a_lockstep_episode_with_a_budget_is_the_one_without(tmp_path):
 
 def test_the_world_logs_the_samples_and_the_plot_draws_them(tmp_path):
     sc = load_scenario("navigation")
-    controller = build_controller(sc, seed=0, threads=1)
+    controller = build_controller(sc, seed=0, threads=2)
     episode = build_episode(sc, seed=0, log_path=tmp_path / "episode.jsonl")
     try:
         controller.begin("lockstep", episode.dt)

@@ -24,7 +24,7 @@ def _task(confirm):
     if confirm is not None:
         raw["planner"]["confirm"] = confirm
     sc = parse_scenario(raw, str(SCENARIO_DIR / "battery_recharge.yaml"))
-    planner = build_motion_planner(sc, threads=1)
+    planner = build_motion_planner(sc, threads=2)
     return build_task(sc, planner), initial_data(sc, planner.problem.model)
 
 

@@ -176,7 +176,7 @@ def test_the_plan_is_dated_when_it_reaches_the_world_and_planned_for_when_it_act
     from shared import protocol as P
 
     nav = load_scenario("navigation")  # world steps of 0.05 s
-    planner = build_motion_planner(nav, threads=1)
+    planner = build_motion_planner(nav, threads=2)
     controller = Controller(
         build_parts(planner, FixedModes(("navigate",))),
         delays=DelayConfig(actuation_ms=150.0, state_ms=100.0),

@@ -40,7 +40,7 @@ EDGES = [math.nan, math.inf, -math.inf, 1e308, -1e308, 1e300, 1e9, -1e9, 5e-324,
 @pytest.fixture(scope="module")
 def planner():
     """The navigation planner and the first states of its episode (a handshake's worth)."""
-    controller = build_controller("navigation", threads=1)
+    controller = build_controller("navigation", threads=2)
     episode = build_episode(controller.motion.problem.scenario, seed=0)
     controller.begin("lockstep", episode.dt)
     states = [episode.publish()]

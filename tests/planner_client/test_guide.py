@@ -170,7 +170,7 @@ def test_the_path_is_recomputed_after_an_obstacle_is_moved_while_planning_goes_o
     from planner_client.build import build_controller
     from server.inprocess import build_episode
 
-    controller = build_controller("navigation_trap_guided", threads=1, seed=0)
+    controller = build_controller("navigation_trap_guided", threads=2, seed=0)
     episode = build_episode("navigation_trap_guided", seed=0)
     controller.begin("lockstep", episode.dt)
     guide = controller.guide
@@ -207,7 +207,7 @@ def test_the_guided_robot_gets_out_of_the_trap():
     from server.inprocess import run_episode
 
     result = run_episode(
-        "navigation_trap_guided", functools.partial(build_controller, threads=1), seed=0
+        "navigation_trap_guided", functools.partial(build_controller, threads=2), seed=0
     )
     assert result.status == "success"
     assert result.summary["metrics"]["collisions"] == 0
@@ -249,7 +249,7 @@ def test_a_walled_in_goal_says_blocked_to_the_observers_and_leaves_the_goal_as_s
     raw["world"]["objects"][3] = {**raw["world"]["objects"][3], "pos": [0.0, 0.1, 0.005]}
     raw.pop("base", None)
     sc = parse_scenario(raw, "walled.yaml")
-    controller = build_controller(sc, threads=1, seed=0)
+    controller = build_controller(sc, threads=2, seed=0)
     episode = build_episode(sc, seed=0)
     controller.begin("lockstep", episode.dt)
     assert controller.step(episode.publish()) is not None

@@ -156,7 +156,7 @@ def test_a_state_time_of_1e300_is_dropped_counted_and_the_next_state_answered(na
     ]
     world = ScriptedWorld(nav, script)
     client = PlannerClient(
-        Controller(build_parts(build_motion_planner(nav, threads=1), FixedModes(("navigate",)))),
+        Controller(build_parts(build_motion_planner(nav, threads=2), FixedModes(("navigate",)))),
         Endpoints(port=world.port),
         nav.name,
         nav.hash,

@@ -37,7 +37,7 @@ def seen():
 
 
 def test_the_controller_fuses_the_lidar_into_the_field_the_cost_reads(seen):
-    controller = build_controller(seen, seed=0, threads=1)
+    controller = build_controller(seen, seed=0, threads=2)
     episode = build_episode(seen, seed=0)
     try:
         controller.begin("lockstep", episode.dt)
@@ -69,7 +69,7 @@ def test_the_controller_fuses_the_lidar_into_the_field_the_cost_reads(seen):
 
 
 def test_a_scenario_without_lidar_has_no_map():
-    controller = build_controller("navigation", seed=0, threads=1)
+    controller = build_controller("navigation", seed=0, threads=2)
     try:
         controller.begin("lockstep", 0.05)
         assert controller.map is None
@@ -80,7 +80,7 @@ def test_a_scenario_without_lidar_has_no_map():
 
 
 def test_a_real_time_world_gets_a_threaded_map_and_a_new_episode_a_new_one(seen):
-    controller = build_controller(seen, seed=0, threads=1)
+    controller = build_controller(seen, seed=0, threads=2)
     try:
         controller.begin("realtime", 0.05)
         first = controller.map
@@ -100,7 +100,7 @@ def test_a_faulty_planner_map_is_refused_at_build(seen):
         seen, planner=dataclasses.replace(seen.planner, map={"resolution": 0.05, "rat": 10})
     )
     with pytest.raises(ConfigError, match=r"planner\.map\.rat"):
-        build_controller(bad, seed=0, threads=1)
+        build_controller(bad, seed=0, threads=2)
 
 
 def test_navigation_seen_reaches_the_goal_round_obstacles_the_planner_lacks(seen, tmp_path):
@@ -108,7 +108,7 @@ def test_navigation_seen_reaches_the_goal_round_obstacles_the_planner_lacks(seen
 
     def planner(sc, seed):
         nonlocal controller
-        controller = build_controller(sc, seed=seed, threads=1)
+        controller = build_controller(sc, seed=seed, threads=2)
         return controller
 
     result = run_episode(seen, planner, seed=0, log_path=tmp_path / "episode.jsonl")

@@ -70,7 +70,7 @@ def test_the_chassis_spheres_hold_its_footprint_and_stand_out_little(seen):
 
 
 def test_lockstep_steps_map_the_box_and_guide_the_chassis_round_it(seen):
-    controller = build_controller(seen, seed=0, threads=1)
+    controller = build_controller(seen, seed=0, threads=2)
     episode = build_episode(seen, seed=0)
     try:
         controller.begin("lockstep", episode.dt)

@@ -282,7 +282,7 @@ def _wall_run(with_term: bool, steps: int = 45) -> float:
         terms.append({"term": "perceived_clearance", "margin": 0.1, "weight": 20.0})
     raw["objectives"] = {"navigate": {"terms": terms}}
     sc = parse_scenario(raw, str(Path("wall.yaml").absolute()))
-    controller = build_controller(sc, threads=1, seed=0)
+    controller = build_controller(sc, threads=2, seed=0)
     controller.motion.problem.field_source.connect(Fixed(wall_field(1.0)))
     episode = build_episode(sc, seed=0)
     controller.begin("lockstep", episode.dt)
@@ -332,7 +332,7 @@ def test_the_guide_plans_again_round_a_bar_that_a_new_map_shows_across_its_path(
     raw["metrics"] = {}
     raw.pop("base", None)
     sc = parse_scenario(raw, str(Path("open.yaml").absolute()))
-    controller = build_controller(sc, threads=1, seed=0)
+    controller = build_controller(sc, threads=2, seed=0)
     episode = build_episode(sc, seed=0)
     controller.begin("lockstep", episode.dt)
     guide = controller.guide

@@ -40,7 +40,7 @@ def _state(model, time, qpos=None, mocap_pos=None):
 
 
 def test_mirror_copies_state_and_estimates_mocap_velocity(nav):
-    planner = build_motion_planner(nav, threads=1)
+    planner = build_motion_planner(nav, threads=2)
     model = planner.problem.model
     mirror = Mirror(model)
     base = mujoco.MjData(model).mocap_pos.copy()  # the fixed objects' poses
@@ -61,7 +61,7 @@ def test_mirror_copies_state_and_estimates_mocap_velocity(nav):
 
 
 def test_mismatched_state_is_refused(nav):
-    planner = build_motion_planner(nav, threads=1)
+    planner = build_motion_planner(nav, threads=2)
     mirror = Mirror(planner.problem.model)
     with pytest.raises(ValueError, match=r"state\.qpos has 3 values"):
         mirror.apply(_state(planner.problem.model, 0.0, [0.0, 0.0, 0.0]))
@@ -92,7 +92,7 @@ def test_moving_obstacle_follows_the_constant_velocity_prediction_in_rollouts(na
 
 
 def test_planner_iterations_lower_the_navigation_cost(nav):
-    planner = build_motion_planner(nav, threads=1)
+    planner = build_motion_planner(nav, threads=2)
     model = planner.problem.model
     mirror = Mirror(model)
     x0 = mirror.apply(_state(model, 0.0))
@@ -116,7 +116,7 @@ def test_pinned_channels_follow_the_dominant_mode():
         "pull": {"terms": goal_terms + far, "fixed": {"suction": 1.0}},
     }
     raw["modes"] = ["push", "pull"]
-    planner = build_motion_planner(parse_scenario(raw, "hybrid.yaml"), threads=1)
+    planner = build_motion_planner(parse_scenario(raw, "hybrid.yaml"), threads=2)
     model = planner.problem.model
     x0 = Mirror(model).apply(_state(model, 0.0))
     for _ in range(3):
@@ -130,7 +130,7 @@ def test_pinned_channels_follow_the_dominant_mode():
 
 
 def test_top_trajectories_are_each_modes_cheapest_samples_read_before_the_next_iteration(nav):
-    planner = build_motion_planner(nav, threads=1)
+    planner = build_motion_planner(nav, threads=2)
     model = planner.problem.model
     x0 = Mirror(model).apply(_state(model, 0.0))
     it = planner.iterate(x0)
@@ -201,7 +201,7 @@ class _Faulty:
 
 
 def test_no_finite_cost_sends_the_safe_control_and_says_why(nav, caplog):
-    planner = build_motion_planner(nav, threads=1)
+    planner = build_motion_planner(nav, threads=2)
     faulty = _Faulty(planner.problem.objectives["navigate"])
     planner.problem.objectives["navigate"] = faulty
     controller = Controller(build_parts(planner, FixedModes(("navigate",))))
@@ -240,7 +240,7 @@ def test_no_finite_cost_sends_the_safe_control_and_says_why(nav, caplog):
 
 
 def test_the_end_of_an_episode_is_logged_once_however_often_the_world_repeats_it(nav, caplog):
-    planner = build_motion_planner(nav, threads=1)
+    planner = build_motion_planner(nav, threads=2)
     controller = Controller(build_parts(planner, FixedModes(("navigate",))))
     model = planner.problem.model
     end = dataclasses.replace(_state(model, 2.0), seq=40, status="success")

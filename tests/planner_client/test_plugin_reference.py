@@ -101,7 +101,7 @@ def test_the_example_plugin_drives_the_arm_slower(tmp_path):
         path = user_folder(tmp_path / name, scenario=reach(terms=terms, plugins=plugins))
         result = run_episode(
             path,
-            functools.partial(build_controller, threads=1),
+            functools.partial(build_controller, threads=2),
             seed=0,
             log_path=tmp_path / f"{name}.jsonl",
         )

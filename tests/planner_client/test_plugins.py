@@ -113,7 +113,7 @@ def lab(tmp_path, term: str = "squared_reach", **extra):
 
 def test_a_term_of_the_users_module_drives_a_scenario_from_the_users_folder(tmp_path):
     path = lab(tmp_path, plugins=["my_terms"])
-    planner = functools.partial(build_controller, threads=1)
+    planner = functools.partial(build_controller, threads=2)
     for seed in range(2):
         result = run_episode(path, planner, seed=seed)
         assert result.status == "success", (seed, result.summary)
@@ -251,7 +251,7 @@ def test_an_observer_of_the_users_module_watches_the_task(tmp_path):
     data.mocap_pos[0] = data.site("tip").xpos  # the target where the tip is
     mujoco.mj_forward(problem.model, data)
     assert observer(data, {}) == {"tip": "at_target"}
-    result = run_episode(path, functools.partial(build_controller, threads=1), seed=0)
+    result = run_episode(path, functools.partial(build_controller, threads=2), seed=0)
     assert result.status == "success", result.summary
 
 

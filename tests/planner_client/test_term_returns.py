@@ -136,7 +136,7 @@ def test_the_planner_refuses_at_start_up_before_it_connects(tmp_path, name):
         build_client(
             load_scenario(path),
             Endpoints("127.0.0.1", 1),
-            threads=1,
+            threads=2,
             before_connect=lambda: connected.append(True),
         )
     assert _expected(path, name, BAD[name][1]) in str(exc.value)
@@ -144,5 +144,5 @@ def test_the_planner_refuses_at_start_up_before_it_connects(tmp_path, name):
 
 
 def test_the_planner_builds_with_terms_that_return_a_cost_per_sample_and_step(tmp_path):
-    controller = build_controller(lab(tmp_path, GOOD), threads=1)
+    controller = build_controller(lab(tmp_path, GOOD), threads=2)
     controller.close()

@@ -154,13 +154,13 @@ def test_the_section_is_checked_naming_file_key_and_value(variants, planner, key
 
 def test_the_warp_backend_given_on_the_command_line_is_refused_too():
     with pytest.raises(ConfigError, match="rolls out one model for all samples"):
-        build_motion_planner(_scenario(), threads=1, backend="warp")
+        build_motion_planner(_scenario(), threads=2, backend="warp")
 
 
 def test_without_the_section_nothing_changes():
     sc = parse_scenario(_push(), str(SCENARIO_DIR / "push.yaml"))
     assert sc.planner.model.variants is None and "variants" not in sc.planner.model.as_dict()
-    controller = build_controller(sc, threads=1)
+    controller = build_controller(sc, threads=2)
     try:
         assert controller.motion.variants is None and controller.model_estimate() is None
     finally:
@@ -177,7 +177,7 @@ def test_without_the_section_nothing_changes():
 def _closed_loop(sc, steps: int = 5):
     """The planner's controller against the in-process world after ``steps`` steps: yields the
     controller, the world, its newest state and the last command."""
-    controller = build_controller(sc, threads=1)
+    controller = build_controller(sc, threads=2)
     episode = build_episode(sc, seed=0)
     try:
         controller.begin("lockstep", episode.dt)
@@ -258,7 +258,7 @@ def _box_travel(model, x0, controls) -> float:
 def test_the_planner_plans_over_the_variants(spread, aggregate):
     variants = {**VARIANTS, "spread": spread, **({"aggregate": aggregate} if aggregate else {})}
     sc = _scenario(variants, samples=40, horizon=8)
-    planner = build_motion_planner(sc, threads=1, seed=0)
+    planner = build_motion_planner(sc, threads=2, seed=0)
     try:
         x0 = get_full_state(planner.problem.model, initial_data(sc, planner.problem.model))
         it = planner.iterate(x0)
@@ -317,7 +317,7 @@ def _identify(
     path.write_text(faults)
     params = params or {"mass": 0.5, "friction": 0.5}
     sc = _scenario({"count": 16, "params": params, "identify": {"window": window}}, **planner)
-    controller = build_controller(sc, threads=1, seed=seed)
+    controller = build_controller(sc, threads=2, seed=seed)
     episode = build_episode(sc, seed=seed, faults=load_faults(str(path)))
     try:
         controller.begin("lockstep", episode.dt)

@@ -72,7 +72,7 @@ def cube_batch(problem, positions: np.ndarray) -> RolloutBatch:
 
 
 def test_a_depth_camera_gives_a_3d_map_that_the_term_reads(seen):
-    controller = build_controller(seen, seed=0, threads=1)
+    controller = build_controller(seen, seed=0, threads=2)
     episode = build_episode(seen, seed=0)
     try:
         controller.begin("lockstep", episode.dt)
@@ -187,7 +187,7 @@ def test_over_an_episode_the_map_holds_the_block_and_never_the_arm_or_the_cubes(
 
     def planner(sc, seed):
         nonlocal controller
-        controller = build_controller(sc, seed=seed, threads=1)
+        controller = build_controller(sc, seed=seed, threads=2)
         return controller
 
     def check(state, command):

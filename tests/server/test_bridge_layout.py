@@ -384,7 +384,7 @@ def test_planner_plans_for_a_bridge_of_the_right_layout(nav):
     sc, model = nav
     port = free_port_block()
     world = FakeWorld(port, sc, model.nu, _state(model, model.nq, model.nmocap))
-    client = build_client(sc, Endpoints(port=port), threads=1, diagnostics=False)
+    client = build_client(sc, Endpoints(port=port), threads=2, diagnostics=False)
     stats = _bounded(lambda: client.run(max_iterations=1), world, until=lambda: world.commands)
     client.close()
     assert stats.iterations == 1

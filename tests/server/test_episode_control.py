@@ -142,7 +142,7 @@ def test_lockstep_with_a_planner_declaring_a_state_delay_moves_the_robot(tmp_pat
     nav = load_scenario("navigation")
     ahead = 3
     sc = with_delays(nav, None, ahead * nav.world.timestep * 1000)
-    one_thread = partial(build_controller, threads=1)
+    one_thread = partial(build_controller, threads=2)
     result = run_episode(sc, one_thread, seed=0, log_path=tmp_path / "e.jsonl", max_steps=30)
     steps = _steps(read_log(result.log_path))
     assert len(steps) == 30

@@ -27,7 +27,7 @@ def nav():
 
 @pytest.fixture
 def controller(nav):
-    controller = build_controller(nav, seed=0, threads=1)
+    controller = build_controller(nav, seed=0, threads=2)
     controller.begin("lockstep", nav.world.timestep)
     yield controller
     controller.close()
@@ -89,7 +89,7 @@ def test_an_episode_in_process_stops_after_max_steps(tmp_path):
     seen = []
     result = run_episode(
         "navigation",
-        partial(build_controller, threads=1),
+        partial(build_controller, threads=2),
         log_path=tmp_path / "e.jsonl",
         max_steps=3,
         on_step=lambda state, cmd: seen.append((state.seq, cmd.seq)),

@@ -130,7 +130,7 @@ def test_a_free_perceived_object_is_the_worlds_alone_and_only_scans_show_it(tmp_
     for body in ("robot", "cube", "ball"):
         assert np.allclose(data.xpos[models[0].body(body).id], full.xpos[world.body(body).id])
 
-    controller = build_controller(here, threads=1)
+    controller = build_controller(here, threads=2)
     try:
         controller.begin("lockstep", 0.05)
         assert controller.step(state).ctrl.shape == (2,)  # the state fits the planner's model

@@ -237,7 +237,7 @@ def test_the_planner_lacks_the_perceived_objects_and_reads_nothing_of_them_but_s
         assert np.array_equal(getattr(a, name), getattr(b, name)), name
     assert a.mocap_pos.shape == (world.nmocap - 1, 3)
     assert not np.array_equal(a.scans[0].ranges, b.scans[0].ranges)  # only the scans tell
-    controller = build_controller(near, threads=1)
+    controller = build_controller(near, threads=2)
     try:
         controller.begin("lockstep", 0.05)
         assert controller.step(a).ctrl.shape == (2,)  # the state fits the planner's model

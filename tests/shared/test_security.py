@@ -387,7 +387,7 @@ def test_a_planner_connected_to_a_peer_that_never_completes_a_handshake_gives_up
     silent = socket.create_server(("127.0.0.1", 0))  # the kernel accepts; nobody answers
     port = silent.getsockname()[1]
     client = loop.PlannerClient(
-        Controller(build_parts(build_motion_planner(nav, threads=1), FixedModes(("navigate",)))),
+        Controller(build_parts(build_motion_planner(nav, threads=2), FixedModes(("navigate",)))),
         Endpoints(port=port),
         nav.name,
         nav.hash,

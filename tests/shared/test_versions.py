@@ -34,7 +34,7 @@ def nav():
 
 @pytest.fixture(scope="module")
 def planner(nav):
-    return build_motion_planner(nav, threads=1)
+    return build_motion_planner(nav, threads=2)
 
 
 def _client(planner, nav, port: int) -> PlannerClient:
