@@ -4,7 +4,8 @@ For each scenario the planner's control loop (:class:`planner_client.controller.
 the planner process runs it) runs closed loop in-process, its command applied to a copy of the
 world, and each iteration (mirror -> task layer -> sample -> mujoco.rollout -> costs -> M3P2I
 update -> command: the planning time a world logs) is timed against bare ``mujoco.rollout`` calls
-replaying the planner's own samples and start states (same thread count, persistent pool):
+replaying the planner's own samples and start states (same thread count, persistent pool;
+the harness: :mod:`scripts.measure.planner_speed`):
 
 - ``ratio_to_rollout``: to the world model over the same horizon in seconds (each control held
   for ``planner.timestep / world.timestep`` world steps): what planning costs against simulating
