@@ -16,6 +16,11 @@ the harness: :mod:`scripts.measure.planner_speed`):
 - ``ratio_to_sensor_rollout``: to the planner's own model with those sensors: the difference to
   the previous one is what the sensors cost.
 
+Each row also splits the median iteration by phase (``phases_ms``), and splits once more
+iterations whose rollout returns a copy of a real one's result (``phases_replayed_ms``, run after
+the others): the rest of an iteration without a rollout evicting its code and data from the
+caches, its floor however fast the rollout.
+
     python scripts/benchmark.py                      # table
     python scripts/benchmark.py --json               # one JSON object per line per case
     python scripts/benchmark.py -s navigation -n 300
@@ -57,7 +62,7 @@ from rich.table import Table
 from m3p2i.blocks import read_doc, read_results
 from m3p2i.cli_support import scenarios_or_exit
 from m3p2i.provenance import machine, versions
-from measure.speed_report import update
+from measure.speed_report import rest_ms, update
 from shared.config import ConfigError
 from shared.scenario import ROLLOUT_BACKENDS, Scenario, load_scenario
 
@@ -276,7 +281,8 @@ def _save(out: Path, rows: list[dict], opts: Options) -> None:
 
 
 def _print_table(rows: list[dict], title: str) -> None:
-    """The rows as tables on the terminal: the speeds, then the split by phase."""
+    """The rows as tables on the terminal: the speeds, the split by phase, and the rest of an
+    iteration as measured and with its rollout replayed."""
     table = Table(title=title)
     for col in (
         "scenario",
@@ -312,6 +318,16 @@ def _print_table(rows: list[dict], title: str) -> None:
     for r in rows:
         split.add_row(r["scenario"], *(f"{r['phases_ms'].get(p, 0.0):.3f}" for p in phases))
     Console().print(split)
+    replayed = [r for r in rows if "phases_replayed_ms" in r]  # none in older results files
+    if not replayed:
+        return
+    rest = Table(title="all but the rollout (ms), as measured and with the rollout replayed")
+    for col in ("scenario", "as measured", "rollout replayed"):
+        rest.add_column(col, justify="right")
+    for r in replayed:
+        measured, floor = rest_ms(r["phases_ms"]), rest_ms(r["phases_replayed_ms"])
+        rest.add_row(r["scenario"], f"{measured:.3f}", f"{floor:.3f}")
+    Console().print(rest)
 
 
 if __name__ == "__main__":

@@ -75,6 +75,24 @@ class _Sensing:
         return self.sensors.take()
 
 
+class _Replayed:
+    """A rollout backend whose rollouts return a copy of its first one's sensordata (a new
+    one when the samples or horizon change: the task layer may switch modes); all else is the
+    wrapped backend's (:meth:`_Bench.replayed_split`)."""
+
+    def __init__(self, engine):
+        self._engine = engine
+        self._kept: torch.Tensor | None = None
+
+    def sensors(self, x0, control, mocap_path=None) -> torch.Tensor:
+        if self._kept is None or self._kept.shape[:2] != control.shape[:2]:
+            self._kept = self._engine.sensors(x0, control, mocap_path).clone()
+        return self._kept
+
+    def __getattr__(self, name: str):
+        return getattr(self._engine, name)
+
+
 def _lockstep_state(data: mujoco.MjData, seq: int) -> P.State:
     """The state of ``data`` as a lock-step world publishes it."""
     return P.State(
@@ -174,6 +192,22 @@ class _Bench:
         mujoco.mj_step(self.model, self.data)
         return cmd.plan_time
 
+    def replayed_split(self, steps: int) -> dict[str, float]:
+        """Median ms per phase of ``steps`` more iterations whose rollout returns a copy of a
+        real one's sensordata: what the rest of an iteration costs when no rollout has just
+        run on every core and evicted its code and data from the caches (its floor, whatever
+        the rollout's speed). Run last: their plans come from stale sensors."""
+        engine = self.planner.engine
+        self.planner.engine = _Replayed(engine)
+        try:
+            for i in range(steps + 3):
+                self._plan_step()
+                if i == 2:  # the first replay rolls out for real
+                    self.planner.phases.keep()
+        finally:
+            self.planner.engine = engine
+        return self.planner.phases.median_ms()
+
     def _update_map(self) -> None:
         """Feed the map the scans due now and update it, as a lock-step controller does at a
         state that brings scans; its time goes to ``map_times``."""
@@ -235,13 +269,24 @@ def measure(
                 bench.run_round(pool)
                 if i == 0:  # the split over warm iterations only, as the medians
                     bench.planner.phases.keep()
+        phases = bench.planner.phases.median_ms()
+        replayed = bench.replayed_split(max(rounds, iterations // 4))
     finally:
         controller.close()
-    return _row(scenario, bench, nthread, backend, device)
+    return _row(scenario, bench, nthread, backend, device, phases, replayed)
 
 
-def _row(scenario: Scenario, bench: _Bench, nthread: int, backend: str, device: str) -> dict:
-    """One case's result: what ran, the median times and their ratios."""
+def _row(
+    scenario: Scenario,
+    bench: _Bench,
+    nthread: int,
+    backend: str,
+    device: str,
+    phases: dict[str, float],
+    replayed: dict[str, float],
+) -> dict:
+    """One case's result: what ran, the median times and their ratios, and the split of an
+    iteration (``phases``: ms per phase) as measured and with its rollout replayed."""
     med = bench.medians()
     return {
         "scenario": scenario.name,
@@ -261,7 +306,8 @@ def _row(scenario: Scenario, bench: _Bench, nthread: int, backend: str, device: 
         "threads": nthread,
         "backend": backend,
         "device": device if backend == "warp" else "cpu",
-        "phases_ms": {k: round(v, 4) for k, v in bench.planner.phases.median_ms().items()},
+        "phases_ms": {k: round(v, 4) for k, v in phases.items()},
+        "phases_replayed_ms": {k: round(v, 4) for k, v in replayed.items()},
         **_map_figures(scenario, bench),
     }
 

@@ -43,6 +43,7 @@ def markdown(results: dict, source: str) -> str:
         )
     lines += perception(results)
     lines += phase_split(results)
+    lines += rest_floor(results)
     lines += [
         "",
         f"Median (min-max) over {results['runs']} runs of `{results['command']}`, "
@@ -114,6 +115,36 @@ def phase_split(results: dict) -> list[str]:
         cells = [f"{med[p]:.3f} ({100 * med[p] / total:.0f} %)" for p in phases]
         lines.append(f"| `{name}` | " + " | ".join(cells) + " |")
     return lines
+
+
+def rest_floor(results: dict) -> list[str]:
+    """Per case, the rest of an iteration (every phase but the rollout; median over the runs
+    of the sum of the phase medians) as measured, and with its rollout replayed
+    (``phases_replayed_ms``); no lines for a file without the replayed split."""
+    cases: dict[str, list[dict]] = {}
+    for row in results["rows"]:
+        if "phases_replayed_ms" in row:
+            cases.setdefault(row["scenario"], []).append(row)
+    if not cases:
+        return []
+    lines = [
+        "",
+        "| scenario | all but the rollout, ms | the same, its rollout replayed | rollout, ms |",
+        "|---|---:|---:|---:|",
+    ]
+    for name, rows in cases.items():
+        rest = [rest_ms(r["phases_ms"]) for r in rows]
+        floor = [rest_ms(r["phases_replayed_ms"]) for r in rows]
+        rollout = [r["phases_ms"].get("rollout", 0.0) for r in rows]
+        lines.append(
+            f"| `{name}` | {spread(rest, 2)} | {spread(floor, 2)} | {spread(rollout, 2)} |"
+        )
+    return lines
+
+
+def rest_ms(phases: dict[str, float]) -> float:
+    """Milliseconds of every phase but the rollout."""
+    return sum(v for k, v in phases.items() if k != "rollout")
 
 
 def update(text: str, base: Path, only: Path | None = None) -> str:

@@ -97,6 +97,21 @@ def test_the_phase_split_is_the_median_of_each_phase_and_its_share():
     assert "| `navigation` | 0.200 (4 %) | 4.000 (77 %) | 1.000 (19 %) |" in text
 
 
+def test_the_rest_of_an_iteration_is_set_beside_its_rest_with_the_rollout_replayed():
+    def row(run: int, rest: float, replayed: float) -> dict:
+        split = {"mirror": rest / 2, "rollout": 3.0 + run, "costs": rest / 2}
+        floor = {"mirror": replayed / 2, "rollout": 0.01, "costs": replayed / 2}
+        return {**_row(run, 200.0, 1.3), "phases_ms": split, "phases_replayed_ms": floor}
+
+    results = {"command": "c", "date": "d", "machine": "m", "threads": 2, "iterations": 9}
+    rows = [row(0, 1.0, 0.5), row(1, 1.2, 0.7), row(2, 1.4, 0.6)]
+    text = speed_report.markdown({**results, "runs": 3, "rows": rows}, "x.json")
+    assert "| `navigation` | 1.20 (1.00-1.40) | 0.60 (0.50-0.70) | 4.00 (3.00-5.00) |" in text
+    # a results file from before the replayed split has no such table
+    old = [{k: v for k, v in r.items() if k != "phases_replayed_ms"} for r in rows]
+    assert "replayed" not in speed_report.markdown({**results, "runs": 3, "rows": old}, "x.json")
+
+
 def _results(hz: float) -> dict:
     return {
         **{"command": "c", "date": "d", "machine": "m", "threads": 2, "iterations": 200},
@@ -142,6 +157,12 @@ def test_the_command_updates_from_report_and_prints_a_report_alone(tmp_path):
     shown = benchmark(*report)
     assert shown.returncode == 0, shown.stderr
     assert "navigation" in shown.stdout and "250.0" in shown.stdout
+    assert "rollout replayed" not in shown.stdout  # a file from before the replayed split
+    split = {"mirror": 0.25, "rollout": 3.0, "costs": 0.5}
+    replayed = {**_row(0, 250.0, 1.3), "phases_ms": split, "phases_replayed_ms": split}
+    (tmp_path / "r.json").write_text(json.dumps({**_results(250.0), "rows": [replayed]}))
+    shown = benchmark(*report)
+    assert "rollout replayed" in shown.stdout and "0.750" in shown.stdout
     missing = benchmark("--report", str(tmp_path / "none.json"))
     assert missing.returncode == 2 and "no file" in missing.stderr
     (tmp_path / "other.json").write_text('{"a": 1}')

@@ -5,6 +5,7 @@ and docs/speed.md read (what it measures is timing, not tested here)."""
 from __future__ import annotations
 
 import pytest
+import torch
 
 from scripts.measure import planner_speed
 from shared.scenario import load_scenario
@@ -23,5 +24,26 @@ def test_a_case_times_the_controller_and_its_bare_rollouts(name, has_map):
     phases = row["phases_ms"]
     assert {"mirror", "sampling", "rollout", "costs", "update", "command"} <= set(phases)
     assert sum(phases.values()) > 0.5 * row["iteration_ms"]  # medians: about the whole
+    # the rest replayed: every phase ran again, the rollout replaced by a copy of its result
+    assert set(row["phases_replayed_ms"]) == set(phases)
     assert ("map_update_ms" in row) == has_map
     assert (row["threads"], row["backend"], row["device"]) == (1, "mujoco", "cpu")
+
+
+def test_a_replayed_rollout_is_rolled_out_once_per_shape():
+    calls = []
+
+    class Engine:
+        device = "cpu"
+
+        def sensors(self, x0, control, mocap_path=None):
+            calls.append(control.shape)
+            return torch.full((*control.shape[:2], 4), float(len(calls)))
+
+    replayed = planner_speed._Replayed(Engine())
+    first = replayed.sensors(None, torch.zeros(10, 5, 2))
+    again = replayed.sensors(None, torch.ones(10, 5, 2))
+    assert calls == [(10, 5, 2)] and torch.equal(first, again)
+    fewer = replayed.sensors(None, torch.zeros(6, 5, 2))  # the task layer switched modes
+    assert calls == [(10, 5, 2), (6, 5, 2)] and fewer.shape == (6, 5, 4)
+    assert replayed.device == "cpu"  # the rest is the wrapped backend's
