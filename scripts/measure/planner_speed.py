@@ -85,6 +85,8 @@ class _Replayed:
         self._kept: torch.Tensor | None = None
 
     def sensors(self, x0, control, mocap_path=None) -> torch.Tensor:
+        """The kept sensordata ``[S, T, nsensordata]``, rolled out for real when ``control``'s
+        samples or horizon are new."""
         if self._kept is None or self._kept.shape[:2] != control.shape[:2]:
             self._kept = self._engine.sensors(x0, control, mocap_path).clone()
         return self._kept
